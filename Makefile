@@ -1,0 +1,30 @@
+# Two commands matter: `make demo` (the main job, against the simulators) and `make test`.
+# Both create .venv when it is missing or older than pyproject.toml, and install the project.
+PY ?= python3
+VENV := .venv
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test bench venv clean docs
+
+$(STAMP): pyproject.toml
+	@test -x $(VENV)/bin/python || $(PY) -m venv $(VENV)
+	$(VENV)/bin/python -m pip install -q --upgrade pip
+	$(VENV)/bin/python -m pip install -q -e '.[test]'
+	@touch $(STAMP)
+
+venv: $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/cell demo
+
+test: $(STAMP)
+	$(VENV)/bin/python -m pytest -q -n 2 --dist loadfile
+
+bench: $(STAMP)
+	$(VENV)/bin/python -m bench
+
+docs: $(STAMP)
+	$(VENV)/bin/cell docs
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache

@@ -1,0 +1,21 @@
+"""User-facing errors shared by every package: the CLI prints them as one `error:` line, exit 2."""
+
+
+class CellError(Exception):
+    """An error the user can act on; its message names the file, field or device and what to do."""
+
+
+class ConfigError(CellError):
+    """A configuration file is wrong: unknown/missing key, wrong type or unit, value out of range."""
+
+
+class EnvelopeError(CellError):
+    """A requested process point lies outside the material's process envelope."""
+
+
+class MeshError(CellError):
+    """A mesh cannot be planned: empty, open beyond repair, smaller than one bead."""
+
+
+class InputError(CellError):
+    """A data file or argument given on the command line is malformed."""

@@ -1,0 +1,75 @@
+"""`cell sim up`: every simulator in one process on one asyncio loop, coupled through a World.
+
+Each simulator module listed in SIM_MODULES provides `async def serve(ctx: SimContext) ->
+list[Served]`: it starts its server(s) on the URL(s) of cell.yaml (or on ephemeral loopback
+ports when `ctx.ephemeral`), and returns what it serves. A module not built yet is skipped.
+"""
+from __future__ import annotations
+
+import asyncio
+import importlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Awaitable, Callable
+
+from controller.config import CellConfig, SimConfig
+from sims.clock import SimClock
+from sims.world import World
+
+SIM_MODULES = ["sims.robot_sim", "sims.cnc_sim", "sims.power_sim", "sims.cellio_sim"]
+
+
+@dataclass
+class SimContext:
+    cell: CellConfig
+    sim: SimConfig
+    world: World
+    clock: SimClock
+    log_dir: Path | None = None
+    pty: bool = False            # serial devices on ptys instead of loopback TCP
+    ephemeral: bool = False      # bind port 0 (tests), report the real URL
+    faults: str = ""             # seeded fault spec (sim.yaml's, or --fault)
+    config_dir: Path | None = None
+
+
+@dataclass
+class Served:
+    device: str                  # robot, cnc, power_source, cellio
+    url: str                     # what a driver connects to
+    close: Callable[[], Awaitable[None]]
+    sim: object = None           # the simulator object (tests reach its state, e.g. open the door)
+    extra: dict = field(default_factory=dict)
+
+    def describe(self) -> dict:
+        return {"device": self.device, "url": self.url, **self.extra}
+
+
+async def serve_all(ctx: SimContext, modules: list[str] | None = None) -> list[Served]:
+    served: list[Served] = []
+    for name in modules or SIM_MODULES:
+        try:
+            mod = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:
+                continue
+            raise
+        served.extend(await mod.serve(ctx))
+    return served
+
+
+async def close_all(served: list[Served]) -> None:
+    for s in reversed(served):
+        try:
+            await s.close()
+        except Exception:  # closing must go on for the others
+            pass
+
+
+async def run_forever(ctx: SimContext, on_ready: Callable[[list[Served]], None]) -> None:
+    served = await serve_all(ctx)
+    try:
+        on_ready(served)
+        await asyncio.Event().wait()
+    finally:
+        await close_all(served)
+        ctx.world.close()

@@ -1,0 +1,69 @@
+"""Configuration loading: every error names the file, the key path and the line."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from controller.config import CONFIG_DIR, CellConfig, load_cell, load_material, load_sim, parse_model
+from planner.errors import ConfigError
+from planner.material import Material
+
+
+def test_shipped_configs_load():
+    cell = load_cell()
+    assert cell.devices.robot.url.startswith("socket://")
+    assert cell.cell.time_scale > 0
+    m = load_material("inconel718-1.0mm")
+    # The paper's CONST.INS values (Ribeiro 1997, Table 4).
+    r = m.ribeiro
+    assert (r.ratio, r.k1, r.k2, r.k3, r.k4, r.k5, r.k6) == (0.11, 1.0, 0.968322, -0.41625, 9.7266925, 0.335683, -0.60296)
+    assert (r.i_min_a, r.i_max_a, r.wfs_min_m_min, r.wfs_max_m_min) == (95, 160, 4.0, 7.4)
+    assert load_material("er70s6-1.2mm").wire_diameter_mm == 1.2
+    assert load_sim().cnc.probe_noise_mm >= 0
+
+
+def test_unknown_key_names_file_path_and_line(tmp_path: Path):
+    text = (CONFIG_DIR / "cell.yaml").read_text().replace("    baud: 115200\n    heartbeat_s", "    baud: 115200\n    heartbeat_ms", 1)
+    f = tmp_path / "cell.yaml"
+    f.write_text(text)
+    line = next(i + 1 for i, l in enumerate(text.splitlines()) if "heartbeat_ms" in l)
+    with pytest.raises(ConfigError) as e:
+        load_cell(f)
+    msg = str(e.value)
+    assert str(f) in msg and "devices.robot.heartbeat_ms" in msg and f"line {line}:" in msg
+
+
+def test_out_of_range_value_and_missing_key(tmp_path: Path):
+    text = (CONFIG_DIR / "materials" / "inconel718-1.0mm.yaml").read_text()
+    f = tmp_path / "m.yaml"
+    f.write_text(text.replace("i_max_a: 160", "i_max_a: -160"))
+    with pytest.raises(ConfigError, match=r"m\.yaml: line \d+: key 'ribeiro\.i_max_a'"):
+        load_material(str(f))
+    f.write_text(text.replace("  k4: 9.7266925\n", ""))
+    with pytest.raises(ConfigError, match=r"missing key 'ribeiro\.k4'"):
+        load_material(str(f))
+
+
+def test_unknown_material_lists_known_ones():
+    with pytest.raises(ConfigError, match="inconel718-1.0mm"):
+        load_material("unobtainium")
+
+
+_MAT_TEXT = (CONFIG_DIR / "materials" / "inconel718-1.0mm.yaml").read_text().splitlines()
+_VALUE_LINES = [i for i, l in enumerate(_MAT_TEXT) if ":" in l and not l.strip().startswith("#") and l.split(":", 1)[1].split("#")[0].strip()]
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.sampled_from(_VALUE_LINES), st.sampled_from(["-1", "abc", "[1, 2]", "{a: 1}", "1e9", "null", "''"]), st.booleans())
+def test_any_single_corrupted_key_is_a_clear_error(idx, bad, rename):
+    lines = list(_MAT_TEXT)
+    key, rest = lines[idx].split(":", 1)
+    lines[idx] = f"{key}_x: {rest}" if rename else f"{key}: {bad}"
+    try:
+        parse_model("\n".join(lines), Material, "mat.yaml")
+    except ConfigError as exc:
+        msg = str(exc)
+        assert msg.startswith("mat.yaml: line ") and "key" in msg
+    # Some corruptions are still valid values (e.g. a free-text name); those must load.
