@@ -1,0 +1,194 @@
+"""The build journal: SQLite in WAL mode with synchronous=FULL under runs/<job>/ (DESIGN.md §6).
+
+Append-only: rows are inserted, never updated or deleted, so a `kill -9` at any moment leaves
+the journal at the last committed row, and replaying the rows gives the build's state:
+
+- `job`       the job's hash, name and canonical JSON (one row);
+- `moves`     write-ahead: every motion command with its ticket, written *before* it is sent;
+- `progress`  a weld move executed while the arc was stable: (layer, pass, point index);
+- `passes`    each pass's state changes (started, arc_on, done, interrupted);
+- `beads`     per bead: arc-on/off times, current/voltage/WFS statistics, heat input;
+- `events`    state transitions, alarms and notes, with the torch position;
+- `samples`   I, U, WFS and part temperature, for the report's traces.
+
+Every write is its own committed transaction; resume reads only committed rows.
+"""
+from __future__ import annotations
+
+import json
+import sqlite3
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+from planner.errors import CellError
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS job (id INTEGER PRIMARY KEY, hash TEXT NOT NULL, name TEXT NOT NULL,
+    platform TEXT NOT NULL, created REAL NOT NULL, job_json TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS moves (ticket INTEGER NOT NULL, layer INTEGER NOT NULL, pass INTEGER NOT NULL,
+    idx INTEGER NOT NULL, kind TEXT NOT NULL, run INTEGER NOT NULL, t REAL NOT NULL);
+CREATE TABLE IF NOT EXISTS progress (id INTEGER PRIMARY KEY, ticket INTEGER NOT NULL, layer INTEGER NOT NULL,
+    pass INTEGER NOT NULL, idx INTEGER NOT NULL, run INTEGER NOT NULL, t REAL NOT NULL);
+CREATE TABLE IF NOT EXISTS passes (id INTEGER PRIMARY KEY, layer INTEGER NOT NULL, pass INTEGER NOT NULL,
+    state TEXT NOT NULL, run INTEGER NOT NULL, t REAL NOT NULL, info TEXT NOT NULL DEFAULT '{}');
+CREATE TABLE IF NOT EXISTS beads (id INTEGER PRIMARY KEY, layer INTEGER NOT NULL, pass INTEGER NOT NULL,
+    run INTEGER NOT NULL, arc_on REAL NOT NULL, arc_off REAL NOT NULL, length_mm REAL NOT NULL,
+    speed_mm_min REAL NOT NULL, i_mean REAL, i_min REAL, i_max REAL, u_mean REAL, u_min REAL, u_max REAL,
+    wfs_mean REAL, heat_input_j_mm REAL, interrupted INTEGER NOT NULL DEFAULT 0);
+CREATE TABLE IF NOT EXISTS events (id INTEGER PRIMARY KEY, t REAL NOT NULL, kind TEXT NOT NULL,
+    state TEXT, message TEXT NOT NULL, layer INTEGER, pass INTEGER, x REAL, y REAL, z REAL, run INTEGER);
+CREATE TABLE IF NOT EXISTS samples (t REAL NOT NULL, current_a REAL, voltage_v REAL, wfs_m_min REAL,
+    temperature_c REAL, layer INTEGER, pass INTEGER);
+CREATE INDEX IF NOT EXISTS progress_lp ON progress(layer, pass);
+CREATE INDEX IF NOT EXISTS passes_lp ON passes(layer, pass);
+"""
+
+
+class JournalError(CellError):
+    """The journal cannot be opened or does not belong to the job."""
+
+
+@dataclass(frozen=True)
+class PassProgress:
+    """Where a pass stands according to the journal."""
+
+    layer: int
+    pass_: int
+    state: str            # planned, started, arc_on, interrupted, done
+    done_idx: int         # last point index reached with the arc stable (-1: none, 0: at the start)
+
+
+class Journal:
+    """Append-only SQLite journal of one build (all runs of it: first run and every resume)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            # autocommit mode: every execute() is its own transaction, committed at once
+            self.db = sqlite3.connect(str(self.path), isolation_level=None, check_same_thread=False)
+            mode = self.db.execute("PRAGMA journal_mode=WAL").fetchone()[0]
+            self.db.execute("PRAGMA synchronous=FULL")
+            self.db.executescript(SCHEMA)
+        except sqlite3.DatabaseError as exc:
+            raise JournalError(f"{self.path}: cannot open the journal ({exc}); move it away to start afresh") from None
+        if str(mode).lower() != "wal":
+            raise JournalError(f"{self.path}: the file system does not support SQLite WAL mode")
+        self.run = self._next_run()
+
+    # -- writing -------------------------------------------------------------------------------
+    def _next_run(self) -> int:
+        row = self.db.execute(
+            "SELECT max(r) FROM (SELECT max(run) AS r FROM passes UNION SELECT max(run) FROM moves"
+            " UNION SELECT max(run) FROM events)"
+        ).fetchone()
+        return int(row[0] or 0) + 1
+
+    def start_job(self, job_hash: str, name: str, platform: str, job_json: str) -> None:
+        """Record the job on first use; on reuse, refuse a journal that belongs to another job."""
+        row = self.db.execute("SELECT hash FROM job ORDER BY id LIMIT 1").fetchone()
+        if row is None:
+            self.db.execute(
+                "INSERT INTO job (hash, name, platform, created, job_json) VALUES (?,?,?,?,?)",
+                (job_hash, name, platform, time.time(), job_json),
+            )
+        elif row[0] != job_hash:
+            raise JournalError(
+                f"{self.path} belongs to job {row[0][:8]}, not {job_hash[:8]}; use another run directory"
+            )
+
+    def job(self) -> dict[str, Any] | None:
+        row = self.db.execute("SELECT hash, name, platform, created, job_json FROM job ORDER BY id LIMIT 1").fetchone()
+        if row is None:
+            return None
+        return {"hash": row[0], "name": row[1], "platform": row[2], "created": row[3], "job_json": row[4]}
+
+    def moves_sent(self, rows: Iterable[tuple[int, int, int, int, str]]) -> None:
+        """Write-ahead: (ticket, layer, pass, point index, kind) of moves about to be sent."""
+        now = time.time()
+        with self.db:  # one transaction for the batch
+            self.db.execute("BEGIN")
+            self.db.executemany(
+                "INSERT INTO moves (ticket, layer, pass, idx, kind, run, t) VALUES (?,?,?,?,?,?,?)",
+                [(tk, la, pa, ix, kind, self.run, now) for tk, la, pa, ix, kind in rows],
+            )
+
+    def progress(self, ticket: int, layer: int, pass_: int, idx: int) -> None:
+        """A weld move ending at point `idx` of the pass was executed with the arc stable."""
+        self.db.execute(
+            "INSERT INTO progress (ticket, layer, pass, idx, run, t) VALUES (?,?,?,?,?,?)",
+            (ticket, layer, pass_, idx, self.run, time.time()),
+        )
+
+    def pass_state(self, layer: int, pass_: int, state: str, **info: Any) -> None:
+        self.db.execute(
+            "INSERT INTO passes (layer, pass, state, run, t, info) VALUES (?,?,?,?,?,?)",
+            (layer, pass_, state, self.run, time.time(), json.dumps(info, sort_keys=True)),
+        )
+
+    def bead(self, layer: int, pass_: int, *, arc_on: float, arc_off: float, length_mm: float,
+             speed_mm_min: float, stats: dict[str, float | None], heat_input_j_mm: float | None,
+             interrupted: bool = False) -> None:
+        self.db.execute(
+            "INSERT INTO beads (layer, pass, run, arc_on, arc_off, length_mm, speed_mm_min, i_mean, i_min, i_max,"
+            " u_mean, u_min, u_max, wfs_mean, heat_input_j_mm, interrupted) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+            (layer, pass_, self.run, arc_on, arc_off, length_mm, speed_mm_min,
+             stats.get("i_mean"), stats.get("i_min"), stats.get("i_max"),
+             stats.get("u_mean"), stats.get("u_min"), stats.get("u_max"),
+             stats.get("wfs_mean"), heat_input_j_mm, int(interrupted)),
+        )
+
+    def event(self, kind: str, message: str, *, state: str | None = None, layer: int | None = None,
+              pass_: int | None = None, pos: Sequence[float] | None = None) -> None:
+        """kind: transition, alarm, info."""
+        x, y, z = (list(pos) + [None, None, None])[:3] if pos is not None else (None, None, None)
+        self.db.execute(
+            "INSERT INTO events (t, kind, state, message, layer, pass, x, y, z, run) VALUES (?,?,?,?,?,?,?,?,?,?)",
+            (time.time(), kind, state, message, layer, pass_, x, y, z, self.run),
+        )
+
+    def samples(self, rows: Sequence[tuple[float, float | None, float | None, float | None, float | None,
+                                         int | None, int | None]]) -> None:
+        """(t, current, voltage, wfs, temperature, layer, pass) rows, written in one transaction."""
+        if not rows:
+            return
+        with self.db:
+            self.db.execute("BEGIN")
+            self.db.executemany("INSERT INTO samples VALUES (?,?,?,?,?,?,?)", rows)
+
+    # -- reading -------------------------------------------------------------------------------
+    def pass_progress(self) -> dict[tuple[int, int], PassProgress]:
+        """The state of every pass the journal knows of (passes never started are absent)."""
+        out: dict[tuple[int, int], PassProgress] = {}
+        for layer, pass_, state in self.db.execute(
+            "SELECT layer, pass, state FROM passes WHERE id IN (SELECT max(id) FROM passes GROUP BY layer, pass)"
+        ):
+            out[(layer, pass_)] = PassProgress(layer, pass_, state, -1)
+        for layer, pass_, idx in self.db.execute("SELECT layer, pass, max(idx) FROM progress GROUP BY layer, pass"):
+            p = out.get((layer, pass_))
+            state = p.state if p else "started"
+            out[(layer, pass_)] = PassProgress(layer, pass_, state, int(idx))
+        return out
+
+    def last_ticket(self) -> int:
+        """The highest ticket ever written ahead (0 when none)."""
+        row = self.db.execute("SELECT max(ticket) FROM moves").fetchone()
+        return int(row[0] or 0)
+
+    def move_of(self, ticket: int) -> tuple[int, int, int, str] | None:
+        """(layer, pass, idx, kind) of a ticket, from the latest run that sent it."""
+        row = self.db.execute(
+            "SELECT layer, pass, idx, kind FROM moves WHERE ticket=? ORDER BY run DESC LIMIT 1", (ticket,)
+        ).fetchone()
+        return tuple(row) if row else None  # type: ignore[return-value]
+
+    def query(self, sql: str, params: Sequence[Any] = ()) -> list[tuple]:
+        return list(self.db.execute(sql, params))
+
+    def close(self) -> None:
+        try:
+            self.db.close()
+        except sqlite3.Error:
+            pass
