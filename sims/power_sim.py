@@ -1,0 +1,524 @@
+"""Power-source simulator: a synergic MIG/MAG source on Modbus TCP, Modbus RTU and CAN.
+
+The model (`PowerSourceSim`) is transport-free: each host cycle hands it the command (bits,
+mode/job, WFS, trims, watchdog counter) and takes the status back (DESIGN.md §5). It runs
+
+    idle -> pre-flow -> ignition -> current flow -> arc stable (motion release after 16 ms)
+         -> burn-back (weld start dropped) -> post-flow -> idle
+
+with synergic actuals (current from WFS along the material's synergic line, voltage from WFS
+and arc-length trim along a configurable line), the watchdog (weld start dropped and an error
+latched when the counter has not changed for 100 ms) and the faults: ignition failure, arc loss
+for a time, wire stick, gas fault, wire out, collision, silence. A latched fault clears on a
+rising edge of error reset.
+
+Timing. Process phases (pre-flow, ignition delay, burn-back, post-flow) are process time: they
+are divided by the time scale, with a floor of two bus cycles (20 ms) so each phase is still
+seen on the bus. Link and supervision timing (the watchdog's 100 ms, the 16 ms arc-stable hold,
+arc-loss durations given to `inject`) is wall time, never scaled. Fault-spec events `@t=` are in
+simulated seconds (`clock.now()`), `@pass=N` on the N-th weld start.
+
+Transports: `serve_modbus_tcp`, `serve_modbus_rtu` (a serial URL; `socket://` listens on TCP
+with RTU framing) and `CanNode` on any python-can bus (`virtual` in-process, `udp_multicast`
+between processes). `serve(ctx)` starts the one that cell.yaml's `devices.power_source` names.
+"""
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from drivers.power_registers import (
+    COMMAND_BITS, POWER_MAP, STATUS_BITS, decode_block, pack_bits, unpack_bits, to_raw,
+)
+from planner.material import Material
+from sims.clock import SimClock
+from sims.world import World
+
+WATCHDOG_S = 0.100          # start dropped after this long without a new counter (wall)
+ARC_HOLD_S = 0.016          # arc stable held this long before motion release (wall)
+MIN_PHASE_WALL_S = 0.020    # a scaled process phase never lasts less than 2 bus cycles
+TICK_S = 0.005              # model update period when no host cycle comes
+
+ERR_NONE, ERR_GAS, ERR_WIRE_OUT, ERR_WIRE_STICK, ERR_WATCHDOG, ERR_COLLISION = 0, 10, 20, 30, 50, 60
+ERROR_TEXT = {ERR_GAS: "gas fault", ERR_WIRE_OUT: "wire out", ERR_WIRE_STICK: "wire stick",
+              ERR_WATCHDOG: "watchdog: no new counter for 100 ms", ERR_COLLISION: "torch collision"}
+
+
+@dataclass(frozen=True)
+class SynergicLine:
+    """Voltage U = u0 + k·WFS + trim_v·arc_trim (V); current from WFS on the material's line."""
+
+    u0_v: float = 13.5
+    v_per_m_min: float = 1.2
+    v_per_trim: float = 0.3       # per unit of arc-length trim (±10 -> ±3 V)
+    noise: float = 0.005          # relative 1σ ripple of the actuals
+
+
+@dataclass(frozen=True)
+class ProcessTimes:
+    """Process-phase durations in process (simulated) seconds."""
+
+    preflow_s: float = 0.10
+    ignition_s: float = 0.05      # pre-flow end -> current flow
+    stabilise_s: float = 0.03     # current flow -> arc stable
+    burnback_s: float = 0.08
+    postflow_s: float = 0.50
+
+
+@dataclass
+class _Cmd:
+    bits: dict = field(default_factory=lambda: {k: False for k in COMMAND_BITS})
+    mode: int = 0
+    job: int = 0
+    wfs: float = 0.0
+    arc_trim: float = 0.0
+    dynamic_trim: float = 0.0
+    counter: int = -1
+
+
+class PowerSourceSim:
+    """The power source's behaviour; thread-unsafe, driven from one asyncio loop."""
+
+    def __init__(self, material: Material, *, clock: SimClock | None = None, world: World | None = None,
+                 line: SynergicLine = SynergicLine(), times: ProcessTimes = ProcessTimes(),
+                 faults=None, seed: int = 0) -> None:
+        self.material = material
+        self.clock = clock or SimClock(1.0)
+        self.world = world
+        self.line = line
+        self.times = times
+        self.cmd = _Cmd()
+        self._prev_reset = False
+        self.phase = "idle"
+        self._phase_t = time.monotonic()
+        self._arc_since: float | None = None
+        self.error = ERR_NONE
+        self.flags = {"gas_fault": False, "wire_out": False, "wire_stick": False, "collision": False}
+        self._counter_t = time.monotonic()
+        self._heartbeat = False
+        self._arc_loss_until = 0.0
+        self._silent_until = 0.0
+        self._ignition_fail_next = 0
+        self._stick_next_end = False
+        self.starts = 0
+        self.log: list[dict] = []            # what the source really did (t wall, t_sim, event)
+        self._last_world: tuple | None = None
+        self._actuals = (0.0, 0.0, 0.0)
+        self.spec = faults
+        self._rng = faults.rng("power_source") if faults is not None else np.random.default_rng(seed)
+        self._ign_p = float(faults.value("ignition_fail", 0.0)) if faults is not None else 0.0
+        self._events = self._spec_events(faults)
+        self._pending_at: list[tuple[float, str, dict]] = []   # (sim t, fault, kwargs) from inject(at=)
+        self.cycles = 0
+
+    # -- faults -----------------------------------------------------------------------------
+    @staticmethod
+    def _spec_events(spec) -> list[list]:
+        out = []
+        if spec is None:
+            return out
+        for name in ("arc_loss", "wire_stick", "gas_fault", "wire_out", "silence"):
+            dur = spec.value(name, None)
+            for cond, v in spec.events(name):
+                if cond in ("t", "pass"):
+                    out.append([cond, float(v), name, dur, False])
+        return out
+
+    def inject(self, fault: str, *, duration_s: float | None = None, count: int = 1,
+               at: float | None = None) -> None:
+        """Inject a fault now (or at simulated time `at`).
+
+        arc_loss (duration_s wall, default 0.5), ignition_fail (the next `count` starts),
+        wire_stick (now while the arc burns, else at the next arc end), gas_fault, wire_out,
+        collision (latched until error reset), silence (duration_s wall, None: for ever).
+        """
+        if at is not None and at > self.clock.now():
+            self._pending_at.append((at, fault, {"duration_s": duration_s, "count": count}))
+            return
+        now = time.monotonic()
+        self._log("inject", fault=fault, duration_s=duration_s)
+        if fault == "arc_loss":
+            self._arc_loss_until = now + (0.5 if duration_s is None else duration_s)
+        elif fault == "ignition_fail":
+            self._ignition_fail_next += count
+        elif fault == "wire_stick":
+            if self.phase in ("arc", "stabilise"):
+                self._latch(ERR_WIRE_STICK, "wire_stick")
+            else:
+                self._stick_next_end = True
+        elif fault == "gas_fault":
+            self._latch(ERR_GAS, "gas_fault")
+        elif fault == "wire_out":
+            self._latch(ERR_WIRE_OUT, "wire_out")
+        elif fault == "collision":
+            self._latch(ERR_COLLISION, "collision")
+        elif fault == "silence":
+            self._silent_until = math.inf if duration_s is None else now + duration_s
+        else:
+            raise ValueError(f"unknown power-source fault {fault!r}")
+
+    def _latch(self, code: int, flag: str | None) -> None:
+        if flag:
+            self.flags[flag] = True
+        if self.error == ERR_NONE:
+            self.error = code
+        self._log("fault", error=code, text=ERROR_TEXT.get(code, str(code)))
+        if self.phase != "idle":
+            self._set_phase("idle")
+
+    def silent(self) -> bool:
+        self._poll_events()
+        return time.monotonic() < self._silent_until
+
+    def _poll_events(self) -> None:
+        t = self.clock.now()
+        if self._pending_at:
+            due = [p for p in self._pending_at if p[0] <= t]
+            self._pending_at = [p for p in self._pending_at if p[0] > t]
+            for _, fault, kw in due:
+                self.inject(fault, **kw)
+        for ev in self._events:
+            cond, v, name, dur, done = ev
+            if done:
+                continue
+            if (cond == "t" and t >= v) or (cond == "pass" and self.starts >= v and self.phase != "idle"):
+                ev[4] = True
+                if name == "arc_loss":
+                    self.inject("arc_loss", duration_s=0.5 if dur is None else float(dur))
+                elif name == "silence":
+                    self.inject("silence", duration_s=None if dur is None else float(dur))
+                else:
+                    self.inject(name)
+
+    # -- host cycle ---------------------------------------------------------------------------
+    def command(self, bits: dict, mode: int, job: int, wfs: float, arc_trim: float,
+                dynamic_trim: float, counter: int) -> None:
+        """Take one host cycle's command (already decoded)."""
+        now = time.monotonic()
+        if counter != self.cmd.counter:
+            self._counter_t = now
+        reset = bool(bits.get("error_reset"))
+        if reset and not self._prev_reset:
+            self._error_reset()
+        self._prev_reset = reset
+        self.cmd = _Cmd(dict(bits), mode, job, wfs, arc_trim, dynamic_trim, counter)
+        self.cycles += 1
+        self._heartbeat = not self._heartbeat
+        self.tick(now)
+
+    def _error_reset(self) -> None:
+        if self.error or any(self.flags.values()):
+            self._log("error_reset", error=self.error)
+        self.error = ERR_NONE
+        for k in self.flags:
+            self.flags[k] = False
+
+    def status(self) -> dict:
+        """The status of the last tick: echo, bits, error, voltage, current, wfs."""
+        p = self.phase
+        arc = p in ("arc", "burnback") and not self._arc_lost()
+        flow = p in ("stabilise", "arc", "burnback") and not self._arc_lost()
+        bits = {
+            "heartbeat": self._heartbeat,
+            "ready": self.cmd.bits.get("robot_ready", False) and self.error == ERR_NONE,
+            "arc_stable": arc,
+            "current_flow": flow,
+            "main_current": p == "arc" and arc,
+            "collision_ok": not self.flags["collision"],
+            "gas_fault": self.flags["gas_fault"],
+            "wire_out": self.flags["wire_out"],
+            "process_active": p != "idle",
+            "motion_release": p == "arc" and arc and self._arc_since is not None
+            and time.monotonic() - self._arc_since >= ARC_HOLD_S,
+            "wire_stick": self.flags["wire_stick"],
+        }
+        u, i, w = self._actuals
+        return {"echo": max(self.cmd.counter, 0), "bits": bits, "error": self.error,
+                "voltage": u, "current": i, "wfs": w}
+
+    # -- the process model ---------------------------------------------------------------------
+    def _wall(self, process_s: float) -> float:
+        return max(process_s / self.clock.time_scale, MIN_PHASE_WALL_S)
+
+    def _set_phase(self, phase: str) -> None:
+        if phase == self.phase:
+            return
+        self._log("phase", frm=self.phase, to=phase)
+        self.phase = phase
+        self._phase_t = time.monotonic()
+        self._arc_since = time.monotonic() if phase == "arc" else None
+
+    def _arc_lost(self) -> bool:
+        return time.monotonic() < self._arc_loss_until
+
+    def _start_requested(self, now: float) -> bool:
+        b = self.cmd.bits
+        if not b.get("weld_start"):
+            return False
+        if now - self._counter_t > WATCHDOG_S:
+            if self.error != ERR_WATCHDOG:
+                self._latch(ERR_WATCHDOG, None)
+            return False
+        return self.error == ERR_NONE and b.get("robot_ready", False)
+
+    def tick(self, now: float | None = None) -> None:
+        """Advance the process to wall time `now` (monotonic)."""
+        now = time.monotonic() if now is None else now
+        self._poll_events()
+        start = self._start_requested(now)
+        p, dt = self.phase, now - self._phase_t
+        tm = self.times
+        if p == "idle":
+            if start:
+                self.starts += 1
+                self._set_phase("preflow")
+                self._poll_events()
+        elif p == "preflow":
+            if not start:
+                self._set_phase("postflow")
+            elif dt >= self._wall(tm.preflow_s):
+                fail = self._ignition_fail_next > 0 or (self._ign_p > 0 and self._rng.random() < self._ign_p)
+                if self._ignition_fail_next > 0:
+                    self._ignition_fail_next -= 1
+                self._set_phase("ignition_failed" if fail else "ignition")
+        elif p in ("ignition", "ignition_failed"):
+            if not start:
+                self._set_phase("postflow")
+            elif p == "ignition" and dt >= self._wall(tm.ignition_s):
+                self._set_phase("stabilise")
+        elif p == "stabilise":
+            if not start:
+                self._set_phase("burnback")
+            elif dt >= self._wall(tm.stabilise_s):
+                self._set_phase("arc")
+        elif p == "arc":
+            if not start:
+                self._set_phase("burnback")
+            elif self._arc_lost():
+                self._arc_since = None
+            elif self._arc_since is None:
+                self._arc_since = now
+        elif p == "burnback":
+            if dt >= self._wall(tm.burnback_s):
+                if self._stick_next_end:
+                    self._stick_next_end = False
+                    self.flags["wire_stick"] = True
+                    self.error = self.error or ERR_WIRE_STICK
+                    self._log("fault", error=ERR_WIRE_STICK, text="wire stick")
+                self._set_phase("postflow")
+        elif p == "postflow":
+            if start:
+                self.starts += 1
+                self._set_phase("preflow")
+            elif dt >= self._wall(tm.postflow_s):
+                self._set_phase("idle")
+        self._update_actuals()
+
+    def synergic(self, wfs: float, arc_trim: float) -> tuple[float, float]:
+        """(voltage V, current A) on the synergic line for a wire feed and an arc-length trim."""
+        r = self.material.ribeiro
+        i = r.i_min_a + (wfs - r.wfs_min_m_min) * (r.i_max_a - r.i_min_a) / (r.wfs_max_m_min - r.wfs_min_m_min)
+        u = self.line.u0_v + self.line.v_per_m_min * wfs + self.line.v_per_trim * arc_trim
+        return max(u, 0.0), max(i, 0.0)
+
+    def _update_actuals(self) -> None:
+        p, c = self.phase, self.cmd
+        lost = self._arc_lost()
+        if p in ("stabilise", "arc") and not lost:
+            u, i = self.synergic(c.wfs, c.arc_trim)
+            n = self.line.noise
+            if n:
+                u *= 1 + n * float(self._rng.standard_normal())
+                i *= 1 + n * float(self._rng.standard_normal())
+            w = c.wfs
+        elif p == "burnback" and not lost:
+            u, i = self.synergic(c.wfs, c.arc_trim)
+            u, i, w = u * 1.1, i * 0.3, 0.0
+        elif p in ("preflow", "ignition", "ignition_failed", "stabilise", "arc"):
+            u, i, w = 60.0 if p != "preflow" else 0.0, 0.0, (c.wfs * 0.3 if p.startswith("ignition") else 0.0)
+        elif c.bits.get("wire_inch") and self.error == ERR_NONE:
+            u, i, w = 0.0, 0.0, c.wfs or 1.0
+        elif c.bits.get("wire_retract") and self.error == ERR_NONE:
+            u, i, w = 0.0, 0.0, -(c.wfs or 1.0)
+        else:
+            u, i, w = 0.0, 0.0, 0.0
+        self._actuals = (u, i, w)
+        stable = p in ("arc", "burnback") and not lost
+        key = (stable, round(u, 2), round(i, 1))
+        if self.world is not None and key != self._last_world:
+            self.world.set_arc(stable, i, u, self.clock.now())
+        self._last_world = key
+
+    def _log(self, event: str, **kw) -> None:
+        self.log.append({"t": time.monotonic(), "t_sim": self.clock.now(), "event": event, **kw})
+
+    # -- Modbus view (DESIGN.md §5 holding registers) ------------------------------------------
+    def read(self, fc: int, address: int, count: int) -> list | None:
+        m = POWER_MAP
+        if fc not in (3, 23):
+            return None
+        if m.status_start <= address and address + count <= m.status_start + m.status_count:
+            words = self._status_words()
+            return words[address - m.status_start:address - m.status_start + count]
+        if m.command_start <= address and address + count <= m.command_start + m.command_count:
+            return self._command_words()[address - m.command_start:address - m.command_start + count]
+        return None
+
+    def write(self, fc: int, address: int, values: list) -> bool:
+        m = POWER_MAP
+        if fc not in (6, 16, 23):
+            return False
+        if not (m.command_start <= address and address + len(values) <= m.command_start + m.command_count):
+            return False
+        words = self._command_words()
+        words[address - m.command_start:address - m.command_start + len(values)] = values
+        v = decode_block(words, "command")
+        self.command(unpack_bits(int(v["command_bits"]), COMMAND_BITS), int(v["mode"]), int(v["job"]),
+                     v["wfs_command"], v["arc_trim"], v["dynamic_trim"], int(v["watchdog"]))
+        return True
+
+    def _command_words(self) -> list[int]:
+        c, m = self.cmd, POWER_MAP
+        words = [0] * m.command_count
+        vals = {"watchdog": max(c.counter, 0), "command_bits": pack_bits(c.bits, COMMAND_BITS),
+                "mode": c.mode, "job": c.job, "wfs_command": c.wfs, "arc_trim": c.arc_trim,
+                "dynamic_trim": c.dynamic_trim}
+        for r in m.registers:
+            if r.direction == "command":
+                words[r.address - m.command_start] = to_raw(vals[r.name], r)
+        return words
+
+    def _status_words(self) -> list[int]:
+        s, m = self.status(), POWER_MAP
+        vals = {"watchdog_echo": s["echo"] & 0xFFFF, "status_bits": pack_bits(s["bits"], STATUS_BITS),
+                "error_number": s["error"], "voltage": min(s["voltage"], 655.35),
+                "current": min(s["current"], 6553.5), "wfs_actual": s["wfs"]}
+        words = [0] * m.status_count
+        for r in m.registers:
+            if r.direction == "status":
+                words[r.address - m.status_start] = to_raw(vals[r.name], r)
+        return words
+
+    # -- background ticking (watchdog, phases) ------------------------------------------------
+    async def run(self) -> None:
+        """Advance the model every 5 ms even when no host cycle comes (watchdog, post-flow)."""
+        while True:
+            self.tick()
+            await asyncio.sleep(TICK_S)
+
+
+# --- CAN node ---------------------------------------------------------------------------------
+
+class CanNode:
+    """The power source as node `n` on a python-can bus: answers every WELD_CMD with
+    WELD_STATUS and WELD_ACTUALS (config/power_source.dbc)."""
+
+    def __init__(self, sim: PowerSourceSim, bus, db, node: int = 1) -> None:
+        from drivers.power_can import CanCodec
+        self.sim = sim
+        self.bus = bus
+        self.codec = CanCodec(db, node)
+        self._notifier = None
+
+    def start(self) -> None:
+        import can
+        self._notifier = can.Notifier(self.bus, [self._on_message], loop=asyncio.get_running_loop())
+
+    def _on_message(self, msg) -> None:
+        if msg.arbitration_id != self.codec.cmd_id or msg.is_extended_id:
+            return
+        try:
+            c = self.codec.decode_command(bytes(msg.data))
+        except Exception:
+            return  # a malformed frame is ignored, as a real node does
+        self.sim.command(c["bits"], c["mode"], c["job"], c["wfs"], c["arc_trim"], c["dynamic_trim"],
+                         c["counter"])
+        if self.sim.silent():
+            return
+        for m in self.codec.encode_status(self.sim.status(), c["counter"]):
+            try:
+                self.bus.send(m)
+            except Exception:
+                pass
+
+    def stop(self) -> None:
+        if self._notifier is not None:
+            self._notifier.stop(timeout=0.5)
+            self._notifier = None
+        self.bus.shutdown()
+
+
+# --- serving ----------------------------------------------------------------------------------
+
+async def serve_modbus_tcp(sim: PowerSourceSim, host: str = "127.0.0.1", port: int = 0, device_id: int = 1):
+    """Start the Modbus TCP server and the model's ticking; returns (url, close)."""
+    from sims.modbus_server import start_tcp, stop
+    server, bound = await start_tcp(sim, host, port, device_id)
+    ticker = asyncio.get_running_loop().create_task(sim.run())
+
+    async def close() -> None:
+        ticker.cancel()
+        await stop(server)
+    return f"tcp://{host}:{bound}", close
+
+
+async def serve_modbus_rtu(sim: PowerSourceSim, url: str = "socket://127.0.0.1:0", device_id: int = 1):
+    """Start the Modbus RTU server on a serial URL and the model's ticking; returns (url, close)."""
+    from sims.modbus_server import start_rtu, stop
+    server, real = await start_rtu(sim, url, device_id)
+    ticker = asyncio.get_running_loop().create_task(sim.run())
+
+    async def close() -> None:
+        ticker.cancel()
+        await stop(server)
+    return real, close
+
+
+async def serve_can(sim: PowerSourceSim, interface: str, channel: str, dbc: str | Path | None = None,
+                    node: int = 1, **bus_kwargs):
+    """Start the CAN node on a python-can bus; returns (description, close)."""
+    import can
+    import cantools
+    from drivers.power_can import DEFAULT_DBC
+    db = cantools.database.load_file(str(dbc or DEFAULT_DBC))
+    bus = can.Bus(interface=interface, channel=channel, **bus_kwargs)
+    node_obj = CanNode(sim, bus, db, node)
+    node_obj.start()
+    ticker = asyncio.get_running_loop().create_task(sim.run())
+
+    async def close() -> None:
+        ticker.cancel()
+        node_obj.stop()
+    return f"can://{interface}/{channel}?node={node}", close
+
+
+async def serve(ctx) -> list:
+    """`cell sim up`: the power source on the transport and URL of cell.yaml."""
+    from controller.config import load_material
+    from sims.faults import parse_fault_spec
+    from sims.up import Served
+    cfg = ctx.cell.devices.power_source
+    material = load_material(ctx.cell.cell.material)
+    spec = parse_fault_spec(ctx.faults or ctx.sim.faults)
+    sim = PowerSourceSim(material, clock=ctx.clock, world=ctx.world, faults=spec)
+    extra = {"transport": cfg.transport}
+    if cfg.transport == "modbus_tcp":
+        from drivers.power_modbus import parse_tcp_url
+        host, port = parse_tcp_url(cfg.url)
+        url, close = await serve_modbus_tcp(sim, host, 0 if ctx.ephemeral else port, cfg.device_id)
+    elif cfg.transport == "modbus_rtu":
+        u = cfg.url
+        if ctx.ephemeral and u.startswith("socket://"):
+            u = u.rsplit(":", 1)[0] + ":0"
+        url, close = await serve_modbus_rtu(sim, u, cfg.device_id)
+    else:
+        from drivers.power_can import dbc_path
+        dbc = dbc_path(cfg.can.dbc, ctx.config_dir)
+        url, close = await serve_can(sim, cfg.can.interface, cfg.can.channel, dbc, cfg.can.node)
+        extra.update({"interface": cfg.can.interface, "channel": cfg.can.channel, "node": cfg.can.node})
+    return [Served("power_source", url, close, sim=sim, extra=extra)]
