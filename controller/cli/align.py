@@ -1,0 +1,189 @@
+"""`cell align plane|transform|run`: probe-and-align on the 5-axis CNC (DESIGN.md §4, §7)."""
+from __future__ import annotations
+
+import argparse
+import csv
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from planner.errors import InputError
+
+# argparse takes "-1,-1,-5" for an option; let the align parsers read such words as values
+# (so `--pivot -1,-1,-5` and a point `-1,2,3` work as users type them).
+_NEGATIVE = re.compile(r"^-(\d|\.\d)[\d.,eE+\-]*$")
+
+
+def _allow_negative(p: argparse.ArgumentParser) -> None:
+    p._negative_number_matcher = _NEGATIVE  # argparse internals, stable since 3.2
+    p._has_negative_number_optionals = []
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("align", help="probe, fit, level and align the workpiece on the CNC")
+    s = p.add_subparsers(dest="align_command", metavar="SUBCOMMAND")
+    s.required = True
+
+    pl = s.add_parser("plane", help="fit a plane to x,y,z points of a CSV file")
+    pl.add_argument("csv", metavar="CSV", help="points, columns x, y, z (mm; header optional)")
+    pl.add_argument("--noise", type=float, default=None, metavar="MM",
+                    help="probe noise 1σ for the χ² check and outlier test (default cell.yaml probe.noise_mm)")
+    pl.add_argument("--no-reject", action="store_true", help="keep every point (no outlier rejection)")
+    pl.add_argument("--cell-config", default=None, metavar="FILE", help="cell config (default config/cell.yaml)")
+    pl.add_argument("--json", action="store_true", help="print one JSON object")
+    pl.set_defaults(func=_plane)
+    _allow_negative(pl)
+
+    tr = s.add_parser("transform", help="rotate points about a pivot (Padathu's W = T(-P)·R·T(P)·p)")
+    tr.add_argument("--rotate", action="append", default=[], metavar="AXIS:DEG",
+                    help="rotation about x, y or z in degrees; repeat, applied in the order given")
+    tr.add_argument("--pivot", default="0,0,0", metavar="X,Y,Z", help="P: the rotation is about -P (default 0,0,0)")
+    tr.add_argument("points", nargs="*", metavar="POINTS", help="x,y,z words (put them after --) and/or CSV files")
+    tr.add_argument("--json", action="store_true", help="print one JSON object")
+    tr.set_defaults(func=_transform)
+    _allow_negative(tr)
+
+    rn = s.add_parser("run", help="probe top and side faces, level with A/B, find the face angle and transform")
+    rn.add_argument("--sim", action="store_true", help="start the CNC simulator in-process and align its workpiece")
+    rn.add_argument("--sim-config", default=None, metavar="FILE", help="simulator config (default config/sim.yaml)")
+    rn.add_argument("--cell-config", default=None, metavar="FILE", help="cell config (default config/cell.yaml)")
+    rn.add_argument("--report", default=None, metavar="DIR", help="write align.json and align.png here")
+    rn.add_argument("--json", action="store_true", help="print one JSON object")
+    rn.set_defaults(func=_run)
+    _allow_negative(rn)
+
+
+# --- input parsing -------------------------------------------------------------------------------
+
+
+def parse_triple(text: str, what: str) -> np.ndarray:
+    parts = [t for t in re.split(r"[,\s]+", text.strip()) if t]
+    if len(parts) != 3:
+        raise InputError(f"{what} '{text}': expected three numbers X,Y,Z")
+    try:
+        v = np.array([float(t) for t in parts])
+    except ValueError:
+        raise InputError(f"{what} '{text}': expected three numbers X,Y,Z") from None
+    if not np.all(np.isfinite(v)):
+        raise InputError(f"{what} '{text}': values must be finite")
+    return v
+
+
+def read_points_csv(path: str | Path) -> np.ndarray:
+    """x, y, z rows from a CSV (a header naming x, y, z is optional); errors name file and line."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read ({exc.strerror or exc}); check the path") from None
+    rows = list(csv.reader(text.splitlines()))
+    cols = (0, 1, 2)
+    out = []
+    for i, row in enumerate(rows, start=1):
+        row = [c.strip() for c in row]
+        if not any(row) or row[0].startswith("#"):
+            continue
+        if not out and i == next(j for j, r in enumerate(rows, start=1) if any(c.strip() for c in r)):
+            try:
+                [float(c) for c in row[:3]]
+            except ValueError:
+                names = [c.lower() for c in row]
+                want = []
+                for key in ("x", "y", "z"):
+                    cand = [j for j, nm in enumerate(names) if nm in (key, f"{key}_mm")]
+                    if not cand:
+                        raise InputError(f"{p}: line {i}: header has no '{key}' column (got {', '.join(row)})") from None
+                    want.append(cand[0])
+                cols = tuple(want)
+                continue
+        try:
+            vals = [float(row[c]) for c in cols]
+        except (ValueError, IndexError):
+            raise InputError(f"{p}: line {i}: expected numbers in columns x, y, z, got {','.join(row)!r}") from None
+        if not all(np.isfinite(vals)):
+            raise InputError(f"{p}: line {i}: values must be finite")
+        out.append(vals)
+    if not out:
+        raise InputError(f"{p}: no points found; expected rows of x,y,z")
+    return np.array(out, dtype=float)
+
+
+def _fmt(v: np.ndarray, nd: int = 6) -> str:
+    return ", ".join(f"{x:.{nd}f}" for x in v)
+
+
+# --- handlers ------------------------------------------------------------------------------------
+
+
+def _plane(args: argparse.Namespace) -> int:
+    from controller.align.fit import fit_plane
+    from controller.align.kinematics import Trunnion
+    from controller.align.leveling import leveling_angles
+    from controller.cli.main import emit_json
+    from controller.config import load_cell
+
+    pts = read_points_csv(args.csv)
+    if len(pts) < 3:
+        raise InputError(f"{args.csv}: a plane needs at least 3 points, got {len(pts)}")
+    cell = load_cell(args.cell_config)
+    noise = cell.probe.noise_mm if args.noise is None else args.noise
+    if not np.isfinite(noise) or noise < 0:
+        raise InputError(f"--noise {args.noise}: must be a non-negative number of mm")
+    spread = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
+    if spread[1] <= 1e-9 * max(spread[0], 1e-300):
+        raise InputError(f"{args.csv}: the points are collinear; a plane needs points spread over an area")
+    fit = fit_plane(pts, noise_mm=noise or None, reject=not args.no_reject)
+    lev = leveling_angles(fit.normal, Trunnion.from_config(cell.kinematics))
+    out = {
+        "normal": fit.normal.tolist(), "point": fit.point.tolist(),
+        "rms_mm": fit.rms_mm, "max_residual_mm": fit.max_residual_mm,
+        "outliers": list(fit.outliers), "level_a_deg": lev.a_deg, "level_b_deg": lev.second_deg,
+        "n_points": fit.n_points, "chi2": None if np.isnan(fit.chi2) else fit.chi2,
+        "chi2_p": None if np.isnan(fit.chi2_p) else fit.chi2_p, "chi2_ok": fit.chi2_ok,
+        "tilt_deg": lev.tilt_deg,
+    }
+    if args.json:
+        emit_json(out)
+        return 0
+    print(f"plane through {fit.n_points} points ({len(fit.outliers)} outlier(s) rejected: {list(fit.outliers)})")
+    print(f"  normal      {_fmt(fit.normal, 8)}")
+    print(f"  point       {_fmt(fit.point, 4)} mm")
+    print(f"  rms         {fit.rms_mm * 1000:.2f} µm   max residual {fit.max_residual_mm * 1000:.2f} µm")
+    if not np.isnan(fit.chi2):
+        verdict = "consistent with" if fit.chi2_ok else "EXCEEDS"
+        print(f"  χ²          {fit.chi2:.2f} on {fit.dof} dof (p = {fit.chi2_p:.3g}): {verdict} probe noise {noise * 1000:.1f} µm")
+    print(f"  leveling    A = {lev.a_deg:.5f}°, B = {lev.second_deg:.5f}°  (tilt {lev.tilt_deg:.5f}°)")
+    return 0
+
+
+def _transform(args: argparse.Namespace) -> int:
+    from controller.align.kinematics import apply_transform, parse_rotations, rotation_about_pivot
+    from controller.cli.main import emit_json
+
+    rots = parse_rotations(args.rotate)
+    pivot = parse_triple(args.pivot, "--pivot")
+    pts: list[np.ndarray] = []
+    for word in args.points:
+        if Path(word).is_file() or word.lower().endswith(".csv"):
+            pts.extend(read_points_csv(word))
+        else:
+            pts.append(parse_triple(word, "point"))
+    if not pts:
+        raise InputError("no points given: put x,y,z words after -- (e.g. -- 0,0,0 1,0,0) or give a CSV file")
+    m = rotation_about_pivot(rots, pivot)
+    out_pts = apply_transform(m, np.array(pts))
+    if args.json:
+        emit_json({"points": out_pts.tolist(), "matrix": m.tolist(), "pivot": pivot.tolist(),
+                   "rotations": [{"axis": a, "deg": d} for a, d in rots]})
+        return 0
+    for src, dst in zip(pts, out_pts):
+        print(f"{_fmt(src, 5)}  ->  {_fmt(dst, 5)}")
+    return 0
+
+
+def _run(args: argparse.Namespace) -> int:
+    from controller.align.routine import run_cli
+
+    return run_cli(args)
