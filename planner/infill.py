@@ -1,0 +1,86 @@
+"""Scan-line infill linked zigzag into continuous beads (Fang 2019 §1.5, Kerschbaumer 2004)."""
+from __future__ import annotations
+
+import numpy as np
+import shapely
+from shapely import affinity
+from shapely.geometry import LineString, MultiLineString, Polygon
+
+from planner.path2d import Path2D
+from planner.regions import polygons_of
+
+
+def scan_fill(region, step: float, width: float, angle_deg: float) -> list[Path2D]:
+    """Fill `region` (bead centres may go anywhere in it) with scan lines at `step`, linked zigzag."""
+    out: list[Path2D] = []
+    for piece in polygons_of(region):
+        rot = affinity.rotate(piece, -angle_deg, origin=(0.0, 0.0))
+        for chain in _zigzag(rot, step):
+            pts = np.asarray(affinity.rotate(LineString(chain), angle_deg, origin=(0.0, 0.0)).coords)
+            out.append(Path2D("infill", pts, width, closed=False, share_mm=step))
+    return out
+
+
+def _rows(poly: Polygon, step: float) -> list[tuple[float, list[tuple[float, float]]]]:
+    minx, miny, maxx, maxy = poly.bounds
+    n = int(np.floor((maxy - miny) / step)) + 1
+    ys = miny + 0.5 * ((maxy - miny) - (n - 1) * step) + np.arange(n) * step
+    # A line exactly through a vertex is nudged, as in Fang 2019, so crossings come in pairs.
+    ys = np.clip(ys, miny + 1e-6, maxy - 1e-6)
+    lines = shapely.linestrings(np.stack([np.stack([np.full(n, minx - 1), ys], 1),
+                                          np.stack([np.full(n, maxx + 1), ys], 1)], 1))
+    cut = shapely.intersection(lines, poly)
+    rows = []
+    for y, g in zip(ys, cut):
+        segs = []
+        for part in shapely.get_parts(g):
+            if isinstance(part, LineString) and part.length > 1e-6:
+                xs = np.asarray(part.coords)[:, 0]
+                segs.append((float(xs.min()), float(xs.max())))
+        if segs:
+            rows.append((float(y), sorted(segs)))
+    return rows
+
+
+def _zigzag(poly: Polygon, step: float) -> list[list[tuple[float, float]]]:
+    """Link each row's segments to an overlapping segment of the next row at the same side."""
+    corridor = poly.buffer(0.6 * step)
+    shapely.prepare(corridor)
+    chains: list[dict] = []
+    active: list[dict] = []
+    prev_y = None
+    for y, segs in _rows(poly, step):
+        used = [False] * len(segs)
+        nxt_active = []
+        adjacent = prev_y is not None and abs(y - prev_y - step) < 1e-6 * max(1.0, step)
+        for ch in sorted(active, key=lambda c: c["seg"][0]) if adjacent else []:
+            x0, x1 = ch["seg"]
+            ex = ch["pts"][-1][0]
+            side = ch["side"]
+            best, best_d = -1, np.inf
+            for j, (a, b) in enumerate(segs):
+                if used[j] or b < x0 or a > x1:
+                    continue
+                sx = b if side == "R" else a
+                if abs(sx - ex) < best_d:
+                    best, best_d = j, abs(sx - ex)
+            if best < 0:
+                continue
+            a, b = segs[best]
+            start, end = ((b, y), (a, y)) if side == "R" else ((a, y), (b, y))
+            conn = LineString([ch["pts"][-1], start])
+            if conn.length > 3.0 * step or not corridor.covers(conn):
+                continue
+            used[best] = True
+            ch["pts"] += [start, end]
+            ch["seg"] = (a, b)
+            ch["side"] = "L" if side == "R" else "R"
+            nxt_active.append(ch)
+        for j, (a, b) in enumerate(segs):
+            if not used[j]:
+                ch = {"pts": [(a, y), (b, y)], "seg": (a, b), "side": "R"}
+                chains.append(ch)
+                nxt_active.append(ch)
+        active = nxt_active
+        prev_y = y
+    return [c["pts"] for c in chains]

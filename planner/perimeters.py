@@ -1,0 +1,53 @@
+"""Perimeters: closed beads around every boundary by inward offsets at the step-over (Fang 2019)."""
+from __future__ import annotations
+
+import numpy as np
+import shapely
+from shapely.geometry import Polygon
+from shapely.geometry.polygon import orient
+
+from planner.path2d import Path2D
+from planner.regions import polygons_of
+
+THIN_FACTOR = 1.5  # regions narrower than about 1.5 bead widths get one centre-line bead
+
+
+def split_thin(poly: Polygon, width: float) -> tuple[list[Polygon], list[Polygon]]:
+    """(thick, thin): thin = what an opening of diameter 1.5·w removes (walls narrower than 1.5 w)."""
+    r = 0.5 * THIN_FACTOR * width
+    opened = poly.buffer(-r, join_style="mitre").buffer(r, join_style="mitre")
+    thick = [p for p in polygons_of(opened.intersection(poly)) if p.area > 0.05 * width * width]
+    rest = poly.difference(shapely.union_all(thick)) if thick else poly
+    # Slivers left by the opening along straight edges are numerical, not features.
+    thin = [p for p in polygons_of(rest) if p.area > 0.1 * width * width
+            and not p.buffer(-0.05 * width).is_empty]
+    return thick, thin
+
+
+def perimeter_loops(poly: Polygon, width: float, step: float, count: int | None,
+                    quad_segs: int = 6) -> tuple[list[list[Path2D]], float]:
+    """Loops per offset level (outermost first) and the inset of the innermost bead centres.
+
+    The first loop's centre is half a bead inside the contour (the bead's edge on the contour);
+    `count=None` offsets until the loops meet (Fang's composite path without infill).
+    """
+    levels: list[list[Path2D]] = []
+    k = 0
+    inset = 0.5 * width
+    while count is None or k < count:
+        off = 0.5 * width + k * step
+        geom = poly.buffer(-off, quad_segs=quad_segs)
+        pieces = [orient(p, 1.0) for p in polygons_of(geom) if p.area > 0.02 * width * width]
+        if not pieces:
+            break
+        loops = []
+        for p in pieces:
+            for ring in (p.exterior, *p.interiors):
+                pts = np.asarray(ring.coords)[:, :2]
+                # The outermost bead has no neighbour outside: it fills half a width plus half a step.
+                share = 0.5 * (width + step) if k == 0 else step
+                loops.append(Path2D("perimeter", pts, width, closed=True, share_mm=share))
+        levels.append(loops)
+        inset = off
+        k += 1
+    return levels, inset

@@ -1,0 +1,62 @@
+"""Plan quality per layer: coverage, underfill, overfill, planned volume; and the job summary."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+
+from planner.path2d import Path2D
+
+TRAVEL_MM_MIN = 6000.0  # assumed torch travel speed between beads (arc off)
+ARC_START_S = 1.5  # gas pre-flow + ignition + crater fill + post-flow per bead, assumed
+
+
+@dataclass(frozen=True)
+class LayerQuality:
+    area_mm2: float
+    covered_mm2: float
+    footprint_mm2: float
+    overfill_mm2: float  # footprint beyond half a bead outside the contour
+    volume_mm3: float
+    deposit_mm: float
+    layer_volume_mm3: float = 0.0  # layer area x layer height, what the beads should fill
+
+    @property
+    def coverage(self) -> float:
+        return self.covered_mm2 / self.area_mm2 if self.area_mm2 > 0 else 1.0
+
+
+def layer_quality(region, paths: list[Path2D], width: float, height: float) -> LayerQuality:
+    """Coverage = share of the layer inside the union of bead footprints (round-capped, at width)."""
+    area = float(region.area)
+    if not paths:
+        return LayerQuality(area, 0.0, 0.0, 0.0, 0.0, 0.0, area * height)
+    lines = np.array([shapely.linestrings(p.points) for p in paths], dtype=object)
+    widths = np.array([p.width_mm for p in paths])
+    fp = shapely.union_all(shapely.buffer(lines, widths / 2.0, quad_segs=4))
+    covered = float(shapely.intersection(fp, region).area)
+    outside = float(shapely.difference(fp, region.buffer(0.5 * width, quad_segs=4)).area)
+    lengths = shapely.length(lines)
+    share = np.array([p.share_mm for p in paths])
+    return LayerQuality(area, covered, float(fp.area), outside, float(np.sum(lengths * share) * height),
+                        float(lengths.sum()), area * height)
+
+
+def summarise(qualities: list[LayerQuality], n_passes: int, time_s: float) -> dict:
+    area = sum(q.area_mm2 for q in qualities)
+    cov = sum(q.covered_mm2 for q in qualities) / area if area > 0 else 1.0
+    fp = sum(q.footprint_mm2 for q in qualities)
+    return {
+        "layers": len(qualities),
+        "passes": n_passes,
+        "arc_starts": n_passes,
+        "deposit_length_mm": round(sum(q.deposit_mm for q in qualities), 1),
+        "volume_mm3": round(sum(q.volume_mm3 for q in qualities), 1),
+        "coverage": round(cov, 5),
+        "coverage_min": round(min((q.coverage for q in qualities), default=1.0), 5),
+        "underfill": round(1.0 - cov, 5),
+        "overfill": round(sum(q.overfill_mm2 for q in qualities) / fp, 5) if fp > 0 else 0.0,
+        "layer_volume_mm3": round(sum(q.layer_volume_mm3 for q in qualities), 1),
+        "est_time_s": round(time_s, 1),
+    }
