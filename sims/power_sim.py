@@ -27,6 +27,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -115,6 +116,8 @@ class PowerSourceSim:
         self._events = self._spec_events(faults)
         self._pending_at: list[tuple[float, str, dict]] = []   # (sim t, fault, kwargs) from inject(at=)
         self.cycles = 0
+        self.history: deque = deque(maxlen=5000)   # (wall t, counter, bits) of every host cycle
+        self._echo_frozen: int | None = None
 
     # -- faults -----------------------------------------------------------------------------
     @staticmethod
@@ -135,7 +138,8 @@ class PowerSourceSim:
 
         arc_loss (duration_s wall, default 0.5), ignition_fail (the next `count` starts),
         wire_stick (now while the arc burns, else at the next arc end), gas_fault, wire_out,
-        collision (latched until error reset), silence (duration_s wall, None: for ever).
+        collision (latched until error reset), silence (duration_s wall, None: for ever),
+        freeze_echo (the watchdog echo stops following the counter; duration_s=0 ends it).
         """
         if at is not None and at > self.clock.now():
             self._pending_at.append((at, fault, {"duration_s": duration_s, "count": count}))
@@ -157,6 +161,8 @@ class PowerSourceSim:
             self._latch(ERR_WIRE_OUT, "wire_out")
         elif fault == "collision":
             self._latch(ERR_COLLISION, "collision")
+        elif fault == "freeze_echo":
+            self._echo_frozen = max(self.cmd.counter, 0) if duration_s is None or duration_s > 0 else None
         elif fault == "silence":
             self._silent_until = math.inf if duration_s is None else now + duration_s
         else:
@@ -207,6 +213,7 @@ class PowerSourceSim:
             self._error_reset()
         self._prev_reset = reset
         self.cmd = _Cmd(dict(bits), mode, job, wfs, arc_trim, dynamic_trim, counter)
+        self.history.append((now, counter, dict(bits)))
         self.cycles += 1
         self._heartbeat = not self._heartbeat
         self.tick(now)
@@ -238,7 +245,8 @@ class PowerSourceSim:
             "wire_stick": self.flags["wire_stick"],
         }
         u, i, w = self._actuals
-        return {"echo": max(self.cmd.counter, 0), "bits": bits, "error": self.error,
+        echo = max(self.cmd.counter, 0) if self._echo_frozen is None else self._echo_frozen
+        return {"echo": echo, "bits": bits, "error": self.error,
                 "voltage": u, "current": i, "wfs": w}
 
     # -- the process model ---------------------------------------------------------------------

@@ -1,0 +1,258 @@
+"""Cell I/O over Modbus TCP: door, E-stop, gas, fume extraction, beacon, door lock, pyrometer.
+
+The remote I/O coupler of DESIGN.md §5 (device id 1): discrete inputs 0 door closed, 1 E-stop
+released, 2 gas pressure OK, 3 fume extraction running; coils 0 gas valve, 1-3 beacon green /
+amber / red, 4 door lock; input registers 0 part temperature (0.1 °C), 1 gas flow (0.1 L/min).
+
+Usage (the controller):
+
+    io = CellIO(cell.devices.cellio.url)
+    io.on_change(interlock)      # interlock(prev, new) in the cycle the input is read:
+                                 # e.g. drop the power source's weld start at once
+    await io.connect()
+    io.inputs.door_closed, io.inputs.estop_released, io.inputs.gas_ok, io.inputs.fume_ok
+    io.part_temperature_c, io.gas_flow_l_min
+    io.set_gas_valve(True); io.set_beacon("amber"); io.set_door_lock(True)
+
+Every `cycle_ms` (10 ms, wall time) the driver reads the inputs first (and calls the change
+callbacks at once), then the two input registers, and writes the coils when they changed.
+No reply within `timeout_ms` stops the cycle with LinkLost naming the URL; all inputs are
+then treated as unsafe by `inputs_safe()`.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.exceptions import ModbusException
+
+from drivers.errors import DeviceError, LinkLost
+from drivers.power_modbus import parse_tcp_url
+from planner.errors import CellError
+
+logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+
+COILS = ("gas_valve", "beacon_green", "beacon_amber", "beacon_red", "door_lock")
+
+
+@dataclass(frozen=True)
+class CellInputs:
+    """One cycle's reading of the coupler."""
+
+    t: float                      # time.monotonic() of the discrete-input reply
+    door_closed: bool = False
+    estop_released: bool = False
+    gas_ok: bool = False
+    fume_ok: bool = False
+    part_temperature_c: float = float("nan")
+    gas_flow_l_min: float = 0.0
+
+    def safe_to_weld(self) -> bool:
+        """Door closed, E-stop released, gas pressure and fume extraction OK."""
+        return self.door_closed and self.estop_released and self.gas_ok and self.fume_ok
+
+
+class CellIO:
+    """Cyclic driver of the cell's I/O coupler."""
+
+    device = "cellio"
+
+    def __init__(self, url: str, *, device_id: int = 1, cycle_ms: float = 10.0, timeout_ms: float = 50.0) -> None:
+        self.url = url
+        self.device_id = device_id
+        self.cycle_s = cycle_ms / 1000.0
+        self.timeout_s = timeout_ms / 1000.0
+        self._client: AsyncModbusTcpClient | None = None
+        self._inputs = CellInputs(t=0.0)
+        self._coils = {k: False for k in COILS}
+        self._written: dict | None = None
+        self._task: asyncio.Task | None = None
+        self._error: CellError | None = None
+        self._change: list[Callable[[CellInputs, CellInputs], None]] = []
+        self._subs: list[Callable[[CellInputs], None]] = []
+        self._err_subs: list[Callable[[CellError], None]] = []
+        self._waiters: list[asyncio.Future] = []
+        self.cycles = 0
+
+    def where(self) -> str:
+        return f"cell I/O (Modbus TCP, device id {self.device_id}) at {self.url}"
+
+    # -- lifecycle ---------------------------------------------------------------------------
+    async def connect(self) -> None:
+        """Connect, read once (errors surface here), start the cycle."""
+        host, port = parse_tcp_url(self.url)
+        client = AsyncModbusTcpClient(host, port=port, timeout=max(self.timeout_s, 1.0), retries=0,
+                                      reconnect_delay=0)
+        if not await client.connect():
+            client.close()
+            raise LinkLost(f"{self.where()}: cannot connect; is the coupler (or `cell sim up`) running?")
+        client.ctx.comm_params.timeout_connect = self.timeout_s
+        self._client = client
+        self._error = None
+        self._written = None
+        try:
+            await self._cycle()
+        except BaseException:
+            client.close()
+            self._client = None
+            raise
+        self._task = asyncio.get_running_loop().create_task(self._run(), name=f"cellio {self.url}")
+
+    async def close(self) -> None:
+        task, self._task = self._task, None
+        if task is not None:
+            task.cancel()
+            try:
+                await task
+            except (asyncio.CancelledError, Exception):
+                pass
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+
+    @property
+    def error(self) -> CellError | None:
+        return self._error
+
+    # -- inputs ------------------------------------------------------------------------------
+    @property
+    def inputs(self) -> CellInputs:
+        """The latest reading (door_closed, estop_released, gas_ok, fume_ok, temperature, flow)."""
+        return self._inputs
+
+    @property
+    def part_temperature_c(self) -> float:
+        return self._inputs.part_temperature_c
+
+    @property
+    def gas_flow_l_min(self) -> float:
+        return self._inputs.gas_flow_l_min
+
+    def inputs_safe(self) -> bool:
+        """Safe to weld: link up and every safety input good."""
+        return self._error is None and self._task is not None and self._inputs.safe_to_weld()
+
+    def on_change(self, fn: Callable[[CellInputs, CellInputs], None]) -> None:
+        """Call `fn(previous, new)` in the cycle a discrete input changes (before the registers are read)."""
+        self._change.append(fn)
+
+    def subscribe(self, fn: Callable[[CellInputs], None]) -> Callable[[], None]:
+        """Call `fn(inputs)` every cycle."""
+        self._subs.append(fn)
+        return lambda: self._subs.remove(fn) if fn in self._subs else None
+
+    def on_error(self, fn: Callable[[CellError], None]) -> None:
+        self._err_subs.append(fn)
+
+    async def next_inputs(self) -> CellInputs:
+        if self._error is not None:
+            raise self._error
+        fut = asyncio.get_running_loop().create_future()
+        self._waiters.append(fut)
+        return await fut
+
+    # -- outputs -----------------------------------------------------------------------------
+    @property
+    def coils(self) -> dict[str, bool]:
+        return dict(self._coils)
+
+    def set_gas_valve(self, on: bool) -> None:
+        self._coils["gas_valve"] = bool(on)
+
+    def set_beacon(self, color: str | None) -> None:
+        """Light one beacon lamp: 'green', 'amber', 'red' or None (all off)."""
+        if color not in (None, "green", "amber", "red"):
+            raise CellError(f"{self.where()}: beacon colour {color!r} unknown; use green, amber or red")
+        for c in ("green", "amber", "red"):
+            self._coils[f"beacon_{c}"] = c == color
+
+    def set_door_lock(self, on: bool) -> None:
+        self._coils["door_lock"] = bool(on)
+
+    # -- the cycle ---------------------------------------------------------------------------
+    async def _call(self, coro):
+        try:
+            rr = await asyncio.wait_for(coro, self.timeout_s)
+        except (asyncio.TimeoutError, ModbusException) as exc:
+            raise LinkLost(f"{self.where()}: no reply within {self.timeout_s * 1000:g} ms ({str(exc) or 'timeout'}); "
+                           "check the coupler and the URL") from None
+        except (ConnectionError, OSError) as exc:
+            raise LinkLost(f"{self.where()}: link dropped ({exc})") from None
+        if rr.isError():
+            raise DeviceError(f"{self.where()}: coupler refused the request (exception {getattr(rr, 'exception_code', '?')}); "
+                              "check its I/O map against DESIGN.md §5")
+        return rr
+
+    async def _cycle(self) -> CellInputs:
+        c, dev = self._client, self.device_id
+        if c is None or not c.connected:
+            raise LinkLost(f"{self.where()}: not connected")
+        di = await self._call(c.read_discrete_inputs(0, count=4, device_id=dev))
+        t = time.monotonic()
+        prev = self._inputs
+        b = list(di.bits[:4])
+        new = CellInputs(t, b[0], b[1], b[2], b[3], prev.part_temperature_c, prev.gas_flow_l_min)
+        if (prev.door_closed, prev.estop_released, prev.gas_ok, prev.fume_ok) != tuple(b) and self.cycles:
+            self._inputs = new
+            for fn in list(self._change):
+                try:
+                    fn(prev, new)
+                except Exception:
+                    pass
+        ir = await self._call(c.read_input_registers(0, count=2, device_id=dev))
+        new = CellInputs(t, b[0], b[1], b[2], b[3], ir.registers[0] / 10.0, ir.registers[1] / 10.0)
+        self._inputs = new
+        if self._written != self._coils:
+            want = dict(self._coils)
+            await self._call(c.write_coils(0, [want[k] for k in COILS], device_id=dev))
+            self._written = want
+        self.cycles += 1
+        return new
+
+    async def _run(self) -> None:
+        deadline = time.monotonic()
+        try:
+            while True:
+                try:
+                    st = await self._cycle()
+                except CellError as exc:
+                    self._fail(exc)
+                    return
+                for fn in list(self._subs):
+                    try:
+                        fn(st)
+                    except Exception:
+                        pass
+                waiters, self._waiters = self._waiters, []
+                for f in waiters:
+                    if not f.done():
+                        f.set_result(st)
+                deadline += self.cycle_s
+                now = time.monotonic()
+                if now - deadline > self.cycle_s:
+                    deadline = now
+                await asyncio.sleep(max(0.0, deadline - now))
+        except asyncio.CancelledError:
+            raise
+
+    def _fail(self, exc: CellError) -> None:
+        self._error = exc
+        self._task = None
+        waiters, self._waiters = self._waiters, []
+        for f in waiters:
+            if not f.done():
+                f.set_exception(exc)
+        for fn in list(self._err_subs):
+            try:
+                fn(exc)
+            except Exception:
+                pass
+
+
+def open_cellio(cfg, url: str | None = None) -> CellIO:
+    """The driver for `devices.cellio` of cell.yaml."""
+    return CellIO(url or cfg.url, device_id=cfg.device_id, cycle_ms=cfg.cycle_ms)

@@ -1,0 +1,171 @@
+"""Cell I/O simulator: the remote I/O coupler of the cell on Modbus TCP (DESIGN.md §5).
+
+Discrete inputs 0 door closed, 1 E-stop released, 2 gas pressure OK, 3 fume extraction
+running; coils 0 gas valve, 1-3 beacon green / amber / red, 4 door lock; input registers 0 part
+temperature (pyrometer, 0.1 °C), 1 gas flow (0.1 L/min). The pyrometer reads a lumped thermal
+model of the part heated by η·U·I while the arc burns (the World's heat power) and cooling
+toward ambient, in simulated time, so interpass waits behave like a real part.
+
+Tests (and the fault spec: door_open@t=20s, estop@t=..., durations door_open=5s) open the door
+or press E-stop at a chosen simulated time: `open_door(at=...)`, `press_estop(at=...)`.
+"""
+from __future__ import annotations
+
+import asyncio
+import time
+
+from sims.clock import SimClock
+from sims.thermal import LumpedThermal
+from sims.world import World
+
+INPUTS = ("door_closed", "estop_released", "gas_ok", "fume_ok")
+COILS = ("gas_valve", "beacon_green", "beacon_amber", "beacon_red", "door_lock")
+GAS_FLOW_L_MIN = 15.0
+TICK_S = 0.010
+
+
+class CellIOSim:
+    """The coupler's state, the part's temperature and scheduled operator actions."""
+
+    def __init__(self, *, clock: SimClock | None = None, world: World | None = None,
+                 thermal: LumpedThermal | None = None, faults=None) -> None:
+        self.clock = clock or SimClock(1.0)
+        self.world = world
+        self.thermal = thermal or LumpedThermal()
+        self.inputs = {k: True for k in INPUTS}
+        self.coils = {k: False for k in COILS}
+        self._t = self.clock.now()
+        self._scheduled: list[tuple[float, str, bool]] = []   # (sim t, input, value)
+        self._silent_until = 0.0
+        self.log: list[dict] = []
+        self.reads = 0
+        if faults is not None:
+            for name, key in (("door_open", "door_closed"), ("estop", "estop_released")):
+                dur = faults.value(name, None)
+                for cond, v in faults.events(name):
+                    if cond == "t":
+                        self._scheduled.append((float(v), key, False))
+                        if dur:
+                            self._scheduled.append((float(v) + float(dur), key, True))
+            sil = faults.value("silence", None)
+            self._silence_events = [float(v) for c, v in faults.events("silence") if c == "t"]
+            self._silence_dur = None if sil is None else float(sil)
+        else:
+            self._silence_events, self._silence_dur = [], None
+
+    # -- operator actions (now, or at simulated time `at`) ------------------------------------
+    def _set(self, key: str, value: bool, at: float | None) -> None:
+        if at is not None and at > self.clock.now():
+            self._scheduled.append((at, key, value))
+            return
+        if self.inputs[key] != value:
+            self.inputs[key] = value
+            self.log.append({"t": time.monotonic(), "t_sim": self.clock.now(), "input": key, "value": value})
+
+    def open_door(self, at: float | None = None) -> None:
+        self._set("door_closed", False, at)
+
+    def close_door(self, at: float | None = None) -> None:
+        self._set("door_closed", True, at)
+
+    def press_estop(self, at: float | None = None) -> None:
+        self._set("estop_released", False, at)
+
+    def release_estop(self, at: float | None = None) -> None:
+        self._set("estop_released", True, at)
+
+    def set_gas_pressure(self, ok: bool, at: float | None = None) -> None:
+        self._set("gas_ok", ok, at)
+
+    def set_fume_extraction(self, running: bool, at: float | None = None) -> None:
+        self._set("fume_ok", running, at)
+
+    def silence(self, duration_s: float | None = None) -> None:
+        """Stop answering for `duration_s` wall seconds (None: for ever)."""
+        self._silent_until = float("inf") if duration_s is None else time.monotonic() + duration_s
+
+    def silent(self) -> bool:
+        return time.monotonic() < self._silent_until
+
+    # -- physics --------------------------------------------------------------------------------
+    def tick(self) -> None:
+        t = self.clock.now()
+        due = sorted(x for x in self._scheduled if x[0] <= t)
+        if due:
+            self._scheduled = [x for x in self._scheduled if x[0] > t]
+            for _, key, value in due:
+                self._set(key, value, None)
+        for ts in list(self._silence_events):
+            if ts <= t:
+                self._silence_events.remove(ts)
+                self.silence(self._silence_dur)
+        power = self.world.heat_power_w() if self.world is not None else 0.0
+        self.thermal.step(power, t - self._t)
+        self._t = t
+
+    @property
+    def part_temperature_c(self) -> float:
+        return float(self.thermal.temperature_c)
+
+    @property
+    def gas_flow_l_min(self) -> float:
+        return GAS_FLOW_L_MIN if self.coils["gas_valve"] and self.inputs["gas_ok"] else 0.0
+
+    # -- Modbus view -------------------------------------------------------------------------------
+    def read(self, fc: int, address: int, count: int) -> list | None:
+        self.tick()
+        self.reads += 1
+        if fc == 2:
+            vals = [self.inputs[k] for k in INPUTS]
+        elif fc == 1:
+            vals = [self.coils[k] for k in COILS]
+        elif fc == 4:
+            vals = [max(0, min(0xFFFF, int(round(self.part_temperature_c * 10)))),
+                    int(round(self.gas_flow_l_min * 10))]
+        else:
+            return None
+        if address < 0 or address + count > len(vals):
+            return None
+        return vals[address:address + count]
+
+    def write(self, fc: int, address: int, values: list) -> bool:
+        if fc not in (5, 15) or address < 0 or address + len(values) > len(COILS):
+            return False
+        for i, v in enumerate(values):
+            key = COILS[address + i]
+            if self.coils[key] != bool(v):
+                self.coils[key] = bool(v)
+                self.log.append({"t": time.monotonic(), "t_sim": self.clock.now(), "coil": key, "value": bool(v)})
+        return True
+
+    async def run(self) -> None:
+        while True:
+            self.tick()
+            await asyncio.sleep(TICK_S)
+
+
+async def serve_modbus_tcp(sim: CellIOSim, host: str = "127.0.0.1", port: int = 0, device_id: int = 1):
+    """Start the coupler on Modbus TCP and the model's ticking; returns (url, close)."""
+    from sims.modbus_server import start_tcp, stop
+    server, bound = await start_tcp(sim, host, port, device_id)
+    ticker = asyncio.get_running_loop().create_task(sim.run())
+
+    async def close() -> None:
+        ticker.cancel()
+        await stop(server)
+    return f"tcp://{host}:{bound}", close
+
+
+async def serve(ctx) -> list:
+    """`cell sim up`: the cell I/O coupler on cell.yaml's URL."""
+    from drivers.power_modbus import parse_tcp_url
+    from sims.faults import parse_fault_spec
+    from sims.up import Served
+    cfg = ctx.cell.devices.cellio
+    th = ctx.sim.thermal
+    thermal = LumpedThermal(th.ambient_c, th.heat_capacity_j_k, th.cooling_time_constant_s)
+    sim = CellIOSim(clock=ctx.clock, world=ctx.world, thermal=thermal,
+                    faults=parse_fault_spec(ctx.faults or ctx.sim.faults))
+    host, port = parse_tcp_url(cfg.url)
+    url, close = await serve_modbus_tcp(sim, host, 0 if ctx.ephemeral else port, cfg.device_id)
+    return [Served("cellio", url, close, sim=sim)]
