@@ -55,6 +55,8 @@ __all__ = [
 ]
 
 PROFILES: tuple[str, ...] = ("parabola", "cosine", "arc")
+# A measured profile is fitted on the contiguous points above this fraction of its peak.
+SUBSTRATE_FRACTION = 0.05
 OVERLAP_MODELS: tuple[str, ...] = ("tangent", "flat_top")
 
 
@@ -344,17 +346,26 @@ def _prepare(x: Any, y: Any, min_height_mm: float | None) -> tuple[np.ndarray, n
         raise InputError("profile contains a non-finite x or y value")
     if xa.size == 0 or float(ya.max(initial=0.0)) <= 0.0:
         raise InputError("profile has no point above the substrate (y > 0); nothing to fit")
-    thr = 0.01 * float(ya.max()) if min_height_mm is None else float(min_height_mm)
-    keep = ya > thr
-    if int(keep.sum()) < 5:
+    order = np.argsort(xa, kind="stable")
+    xa, ya = xa[order], ya[order]
+    thr = SUBSTRATE_FRACTION * float(ya.max()) if min_height_mm is None else float(min_height_mm)
+    # The bead: the contiguous run of points above the threshold around the peak. Substrate
+    # points (and noise spikes on the substrate) beyond the toes are not part of the profile.
+    peak = int(np.argmax(ya))
+    lo = peak
+    while lo > 0 and ya[lo - 1] > thr:
+        lo -= 1
+    hi = peak
+    while hi < ya.size - 1 and ya[hi + 1] > thr:
+        hi += 1
+    xa, ya = xa[lo : hi + 1], ya[lo : hi + 1]
+    if xa.size < 5:
         raise InputError(
-            f"profile has {int(keep.sum())} points above the substrate (y > {thr:.3g} mm); "
-            "a fit needs at least 5"
+            f"profile has {xa.size} points on the bead (contiguous, y > {thr:.3g} mm); a fit needs at least 5"
         )
-    if np.ptp(xa[keep]) <= 0.0:
-        raise InputError("profile points above the substrate all have the same x; nothing to fit")
-    order = np.argsort(xa[keep], kind="stable")
-    return xa[keep][order], ya[keep][order]
+    if np.ptp(xa) <= 0.0:
+        raise InputError("profile points on the bead all have the same x; nothing to fit")
+    return xa, ya
 
 
 def fit_parabola(x: Any, y: Any, *, min_height_mm: float | None = None) -> ProfileFit:
