@@ -1,0 +1,160 @@
+"""The CNC simulator's virtual workpiece: a mesh on the rotary table that the touch probe hits.
+
+Frames (all mm, right-handed):
+- part frame: the mesh's own coordinates. With `mesh: null` the part is a block of `size_mm`
+  centred on the table axis in X and Y with its TOP face at z = 0 (so it spans z ∈ [-h, 0]);
+  a mesh file is used in its own coordinates (loaded with trimesh, unit mm).
+- table frame: the part as clamped on the table, `pose = T(offset) · R_y(tilt_b) · R_x(tilt_a) ·
+  R_z(rotation_c)`: spun about Z first, then tilted about X, then about Y, then shifted.
+- machine frame: the table frame turned by the machine's rotary axes A and B (or C) with the
+  cell's trunnion kinematics, `W = T(−P) · R_2(second) · R_A(a) · T(P)` (DESIGN.md §4), each a
+  right-handed rotation by the axis value about the configured axis direction. The probe tip
+  sits at the machine position X, Y, Z.
+
+Probe contact is a segment–mesh intersection (Möller–Trumbore, vectorised over triangles; no
+rtree needed) with Gaussian trigger noise of σ = `probe_noise_mm` along the travel direction
+from a seeded generator, so a run is reproducible.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+_EPS = 1e-12
+
+
+def rot(axis: np.ndarray | tuple[float, float, float], deg: float) -> np.ndarray:
+    """4x4 right-handed rotation by `deg` about the unit vector `axis` (Rodrigues)."""
+    k = np.asarray(axis, dtype=float)
+    k = k / np.linalg.norm(k)
+    t = math.radians(deg)
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    r = np.eye(3) + math.sin(t) * kx + (1 - math.cos(t)) * (kx @ kx)
+    m = np.eye(4)
+    m[:3, :3] = r
+    return m
+
+
+def trans(v: tuple[float, float, float] | np.ndarray) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, 3] = v
+    return m
+
+
+class Workpiece:
+    """A triangle mesh posed on the table; answers probe segments and "is the tip touching"."""
+
+    def __init__(
+        self,
+        triangles: np.ndarray,
+        pose: np.ndarray,
+        *,
+        noise_mm: float = 0.0,
+        seed: int = 0,
+        pivot_mm: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        axis_a: tuple[float, float, float] = (1.0, 0.0, 0.0),
+        axis_second: tuple[float, float, float] = (0.0, 1.0, 0.0),
+        trigger_mm: float | None = None,
+    ) -> None:
+        tri = np.asarray(triangles, dtype=float).reshape(-1, 3, 3)
+        if len(tri) == 0:
+            raise ValueError("workpiece mesh has no triangles")
+        self._v0 = tri[:, 0]
+        self._e1 = tri[:, 1] - tri[:, 0]
+        self._e2 = tri[:, 2] - tri[:, 0]
+        self.pose = np.asarray(pose, dtype=float)
+        self.noise_mm = float(noise_mm)
+        self.rng = np.random.default_rng(seed)
+        self.pivot = np.asarray(pivot_mm, dtype=float)
+        self.axis_a = axis_a
+        self.axis_second = axis_second
+        # How close to the surface the stylus counts as deflected (a real probe trips within
+        # microns); wide enough that a noisy trip point still reads as tripped.
+        self.trigger_mm = trigger_mm if trigger_mm is not None else max(0.01, 5.0 * self.noise_mm)
+
+    # -- construction -----------------------------------------------------------------------
+    @classmethod
+    def from_config(cls, wp, noise_mm: float, *, seed: int = 0, kinematics=None,
+                    base_dir: Path | None = None) -> "Workpiece":
+        """From sim.yaml's `cnc.workpiece` (controller.config.Workpiece) and cell.yaml's kinematics."""
+        import trimesh
+
+        if wp.mesh:
+            p = Path(wp.mesh)
+            if not p.is_absolute() and base_dir is not None and (base_dir / p).exists():
+                p = base_dir / p
+            mesh = trimesh.load_mesh(str(p), force="mesh")
+        else:
+            sx, sy, sz = wp.size_mm
+            mesh = trimesh.creation.box(extents=(sx, sy, sz))
+            mesh.apply_translation((0.0, 0.0, -sz / 2.0))  # top face at z = 0
+        pose = (trans(wp.offset_mm) @ rot((0, 1, 0), wp.tilt_b_deg) @ rot((1, 0, 0), wp.tilt_a_deg)
+                @ rot((0, 0, 1), wp.rotation_c_deg))
+        kw = {}
+        if kinematics is not None:
+            kw = dict(pivot_mm=tuple(kinematics.pivot_mm), axis_a=tuple(kinematics.axis_a),
+                      axis_second=tuple(kinematics.axis_second))
+        return cls(np.asarray(mesh.triangles), pose, noise_mm=noise_mm, seed=seed, **kw)
+
+    # -- frames -----------------------------------------------------------------------------
+    def table_matrix(self, a_deg: float, second_deg: float) -> np.ndarray:
+        """Table frame → machine frame for rotary positions A and B/C (W = T(−P)·R2·RA·T(P))."""
+        return trans(-self.pivot) @ rot(self.axis_second, second_deg) @ rot(self.axis_a, a_deg) @ trans(self.pivot)
+
+    def part_to_machine(self, a_deg: float = 0.0, second_deg: float = 0.0) -> np.ndarray:
+        return self.table_matrix(a_deg, second_deg) @ self.pose
+
+    def _to_part(self, pts: np.ndarray, a_deg: float, second_deg: float) -> np.ndarray:
+        inv = np.linalg.inv(self.part_to_machine(a_deg, second_deg))
+        pts = np.asarray(pts, dtype=float).reshape(-1, 3)
+        return pts @ inv[:3, :3].T + inv[:3, 3]
+
+    # -- geometry ---------------------------------------------------------------------------
+    def _ray_hits(self, origin: np.ndarray, direction: np.ndarray) -> np.ndarray:
+        """Ray parameters t of every triangle the ray (origin + t·direction) crosses."""
+        pvec = np.cross(direction, self._e2)
+        det = np.einsum("ij,ij->i", self._e1, pvec)
+        ok = np.abs(det) > _EPS
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        tvec = origin - self._v0
+        u = np.einsum("ij,ij->i", tvec, pvec) * inv
+        qvec = np.cross(tvec, self._e1)
+        v = (qvec @ direction) * inv
+        t = np.einsum("ij,ij->i", self._e2, qvec) * inv
+        hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1)
+        return t[hit]
+
+    def surface_hit(self, p0, p1, a_deg: float = 0.0, second_deg: float = 0.0) -> float | None:
+        """Distance along p0→p1 (machine frame) to the first surface crossing, or None."""
+        q0, q1 = self._to_part(np.array([p0, p1], dtype=float)[:, :3], a_deg, second_deg)
+        d = q1 - q0
+        length = float(np.linalg.norm(d))
+        if length < 1e-12:
+            return None
+        d = d / length
+        t = self._ray_hits(q0, d)
+        t = t[(t >= -1e-9) & (t <= length + 1e-9)]
+        return float(t.min()) if len(t) else None
+
+    def inside(self, p, a_deg: float = 0.0, second_deg: float = 0.0) -> bool:
+        """Is the machine-frame point inside the (watertight) part? Parity of ray crossings."""
+        q = self._to_part(np.asarray(p, dtype=float)[:3], a_deg, second_deg)[0]
+        d = np.array([0.2672612, 0.5345225, 0.8017837])  # skewed: avoids hitting edges exactly
+        t = self._ray_hits(q, d)
+        return bool(np.count_nonzero(t > 1e-9) % 2)
+
+    def probe(self, p0, p1, a_deg: float = 0.0, second_deg: float = 0.0) -> tuple[float, float, float] | None:
+        """Where a probe moving p0→p1 trips (with noise), or None when it reaches p1 untouched."""
+        dist = self.surface_hit(p0, p1, a_deg, second_deg)
+        if dist is None:
+            return None
+        p0a = np.asarray(p0, dtype=float)[:3]
+        d = np.asarray(p1, dtype=float)[:3] - p0a
+        length = float(np.linalg.norm(d))
+        if self.noise_mm > 0:
+            dist = dist + float(self.rng.normal(0.0, self.noise_mm))
+        dist = min(max(dist, 0.0), length)
+        p = p0a + d / length * dist
+        return (float(p[0]), float(p[1]), float(p[2]))
