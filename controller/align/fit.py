@@ -226,3 +226,45 @@ def grid_points(center: ArrayLike, size: ArrayLike, counts: tuple[int, int]) -> 
     ys = np.linspace(cy - sy / 2, cy + sy / 2, ny) if ny > 1 else np.array([cy])
     gx, gy = np.meshgrid(xs, ys, indexing="xy")
     return np.column_stack([gx.ravel(), gy.ravel()])
+
+
+@dataclass(frozen=True)
+class Datum:
+    """A CAD datum face: its outward unit normal and a point on it, in CAD coordinates."""
+
+    normal: tuple[float, float, float]
+    point: tuple[float, float, float]
+
+
+def cad_transform_321(top_normal: ArrayLike, top_point: ArrayLike, side_normal: ArrayLike, side_point: ArrayLike,
+                      tertiary_point: ArrayLike, *, cad_top: Datum, cad_side: Datum, cad_tertiary: Datum) -> F:
+    """4×4 CAD → machine from a 3-2-1 set: the fitted top plane, the side face, one tertiary touch.
+
+    Rotation: the CAD (top normal, side normal ⊥ top) frame onto the measured one (the side
+    normal is made exactly perpendicular to the top, which the top defines best). Translation:
+    each CAD datum face must pass through its measured point.
+    """
+    def frame(z: ArrayLike, x: ArrayLike) -> F:
+        z = np.asarray(z, dtype=float) / np.linalg.norm(z)
+        x = np.asarray(x, dtype=float)
+        x = x - z * (x @ z)
+        nx = np.linalg.norm(x)
+        if nx < 1e-9:
+            raise InputError("3-2-1: the side face is parallel to the top face; probe a face at an angle to it")
+        x = x / nx
+        return np.column_stack([x, np.cross(z, x), z])
+
+    r = frame(top_normal, side_normal) @ frame(cad_top.normal, cad_side.normal).T
+    rows, rhs = [], []
+    for datum, q in ((cad_top, top_point), (cad_side, side_point), (cad_tertiary, tertiary_point)):
+        n = r @ np.asarray(datum.normal, dtype=float)
+        rows.append(n)
+        rhs.append(n @ (np.asarray(q, dtype=float) - r @ np.asarray(datum.point, dtype=float)))
+    a = np.vstack(rows)
+    if abs(np.linalg.det(a)) < 1e-9:
+        raise InputError("3-2-1: the three datum faces do not fix the position (two are parallel)")
+    t = np.linalg.solve(a, np.array(rhs))
+    m = np.eye(4)
+    m[:3, :3] = r
+    m[:3, 3] = t
+    return m

@@ -49,6 +49,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     rn.add_argument("--sim", action="store_true", help="start the CNC simulator in-process and align its workpiece")
     rn.add_argument("--sim-config", default=None, metavar="FILE", help="simulator config (default config/sim.yaml)")
     rn.add_argument("--cell-config", default=None, metavar="FILE", help="cell config (default config/cell.yaml)")
+    rn.add_argument("--cad", default=None, metavar="FILE",
+                    help="CAD mesh of the part in mm, top face up (default: the sim config's workpiece)")
     rn.add_argument("--report", default=None, metavar="DIR", help="write align.json and align.png here")
     rn.add_argument("--json", action="store_true", help="print one JSON object")
     rn.set_defaults(func=_run)
