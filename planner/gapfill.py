@@ -9,8 +9,11 @@ from shapely.geometry import LineString, Polygon
 from planner.path2d import Path2D
 
 
-def centre_lines(poly: Polygon, width: float) -> list[Path2D]:
-    """Centre-line beads covering a thin polygon; each bead's width is the region's mean width."""
+def centre_lines(poly: Polygon, width: float, min_width: float = 0.0) -> list[Path2D]:
+    """Centre-line beads covering a thin polygon; each bead's width is the region's mean width.
+
+    Pockets narrower than `min_width` get none: the neighbouring beads flow into them.
+    """
     simple = shapely.simplify(poly, 0.02 * width)
     if simple.is_empty or simple.area <= 0:
         return []
@@ -39,7 +42,10 @@ def centre_lines(poly: Polygon, width: float) -> list[Path2D]:
         line = LineString(path)
         if line.length < 0.25 * width:
             continue
-        w_est = float(np.clip(simple.area / max(line.length, 1e-9), 0.3 * width, 1.5 * width))
+        w_raw = simple.area / max(line.length, 1e-9)
+        if w_raw < min_width:
+            continue
+        w_est = float(np.clip(w_raw, 0.3 * width, 1.5 * width))
         if not closed:
             # The medial axis runs into the corners: stop half a bead short of the ends.
             trim = min(0.5 * w_est, 0.3 * line.length)

@@ -15,16 +15,21 @@ def scan_fill(region, step: float, width: float, angle_deg: float) -> list[Path2
     out: list[Path2D] = []
     for piece in polygons_of(region):
         rot = affinity.rotate(piece, -angle_deg, origin=(0.0, 0.0))
-        for chain in _zigzag(rot, step):
+        span = rot.bounds[3] - rot.bounds[1]
+        n = int(np.ceil(span / step - 1e-9)) + 1 if span > 0.25 * step else 1
+        spacing = span / (n - 1) if n > 1 else step
+        for chain in _zigzag(rot, step, spacing):
             pts = np.asarray(affinity.rotate(LineString(chain), angle_deg, origin=(0.0, 0.0)).coords)
-            out.append(Path2D("infill", pts, width, closed=False, share_mm=step))
+            out.append(Path2D("infill", pts, width, closed=False, share_mm=spacing))
     return out
 
 
 def _rows(poly: Polygon, step: float) -> list[tuple[float, list[tuple[float, float]]]]:
     minx, miny, maxx, maxy = poly.bounds
-    n = int(np.floor((maxy - miny) / step)) + 1
-    ys = miny + 0.5 * ((maxy - miny) - (n - 1) * step) + np.arange(n) * step
+    span = maxy - miny
+    # First and last lines on the region's edges, spacing the largest that is <= the step-over.
+    n = int(np.ceil(span / step - 1e-9)) + 1 if span > 0.25 * step else 1
+    ys = miny + (np.linspace(0.0, span, n) if n > 1 else np.array([0.5 * span]))
     # A line exactly through a vertex is nudged, as in Fang 2019, so crossings come in pairs.
     ys = np.clip(ys, miny + 1e-6, maxy - 1e-6)
     lines = shapely.linestrings(np.stack([np.stack([np.full(n, minx - 1), ys], 1),
@@ -42,7 +47,7 @@ def _rows(poly: Polygon, step: float) -> list[tuple[float, list[tuple[float, flo
     return rows
 
 
-def _zigzag(poly: Polygon, step: float) -> list[list[tuple[float, float]]]:
+def _zigzag(poly: Polygon, step: float, spacing: float) -> list[list[tuple[float, float]]]:
     """Link each row's segments to an overlapping segment of the next row at the same side."""
     corridor = poly.buffer(0.6 * step)
     shapely.prepare(corridor)
@@ -52,7 +57,7 @@ def _zigzag(poly: Polygon, step: float) -> list[list[tuple[float, float]]]:
     for y, segs in _rows(poly, step):
         used = [False] * len(segs)
         nxt_active = []
-        adjacent = prev_y is not None and abs(y - prev_y - step) < 1e-6 * max(1.0, step)
+        adjacent = prev_y is not None and abs(y - prev_y - spacing) < 1e-6 * max(1.0, step)
         for ch in sorted(active, key=lambda c: c["seg"][0]) if adjacent else []:
             x0, x1 = ch["seg"]
             ex = ch["pts"][-1][0]

@@ -96,7 +96,7 @@ def plan_part(mesh_or_path: str | Path | trimesh.Trimesh | PreparedMesh, options
     n_passes = 0
     interpass = Interpass(material.interpass.max_temperature_c, material.interpass.dwell_s)
     for sl in slices:
-        region, paths, pos, travel = _plan_layer(sl, w, step, options, pos)
+        region, paths, pos, travel, stats = _plan_layer(sl, w, step, options, pos)
         q = layer_quality(region, paths, w, height)
         qualities.append(q)
         z = float((sl.index + 1) * height)
@@ -107,7 +107,8 @@ def plan_part(mesh_or_path: str | Path | trimesh.Trimesh | PreparedMesh, options
         if sl.index > 0:
             time_s += material.interpass.dwell_s
         layers.append(Layer(sl.index, z, height, tuple(passes), interpass,
-                            {"area_mm2": round(q.area_mm2, 2), "coverage": round(q.coverage, 5)}))
+                            {"area_mm2": round(q.area_mm2, 2), "coverage": round(q.coverage, 5),
+                             "perimeter_loops": stats["loops"], "fill_regions": stats["regions"]}))
         if progress is not None:
             progress(sl.index + 1, len(slices))
     summary = summarise(qualities, n_passes, time_s)
@@ -149,6 +150,7 @@ def _plan_layer(sl: LayerSlice, w: float, step: float, opt: PlanOptions, pos: np
     region = shapely.union_all(polys) if polys else shapely.Polygon()
     angle = opt.infill_angle_deg + 90.0 * (sl.index % 2)
     per_island = []
+    stats = {"loops": 0, "regions": 0}
     for poly in polys:
         thick, thin = split_thin(poly, w)
         groups: list[list[Path2D]] = [[], [], []]
@@ -157,23 +159,33 @@ def _plan_layer(sl: LayerSlice, w: float, step: float, opt: PlanOptions, pos: np
                 loops, inset = [], 0.5 * w - step  # infill centres from half a bead inside
             else:
                 loops, inset = perimeter_loops(t, w, step, opt.perimeters)
+            stats["loops"] += sum(len(lv) for lv in loops)
             if loops or opt.perimeters == 0:
                 infill_region = t.buffer(-(inset + step)) if opt.perimeters is not None else shapely.Polygon()
+                stats["regions"] += len(polygons_of(infill_region))
                 chains = scan_fill(infill_region, step, w, angle) if not infill_region.is_empty else []
+                filled = list(chains)
                 inner, chains = link_into_loops(loops[-1] if loops else [], chains, 2.0 * step)
                 outer = [lp for lv in loops[:-1] for lp in lv]
                 groups[0] += [seam_at(lp, sl.index) if lp.closed else lp for lp in outer + inner]
                 groups[1] += chains
+                # What neither the perimeters nor the scan lines reach gets centre-line gap beads.
                 rest = t.buffer(-(inset + 0.5 * w))
-                if not infill_region.is_empty:
-                    rest = rest.difference(infill_region.buffer(0.5 * w))
+                if filled and not rest.is_empty:
+                    reach = shapely.buffer(np.array([shapely.linestrings(c.points) for c in filled], dtype=object),
+                                           0.5 * w, quad_segs=4)
+                    rest = rest.difference(shapely.union_all(reach))
             else:
                 rest = t
             for piece in polygons_of(rest):
                 if piece.area > 0.3 * w * w:
-                    groups[2] += centre_lines(piece, w)
+                    beads = centre_lines(piece, w, min_width=0.4 * w)
+                    stats["regions"] += bool(beads)
+                    groups[2] += beads
         for t in thin:
-            groups[2] += centre_lines(t, w)
+            beads = centre_lines(t, w)
+            stats["regions"] += bool(beads)
+            groups[2] += beads
         per_island.append(groups)
     ordered: list[Path2D] = []
     travel = 0.0
@@ -191,7 +203,7 @@ def _plan_layer(sl: LayerSlice, w: float, step: float, opt: PlanOptions, pos: np
             pos = p.points[-1]
         ordered += seq
         pos = end
-    return region, ordered, pos, travel
+    return region, ordered, pos, travel, stats
 
 
 def _passes(paths: list[Path2D], sl: LayerSlice, z: float, proc: _Process) -> list[Pass]:

@@ -38,8 +38,11 @@ def layer_quality(region, paths: list[Path2D], width: float, height: float) -> L
     covered = float(shapely.intersection(fp, region).area)
     outside = float(shapely.difference(fp, region.buffer(0.5 * width, quad_segs=4)).area)
     lengths = shapely.length(lines)
+    # Each bead fills its own strip: its share of the width (the step-over between neighbours, or
+    # its whole width when alone), carried half a share past its ends, up to its neighbours' strips.
     share = np.array([p.share_mm for p in paths])
-    return LayerQuality(area, covered, float(fp.area), outside, float(np.sum(lengths * share) * height),
+    strips = shapely.area(shapely.buffer(lines, share / 2.0, quad_segs=4, cap_style="square"))
+    return LayerQuality(area, covered, float(fp.area), outside, float(np.sum(strips) * height),
                         float(lengths.sum()), area * height)
 
 

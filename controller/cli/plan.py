@@ -1,0 +1,132 @@
+"""`cell plan STL --width W ...`: plan a part into a `cell-job/1` job file (DESIGN.md §3, §7)."""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from planner.errors import CellError, ConfigError, InputError
+
+LONG_PLAN_FACES = 200_000  # above this a progress bar is shown even when stderr is not a terminal
+
+
+def _perimeters(value: str) -> int | None:
+    if value == "all":
+        return None
+    try:
+        n = int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{value}' is not a number of perimeters or 'all'") from None
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"{n}: the number of perimeters cannot be negative")
+    return n
+
+
+def _positive(value: str) -> float:
+    try:
+        x = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{value}' is not a number of mm") from None
+    if not x > 0 or x != x or x == float("inf"):
+        raise argparse.ArgumentTypeError(f"{value}: must be a positive number of mm")
+    return x
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("plan", help="slice a mesh into beads: the job file for the cell",
+                       description="Plan a part (STL/OBJ/3MF) into layers of beads with their welding parameters.")
+    p.add_argument("mesh", metavar="STL", help="the part's mesh (STL, OBJ or 3MF)")
+    p.add_argument("--width", type=_positive, required=True, metavar="W", help="bead width, mm")
+    p.add_argument("--layer-height", type=_positive, metavar="H", help="layer height, mm (default: bead height)")
+    p.add_argument("--perimeters", type=_perimeters, default=2, metavar="N|all",
+                   help="perimeters around every boundary (default 2), or 'all' to offset until they meet")
+    p.add_argument("--units", choices=("mm", "inch"), default="mm", help="unit of the mesh file (default mm)")
+    p.add_argument("--material", metavar="M", help="material name or YAML file (default: cell.yaml's)")
+    p.add_argument("--out", metavar="JOB", help="job file to write (default: STEM.job.json here)")
+    p.add_argument("--preview", metavar="DIR", help="write layers.png and overview.png into DIR")
+    p.add_argument("--allow-outside", action="store_true",
+                   help="accept welding points outside the material's envelope")
+    p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    p.set_defaults(func=run)
+
+
+def _material(name: str | None):
+    from controller.config import load_cell, load_material
+
+    if name is None:
+        try:
+            name = load_cell().cell.material
+        except CellError:
+            name = "inconel718-1.0mm"
+    return load_material(name)
+
+
+class _Bar:
+    """tqdm on stderr, only for a terminal or a long plan; never on stdout."""
+
+    def __init__(self, enabled: bool):
+        self.bar = None
+        self.enabled = enabled
+
+    def __call__(self, done: int, total: int) -> None:
+        if not self.enabled:
+            return
+        if self.bar is None:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, unit="layer", desc="planning", file=sys.stderr, leave=False)
+        self.bar.update(done - self.bar.n)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def run(args: argparse.Namespace) -> int:
+    from controller.cli.main import emit_json
+    from planner.job import job_to_json
+    from planner.mesh import read_mesh
+    from planner.plan import PlanOptions, plan_part
+
+    t0 = time.perf_counter()
+    material = _material(args.material)
+    options = PlanOptions(width_mm=args.width, layer_height_mm=args.layer_height, perimeters=args.perimeters,
+                          units=args.units, allow_outside=args.allow_outside)
+    mesh = read_mesh(args.mesh, args.units)
+    bar = _Bar(sys.stderr.isatty() or len(mesh.faces) >= LONG_PLAN_FACES)
+    try:
+        job = plan_part(mesh, options, material, progress=bar)
+    finally:
+        bar.close()
+    out = Path(args.out) if args.out else Path(Path(args.mesh).stem + ".job.json")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_bytes(job_to_json(job))
+    except OSError as exc:
+        raise InputError(f"--out {out}: cannot write the job file ({exc.strerror or exc})") from exc
+    previews: list[str] = []
+    if args.preview:
+        from controller.preview import write_previews
+
+        try:
+            previews = [str(p) for p in write_previews(job, args.preview)]
+        except OSError as exc:
+            raise ConfigError(f"--preview {args.preview}: cannot write the plots ({exc.strerror or exc})") from exc
+    summary = dict(job.summary)
+    summary.update({"job": str(out), "previews": previews, "plan_time_s": round(time.perf_counter() - t0, 3)})
+    if args.json:
+        emit_json(summary)
+    else:
+        s = summary
+        print(f"{job.source.file}: {s['layers']} layers, {s['passes']} beads ({s['arc_starts']} arc starts), "
+              f"{s['deposit_length_mm'] / 1000:.2f} m of bead, {s['volume_mm3'] / 1000:.1f} cm3, "
+              f"coverage {100 * s['coverage']:.1f} % (min {100 * s['coverage_min']:.1f} %), "
+              f"overfill {100 * s['overfill']:.2f} %, about {s['est_time_s'] / 60:.0f} min")
+        for r in s["repairs"]:
+            print(f"  repaired: {r}")
+        print(f"  job file: {out}")
+        for p in previews:
+            print(f"  preview: {p}")
+    return 0
