@@ -4,16 +4,37 @@ from __future__ import annotations
 import networkx as nx
 import numpy as np
 import shapely
+import shapely.ops
 from shapely.geometry import LineString, Polygon
 
 from planner.path2d import Path2D
+from planner.regions import polygons_of
 
 
-def centre_lines(poly: Polygon, width: float, min_width: float = 0.0) -> list[Path2D]:
-    """Centre-line beads covering a thin polygon; each bead's width is the region's mean width.
+def centre_lines(poly: Polygon, width: float, min_width: float = 0.0, depth: int = 3) -> list[Path2D]:
+    """Centre-line beads covering a thin polygon, each as wide as the region around its axis.
 
-    Pockets narrower than `min_width` get none: the neighbouring beads flow into them.
+    The longest medial-axis path is taken first; branches the first bead leaves uncovered get
+    their own (up to `depth` rounds). Pockets narrower than `min_width` get none: the neighbouring
+    beads flow into them.
     """
+    out: list[Path2D] = []
+    todo = [poly]
+    for _ in range(depth):
+        nxt = []
+        for piece in todo:
+            for bead in _axis_beads(piece, width, min_width):
+                out.append(bead)
+                rest = piece.difference(shapely.buffer(shapely.linestrings(bead.points), 0.5 * bead.width_mm))
+                nxt += [g for g in polygons_of(rest) if g.area > 0.5 * width * width
+                        and not g.buffer(-0.15 * width).is_empty]
+        todo = nxt
+        if not todo:
+            break
+    return out
+
+
+def _axis_beads(poly: Polygon, width: float, min_width: float) -> list[Path2D]:
     simple = shapely.simplify(poly, 0.02 * width)
     if simple.is_empty or simple.area <= 0:
         return []
@@ -34,21 +55,23 @@ def centre_lines(poly: Polygon, width: float, min_width: float = 0.0) -> list[Pa
             if la > 0:
                 g.add_edge(tuple(a), tuple(b), weight=la)
     out = []
+    boundary = simple.boundary
     for comp in sorted(nx.connected_components(g), key=lambda c: -len(c)):
-        sub = g.subgraph(comp)
-        path, closed = _longest(sub)
+        path, closed = _longest(g.subgraph(comp))
         if len(path) < 2:
             continue
         line = LineString(path)
         if line.length < 0.25 * width:
             continue
-        w_raw = simple.area / max(line.length, 1e-9)
+        # Local width: twice the distance from the axis to the boundary (the inscribed circles).
+        radii = shapely.distance(shapely.points(np.asarray(path)), boundary)
+        w_raw = 2.0 * float(np.median(radii))
         if w_raw < min_width:
             continue
         w_est = float(np.clip(w_raw, 0.3 * width, 1.5 * width))
         if not closed:
-            # The medial axis runs into the corners: stop half a bead short of the ends.
-            trim = min(0.5 * w_est, 0.3 * line.length)
+            # The medial axis runs into the corners: stop short of the ends by about half a bead.
+            trim = min(0.35 * w_est, 0.3 * line.length)
             line = shapely.ops.substring(line, trim, line.length - trim)
         pts = np.asarray(line.simplify(0.02 * width).coords)[:, :2]
         if closed:
