@@ -1,0 +1,280 @@
+"""The controller's facade for operator views (TUI, CLI): commands, allowed commands, snapshots.
+
+Everything runs on one asyncio loop (the caller's): `await ctl.connect()`, then the command
+methods. A view subscribes to immutable `Snapshot`s (controller/events.py) and asks
+`allowed_commands()` to grey out what is not allowed now.
+
+Commands (each refused with a CellError naming the state when not allowed):
+
+- `open_job(job | path)`  load and check a job, open its run directory and journal → Ready
+- `run_alignment()`       probe and align the substrate (CNC, when the routine is installed)
+- `start()`               start the build, or continue it from the journal after a reset
+                          (awaits the end of the build: Complete, Paused→…, Fault, EStop, Aborted)
+- `pause()` / `resume()`  pause at the end of the current bead / go on
+- `abort()`               stop at the end of the current bead
+- `reset()`               clear a latched Fault / EStop (E-stop input must be released)
+- `estop()`               software E-stop: drop start and hold motion at once
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+from pathlib import Path
+from typing import Any, Callable
+
+from controller.build import BuildOptions, BuildResult, BuildRunner, canonical_json, job_hash, job_name, run_dir_for
+from controller.cell import Devices
+from controller.config import CellConfig, load_material
+from controller.events import EventBus, LinkStat, Snapshot
+from controller.interlocks import Interlocks
+from controller.journal import Journal
+from controller.machine import CellMachine, State, TransitionRefused
+from controller.resume import remaining_work
+from planner.errors import CellError, InputError
+
+COMMANDS = ("open_job", "run_alignment", "start", "pause", "resume", "abort", "reset", "estop")
+
+
+class CellController:
+    """One cell: devices, state machine, interlocks, journal, build runner, event bus."""
+
+    def __init__(self, cfg: CellConfig, *, runs_dir: str | Path | None = None,
+                 options: BuildOptions | None = None) -> None:
+        self.cfg = cfg
+        self.material = load_material(cfg.cell.material)
+        self.runs_dir = Path(runs_dir or cfg.cell.runs_dir)
+        mat = self.material
+        self.options = options or BuildOptions(
+            time_scale=cfg.cell.time_scale, travel_speed_mm_min=cfg.limits.travel_speed_mm_min,
+            interpass_limit_c=mat.interpass.max_temperature_c, interpass_dwell_s=mat.interpass.dwell_s,
+            arc_efficiency=mat.arc_efficiency)
+        self.machine = CellMachine()
+        self.bus = EventBus()
+        self.devices: Devices | None = None
+        self.executor: Any = None
+        self.interlocks: Interlocks | None = None
+        self.journal: Journal | None = None
+        self.job: dict | None = None
+        self.run_dir: Path | None = None
+        self.runner: BuildRunner | None = None
+        self.alignment: Any = None
+        self.arc: Any = None
+        self.machine.subscribe(self._on_transition)
+        self._publish_state()
+
+    # -- views ------------------------------------------------------------------------------------
+    def snapshot(self) -> Snapshot:
+        return self.bus.latest
+
+    def subscribe(self, fn: Callable[[Snapshot], None]) -> Callable[[], None]:
+        return self.bus.subscribe(fn)
+
+    def allowed_commands(self) -> list[str]:
+        m, s = self.machine, self.machine.state
+        out = []
+        if m.can("open_job"):
+            out.append("open_job")
+        if m.can("probe") and self.cfg.cell.platform == "cnc":
+            out.append("run_alignment")
+        if self.job is not None and (m.can("start") or s is State.IDLE):
+            out.append("start")
+        if s.running and self.runner is not None and not self.runner.pause_requested:
+            out.append("pause")
+        if s is State.PAUSED:
+            out.append("resume")
+        if s.running or s is State.PAUSED:
+            out.append("abort")
+        if m.can("reset"):
+            out.append("reset")
+        if m.can("estop"):
+            out.append("estop")
+        return out
+
+    def _on_transition(self, src: State, event: str, dst: State, info: dict) -> None:
+        if self.journal is not None:
+            cause = f" ({info['cause']})" if "cause" in info else ""
+            self.journal.event("transition", f"{src.value} -> {dst.value} on {event}{cause}", state=dst.value)
+        self._publish_state()
+
+    def _publish_state(self) -> None:
+        self.bus.update(state=self.machine.state.value, allowed_commands=tuple(self.allowed_commands()))
+
+    def _refuse(self, command: str) -> CellError:
+        return TransitionRefused(f"'{command}' is not allowed in state {self.machine.state.value} "
+                                 f"(allowed now: {', '.join(self.allowed_commands()) or 'none'})")
+
+    # -- connection -------------------------------------------------------------------------------
+    async def connect(self, *, resume_ticket: int | None = None) -> None:
+        self.devices = await Devices.open(self.cfg, self.material, resume_ticket=resume_ticket)
+        if self.cfg.cell.platform == "robot":
+            from controller.exec_robot import RobotExecutor
+
+            self.executor = RobotExecutor(self.devices.robot)
+        else:
+            from controller.exec_cnc import CncExecutor
+
+            self.executor = CncExecutor(self.devices.cnc, self.devices.power)
+        self.interlocks = Interlocks(machine=self.machine, journal=self.journal, bus=self.bus,
+                                     power=self.devices.power, executor=self.executor, cellio=self.devices.cellio)
+        self.interlocks.arm()
+        from controller.arc_handshake import ArcHandshake
+
+        ilk = self.interlocks
+        self.arc = ArcHandshake(self.devices.power, on_fault=lambda exc: ilk.trip("fault", str(exc)))
+        self.devices.power.set_job(mode=0, job=0)
+        self.machine.send("connect")
+        self.bus.update(links=self._links())
+
+    def _links(self) -> tuple[LinkStat, ...]:
+        d = self.devices
+        if d is None:
+            return ()
+        out = []
+        for name, dev in (("robot", d.robot), ("cnc", d.cnc), ("power_source", d.power), ("cellio", d.cellio)):
+            if dev is None:
+                continue
+            out.append(LinkStat(device=name, url=str(getattr(dev, "url", "")), connected=True))
+        return tuple(out)
+
+    async def close(self) -> None:
+        if self.interlocks is not None:
+            self.interlocks.disarm()
+        if self.devices is not None:
+            try:
+                self.devices.power.drop_all()
+            except Exception:
+                pass
+            await self.devices.close()
+        if self.journal is not None:
+            self.journal.close()
+
+    # -- commands ---------------------------------------------------------------------------------
+    def open_job(self, job: dict | str | Path, run_dir: str | Path | None = None) -> Path:
+        if not self.machine.can("open_job"):
+            raise self._refuse("open_job")
+        if not isinstance(job, dict):
+            p = Path(job)
+            try:
+                job = json.loads(p.read_text(encoding="utf-8"))
+            except OSError as exc:
+                raise InputError(f"{p}: cannot read the job ({exc.strerror}); check the path") from None
+            except json.JSONDecodeError as exc:
+                raise InputError(f"{p}: line {exc.lineno}: not valid JSON ({exc.msg})") from None
+        job = _validated(job)
+        self.job = job
+        self.run_dir = Path(run_dir) if run_dir else run_dir_for(job, self.runs_dir)
+        if self.journal is not None:
+            self.journal.close()
+        self.journal = Journal(self.run_dir / "journal.sqlite")
+        self.journal.start_job(job_hash(job), job_name(job), self.cfg.cell.platform, canonical_json(job))
+        if self.interlocks is not None:
+            self.interlocks.journal = self.journal
+        self.machine.send("open_job")
+        done = sum(1 for v in self.journal.pass_progress().values() if v.state == "done")
+        self.bus.update(job_name=job_name(job), run_dir=str(self.run_dir), layers_total=len(job["layers"]),
+                        passes_total=sum(len(la["passes"]) for la in job["layers"]), passes_done=done)
+        return self.run_dir
+
+    async def run_alignment(self) -> Any:
+        if not self.machine.can("probe"):
+            raise self._refuse("run_alignment")
+        try:
+            from controller.align.routine import run_alignment as routine
+        except ImportError:
+            raise CellError("the alignment routine is not installed (controller/align/routine.py)") from None
+        self.machine.send("probe")
+        try:
+            self.alignment = await routine(self.devices.cnc, self.cfg)  # type: ignore[union-attr]
+        except BaseException as exc:
+            if self.machine.can("fault"):
+                self.machine.send("fault", cause=f"alignment: {exc}")
+            raise
+        self.machine.send("aligned")
+        return self.alignment
+
+    async def start(self) -> BuildResult:
+        """Run (or continue, from the journal) the build until it completes or stops."""
+        if self.job is None or self.journal is None:
+            raise self._refuse("start")
+        if self.machine.state is State.IDLE:
+            self.machine.send("open_job")
+        if not self.machine.can("start"):
+            raise self._refuse("start")
+        assert self.devices is not None and self.interlocks is not None
+        work = remaining_work(self.job, self.journal)
+        self.journal.event("info", f"run {self.journal.run}: {len(work)} passes to deposit")
+        self.runner = BuildRunner(job=self.job, journal=self.journal, machine=self.machine, bus=self.bus,
+                                  executor=self.executor, power=self.devices.power, cellio=self.devices.cellio,
+                                  options=self.options, arc=self.arc)
+        self.interlocks.runner = self.runner
+        task = asyncio.get_running_loop().create_task(self.runner.run(work))
+        self.interlocks.build_task = task
+        try:
+            return await task
+        except CellError as exc:  # a device refused during the build: latch a fault with it
+            self.interlocks.trip("fault", str(exc))
+            return self.runner._result()
+        finally:
+            self.interlocks.build_task = None
+            self._publish_state()
+
+    def pause(self) -> None:
+        if self.runner is None or not self.machine.state.running:
+            raise self._refuse("pause")
+        self.runner.request_pause()
+        self._publish_state()
+
+    def resume(self) -> None:
+        if self.runner is None or self.machine.state is not State.PAUSED:
+            raise self._refuse("resume")
+        self.runner.resume_from_pause()
+
+    def abort(self) -> None:
+        if self.runner is None or not (self.machine.state.running or self.machine.state is State.PAUSED):
+            raise self._refuse("abort")
+        self.runner.request_abort()
+
+    def estop(self) -> None:
+        if not self.machine.can("estop") or self.interlocks is None:
+            raise self._refuse("estop")
+        self.interlocks.trip("estop", "software E-stop")
+
+    async def reset(self) -> None:
+        """Clear a latched Fault / EStop: error reset on the power source, flush the motion queue."""
+        if not self.machine.can("reset"):
+            raise self._refuse("reset")
+        released = True
+        io = self.devices.cellio if self.devices else None
+        if io is not None and getattr(io, "estop_released", True) is False:
+            released = False
+        if self.machine.state is State.ESTOP and not released:
+            self.machine.send("reset", estop_released=False)  # raises with the reason
+        if self.devices is not None:
+            await self.arc.reset()
+            await self.executor.prepare()
+        self.machine.send("reset", estop_released=released)
+        if self.journal is not None:
+            self.journal.event("info", "reset by the operator", state=self.machine.state.value)
+
+
+def _validated(job: dict) -> dict:
+    """The job, checked: planner.job.load_job when installed, else the fields the build reads."""
+    try:
+        from planner.job import load_job
+    except ImportError:
+        load_job = None
+    if load_job is not None:
+        load_job(job)  # raises a CellError naming the field
+    if not isinstance(job, dict) or job.get("schema") != "cell-job/1":
+        raise InputError("not a cell-job/1 file (missing or wrong 'schema')")
+    layers = job.get("layers")
+    if not isinstance(layers, list) or not layers:
+        raise InputError("job has no layers")
+    for li, la in enumerate(layers):
+        for pi, p in enumerate(la.get("passes", [])):
+            for key in ("points", "speed_mm_min", "wfs_m_min", "current_a"):
+                if key not in p:
+                    raise InputError(f"layers[{li}].passes[{pi}]: missing '{key}'")
+            if len(p["points"]) < 2:
+                raise InputError(f"layers[{li}].passes[{pi}]: a pass needs at least 2 points")
+    return job

@@ -1,0 +1,429 @@
+"""Build execution: layer by layer, pass by pass, under the state machine and the journal.
+
+The runner is platform-neutral; the motion link is driven by an executor (exec_robot.py,
+exec_cnc.py) that offers: `prepare()`, `approach(point)` (travel to the start of a bead and
+stop there, with the weld moves allowed to queue behind a hold point), `queue_weld(...)`,
+`release()`, `weld_done()`, `hold_now()`, `position()`.
+
+Per pass: travel to the start (or to the point where the bead stopped, on resume) → arc start
+handshake on the power source → release the motion → stream the weld moves → arc end when the
+last weld move is executed. Per layer, before its first arc: the interpass rule. Every weld
+move executed while the arc is stable is journaled (layer, pass, point index): that is where a
+resumed bead re-arcs, so no move is executed twice and none is skipped.
+"""
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from controller.events import EventBus
+from controller.journal import Journal
+from controller.machine import CellMachine, State
+from planner.errors import CellError
+
+Point = tuple[float, float, float]
+
+
+class BuildError(CellError):
+    """The build cannot go on (a device refused, the job does not fit)."""
+
+
+# -- job helpers ------------------------------------------------------------------------------
+
+
+def canonical_json(job: dict) -> str:
+    return json.dumps(job, sort_keys=True, separators=(",", ":"))
+
+
+def job_hash(job: dict) -> str:
+    """sha256 of the job's canonical JSON: the journal and the run directory are keyed on it."""
+    return hashlib.sha256(canonical_json(job).encode("utf-8")).hexdigest()
+
+
+def job_name(job: dict) -> str:
+    name = job.get("name") or Path(str((job.get("source") or {}).get("file") or "job")).stem
+    return "".join(c if c.isalnum() or c in "-_." else "-" for c in str(name)) or "job"
+
+
+def run_dir_for(job: dict, runs_dir: str | Path) -> Path:
+    """runs/<job-name>-<hash8>/"""
+    return Path(runs_dir) / f"{job_name(job)}-{job_hash(job)[:8]}"
+
+
+def weld_points(points: Sequence[Sequence[float]], max_step_mm: float) -> list[Point]:
+    """The pass's polyline subdivided into moves of at most `max_step_mm` (deterministic).
+
+    Point indices of this list are what the journal records, so they must not change between
+    a run and its resume: they depend on the job and the step only.
+    """
+    out: list[Point] = [tuple(float(v) for v in points[0][:3])]  # type: ignore[list-item]
+    for p in points[1:]:
+        q = tuple(float(v) for v in p[:3])
+        a = out[-1]
+        d = math.dist(a, q)
+        if d < 1e-9:
+            continue
+        n = max(1, math.ceil(d / max_step_mm - 1e-9))
+        for k in range(1, n + 1):
+            f = k / n
+            out.append((a[0] + (q[0] - a[0]) * f, a[1] + (q[1] - a[1]) * f, a[2] + (q[2] - a[2]) * f))
+    return out
+
+
+@dataclass(frozen=True)
+class WorkItem:
+    """One pass to deposit from point `start_idx` of its subdivided polyline."""
+
+    layer: int
+    pass_: int
+    start_idx: int = 0
+
+
+@dataclass
+class BeadStats:
+    """Current / voltage / WFS seen while the arc burned on one bead."""
+
+    arc_on: float = 0.0
+    arc_off: float = 0.0
+    n: int = 0
+    i_sum: float = 0.0
+    u_sum: float = 0.0
+    w_sum: float = 0.0
+    i_min: float = math.inf
+    i_max: float = -math.inf
+    u_min: float = math.inf
+    u_max: float = -math.inf
+
+    def add(self, i: float, u: float, w: float) -> None:
+        self.n += 1
+        self.i_sum += i
+        self.u_sum += u
+        self.w_sum += w
+        self.i_min, self.i_max = min(self.i_min, i), max(self.i_max, i)
+        self.u_min, self.u_max = min(self.u_min, u), max(self.u_max, u)
+
+    def as_dict(self) -> dict[str, float | None]:
+        if not self.n:
+            return {}
+        return {"i_mean": self.i_sum / self.n, "i_min": self.i_min, "i_max": self.i_max,
+                "u_mean": self.u_sum / self.n, "u_min": self.u_min, "u_max": self.u_max,
+                "wfs_mean": self.w_sum / self.n}
+
+
+@dataclass
+class BuildOptions:
+    max_step_mm: float = 2.0            # weld moves are at most this long (re-arc overlap bound)
+    clearance_mm: float = 5.0           # travel height above the start of a bead
+    travel_speed_mm_min: float = 3000.0
+    time_scale: float = 1.0             # process time / wall time (dwells, arc-loss timing)
+    interpass_limit_c: float = 150.0
+    interpass_dwell_s: float = 60.0     # process seconds, when the pyrometer gives no reading
+    interpass_timeout_s: float = 3600.0  # process seconds before the wait becomes a fault
+    arc_efficiency: float = 0.8
+    sample_period_s: float = 0.1        # wall seconds between journal samples
+
+
+@dataclass
+class BuildResult:
+    state: str
+    layers_done: int
+    passes_done: int
+    arc_starts: int
+    alarms: list[dict] = field(default_factory=list)
+
+
+class Interrupted(Exception):
+    """The build was stopped by an interlock (the machine is already in Fault or EStop)."""
+
+
+class BuildRunner:
+    """Runs a list of work items; one instance per run (first run or resume)."""
+
+    def __init__(self, *, job: dict, journal: Journal, machine: CellMachine, bus: EventBus,
+                 executor: Any, power: Any, cellio: Any = None, options: BuildOptions | None = None,
+                 arc: Any = None, log: Callable[[str], None] | None = None) -> None:
+        self.job, self.journal, self.m, self.bus = job, journal, machine, bus
+        self.ex, self.power, self.cellio = executor, power, cellio
+        self.o = options or BuildOptions()
+        self.arc = arc or _make_handshake(power, self.o.time_scale)
+        self.log = log or (lambda _s: None)
+        self.pause_requested = False
+        self.abort_requested = False
+        self._resume_evt = asyncio.Event()
+        self.tripped: str | None = None      # the interlock's message once tripped
+        self.arc_starts = 0
+        self.current: WorkItem | None = None
+        self.cur_idx: int | None = None       # last point index reached with the arc stable
+        self._bead: BeadStats | None = None
+        self._arc_lit = False
+        self._samples: list[tuple] = []
+        self._last_sample = 0.0
+        self._unsub: list[Callable[[], None]] = []
+        self._stream: asyncio.Task | None = None
+        self.starved = 0                      # times the motion queue ran empty inside a bead
+        self.layers = job["layers"]
+        self.totals = (len(self.layers), sum(len(la["passes"]) for la in self.layers))
+        progress = journal.pass_progress()
+        self.done = {k for k, v in progress.items() if v.state == "done"}
+
+    # -- operator requests (honoured at the end of the current bead) -------------------------
+    def request_pause(self) -> None:
+        self.pause_requested = True
+
+    def request_abort(self) -> None:
+        self.abort_requested = True
+        self._resume_evt.set()
+
+    def resume_from_pause(self) -> None:
+        self.pause_requested = False
+        self._resume_evt.set()
+
+    # -- the run --------------------------------------------------------------------------------
+    async def run(self, work: list[WorkItem]) -> BuildResult:
+        self._unsub.append(self.power.subscribe(self._on_power))
+        self.bus.update(layers_total=self.totals[0], passes_total=self.totals[1],
+                        passes_done=len(self.done), layers_done=self._layers_done())
+        try:
+            await self.ex.prepare()
+            if self.m.state is not State.RUNNING_WAIT:
+                self.m.send("start")
+            prev_layer: int | None = None
+            for k, item in enumerate(work):
+                if item.layer != prev_layer:
+                    if prev_layer is not None and self.m.can("next_layer"):
+                        self.m.send("next_layer")
+                    self.bus.update(layer=item.layer, pass_=item.pass_,
+                                    passes_in_layer=len(self.layers[item.layer]["passes"]))
+                    await self._interpass(item.layer)
+                    prev_layer = item.layer
+                await self._one_pass(item)
+                last = k == len(work) - 1
+                if last:
+                    break
+                if self.abort_requested:
+                    self.m.send("abort", reason="operator")
+                    self.journal.event("transition", "aborted by the operator", state="aborted")
+                    return self._result()
+                if self.pause_requested:
+                    self.m.send("pause")
+                    self.journal.event("transition", "paused at the end of a bead", state="paused")
+                    self._resume_evt.clear()
+                    await self._resume_evt.wait()
+                    if self.abort_requested:
+                        self.m.send("abort", reason="operator")
+                        self.journal.event("transition", "aborted by the operator", state="aborted")
+                        return self._result()
+                    self.m.send("resume")
+                    prev_layer = None if work[k + 1].layer != item.layer else prev_layer
+            if self.m.can("complete"):
+                self.m.send("complete")
+                self.journal.event("transition", "build complete", state="complete")
+            return self._result()
+        except (Interrupted, asyncio.CancelledError):
+            if self.tripped is None:
+                raise
+            return self._result()
+        finally:
+            if self._stream is not None and not self._stream.done():
+                self._stream.cancel()
+            for u in self._unsub:
+                u()
+            self._flush_samples()
+
+    def _result(self) -> BuildResult:
+        return BuildResult(state=self.m.state.value, layers_done=self._layers_done(),
+                           passes_done=len(self.done), arc_starts=self.arc_starts)
+
+    def _layers_done(self) -> int:
+        n = 0
+        for li, la in enumerate(self.layers):
+            if all((li, pi) in self.done for pi in range(len(la["passes"]))):
+                n += 1
+            else:
+                break
+        return n
+
+    async def _interpass(self, layer: int) -> None:
+        """Before a layer's first arc: pyrometer below the limit, or the dwell without a reading."""
+        rule = self.layers[layer].get("interpass") or {}
+        limit = float(rule.get("max_temperature_c", self.o.interpass_limit_c))
+        dwell = float(rule.get("dwell_s", self.o.interpass_dwell_s))
+        t0 = time.monotonic()
+        scale = self.o.time_scale
+        temp = self._temperature()
+        if temp is None:
+            if layer == 0:
+                return
+            dwell_wall = dwell / scale
+            self.journal.event("info", f"interpass dwell {dwell:.0f} s (no pyrometer)", layer=layer)
+            while (left := dwell_wall - (time.monotonic() - t0)) > 0:
+                self.bus.update(interpass_remaining_s=left * scale)
+                await asyncio.sleep(min(left, 0.1))
+            self.bus.update(interpass_remaining_s=None)
+            return
+        self.bus.update(interpass_limit_c=limit, temperature_c=temp)
+        if temp < limit:
+            return
+        self.journal.event("info", f"interpass wait: part at {temp:.0f} °C, limit {limit:.0f} °C", layer=layer)
+        while (temp := self._temperature()) is not None and temp >= limit:
+            if (time.monotonic() - t0) * scale > self.o.interpass_timeout_s:
+                raise BuildError(f"interpass: the part stays above {limit:.0f} °C ({temp:.0f} °C); check the pyrometer")
+            self.bus.update(temperature_c=temp)
+            await asyncio.sleep(0.02)
+
+    def _temperature(self) -> float | None:
+        if self.cellio is None:
+            return None
+        try:
+            t = self.cellio.part_temperature_c
+        except Exception:
+            return None
+        return None if t is None or math.isnan(t) else float(t)
+
+    async def _one_pass(self, item: WorkItem) -> None:
+        la, pa = item.layer, item.pass_
+        p = self.layers[la]["passes"][pa]
+        pts = weld_points(p["points"], self.o.max_step_mm)
+        start_idx = min(item.start_idx, len(pts) - 1)
+        self.current, self.cur_idx = item, start_idx
+        self.bus.update(layer=la, pass_=pa, passes_in_layer=len(self.layers[la]["passes"]))
+        if start_idx >= len(pts) - 1:  # nothing left of this bead (it stopped on its last point)
+            self._pass_done(la, pa)
+            return
+        speed = float(p["speed_mm_min"])
+        self.m.send("travel")
+        self.journal.pass_state(la, pa, "started", start_idx=start_idx, points=len(pts))
+        # approach with the weld moves already queued behind the hold point
+        await self.ex.approach(pts[start_idx], self.o.clearance_mm, self.o.travel_speed_mm_min)
+        tickets = self._stream = self.ex.queue_weld(pts, start_idx, speed, self._on_exec)
+        await self.ex.at_start()
+        self.m.send("arc_start")
+        self.power.set_wire_feed(float(p["wfs_m_min"]))
+        await self.arc.start()
+        self.arc_starts += 1
+        self._arc_lit = True
+        self._bead = BeadStats(arc_on=time.time())
+        self.journal.pass_state(la, pa, "arc_on", idx=start_idx)
+        self.bus.update(arc_starts=self.bus.latest.arc_starts + 1)
+        self.m.send("arc_on")
+        self.ex.release()
+        await self.ex.weld_done(await tickets)
+        self.m.send("arc_end")
+        await self.arc.stop()
+        self._arc_lit = False
+        self._close_bead(la, pa, pts, start_idx, len(pts) - 1, speed, interrupted=False)
+        self._pass_done(la, pa)
+
+    def _pass_done(self, la: int, pa: int) -> None:
+        self.journal.pass_state(la, pa, "done")
+        self.done.add((la, pa))
+        self.bus.update(passes_done=len(self.done), layers_done=self._layers_done())
+
+    def _close_bead(self, la: int, pa: int, pts: list[Point], i0: int, i1: int, speed: float,
+                    interrupted: bool) -> None:
+        b, self._bead = self._bead, None
+        if b is None:
+            return
+        b.arc_off = time.time()
+        length = sum(math.dist(pts[i], pts[i + 1]) for i in range(i0, max(i0, i1)))
+        stats = b.as_dict()
+        hi = None
+        if stats:
+            # heat input per unit length: η·U·I / v (J/mm, v in mm/s)
+            hi = self.o.arc_efficiency * stats["u_mean"] * stats["i_mean"] / (speed / 60.0)  # type: ignore[operator]
+        self.journal.bead(la, pa, arc_on=b.arc_on, arc_off=b.arc_off, length_mm=length, speed_mm_min=speed,
+                          stats=stats, heat_input_j_mm=hi, interrupted=interrupted)
+
+    # -- callbacks ------------------------------------------------------------------------------
+    def _on_exec(self, ticket: int, idx: int) -> None:
+        """A weld move ending at point `idx` was executed: journal it if the arc was stable."""
+        item = self.current
+        st = self.power.status
+        if item is None or st is None or not st.arc_stable or not self._arc_lit:
+            return
+        self.cur_idx = idx
+        self.journal.progress(ticket, item.layer, item.pass_, idx)
+
+    def _on_power(self, st: Any) -> None:
+        if self._bead is not None and st.arc_stable:
+            self._bead.add(st.current_a, st.voltage_v, st.wfs_m_min)
+        now = time.monotonic()
+        if now - self._last_sample >= self.o.sample_period_s:
+            self._last_sample = now
+            temp = self._temperature()
+            item = self.current
+            self._samples.append((time.time(), st.current_a, st.voltage_v, st.wfs_m_min, temp,
+                                  item.layer if item else None, item.pass_ if item else None))
+            self.bus.update(current_a=st.current_a, voltage_v=st.voltage_v, wfs_m_min=st.wfs_m_min,
+                            temperature_c=temp)
+            if len(self._samples) >= 10:
+                self._flush_samples()
+
+    def _flush_samples(self) -> None:
+        rows, self._samples = self._samples, []
+        try:
+            self.journal.samples(rows)
+        except Exception:
+            pass
+
+    # -- interlock side -------------------------------------------------------------------------
+    def interrupted(self, message: str) -> None:
+        """Called by the interlocks after they held motion and dropped the start."""
+        self.tripped = message
+        self._arc_lit = False
+        item = self.current
+        if item is not None and self._bead is not None:
+            p = self.layers[item.layer]["passes"][item.pass_]
+            pts = weld_points(p["points"], self.o.max_step_mm)
+            self._close_bead(item.layer, item.pass_, pts, item.start_idx, self.cur_idx or item.start_idx,
+                             float(p["speed_mm_min"]), interrupted=True)
+        if item is not None:
+            self.journal.pass_state(item.layer, item.pass_, "interrupted", reason=message,
+                                    idx=self.cur_idx if self.cur_idx is not None else -1)
+
+
+def _make_handshake(power: Any, time_scale: float) -> Any:
+    try:
+        from controller.arc_handshake import ArcHandshake
+    except ModuleNotFoundError:
+        return _MiniHandshake(power, time_scale)
+    try:
+        return ArcHandshake(power, time_scale=time_scale)
+    except TypeError:
+        return ArcHandshake(power)
+
+
+class _MiniHandshake:
+    """Stand-in for controller.arc_handshake while it is not there: the §5 sequence, nothing more."""
+
+    def __init__(self, power: Any, time_scale: float) -> None:
+        self.power, self.scale = power, time_scale
+
+    async def _until(self, pred: Callable[[Any], bool], timeout_wall: float, what: str) -> None:
+        t0 = time.monotonic()
+        while True:
+            st = await self.power.next_status()
+            if pred(st):
+                return
+            if time.monotonic() - t0 > timeout_wall:
+                raise BuildError(f"power source: {what} did not come within {timeout_wall:.2f} s")
+
+    async def start(self) -> None:
+        self.power.set_robot_ready(True)
+        self.power.set_weld_start(True)
+        try:
+            await self._until(lambda s: s.motion_release and s.arc_stable, max(0.2, 3.0 / self.scale) + 1.0,
+                              "motion release")
+        except BaseException:
+            self.power.set_weld_start(False)
+            raise
+
+    async def stop(self) -> None:
+        self.power.set_weld_start(False)
+        await self._until(lambda s: not s.arc_stable, 2.0, "arc off")

@@ -1,0 +1,173 @@
+"""Wiring the cell's devices from cell.yaml, and the in-process simulators of `--sim`.
+
+`SimHarness` starts every simulator (sims.up.serve_all, ephemeral loopback ports) on a
+background thread with its own event loop, so the controller, on its own loop, talks to them
+over the real protocols exactly as to hardware. `Devices.open(cfg)` connects the drivers; a
+device that does not answer is a `DeviceUnreachable` naming it and its URL (exit 2).
+"""
+from __future__ import annotations
+
+import asyncio
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from controller.config import CellConfig, SimConfig, load_material
+from drivers.errors import DeviceError
+from planner.material import Material
+
+
+class DeviceUnreachable(DeviceError):
+    """A device of cell.yaml does not answer at its URL."""
+
+
+def with_urls(cfg: CellConfig, urls: dict[str, str], time_scale: float | None = None) -> CellConfig:
+    """A copy of `cfg` whose devices point at `urls` (device -> URL), optionally re-timed."""
+    devs = cfg.devices
+    upd = {name: getattr(devs, name).model_copy(update={"url": url}) for name, url in urls.items()
+           if hasattr(devs, name)}
+    out = cfg.model_copy(update={"devices": devs.model_copy(update=upd)})
+    if time_scale is not None:
+        out = out.model_copy(update={"cell": out.cell.model_copy(update={"time_scale": float(time_scale)})})
+    return out
+
+
+class SimHarness:
+    """Every simulator in this process, on a background thread and loop of its own."""
+
+    def __init__(self, cfg: CellConfig, sim: SimConfig, log_dir: str | Path | None = None,
+                 faults: str = "", modules: list[str] | None = None) -> None:
+        self.cfg, self.sim_cfg = cfg, sim
+        self.log_dir = Path(log_dir) if log_dir else None
+        self.faults = faults
+        self.modules = modules
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self._run, name="sims", daemon=True)
+        self.served: dict[str, Any] = {}
+        self.world: Any = None
+        self.clock: Any = None
+
+    def _run(self) -> None:
+        asyncio.set_event_loop(self.loop)
+        self.loop.run_forever()
+
+    def start(self, timeout: float = 20.0) -> dict[str, str]:
+        """Start the simulators; returns device -> URL."""
+        from sims.clock import SimClock
+        from sims.up import SimContext, serve_all
+        from sims.world import World
+
+        mat = load_material(self.cfg.cell.material)
+        self.world = World(self.log_dir, arc_efficiency=mat.arc_efficiency)
+        self.clock = SimClock(self.cfg.cell.time_scale)
+        ctx = SimContext(cell=self.cfg, sim=self.sim_cfg, world=self.world, clock=self.clock,
+                         log_dir=self.log_dir, ephemeral=True, faults=self.faults)
+        self.thread.start()
+        fut = asyncio.run_coroutine_threadsafe(serve_all(ctx, self.modules), self.loop)
+        served = fut.result(timeout)
+        self.served = {s.device: s for s in served}
+        return {s.device: s.url for s in served}
+
+    def sim(self, device: str) -> Any:
+        """The simulator object of a device (tests open the door, inject faults...)."""
+        return self.served[device].sim
+
+    def call(self, fn: Any, *args: Any) -> Any:
+        """Run `fn(*args)` on the simulators' loop and return its result (thread-safe)."""
+        async def _do() -> Any:
+            res = fn(*args)
+            if asyncio.iscoroutine(res):
+                res = await res
+            return res
+        return asyncio.run_coroutine_threadsafe(_do(), self.loop).result(10)
+
+    def stop(self) -> None:
+        from sims.up import close_all
+
+        if self.thread.is_alive():
+            try:
+                asyncio.run_coroutine_threadsafe(close_all(list(self.served.values())), self.loop).result(10)
+            except Exception:
+                pass
+            self.loop.call_soon_threadsafe(self.loop.stop)
+            self.thread.join(5)
+        if self.world is not None:
+            self.world.close()
+
+
+@dataclass
+class Devices:
+    """The connected drivers of one cell."""
+
+    cfg: CellConfig
+    material: Material
+    robot: Any = None
+    cnc: Any = None
+    power: Any = None
+    cellio: Any = None
+    opened: list[Any] = field(default_factory=list)
+
+    @property
+    def motion(self) -> Any:
+        return self.robot if self.cfg.cell.platform == "robot" else self.cnc
+
+    @classmethod
+    async def open(cls, cfg: CellConfig, material: Material | None = None, *,
+                   resume_ticket: int | None = None) -> "Devices":
+        """Connect the motion link of the platform, the power source and the cell I/O."""
+        mat = material or load_material(cfg.cell.material)
+        d = cls(cfg, mat)
+        try:
+            if cfg.cell.platform == "robot":
+                from drivers.robot import RobotLink
+
+                r = cfg.devices.robot
+                d.robot = RobotLink(r.url, baud=r.baud, link_timeout_s=r.link_timeout_s)
+                await _connect("robot", r.url, d.robot.connect(resume_ticket=resume_ticket))
+                d.opened.append(d.robot)
+            else:
+                from drivers.grbl import CncLink
+
+                c = cfg.devices.cnc
+                d.cnc = CncLink(c.url)
+                await _connect("cnc", c.url, d.cnc.connect())
+                d.opened.append(d.cnc)
+            from drivers.power import open_power_source
+
+            d.power = open_power_source(cfg.devices.power_source, mat)
+            await _connect("power_source", cfg.devices.power_source.url, d.power.connect())
+            d.opened.append(d.power)
+            try:
+                from drivers.cellio import CellIO
+            except ModuleNotFoundError:
+                d.cellio = None  # not built yet: interlocks then rely on the power source only
+            else:
+                io = cfg.devices.cellio
+                d.cellio = CellIO(io.url, device_id=io.device_id, cycle_ms=io.cycle_ms)
+                await _connect("cellio", io.url, d.cellio.connect())
+                d.opened.append(d.cellio)
+        except BaseException:
+            await d.close()
+            raise
+        return d
+
+    async def close(self) -> None:
+        for dev in reversed(self.opened):
+            try:
+                await dev.close()
+            except Exception:
+                pass
+        self.opened.clear()
+
+
+async def _connect(device: str, url: str, coro: Any, timeout: float = 10.0) -> Any:
+    try:
+        return await asyncio.wait_for(coro, timeout)
+    except (asyncio.TimeoutError, OSError, ConnectionError) as exc:
+        raise DeviceUnreachable(f"{device} at {url} does not answer ({exc.__class__.__name__}: {exc}); "
+                                "is it powered and is `cell sim up` running?") from None
+    except DeviceError as exc:
+        if device in str(exc) or url in str(exc):
+            raise DeviceUnreachable(str(exc)) from None
+        raise DeviceUnreachable(f"{device} at {url}: {exc}") from None

@@ -1,0 +1,160 @@
+"""Immutable snapshots of the cell for the operator's views (TUI, progress lines) and a bus.
+
+The controller publishes a new `Snapshot` whenever something a user would see changes (state,
+progress, live process values, link statistics, alarms, interpass countdown). Views never
+reach into the controller: they subscribe and render the snapshot they are given.
+"""
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+
+@dataclass(frozen=True)
+class Alarm:
+    t: float                        # wall time (time.time())
+    kind: str                       # fault, estop, warning
+    message: str
+    layer: int | None = None
+    pass_: int | None = None
+    position: tuple[float, float, float] | None = None
+
+
+@dataclass(frozen=True)
+class LinkStat:
+    device: str                     # robot, cnc, power_source, cellio
+    url: str
+    connected: bool = False
+    frames_tx: int = 0
+    frames_rx: int = 0
+    errors: int = 0                 # NAKs, CRC errors, retries, timeouts
+    queue_free: int | None = None   # robot queue slots free, CNC rx buffer bytes free
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """What the operator sees at one moment. All fields are plain values; safe to share."""
+
+    t: float = 0.0
+    state: str = "disconnected"
+    job_name: str | None = None
+    run_dir: str | None = None
+    layers_total: int = 0
+    passes_total: int = 0
+    layer: int | None = None        # the layer being built (0-based index), None outside a build
+    pass_: int | None = None        # the pass within the layer
+    passes_in_layer: int = 0
+    layers_done: int = 0
+    passes_done: int = 0
+    arc_starts: int = 0
+    current_a: float | None = None
+    voltage_v: float | None = None
+    wfs_m_min: float | None = None
+    temperature_c: float | None = None
+    interpass_limit_c: float | None = None
+    interpass_remaining_s: float | None = None   # dwell countdown when no pyrometer reading
+    position: tuple[float, float, float] | None = None
+    links: tuple[LinkStat, ...] = ()
+    alarms: tuple[Alarm, ...] = ()
+    allowed_commands: tuple[str, ...] = ()
+    message: str = ""                # the latest progress line
+
+    @property
+    def progress(self) -> float:
+        """Fraction of passes done, 0..1."""
+        return self.passes_done / self.passes_total if self.passes_total else 0.0
+
+    def with_(self, **changes: object) -> "Snapshot":
+        return replace(self, t=time.time(), **changes)
+
+
+Subscriber = Callable[[Snapshot], None]
+
+
+class EventBus:
+    """Holds the latest snapshot; calls subscribers on every change (from any thread).
+
+    `subscribe(fn)` calls `fn` at once with the current snapshot, then on every update, in the
+    publishing thread: a view on another loop should hand it over (e.g. `call_soon_threadsafe`).
+    `updates()` is an async iterator on the caller's loop that yields the latest snapshot,
+    skipping intermediate ones when the reader is slower than the publisher.
+    """
+
+    def __init__(self, initial: Snapshot | None = None) -> None:
+        self._snap = initial or Snapshot(t=time.time())
+        self._subs: list[Subscriber] = []
+        self._lock = threading.Lock()
+
+    @property
+    def latest(self) -> Snapshot:
+        return self._snap
+
+    def update(self, **changes: object) -> Snapshot:
+        with self._lock:
+            self._snap = self._snap.with_(**changes)
+            snap, subs = self._snap, list(self._subs)
+        for fn in subs:
+            try:
+                fn(snap)
+            except Exception:  # a broken view must not stop the controller
+                pass
+        return snap
+
+    def alarm(self, kind: str, message: str, **where: object) -> Snapshot:
+        a = Alarm(t=time.time(), kind=kind, message=message, **where)  # type: ignore[arg-type]
+        return self.update(alarms=self._snap.alarms + (a,))
+
+    def subscribe(self, fn: Subscriber) -> Callable[[], None]:
+        with self._lock:
+            self._subs.append(fn)
+        fn(self._snap)
+
+        def unsubscribe() -> None:
+            with self._lock:
+                if fn in self._subs:
+                    self._subs.remove(fn)
+
+        return unsubscribe
+
+    async def updates(self):  # type: ignore[no-untyped-def]
+        """Async iterator of snapshots on the running loop (latest wins)."""
+        loop = asyncio.get_running_loop()
+        changed = asyncio.Event()
+        unsubscribe = self.subscribe(lambda _s: loop.call_soon_threadsafe(changed.set))
+        try:
+            while True:
+                await changed.wait()
+                changed.clear()
+                yield self._snap
+        finally:
+            unsubscribe()
+
+
+@dataclass
+class ProgressPrinter:
+    """Prints a progress line when the layer changes or an alarm is raised (for `cell run`)."""
+
+    write: Callable[[str], None]
+    _layer: int | None = None
+    _alarms: int = 0
+    _state: str = ""
+    last_lines: list[str] = field(default_factory=list)
+
+    def __call__(self, s: Snapshot) -> None:
+        lines = []
+        if s.state != self._state and s.state in ("fault", "estop", "complete", "aborted", "paused"):
+            lines.append(f"state {s.state}")
+        self._state = s.state
+        if s.layer is not None and s.layer != self._layer:
+            self._layer = s.layer
+            temp = f", part {s.temperature_c:.0f} °C" if s.temperature_c is not None else ""
+            lines.append(f"layer {s.layer + 1}/{s.layers_total}: {s.passes_done}/{s.passes_total} passes done{temp}")
+        for a in s.alarms[self._alarms:]:
+            where = f" (layer {a.layer + 1}, pass {a.pass_ + 1})" if a.layer is not None and a.pass_ is not None else ""
+            lines.append(f"{a.kind}: {a.message}{where}")
+        self._alarms = len(s.alarms)
+        for line in lines:
+            self.write(line)
