@@ -14,7 +14,8 @@ def extrude(poly: Polygon, height: float, z0: float = 0.0) -> trimesh.Trimesh:
     tris = shapely.get_parts(shapely.constrained_delaunay_triangles(poly))
     tri_xy = np.array([np.asarray(t.exterior.coords)[:3] for t in tris])
     # Orient every cap triangle counter-clockwise (seen from +z).
-    cross = np.cross(tri_xy[:, 1] - tri_xy[:, 0], tri_xy[:, 2] - tri_xy[:, 0])
+    e1, e2 = tri_xy[:, 1] - tri_xy[:, 0], tri_xy[:, 2] - tri_xy[:, 0]
+    cross = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
     tri_xy[cross < 0] = tri_xy[cross < 0][:, ::-1]
     top = np.concatenate([tri_xy, np.full((*tri_xy.shape[:2], 1), z0 + height)], axis=2)
     bottom = np.concatenate([tri_xy[:, ::-1], np.full((*tri_xy.shape[:2], 1), z0)], axis=2)
