@@ -1,0 +1,119 @@
+"""A small asyncio adapter over a pyserial `serial_for_url` port (real port, pty, socket://, loop://).
+
+A reader thread feeds received chunks into an asyncio queue; writes are paced at the line rate
+(baud/10 bytes/s for 8N1) as a UART would send them, so a driver never piles seconds of frames
+into an OS or socket buffer that it can no longer take back (a NAK or a hold then acts at once).
+Errors and a closed peer surface as LinkLost naming the device and URL. Shared by the drivers.
+"""
+from __future__ import annotations
+
+import asyncio
+import socket
+import threading
+import time
+
+import serial
+
+from drivers.errors import LinkLost
+
+_EOF = object()
+
+
+class SerialPort:
+    """`await open()`, `await read()` (one chunk), `await write(data)`, `close()`."""
+
+    def __init__(self, url: str, *, baud: int = 115200, name: str = "device", pace: bool = True,
+                 pace_factor: float = 0.98) -> None:
+        self.url = url
+        self.baud = baud
+        self.name = name
+        self.rate = baud / 10.0 * pace_factor if pace else None
+        self.bytes_written = 0
+        self.bytes_read = 0
+        self._ser: serial.SerialBase | None = None
+        self._queue: asyncio.Queue = asyncio.Queue()
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._free_at = 0.0
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._error: str | None = None
+
+    @property
+    def is_open(self) -> bool:
+        return self._ser is not None and self._error is None
+
+    def _lost(self, what: str) -> LinkLost:
+        exc = LinkLost(f"{self.name} at {self.url}: {what}")
+        exc.reason = what
+        return exc
+
+    async def open(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        try:
+            self._ser = await self._loop.run_in_executor(
+                None, lambda: serial.serial_for_url(self.url, baudrate=self.baud, timeout=0.05, write_timeout=2.0))
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise self._lost(f"cannot open the port ({exc}); check the URL and that the device is up") from None
+        sock = getattr(self._ser, "_socket", None)
+        if sock is not None:  # socket://: no Nagle delay, frames go out as a UART would send them
+            try:
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            except OSError:
+                pass
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._reader, name=f"{self.name}-rx", daemon=True)
+        self._thread.start()
+
+    def _reader(self) -> None:
+        ser, loop = self._ser, self._loop
+        try:
+            while not self._stop.is_set():
+                data = ser.read(max(1, min(ser.in_waiting, 4096)))
+                if data:
+                    loop.call_soon_threadsafe(self._queue.put_nowait, data)
+        except Exception as exc:  # closed port or peer: report it once, to the reader
+            if not self._stop.is_set():
+                try:
+                    loop.call_soon_threadsafe(self._queue.put_nowait, (_EOF, str(exc)))
+                except RuntimeError:
+                    pass
+
+    async def read(self) -> bytes:
+        """The next received chunk; LinkLost when the port closed or failed."""
+        item = await self._queue.get()
+        if isinstance(item, tuple):
+            self._error = item[1]
+            raise self._lost(item[1])
+        self.bytes_read += len(item)
+        return item
+
+    async def write(self, data: bytes) -> None:
+        """Send `data`, waiting until the (simulated) line is free to carry it."""
+        if self._ser is None:
+            raise self._lost("port not open")
+        if self.rate is not None:
+            now = time.monotonic()
+            start = max(now, self._free_at)
+            self._free_at = start + len(data) / self.rate
+            if start - now > 0.0005:
+                await asyncio.sleep(start - now)
+        if self._ser is None:
+            raise self._lost("port closed")
+        try:
+            self._ser.write(data)
+        except (serial.SerialException, OSError) as exc:
+            self._error = str(exc)
+            raise self._lost(f"write failed ({exc})") from None
+        self.bytes_written += len(data)
+
+    def close(self) -> None:
+        self._stop.set()
+        ser, self._ser = self._ser, None
+        if ser is not None:
+            try:
+                ser.close()
+            except Exception:
+                pass
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=1.0)
+        self._thread = None

@@ -1,0 +1,295 @@
+"""Robot simulator: the robot side of RLP/1 (DESIGN.md §5, docs/protocols/rlp.md).
+
+Checks every frame (CRC, syntax, sequence), keeps a bounded motion queue, executes the moves in
+simulated time (SimClock) at the commanded speed, answers ACK / NAK / EXE / MRK / ERR / STA and a
+heartbeat every second, holds motion after 3 s of silence, reports torch motion to the World and
+appends every executed queue entry to `robot.jsonl` ({"seq", "verb", "target", "t"}, §6a). Its
+state (queue, last_rx, last_exec, position) survives a host disconnect, as a real controller's
+does. Served on loopback TCP or a pty through sims/transport.py.
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from collections import deque
+from pathlib import Path
+from typing import IO, Callable
+
+from drivers import rlp
+from sims.clock import SimClock
+from sims.faults import parse_fault_spec
+from sims.transport import SerialServer
+
+DEVICE = "robot"
+ERR_WORKSPACE = 10
+
+
+class RobotSim:
+    """In-process robot controller. Drive it with attach/feed/detach (the ByteSim protocol)."""
+
+    def __init__(self, *, clock: SimClock, world: object | None = None, queue_slots: int = 64,
+                 log_path: str | Path | None = None, heartbeat_s: float = 1.0,
+                 link_timeout_s: float = 3.0,
+                 workspace: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None,
+                 home: tuple[float, float, float] = (0.0, 0.0, 0.0), tick_s: float = 0.002,
+                 record: bool = False) -> None:
+        self.clock = clock
+        self.world = world
+        self.slots = queue_slots
+        self.heartbeat_s = heartbeat_s
+        self.link_timeout_s = link_timeout_s
+        self.workspace = workspace
+        self.tick_s = tick_s
+        self.pos = tuple(float(v) for v in home)
+        self.queue: deque[rlp.Move] = deque()
+        self.last_rx = 0
+        self.last_exec = 0
+        self.held = False
+        self.silence_held = False
+        self.waiting = False
+        self.fault = False
+        self.discarding = False
+        self.executed: list[int] | None = [] if record else None  # wire seqs, in execution order
+        # counters
+        self.frames_rx = self.crc_errors = self.syntax_errors = self.naks = self.duplicates = 0
+        self.executed_count = 0
+        self.underruns = 0          # times the queue ran empty after a move (the job's end counts)
+        self.hb = 0
+        self._write: Callable[[bytes], None] | None = None
+        self._splitter = rlp.LineSplitter()
+        self._ack_due = False
+        self._last_heard = time.monotonic()
+        self._log: IO[str] | None = None
+        self._log_dirty = False
+        if log_path is not None:
+            Path(log_path).parent.mkdir(parents=True, exist_ok=True)
+            self._log = open(log_path, "a", encoding="utf-8")
+        self._tasks: list[asyncio.Task] = []
+
+    # -- lifecycle --------------------------------------------------------------------------------
+    def start(self) -> None:
+        loop = asyncio.get_running_loop()
+        self._tasks = [loop.create_task(self._exec_loop()), loop.create_task(self._link_loop())]
+
+    async def close(self) -> None:
+        for t in self._tasks:
+            t.cancel()
+        for t in self._tasks:
+            try:
+                await t
+            except asyncio.CancelledError:
+                pass
+        self._tasks = []
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
+    @property
+    def state(self) -> str:
+        if self.fault:
+            return "FAULT"
+        if self.held:
+            return "HOLD"
+        if self.waiting:
+            return "WAIT"
+        return "RUN" if self.queue else "IDLE"
+
+    @property
+    def expected(self) -> int:
+        return rlp.seq_add(self.last_rx, 1)
+
+    # -- ByteSim ----------------------------------------------------------------------------------
+    def attach(self, write: Callable[[bytes], None]) -> None:
+        self._write = write
+        self._splitter = rlp.LineSplitter()
+        self._last_heard = time.monotonic()
+
+    def detach(self) -> None:
+        self._write = None
+
+    def feed(self, data: bytes) -> None:
+        self._last_heard = time.monotonic()
+        for line in self._splitter.feed(data):
+            self._line(line)
+        if self._ack_due:  # one cumulative ACK per received chunk keeps the return line free
+            self._ack_due = False
+            self._send(rlp.ack(self.last_rx, self.slots - len(self.queue)))
+
+    # -- receiving --------------------------------------------------------------------------------
+    def _send(self, body: str) -> None:
+        if self._write is not None:
+            self._write(rlp.encode(body))
+
+    def _nak(self, reason: str) -> None:
+        self.naks += 1
+        self.discarding = True
+        if self._ack_due:  # what was accepted before the bad frame is acknowledged first
+            self._ack_due = False
+            self._send(rlp.ack(self.last_rx, self.slots - len(self.queue)))
+        self._send(rlp.nak(self.expected, reason))
+
+    def _line(self, line: bytes) -> None:
+        self.frames_rx += 1
+        try:
+            body = rlp.decode(line)
+            msg = rlp.parse_host(body)
+        except rlp.FrameError as exc:
+            if exc.reason == "CRC":
+                self.crc_errors += 1
+            else:
+                self.syntax_errors += 1
+            self._nak(exc.reason)
+            return
+        if isinstance(msg, str):
+            self._control(msg)
+            return
+        d = rlp.seq_diff(msg.seq, self.expected)
+        if d == 0:
+            if len(self.queue) >= self.slots:
+                self._nak("FULL")
+                return
+            self.queue.append(msg)
+            self.last_rx = msg.seq
+            self.discarding = False
+            self._ack_due = True
+        elif d < 0:  # already received: acknowledge again, never execute twice
+            self.duplicates += 1
+            self._ack_due = True
+        elif not self.discarding:
+            self._nak("SEQ")
+        # else: discarding until the expected seq arrives
+
+    def _control(self, verb: str) -> None:
+        if verb == "HOLD":
+            self.held = True
+            self._stopped()
+        elif verb == "GO":
+            self.held = self.silence_held = False
+            if self.waiting and self.queue and self.queue[0].verb == "WAIT" and not self.fault:
+                self.waiting = False
+                self._finish(self.queue[0], self.clock.now())
+        elif verb == "ABORT":
+            self.queue.clear()
+            self.held = self.silence_held = self.waiting = False
+            self._stopped()
+        elif verb == "RESET":
+            self.queue.clear()
+            self.held = self.silence_held = self.waiting = self.fault = False
+            self.discarding = False
+            self.last_rx = self.last_exec = 0
+            self._stopped()
+        self.send_status()
+
+    def send_status(self) -> None:
+        self._send(rlp.sta(self.state, self.last_rx, self.last_exec, self.slots - len(self.queue), self.pos))
+
+    # -- execution --------------------------------------------------------------------------------
+    def _stopped(self) -> None:
+        if self.world is not None:
+            self.world.motion_stopped(DEVICE)
+
+    def _finish(self, m: rlp.Move, t: float) -> None:
+        self.queue.popleft()
+        self.last_exec = m.seq
+        self.executed_count += 1
+        if self.executed is not None:
+            self.executed.append(m.seq)
+        if self._log is not None:
+            self._log.write(json.dumps({"seq": m.seq, "verb": m.verb, "target": [round(v, 3) for v in self.pos],
+                                        "t": round(t, 4)}) + "\n")
+            self._log_dirty = True
+        self._send(rlp.exe(m.seq))
+        if not self.queue:
+            self.underruns += 1
+
+    def _outside(self, p: tuple[float, float, float]) -> bool:
+        if self.workspace is None:
+            return False
+        lo, hi = self.workspace
+        return any(v < a - 1e-9 or v > b + 1e-9 for v, a, b in zip(p, lo, hi))
+
+    def advance(self, t: float, now: float) -> None:
+        """Execute queued moves over simulated time [t, now]."""
+        while t < now and self.queue and not (self.held or self.fault or self.waiting):
+            m = self.queue[0]
+            if m.verb == "WAIT":
+                self.waiting = True
+                break
+            if m.verb == "MARK":
+                self._send(f"MRK {m.mark}")
+                self._finish(m, t)
+                continue
+            if self._outside(m.target):
+                self.fault = True
+                self._stopped()
+                self._send(f"ERR {ERR_WORKSPACE} target {' '.join(rlp.fmt_mm(v) for v in m.target)} outside workspace")
+                break
+            p0 = self.pos
+            delta = [b - a for a, b in zip(p0, m.target)]
+            dist = sum(d * d for d in delta) ** 0.5
+            v = m.speed / 60.0
+            need = dist / v
+            if t + need <= now:
+                p1, t1, done = m.target, t + need, True
+            else:
+                f = (now - t) * v / dist
+                p1, t1, done = tuple(a + f * d for a, d in zip(p0, delta)), now, False
+            if self.world is not None and dist > 0:
+                self.world.torch_moved(DEVICE, m.seq, p0, p1, t, t1)
+            self.pos, t = p1, t1
+            if not done:
+                break
+            self._stopped()
+            self._finish(m, t)
+
+    async def _exec_loop(self) -> None:
+        last = self.clock.now()
+        while True:
+            await asyncio.sleep(self.tick_s)
+            now = self.clock.now()
+            self.advance(last, now)
+            last = now
+            if self._log_dirty and self._log is not None:
+                self._log.flush()
+                self._log_dirty = False
+
+    async def _link_loop(self) -> None:
+        # link timing is wall time, never scaled
+        next_hb = time.monotonic() + self.heartbeat_s
+        while True:
+            await asyncio.sleep(0.05)
+            now = time.monotonic()
+            if now >= next_hb:
+                next_hb = now + self.heartbeat_s
+                self.hb += 1
+                self._send(f"HB {self.hb}")
+            if now - self._last_heard > self.link_timeout_s and not self.held and self.queue:
+                self.held = self.silence_held = True  # silence over 3 s holds motion
+                self._stopped()
+
+
+async def serve(ctx) -> list:
+    """Start the robot simulator on cell.yaml's robot URL (or port 0 / a pty), per ctx."""
+    from sims.up import Served
+
+    dev = ctx.cell.devices.robot
+    lim = ctx.cell.limits
+    sim = RobotSim(clock=ctx.clock, world=ctx.world, queue_slots=dev.queue_slots,
+                   log_path=(Path(ctx.log_dir) / "robot.jsonl") if ctx.log_dir else None,
+                   heartbeat_s=dev.heartbeat_s, link_timeout_s=dev.link_timeout_s,
+                   workspace=(tuple(lim.workspace_min_mm), tuple(lim.workspace_max_mm)))
+    sim.start()
+    server = SerialServer(sim, name=DEVICE, spec=parse_fault_spec(ctx.faults), baud=dev.baud)
+    sim.server = server  # tests pull the cable with sim.server.unplug()
+    try:
+        url = await server.start(dev.url, pty=ctx.pty, ephemeral=ctx.ephemeral)
+    except BaseException:
+        await sim.close()
+        raise
+
+    async def close() -> None:
+        await server.close()
+        await sim.close()
+
+    return [Served(DEVICE, url, close, sim=sim, extra={"baud": dev.baud, "protocol": "RLP/1"})]

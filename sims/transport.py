@@ -1,0 +1,187 @@
+"""Serve a byte-stream simulator as a serial device: on loopback TCP (`socket://`) or a pty.
+
+A simulator served here implements the ByteSim protocol (attach / feed / detach). Every byte in
+both directions passes through a FaultPipe (sims/faults.py): the fault spec and the 8N1 baud
+throttle apply exactly as on a real RS-232 cable. One peer at a time, as on a serial port: a new
+TCP connection replaces the old one (the simulator keeps its state across connections).
+Shared by the robot and CNC simulators.
+"""
+from __future__ import annotations
+
+import asyncio
+import os
+import socket
+import time
+import tty
+from typing import Callable, Protocol
+from urllib.parse import urlparse
+
+from planner.errors import ConfigError
+from sims.faults import FaultPipe, FaultSpec, bytes_per_second
+
+
+class ByteSim(Protocol):
+    def attach(self, write: Callable[[bytes], None]) -> None:
+        """A peer connected: `write` sends bytes to it."""
+
+    def feed(self, data: bytes) -> None:
+        """Bytes arrived from the peer."""
+
+    def detach(self) -> None:
+        """The peer went away (cable out); the simulator keeps its state."""
+
+
+def tcp_address(url: str) -> tuple[str, int]:
+    """(host, port) of a `socket://host:port` URL; ConfigError otherwise."""
+    u = urlparse(url)
+    if u.scheme != "socket" or not u.hostname or u.port is None:
+        raise ConfigError(f"simulator URL {url!r}: expected socket://HOST:PORT (or use --pty)")
+    return u.hostname, u.port
+
+
+class SerialServer:
+    """Serves one ByteSim. `url` is what a driver passes to serial_for_url once started."""
+
+    def __init__(self, sim: ByteSim, *, name: str, spec: FaultSpec | None = None,
+                 baud: int | None = 115200) -> None:
+        self.sim = sim
+        self.name = name
+        self.spec = spec or FaultSpec()
+        if self.spec.value("baud") is not None:
+            baud = int(self.spec.value("baud"))
+        self.rate = bytes_per_second(baud) if baud else None
+        self.url = ""
+        self.connections = 0
+        self.pipes: tuple[FaultPipe, FaultPipe] | None = None  # (to the sim, from the sim)
+        self._server: asyncio.base_events.Server | None = None
+        self._writer: asyncio.StreamWriter | None = None
+        self._pty: tuple[int, int] | None = None
+        self._unplugged_until = 0.0
+        self._t0 = time.monotonic()
+        self._timers: list[asyncio.TimerHandle] = []
+
+    # -- lifecycle -------------------------------------------------------------------------------
+    async def start(self, url: str | None, *, pty: bool = False, ephemeral: bool = False) -> str:
+        loop = asyncio.get_running_loop()
+        self._t0 = time.monotonic()
+        if pty:
+            self._start_pty(loop)
+        else:
+            host, port = tcp_address(url) if url else ("127.0.0.1", 0)
+            if ephemeral:
+                host, port = "127.0.0.1", 0
+            try:
+                self._server = await asyncio.start_server(self._on_conn, host, port)
+            except OSError as exc:
+                raise ConfigError(f"{self.name} simulator: cannot listen on {host}:{port} ({exc.strerror}); "
+                                  "is another `cell sim up` running?") from None
+            h, p = self._server.sockets[0].getsockname()[:2]
+            self.url = f"socket://{h}:{p}"
+        for cond, t in self.spec.events("unplug"):
+            if cond == "t":
+                self._timers.append(loop.call_later(float(t), self.unplug))
+        return self.url
+
+    async def close(self) -> None:
+        for h in self._timers:
+            h.cancel()
+        self._drop_current()
+        if self._server is not None:
+            self._server.close()
+            await self._server.wait_closed()
+            self._server = None
+        if self._pty is not None:
+            asyncio.get_running_loop().remove_reader(self._pty[0])
+            for fd in self._pty:
+                os.close(fd)
+            self._pty = None
+
+    def unplug(self, seconds: float | None = None) -> None:
+        """Pull the cable: drop the connection; refuse new ones for `seconds` (spec: unplug=)."""
+        if seconds is None:
+            seconds = float(self.spec.value("unplug", 0.0))
+        self._unplugged_until = time.monotonic() + seconds
+        self._drop_current()
+
+    def stall(self, seconds: float) -> None:
+        """Both directions stop moving bytes for `seconds` (held, then delivered)."""
+        if self.pipes:
+            for p in self.pipes:
+                p.stall(seconds)
+
+    # -- plumbing --------------------------------------------------------------------------------
+    def _make_pipes(self, to_peer: Callable[[bytes], None], alive: Callable[[], bool]) -> None:
+        n = self.connections
+        self.connections += 1
+
+        def to_sim(data: bytes) -> None:
+            if alive():
+                self.sim.feed(data)
+
+        def to_wire(data: bytes) -> None:
+            if alive():
+                to_peer(data)
+
+        t0 = self._t0
+        inbound = FaultPipe(to_sim, self.spec, stream=f"{self.name}.in.{n}", rate=self.rate, t0=t0)
+        outbound = FaultPipe(to_wire, self.spec, stream=f"{self.name}.out.{n}", rate=self.rate, t0=t0)
+        self.pipes = (inbound, outbound)
+        self.sim.attach(outbound.send)
+
+    def _drop_current(self) -> None:
+        if self._writer is not None:
+            w, self._writer = self._writer, None
+            w.close()
+            self.sim.detach()
+        if self.pipes is not None and self._pty is None:
+            for p in self.pipes:
+                p.close()
+            self.pipes = None
+
+    async def _on_conn(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        if time.monotonic() < self._unplugged_until:
+            writer.close()
+            return
+        self._drop_current()
+        sock = writer.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._writer = writer
+        self._make_pipes(writer.write, lambda: self._writer is writer)
+        inbound = self.pipes[0]
+        try:
+            while True:
+                data = await reader.read(4096)
+                if not data or self._writer is not writer:
+                    break
+                inbound.send(data)
+        except (ConnectionError, OSError):
+            pass
+        finally:
+            if self._writer is writer:
+                self._drop_current()
+
+    def _start_pty(self, loop: asyncio.AbstractEventLoop) -> None:
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        os.set_blocking(master, False)
+        self._pty = (master, slave)  # the slave fd stays open: no EIO when a client closes
+        self.url = os.ttyname(slave)
+
+        def write(data: bytes) -> None:
+            try:
+                os.write(master, data)
+            except (BlockingIOError, OSError):
+                pass  # nobody reading: bytes fall on the floor, as on a real line
+
+        self._make_pipes(write, lambda: self._pty is not None)
+
+        def readable() -> None:
+            try:
+                data = os.read(master, 4096)
+            except (BlockingIOError, OSError):
+                return
+            if data and self.pipes:
+                self.pipes[0].send(data)
+
+        loop.add_reader(master, readable)
