@@ -60,19 +60,23 @@ def _axis_beads(poly: Polygon, width: float, min_width: float) -> list[Path2D]:
         path, closed = _longest(g.subgraph(comp))
         if len(path) < 2:
             continue
+        # Local width: twice the distance from the axis to the boundary (the inscribed circles).
+        radii = shapely.distance(shapely.points(np.asarray(path)), boundary)
+        r_med = float(np.median(radii))
+        if not closed:
+            # The axis runs out into the corners where the inscribed circle shrinks to nothing:
+            # the bead stops where the circle is still most of the typical one (its cap fills the end).
+            keep = np.flatnonzero(radii >= 0.7 * r_med)
+            path = path[keep[0]:keep[-1] + 1]
+        if len(path) < 2:
+            continue
         line = LineString(path)
         if line.length < 0.25 * width:
             continue
-        # Local width: twice the distance from the axis to the boundary (the inscribed circles).
-        radii = shapely.distance(shapely.points(np.asarray(path)), boundary)
-        w_raw = 2.0 * float(np.median(radii))
+        w_raw = 2.0 * r_med
         if w_raw < min_width:
             continue
         w_est = float(np.clip(w_raw, 0.3 * width, 1.5 * width))
-        if not closed:
-            # The medial axis runs into the corners: stop short of the ends by about half a bead.
-            trim = min(0.35 * w_est, 0.3 * line.length)
-            line = shapely.ops.substring(line, trim, line.length - trim)
         pts = np.asarray(line.simplify(0.02 * width).coords)[:, :2]
         if closed:
             pts = np.vstack([pts, pts[:1]])
