@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import importlib
+import signal
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Awaitable, Callable
@@ -46,14 +47,18 @@ class Served:
 
 async def serve_all(ctx: SimContext, modules: list[str] | None = None) -> list[Served]:
     served: list[Served] = []
-    for name in modules or SIM_MODULES:
-        try:
-            mod = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name == name:
-                continue
-            raise
-        served.extend(await mod.serve(ctx))
+    try:
+        for name in modules or SIM_MODULES:
+            try:
+                mod = importlib.import_module(name)
+            except ModuleNotFoundError as exc:
+                if exc.name == name:
+                    continue
+                raise
+            served.extend(await mod.serve(ctx))
+    except BaseException:
+        await close_all(served)  # e.g. a port in use: free what was already started
+        raise
     return served
 
 
@@ -66,10 +71,19 @@ async def close_all(served: list[Served]) -> None:
 
 
 async def run_forever(ctx: SimContext, on_ready: Callable[[list[Served]], None]) -> None:
-    served = await serve_all(ctx)
+    """Serve until SIGINT (Ctrl-C) or SIGTERM, then close every server and flush the logs."""
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            loop.add_signal_handler(sig, stop.set)
+        except (NotImplementedError, RuntimeError):  # not the main thread: Ctrl-C still cancels
+            pass
+    served: list[Served] = []
     try:
+        served = await serve_all(ctx)
         on_ready(served)
-        await asyncio.Event().wait()
+        await stop.wait()
     finally:
         await close_all(served)
         ctx.world.close()
