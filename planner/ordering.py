@@ -98,3 +98,42 @@ def order_passes(groups: list[list[Path2D]], start: np.ndarray) -> tuple[list[Pa
             out.append(p)
             pos = p.points[-1]
     return out, pos
+
+
+def join_chains(chains: list[Path2D], reach: float, corridor) -> list[Path2D]:
+    """Join open beads whose ends lie within `reach` through `corridor`: fewer arc starts."""
+    import shapely
+
+    chains = list(chains)
+    tags = list(range(len(chains)))  # stable names for pairs already refused (never id())
+    serial = len(chains)
+    shapely.prepare(corridor)
+    rejected: set[tuple[int, int, bool, bool]] = set()
+    while len(chains) > 1:
+        best = None
+        for i, a in enumerate(chains):
+            for j, b in enumerate(chains):
+                if i == j:
+                    continue
+                for ra in (False, True):
+                    for rb in (False, True):
+                        if (tags[i], tags[j], ra, rb) in rejected:
+                            continue
+                        pa = a.points[0] if ra else a.points[-1]  # where a ends (run reversed if ra)
+                        pb = b.points[-1] if rb else b.points[0]  # where b starts
+                        d = float(np.hypot(*(pb - pa)))
+                        if d <= reach and (best is None or d < best[0]):
+                            best = (d, i, j, ra, rb)
+        if best is None:
+            break
+        _, i, j, ra, rb = best
+        a = chains[i].reversed() if ra else chains[i]
+        b = chains[j].reversed() if rb else chains[j]
+        if not corridor.covers(shapely.linestrings([a.points[-1], b.points[0]])):
+            rejected.add((tags[i], tags[j], ra, rb))  # the step would leave the region
+            continue
+        joined = Path2D(a.role, np.vstack([a.points, b.points]), a.width_mm, False, a.share_mm)
+        chains = [c for k, c in enumerate(chains) if k not in (i, j)] + [joined]
+        tags = [t for k, t in enumerate(tags) if k not in (i, j)] + [serial]
+        serial += 1
+    return chains

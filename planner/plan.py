@@ -17,7 +17,7 @@ from planner.infill import scan_fill
 from planner.job import BeadInfo, Interpass, Job, Layer, Pass, Source
 from planner.material import Material
 from planner.mesh import PreparedMesh, check_size, prepare_mesh, read_mesh
-from planner.ordering import link_into_loops, order_passes, seam_at
+from planner.ordering import join_chains, link_into_loops, order_passes, seam_at
 from planner.path2d import Path2D
 from planner.perimeters import perimeter_loops, split_thin
 from planner.process import ProcessPoint, inverse
@@ -161,10 +161,12 @@ def _plan_layer(sl: LayerSlice, w: float, step: float, opt: PlanOptions, pos: np
                 loops, inset = perimeter_loops(t, w, step, opt.perimeters)
             stats["loops"] += sum(len(lv) for lv in loops)
             if loops or opt.perimeters == 0:
-                infill_region = t.buffer(-(inset + step)) if opt.perimeters is not None else shapely.Polygon()
+                infill_region = t.buffer(-(inset + 0.75 * step)) if opt.perimeters is not None else shapely.Polygon()
                 stats["regions"] += len(polygons_of(infill_region))
                 chains = scan_fill(infill_region, step, w, angle) if not infill_region.is_empty else []
                 filled = list(chains)
+                if len(chains) > 1:
+                    chains = join_chains(chains, 2.5 * step, t.buffer(-inset + 0.1 * step))
                 inner, chains = link_into_loops(loops[-1] if loops else [], chains, 2.0 * step)
                 outer = [lp for lv in loops[:-1] for lp in lv]
                 groups[0] += [seam_at(lp, sl.index) if lp.closed else lp for lp in outer + inner]
