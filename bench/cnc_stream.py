@@ -4,7 +4,7 @@ Two runs over loopback TCP through the simulated 115200-baud line (sims/transpor
 1. the whole program: throughput, how full grbl's 127-byte RX ring and 15-block planner stay
    (sampled every 5 ms on the simulator side), bytes lost (must be 0), and that the exec log
    holds every line exactly once in order;
-2. the same program with a faulty line: the stream stops at the first `error:N`, the error
+2. its first 2,000 lines with a faulty line at 75 %: the stream stops at the first `error:N`, the error
    names the line, and only what was already in grbl's buffer runs after it.
 
 Usage: python -m bench.cnc_stream [--quick] [--lines N] [--time-scale S]
@@ -152,8 +152,9 @@ def main(argv: list[str]) -> int:
           f"planner ran dry with RX waiting {full['planner_empty_while_rx_waiting']}x, "
           f"RX bytes lost {full['rx_bytes_lost']}")
     print(f"  exec log: every line once, in order: {full['exec_log_every_line_once_in_order']}")
-    bad = max(3, int(n * 0.75))
-    err = asyncio.run(run_error(n, bad, 200.0))
+    n_err = min(n, 2000)
+    bad = max(3, int(n_err * 0.75))
+    err = asyncio.run(run_error(n_err, bad, args.time_scale))
     print(f"error run: stopped at line {err['error_line_number']} (expected {bad}), error:{err['error_code']}; "
           f"{err['lines_run_after_error']} lines already in grbl's buffer ran after it; "
           f"{err['wall_s']:.2f} s")

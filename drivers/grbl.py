@@ -111,6 +111,7 @@ class CncLink:
         self.link_timeout_s = link_timeout_s
         self.connect_timeout_s = connect_timeout_s
         self.alarm_grace_s = alarm_grace_s
+        self._pace = pace
         self._port = SerialPort(url, baud=baud, name="cnc", pace=pace)
         self.version: str | None = None
         self.latest_status: GrblStatus | None = None
@@ -163,6 +164,10 @@ class CncLink:
         motion (Run, Hold, Home, Jog) is attached to without a reset."""
         self._closing = False
         self._lost = None
+        self.latest_status = None
+        self._banner_event.clear()
+        self._buf.clear()
+        self._port = SerialPort(self.url, baud=self.baud, name="cnc", pace=self._pace)
         await self._port.open()
         self._last_rx = time.monotonic()
         self._tasks = [asyncio.get_running_loop().create_task(self._read_loop())]

@@ -306,11 +306,18 @@ async def test_silent_port_is_link_lost(rig_factory):
 
 async def test_unplugged_cable_is_link_lost(rig_factory):
     r = await ready(rig_factory)
-    r.server.unplug(2.0)
+    await r.link.command("G0 X12")
+    await r.link.wait_idle(10)
+    r.server.unplug(0.5)
     with pytest.raises(LinkLost):
         await r.link.command("G4 P0")
         for _ in range(30):
             await r.link.status()
+    # plugged back in: the controller kept its state (homed, position), the driver reconnects
+    await asyncio.sleep(0.6)
+    st = await r.link.connect()
+    assert st.state == "Idle" and st.mpos[0] == pytest.approx(12.0)
+    await r.link.command("G0 X0")
 
 
 async def test_served_by_sim_up_with_exec_log_and_world(tmp_path):
