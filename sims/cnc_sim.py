@@ -681,7 +681,7 @@ class CncSim:
     async def _exec_loop(self) -> None:
         last = self.clock.now()
         while True:
-            if not self._queue and not self.hold:
+            if not self._queue or self.alarm or (self.hold and self.hold_sub == 0):  # nothing can move
                 if self._log_dirty and self._log is not None:
                     self._log.flush()
                     self._log_dirty = False

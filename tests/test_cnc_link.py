@@ -294,6 +294,17 @@ async def test_probe_failures_raise_grbl_alarms_4_and_5(rig_factory):
 
 # -- the link ------------------------------------------------------------------------------------
 
+async def test_stream_over_a_slow_laggy_line_still_runs_every_line(rig_factory):
+    # seeded fault channel: 4 ms one-way latency and a 57600-baud line
+    r = await ready(rig_factory, faults="seed=7,latency=4ms,baud=57600")
+    prog = _program(120)
+    res = await r.link.stream(prog)
+    assert res.acked == len(prog) and r.sim.rx_dropped == 0
+    assert res.max_in_flight_bytes <= 127 and res.mean_in_flight_bytes > 60
+    ran = [e["line"] for e in r.executed() if e["line"] != "G4P0"]
+    assert ran == [ln.replace(" ", "") for ln in prog]
+
+
 async def test_silent_port_is_link_lost(rig_factory):
     r = await ready(rig_factory, link_timeout_s=1.0)
     r.server.stall(5.0)                           # the cable carries nothing for 5 s
