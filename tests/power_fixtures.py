@@ -19,7 +19,7 @@ MATERIAL = load_material("inconel718-1.0mm")
 
 @asynccontextmanager
 async def power_rig(transport: str = "modbus_tcp", *, time_scale: float = 1.0, faults=None,
-                    timeout_ms: float = 100.0, connect: bool = True):
+                    timeout_ms: float = 500.0, connect: bool = True):
     """Yield (sim_thread, sim, driver, world); the sim runs on its own loop as a real device would."""
     th = SimThread()
     world = World()

@@ -157,11 +157,11 @@ async def test_device_watchdog_drop_is_reported():
 
 
 async def test_lost_link_while_welding_is_a_fault():
-    async with power_rig(timeout_ms=60) as (th, sim, ps, _):
+    async with power_rig(timeout_ms=150) as (th, sim, ps, _):
         arc, faults = await _welding(ps)
         th.call(sim.inject, "silence")
         await asyncio.wait_for(arc.faulted.wait(), 1.0)
-        assert isinstance(faults[0], PowerLinkLost) and "no reply within 60 ms" in str(faults[0])
+        assert isinstance(faults[0], PowerLinkLost) and "no reply within 150 ms" in str(faults[0])
         assert not ps.command.weld_start
 
 

@@ -22,12 +22,12 @@ from power_fixtures import power_rig
 
 @asynccontextmanager
 async def cellio_rig(*, time_scale: float = 1.0, world: World | None = None, faults=None, thermal=None,
-                     th: SimThread | None = None):
+                     th: SimThread | None = None, timeout_ms: float = 500.0):
     own = th is None
     th = th or SimThread()
     sim = CellIOSim(clock=SimClock(time_scale), world=world, faults=faults, thermal=thermal)
     url, close = th.run(serve_modbus_tcp(sim))
-    io = CellIO(url, timeout_ms=100)
+    io = CellIO(url, timeout_ms=timeout_ms)
     await io.connect()
     try:
         yield th, sim, io
@@ -129,7 +129,7 @@ async def test_pyrometer_heats_while_the_arc_burns_and_cools_after():
 
 
 async def test_silent_coupler_is_a_lost_link_naming_the_url():
-    async with cellio_rig() as (th, sim, io):
+    async with cellio_rig(timeout_ms=100) as (th, sim, io):
         errors = []
         io.on_error(errors.append)
         th.call(sim.silence)
