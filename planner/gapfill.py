@@ -1,7 +1,6 @@
 """Single centre-line beads for thin regions, from the polygon's medial axis (Voronoi edges)."""
 from __future__ import annotations
 
-import networkx as nx
 import numpy as np
 import shapely
 import shapely.ops
@@ -35,6 +34,8 @@ def centre_lines(poly: Polygon, width: float, min_width: float = 0.0, depth: int
 
 
 def _axis_beads(poly: Polygon, width: float, min_width: float) -> list[Path2D]:
+    import networkx as nx  # only thin parts need it: keep `cell plan` quick to start
+
     simple = shapely.simplify(poly, 0.02 * width)
     if simple.is_empty or simple.area <= 0:
         return []
@@ -84,8 +85,10 @@ def _axis_beads(poly: Polygon, width: float, min_width: float) -> list[Path2D]:
     return out
 
 
-def _longest(g: nx.Graph) -> tuple[list, bool]:
+def _longest(g) -> tuple[list, bool]:
     """The longest cycle if the axis has one (a ring), else the tree's diameter path."""
+    import networkx as nx
+
     if g.number_of_edges() >= g.number_of_nodes():
         cycles = nx.cycle_basis(g)
         if cycles:

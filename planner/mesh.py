@@ -7,7 +7,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
 from planner.errors import InputError, MeshError
 
@@ -52,14 +51,96 @@ def read_mesh(path: str | Path, units: str = "mm") -> PreparedMesh:
     ext = p.suffix.lower().lstrip(".")
     if ext not in FORMATS:
         raise MeshError(f"{p}: unknown mesh format '.{ext}'; export the part as STL, OBJ or 3MF")
-    mesh = _parse(data, ext, p)
-    source = MeshSource(file=p.name, sha256=hashlib.sha256(data).hexdigest(), units=units)
-    return prepare_mesh(mesh, units, source)
-
-
-def _parse(data: bytes, ext: str, p: Path) -> trimesh.Trimesh:
     if len(data) == 0:
         raise MeshError(f"{p}: the file is empty (0 bytes); export the part again")
+    source = MeshSource(file=p.name, sha256=hashlib.sha256(data).hexdigest(), units=units)
+    tri = _binary_stl(data) if ext == "stl" else None
+    if tri is not None:
+        if len(tri) == 0:
+            raise MeshError(f"{p}: the mesh has no triangles; export the part again as a solid")
+        vertices, faces = _weld(tri)
+        fast = _prepare_clean(vertices, faces, units, source)
+        if fast is not None:
+            return fast
+        import trimesh
+
+        return prepare_mesh(trimesh.Trimesh(vertices, faces, process=False), units, source)
+    return prepare_mesh(_parse(data, ext, p), units, source)
+
+
+def _binary_stl(data: bytes) -> np.ndarray | None:
+    """Triangles (n, 3, 3) of a binary STL, or None when the bytes are not one (ASCII STL)."""
+    if len(data) < 84:
+        return None
+    n = int(np.frombuffer(data, dtype="<u4", count=1, offset=80)[0])
+    if len(data) != 84 + 50 * n:
+        return None
+    rec = np.dtype([("normal", "<f4", (3,)), ("v", "<f4", (3, 3)), ("attr", "<u2")])
+    return np.frombuffer(data, dtype=rec, count=n, offset=84)["v"]
+
+
+def _weld(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Shared vertices from exactly repeated corner coordinates (STL repeats them bit for bit)."""
+    v = np.ascontiguousarray(tri.reshape(-1, 3), dtype=np.float32) + np.float32(0.0)  # -0.0 -> 0.0
+    bits = v.view(np.uint32).astype(np.uint64)
+    # One 64-bit key per corner (a hash of its three float bit patterns), sorted once; equal
+    # coordinates give equal keys, and a collision is caught below by comparing the bits.
+    h = bits[:, 0] * np.uint64(0x9E3779B185EBCA87) ^ bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F) \
+        ^ bits[:, 2] * np.uint64(0x165667B19E3779F9)
+    order = np.argsort(h, kind="stable")
+    sh = h[order]
+    new = np.empty(len(sh), dtype=bool)
+    new[0] = True
+    np.not_equal(sh[1:], sh[:-1], out=new[1:])
+    ids = np.cumsum(new) - 1
+    first = order[new]
+    if np.any(bits[order] != bits[first[ids]]):  # a hash collision: sort on the bits themselves
+        b = bits.astype(np.uint32)
+        order = np.lexsort((b[:, 2], b[:, 1], b[:, 0]))
+        sb = b[order]
+        new[1:] = np.any(sb[1:] != sb[:-1], axis=1)
+        ids = np.cumsum(new) - 1
+        first = order[new]
+    inverse = np.empty(len(v), dtype=np.int64)
+    inverse[order] = ids
+    return v[first].astype(np.float64), inverse.reshape(-1, 3)
+
+
+def _prepare_clean(vertices: np.ndarray, faces: np.ndarray, units: str, source: MeshSource) -> PreparedMesh | None:
+    """The fast path for a clean mesh (closed, consistently wound, no degenerate face); else None."""
+    if not np.all(np.isfinite(vertices)):
+        return None
+    f = faces
+    if np.any((f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])):
+        return None
+    vertices = vertices * UNITS_MM[units]
+    tri = vertices[f]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area2 = np.linalg.norm(cross, axis=1)
+    if np.any(area2 <= 1e-12 * max(float(np.ptp(vertices)), 1.0) ** 2):
+        return None
+    nv = np.int64(len(vertices))
+    a, b = f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)
+    key = np.sort(a * nv + b)
+    if np.any(key[1:] == key[:-1]):
+        return None  # an edge used twice the same way: inconsistent winding or non-manifold
+    if not np.array_equal(np.sort(b * nv + a), key):
+        return None  # an edge without its twin: open
+    repairs: list[str] = []
+    volume = float(np.einsum("ij,ij->i", tri[:, 0], cross).sum()) / 6.0
+    normals = cross / area2[:, None]
+    if volume < 0:
+        f = f[:, ::-1].copy()
+        normals = -normals
+        repairs.append("inverted normals (the mesh was inside out)")
+    vertices = vertices.copy()
+    vertices[:, 2] -= vertices[:, 2].min()
+    return PreparedMesh(vertices, np.ascontiguousarray(f, dtype=np.int64), normals, tuple(repairs), True, source)
+
+
+def _parse(data: bytes, ext: str, p: Path):
+    import trimesh
+
     try:
         loaded = trimesh.load(io.BytesIO(data), file_type=ext, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many kinds on garbage input
@@ -73,8 +154,10 @@ def _parse(data: bytes, ext: str, p: Path) -> trimesh.Trimesh:
     return loaded
 
 
-def prepare_mesh(mesh: trimesh.Trimesh, units: str = "mm", source: MeshSource | None = None) -> PreparedMesh:
+def prepare_mesh(mesh, units: str = "mm", source: MeshSource | None = None) -> PreparedMesh:
     """Scale to mm, merge, drop degenerate/duplicate faces, fix winding, fill small holes, z0 = 0."""
+    import trimesh
+
     name = source.file if source else "mesh"
     if len(mesh.faces) == 0:
         raise MeshError(f"{name}: the mesh has no triangles; export the part again as a solid")
@@ -83,10 +166,8 @@ def prepare_mesh(mesh: trimesh.Trimesh, units: str = "mm", source: MeshSource | 
     mesh = trimesh.Trimesh(vertices=np.asarray(mesh.vertices, dtype=np.float64) * UNITS_MM[units],
                            faces=np.asarray(mesh.faces, dtype=np.int64), process=False)
     repairs: list[str] = []
-    nv = len(mesh.vertices)
+    # Welding shared corners is how every STL is read, not a repair: it is not reported.
     mesh.merge_vertices(merge_tex=True, merge_norm=True)
-    if len(mesh.vertices) < nv:
-        repairs.append(f"merged {nv - len(mesh.vertices)} duplicate vertices")
     keep = mesh.nondegenerate_faces(height=1e-9)
     if not keep.all():
         repairs.append(f"removed {int((~keep).sum())} degenerate faces")

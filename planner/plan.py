@@ -7,8 +7,6 @@ from typing import Callable
 
 import numpy as np
 import shapely
-import trimesh
-from scipy.spatial import cKDTree
 
 from planner.bead import step_over
 from planner.errors import EnvelopeError, InputError, MeshError
@@ -75,9 +73,12 @@ class _Process:
         return inverse(self.material, self.nominal, self.height, allow_outside=self.allow)
 
 
-def plan_part(mesh_or_path: str | Path | trimesh.Trimesh | PreparedMesh, options: PlanOptions,
+def plan_part(mesh_or_path, options: PlanOptions,
               material: Material, progress: Progress | None = None) -> Job:
-    """Plan a part into a `cell-job/1` Job (deterministic: same input, same job)."""
+    """Plan a part (a path, a trimesh.Trimesh or a PreparedMesh) into a `cell-job/1` Job.
+
+    Deterministic: the same input gives the same job, byte for byte once serialised.
+    """
     mesh = _mesh(mesh_or_path, options.units)
     w = options.width_mm
     nominal = inverse(material, w, options.layer_height_mm, allow_outside=options.allow_outside)
@@ -124,7 +125,7 @@ def plan_part(mesh_or_path: str | Path | trimesh.Trimesh | PreparedMesh, options
 def _mesh(m, units: str) -> PreparedMesh:
     if isinstance(m, PreparedMesh):
         return m
-    if isinstance(m, trimesh.Trimesh):
+    if hasattr(m, "faces") and hasattr(m, "vertices"):  # a trimesh.Trimesh
         return prepare_mesh(m, units)
     return read_mesh(m, units)
 
@@ -210,17 +211,21 @@ def _plan_layer(sl: LayerSlice, w: float, step: float, opt: PlanOptions, pos: np
 
 def _passes(paths: list[Path2D], sl: LayerSlice, z: float, proc: _Process) -> list[Pass]:
     closed = [c for c in sl.contours if c.closed]
-    tree = None
-    if closed:
-        tree = cKDTree(np.vstack([c.points for c in closed]))
-        nrm = np.vstack([c.normals for c in closed])
+    cpts = np.vstack([c.points for c in closed]) if closed else None
+    nrm = np.vstack([c.normals for c in closed]) if closed else None
     out = []
     for p in paths:
         pp = proc.point(p.width_mm)
         pts = np.column_stack([p.points, np.full(len(p.points), z)])
         normals = None
-        if p.role == "perimeter" and tree is not None:
-            _, idx = tree.query(p.points)
-            normals = nrm[idx]
+        if p.role == "perimeter" and cpts is not None:
+            normals = nrm[_nearest(p.points, cpts)]
         out.append(Pass(p.role, pp.width_mm, pp.current_a, pp.speed_mm_min, pp.wfs_m_min, pts, normals))
     return out
+
+
+def _nearest(q: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Index of the nearest contour point for each query point."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(pts).query(q)[1]

@@ -1,0 +1,122 @@
+"""`cell plan` against PrusaSlicer 2.5 on icospheres of radius 50 mm (2 mm layers, 6 mm beads,
+2 perimeters, full infill), wall time of the whole command each; and our growth with face count.
+
+Run: .venv/bin/python -m bench.plan_vs_prusaslicer [--quick] [--no-install]
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import trimesh
+
+SIZES = {5: 20_480, 7: 327_680, 8: 1_310_720}  # icosphere subdivisions -> faces
+RADIUS = 50.0
+LAYER = 2.0
+WIDTH = 6.0
+
+
+def _prusa() -> str | None:
+    for name in ("prusa-slicer", "PrusaSlicer", "prusa-slicer-console"):
+        exe = shutil.which(name)
+        if exe:
+            return exe
+    return None
+
+
+def _install_prusa() -> str | None:
+    """apt-get the Debian package when it is missing (root only); None when it cannot be had."""
+    if _prusa() or shutil.which("apt-get") is None:
+        return _prusa()
+    print("PrusaSlicer missing: apt-get install -y prusa-slicer ...", flush=True)
+    env = {"DEBIAN_FRONTEND": "noninteractive", "PATH": "/usr/sbin:/usr/bin:/sbin:/bin"}
+    try:
+        subprocess.run(["apt-get", "update", "-qq"], check=False, env=env, capture_output=True, timeout=600)
+        subprocess.run(["apt-get", "install", "-y", "-q", "--no-install-recommends", "prusa-slicer"],
+                       check=False, env=env, capture_output=True, timeout=1800)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        print(f"  could not install: {exc}")
+    return _prusa()
+
+
+def _timed(cmd: list[str], cwd: Path) -> tuple[float, subprocess.CompletedProcess]:
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
+    return time.perf_counter() - t0, proc
+
+
+def run_ours(stl: Path, work: Path) -> tuple[float, str]:
+    cmd = [sys.executable, "-m", "controller.cli.main", "plan", str(stl), "--width", str(WIDTH),
+           "--layer-height", str(LAYER), "--perimeters", "2", "--material", "inconel718-1.0mm",
+           "--allow-outside", "--out", str(work / (stl.stem + ".job.json")), "--json"]
+    t, proc = _timed(cmd, Path(__file__).resolve().parent.parent)
+    if proc.returncode != 0:
+        raise RuntimeError(f"cell plan failed: {proc.stderr.strip()}")
+    return t, proc.stdout.strip()
+
+
+def run_prusa(exe: str, stl: Path, work: Path) -> tuple[float, str]:
+    cmd = [exe, "--export-gcode", "--layer-height", str(LAYER), "--first-layer-height", str(LAYER),
+           "--nozzle-diameter", str(WIDTH), "--extrusion-width", str(WIDTH), "--perimeters", "2",
+           "--fill-density", "100%", "--fill-pattern", "rectilinear", "--top-fill-pattern", "rectilinear",
+           "--bottom-fill-pattern", "rectilinear", "--max-layer-height", str(LAYER), "--skirts", "0",
+           "--center", "100,100", "--output", str(work / (stl.stem + ".gcode")), str(stl)]
+    t, proc = _timed(cmd, work)
+    if proc.returncode != 0:
+        raise RuntimeError(f"prusa-slicer failed ({proc.returncode}): {(proc.stderr or proc.stdout).strip()[-300:]}")
+    return t, ""
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="bench.plan_vs_prusaslicer")
+    ap.add_argument("--quick", action="store_true", help="20k and 327k faces only, one run each")
+    ap.add_argument("--no-install", action="store_true", help="do not apt-get PrusaSlicer when missing")
+    ap.add_argument("--repeat", type=int, default=None, help="runs per size (best is kept; default 2, quick 1)")
+    args = ap.parse_args(argv)
+    repeat = args.repeat or (1 if args.quick else 2)
+    subs = [5, 7] if args.quick else [5, 7, 8]
+    exe = _prusa() if args.no_install else _install_prusa()
+    if exe is None:
+        print("PrusaSlicer 2.5 is not available (apt-get install prusa-slicer failed or not allowed): "
+              "reporting our times only")
+    ours: dict[int, float] = {}
+    theirs: dict[int, float] = {}
+    with tempfile.TemporaryDirectory(prefix="bench-plan-") as tmp:
+        work = Path(tmp)
+        for sub in subs:
+            stl = work / f"icosphere{sub}.stl"
+            stl.write_bytes(trimesh.creation.icosphere(subdivisions=sub, radius=RADIUS).export(file_type="stl"))
+            t_ours, summary = min(run_ours(stl, work) for _ in range(repeat))
+            ours[sub] = t_ours
+            line = f"{SIZES[sub]:>9,} faces: cell plan {t_ours:6.2f} s"
+            if exe is not None:
+                try:
+                    t_p, _ = min(run_prusa(exe, stl, work) for _ in range(repeat))
+                    theirs[sub] = t_p
+                    line += f" | prusa-slicer {t_p:6.2f} s | ratio {t_ours / t_p:4.2f}"
+                except RuntimeError as exc:
+                    line += f" | prusa-slicer: {exc}"
+            print(line, flush=True)
+            if sub == 7:
+                print(f"    summary: {summary}")
+    first, last = subs[0], subs[-1]
+    growth = math.log(ours[last] / ours[first]) / math.log(SIZES[last] / SIZES[first])
+    print(f"growth exponent of our wall time in faces ({SIZES[first]:,} -> {SIZES[last]:,}): {growth:.2f} "
+          f"(1.0 = linear; target <= 1)")
+    ok = growth <= 1.0
+    if 7 in theirs:
+        verdict = ours[7] <= theirs[7]
+        print(f"target at 327,680 faces: ours {ours[7]:.2f} s <= PrusaSlicer {theirs[7]:.2f} s: "
+              f"{'met' if verdict else 'MISSED'}")
+        ok = ok and verdict
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
