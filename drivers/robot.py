@@ -96,7 +96,7 @@ class RobotLink:
     def __init__(self, url: str, *, baud: int = 115200, link_timeout_s: float = 3.0, name: str = "robot",
                  pace: bool = True, max_inflight: int | None = None, auto_reconnect: bool = True,
                  keepalive_s: float = 0.5, control_timeout_s: float = 0.25,
-                 rto_min_s: float = 0.05, rto_max_s: float = 1.0) -> None:
+                 rto_min_s: float = 0.1, rto_max_s: float = 1.0) -> None:
         self.url = url
         self.baud = baud
         self.name = name

@@ -231,30 +231,30 @@ class FaultPipe:
         return a.tobytes()
 
     async def _run(self) -> None:
+        # The line is a serializer: a byte is handed over when its last bit would have arrived
+        # (`free` is when the line finishes what it already carries). Bytes go in chunks of at
+        # most CHUNK_S of line time; a late tick may catch up by at most MAX_BURST_S.
         loop = asyncio.get_running_loop()
-        credit = 0.0
-        last = time.monotonic()
+        free = time.monotonic()
         while True:
             if not self._buf:
                 self._wake.clear()
                 await self._wake.wait()
-                last = max(last, time.monotonic() - self.CHUNK_S)  # an idle line banks no credit
+                free = max(free, time.monotonic())  # an idle line banks no time
             now = time.monotonic()
             wait = self._stalled(now)
             if wait > 0:
                 await asyncio.sleep(min(wait, 0.05))
-                last = time.monotonic()
+                free = time.monotonic()
                 continue
             if self.rate is None:
                 n = len(self._buf)
             else:
-                credit = min(credit + (now - last) * self.rate, self.rate * self.MAX_BURST_S + 1)
-                last = now
-                n = min(int(credit), len(self._buf))
-                if n == 0:
-                    await asyncio.sleep(max((1 - credit) / self.rate, 0.0005))
-                    continue
-                credit -= n
+                free = max(free, now - self.MAX_BURST_S)
+                n = min(len(self._buf), max(1, int((now + self.CHUNK_S - free) * self.rate)))
+                free += n / self.rate
+                if free > now:
+                    await asyncio.sleep(free - now)
             chunk = bytes(self._buf[:n])
             del self._buf[:n]
             out = self._mangle(chunk)
@@ -264,5 +264,3 @@ class FaultPipe:
                     loop.call_later(self.latency, self._deliver, out)
                 else:
                     self._deliver(out)
-            if self.rate is not None and self._buf:
-                await asyncio.sleep(self.CHUNK_S)
