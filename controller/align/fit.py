@@ -26,7 +26,7 @@ def _points(points: ArrayLike, what: str, minimum: int) -> F:
         raise InputError(f"{what}: expected (n, 3) points, got shape {p.shape}")
     if len(p) < minimum:
         raise InputError(f"{what}: needs at least {minimum} points, got {len(p)}")
-    if not np.all(np.isfinite(p)):
+    if not np.isfinite(p.sum()):  # one reduction instead of an (n, 3) boolean array
         raise InputError(f"{what}: points contain NaN or infinite values")
     return p
 
@@ -59,11 +59,21 @@ class PlaneFit:
 
 def _plane_core(p: F) -> tuple[F, F]:
     """Least-squares plane (orthogonal distances): centroid and unit normal, via SVD of the scatter."""
-    c = (np.ones(len(p)) @ p) / len(p)  # BLAS; several times faster than p.mean(axis=0)
-    q = p - c
+    n = len(p)
+    c = (np.ones(n) @ p) / n  # BLAS; several times faster than p.mean(axis=0)
     # The 3×3 scatter matrix has the same right singular vectors as the centred points, and is
     # far cheaper than an SVD of an (n, 3) array for 10⁵ points.
-    _, _, vt = np.linalg.svd(q.T @ q)
+    if n < 20_000:
+        q = p - c
+        s = q.T @ q
+    else:
+        # Σppᵀ − n·ccᵀ skips an (n, 3) temporary; shifting by the first point first keeps the
+        # cancellation small (coordinates of hundreds of mm, residuals of µm).
+        p0 = p[0]
+        g = p.T @ p - np.outer(p0, c * n) - np.outer(c * n, p0) + n * np.outer(p0, p0)
+        d = c - p0
+        s = g - n * np.outer(d, d)
+    _, _, vt = np.linalg.svd(s)
     return c, vt[2]
 
 
@@ -89,17 +99,18 @@ def fit_plane(points: ArrayLike, *, toward: ArrayLike = (0.0, 0.0, 1.0), noise_m
         if not reject or len(outliers) >= limit:
             break
         idx = np.flatnonzero(keep) if outliers else np.arange(n)
-        r = res_all[idx]
-        m = len(idx)
+        r = res_all[idx] if outliers else res_all  # no fancy-index copy in the common case
+        m = len(r)
         # Standardise by the residual's own variance σ²(1 − h_ii): few points, high leverage.
-        q = p[idx] - c
         if m < 2000:
+            q = p[idx] - c
             _, sv, vt = np.linalg.svd(q, full_matrices=False)
             u = q @ vt[:2].T / np.where(sv[:2] > 0, sv[:2], 1.0)
             lev = np.clip(1.0 / m + np.sum(u * u, axis=1), 0.0, 1.0 - 1e-6)
+            score = np.abs(r) / np.sqrt(1.0 - lev)
         else:
-            lev = np.zeros(m)
-        score = np.abs(r) / np.sqrt(1.0 - lev)
+            lev = np.zeros(m)  # h ~ 3/m: negligible
+            score = np.abs(r)
         worst = int(np.argmax(score))
         if noise_mm is not None and noise_mm > 0:
             z = score[worst] / float(noise_mm)
@@ -124,7 +135,7 @@ def fit_plane(points: ArrayLike, *, toward: ArrayLike = (0.0, 0.0, 1.0), noise_m
         outliers.append(int(idx[worst]))
     if nrm @ toward_v < 0:
         nrm = -nrm
-    res_all = p @ nrm - c @ nrm
+        res_all = -res_all
     r_in = res_all[keep] if outliers else res_all
     dof = int(keep.sum()) - 3
     if noise_mm is not None and noise_mm > 0 and dof > 0:
