@@ -15,6 +15,7 @@ not buffered by grbl and are sent at once. Status is polled in the background at
 from __future__ import annotations
 
 import asyncio
+import re
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -29,7 +30,7 @@ from drivers.grbl_protocol import (
 from drivers.serial_async import SerialPort
 from planner.errors import InputError
 
-__all__ = ["CncLink", "GrblError", "GrblAlarm", "ProbeError", "GrblReset", "GrblStatus", "ProbeResult",
+__all__ = ["CncLink", "GrblError", "GrblAlarm", "ProbeError", "GrblReset", "GrblAckLost", "GrblStatus", "ProbeResult",
            "StreamResult"]
 
 # States in which a connect may soft-reset the controller to get its banner (nothing moves).
@@ -65,6 +66,10 @@ class ProbeError(GrblAlarm):
     """A probe cycle failed: ALARM:4 (probe already tripped) or ALARM:5 (no contact within travel)."""
 
 
+class GrblAckLost(DeviceError):
+    """grbl sits idle while lines are still unacknowledged: their `ok` was lost on the line."""
+
+
 class GrblReset(DeviceError):
     """The controller was reset (0x18 or power cycle) while lines were still unacknowledged."""
 
@@ -85,6 +90,18 @@ class _Pending:
     number: int | None = None           # 1-based line number in a stream
     lines: list[str] = field(default_factory=list)
     alarm: Alarm | None = None
+    sent_at: float = field(default_factory=time.monotonic)
+
+
+def _dwell_s(line: str) -> float:
+    """Seconds a `G4 P…` line may legitimately keep grbl busy while Idle (0 for other lines)."""
+    u = line.upper().replace(" ", "")
+    if "G4" not in u or "P" not in u:
+        return 0.0
+    try:
+        return float(re.match(r"[-+]?[\d.]+", u.split("P", 1)[1]).group(0))  # type: ignore[union-attr]
+    except (AttributeError, ValueError):
+        return 0.0
 
 
 class CncLink:
@@ -99,7 +116,7 @@ class CncLink:
 
     def __init__(self, url: str, *, baud: int = 115200, rx_buffer_bytes: int = 128, status_hz: float = 5.0,
                  link_timeout_s: float = 3.0, connect_timeout_s: float = 5.0, alarm_grace_s: float = 0.5,
-                 pace: bool = True) -> None:
+                 ack_grace_s: float = 2.0, pace: bool = True) -> None:
         if not 0 < status_hz <= 5.0:
             raise ValueError("status_hz must be in (0, 5]: grbl recommends at most 5 status reports a second")
         if rx_buffer_bytes < 16:
@@ -111,6 +128,9 @@ class CncLink:
         self.link_timeout_s = link_timeout_s
         self.connect_timeout_s = connect_timeout_s
         self.alarm_grace_s = alarm_grace_s
+        self.ack_grace_s = ack_grace_s
+        self._last_ack = time.monotonic()
+        self._still_since: float | None = None   # since when grbl has reported Idle / Alarm
         self._pace = pace
         self._port = SerialPort(url, baud=baud, name="cnc", pace=pace)
         self.version: str | None = None
@@ -186,7 +206,13 @@ class CncLink:
                     raise DeviceTimeout(f"cnc at {self.url}: no answer to '?' within {self.connect_timeout_s:.1f} s; "
                                         "check the cable, the URL and that the controller is powered")
                 if self.latest_status.state in _RESETTABLE:
-                    await self.soft_reset()
+                    for attempt in range(3):  # a banner garbled on the line: reset again
+                        try:
+                            await self.soft_reset(timeout=1.5)
+                            break
+                        except DeviceTimeout:
+                            if attempt == 2:
+                                raise
         except BaseException:
             await self.close()
             raise
@@ -244,6 +270,10 @@ class CncLink:
             if r.wco is not None:
                 self._wco = r.wco
             self.latest_status = r
+            if r.state in ("Idle", "Alarm"):
+                self._still_since = self._still_since or time.monotonic()
+            else:
+                self._still_since = None
             waiters, self._status_waiters = self._status_waiters, []
             for f in waiters:
                 if not f.done():
@@ -252,6 +282,7 @@ class CncLink:
             if not self._pending:
                 return  # a stray acknowledgement (e.g. after a reset): nothing waits for it
             p = self._pending.popleft()
+            self._last_ack = time.monotonic()
             self._set_in_flight(self._in_flight - p.nbytes)
             if isinstance(r, Error) and p.number is not None and self._stream_error is None:
                 self._stream_error = p
@@ -423,7 +454,7 @@ class CncLink:
                 for p in ours:
                     try:
                         await p.future
-                    except (GrblAlarm, GrblReset, LinkLost):
+                    except DeviceError:
                         break
                 self._set_in_flight(self._in_flight)
                 span = max(time.monotonic() - t0, 1e-9)
@@ -478,10 +509,27 @@ class CncLink:
         self._fail_pending(GrblReset(f"cnc at {self.url}: soft reset flushed the unacknowledged lines"))
 
     # -- status -------------------------------------------------------------------------------
+    def _check_acks(self, now: float) -> None:
+        """Fail the pending lines when grbl has been Idle (or in Alarm) and silent on them for
+        longer than `ack_grace_s` plus any dwell they ask for: a standing grbl answers every line
+        in its buffer within milliseconds, so their `ok` was lost (grbl has no checksums)."""
+        if not self._pending or self._still_since is None:
+            return
+        dwell = sum(_dwell_s(p.line) for p in self._pending)
+        quiet = min(now - self._still_since, now - self._last_ack,
+                    now - max(p.sent_at for p in self._pending))
+        if quiet > self.ack_grace_s + dwell:
+            n = len(self._pending)
+            self._fail_pending(GrblAckLost(
+                f"cnc at {self.url}: grbl is {self.latest_status.state if self.latest_status else '?'} but "
+                f"{n} line(s) from {self._pending[0].line!r} on were never acknowledged (an 'ok' was lost "
+                "on the line); check the cable, then re-sync with a soft reset"))
+
     async def _poll_loop(self) -> None:
         while True:
             await asyncio.sleep(self.status_period / 2)
             now = time.monotonic()
+            self._check_acks(now)
             if now - self._last_rx > self.link_timeout_s:
                 self._port.close()
                 self._on_lost(LinkLost(f"cnc at {self.url}: silent for {self.link_timeout_s:.1f} s "

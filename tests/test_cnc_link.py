@@ -305,6 +305,28 @@ async def test_stream_over_a_slow_laggy_line_still_runs_every_line(rig_factory):
     assert ran == [ln.replace(" ", "") for ln in prog]
 
 
+@pytest.mark.parametrize("seed", [1, 2, 3])
+async def test_corrupting_line_never_hangs_the_driver(rig_factory, seed):
+    # grbl has no checksums: corrupted bytes become refused lines (error:N), lost 'ok's (the
+    # driver sees grbl idle with lines unanswered) or, rarely, a different valid line. Whatever
+    # happens, the stream ends promptly, with success or an error that names the device.
+    from drivers.errors import DeviceError
+    r = await rig_factory(faults=f"seed={seed},corrupt=0.001")
+    await r.link.unlock()
+    t0 = asyncio.get_running_loop().time()
+    task = asyncio.ensure_future(r.link.stream(_program(300)))
+    while not task.done() and asyncio.get_running_loop().time() - t0 < 30:
+        await asyncio.wait([task], timeout=1.0)
+        st = r.link.latest_status
+        if not task.done() and st is not None and st.state == "Hold":
+            await r.link.resume()   # a '1' flipped into '!' is a feed hold: the operator resumes
+    assert task.done(), "the stream hung on a corrupted line"
+    try:
+        assert task.result().acked == 302
+    except DeviceError as exc:
+        assert r.link.url in str(exc)
+
+
 async def test_silent_port_is_link_lost(rig_factory):
     r = await ready(rig_factory, link_timeout_s=1.0)
     r.server.stall(5.0)                           # the cable carries nothing for 5 s
