@@ -1,13 +1,13 @@
 """Power-source bus timing against the simulator on loopback (targets of issue 5).
 
-- cycle period and jitter over Modbus TCP, Modbus RTU (socket://) and CAN (python-can virtual
-  bus; --can-interface udp_multicast for the inter-process bus): 10 ms, p99 jitter <= 2 ms;
+- cycle period and jitter over Modbus TCP, Modbus RTU (socket://) and CAN (udp_multicast between
+  this process and the simulator's process): 10 ms, p99 jitter <= 2 ms;
 - actual voltage / current / WFS recorded at >= 100 Hz with < 0.1 % samples missing;
 - weld start -> process active <= 20 ms; arc loss detected within 200 ms + 2 cycles;
 - E-stop / door-open input -> weld start dropped <= 1 cycle after the input is read.
 
-The simulators run on their own event loop in a thread (as a separate device would), the
-driver on the main loop. Usage: python -m bench.power_cycle [--quick] [--seconds S]
+For the cycle figures the simulator runs in a child process (a separate device); for the
+latencies, on its own event loop in a thread (faults are injected into it directly). Usage: python -m bench.power_cycle [--quick] [--seconds S]
 """
 from __future__ import annotations
 
@@ -58,8 +58,36 @@ async def _rig(th: SimThread, transport: str, can_interface: str, time_scale: fl
     return sim, ps, world, close
 
 
-async def cycle_jitter(th: SimThread, transport: str, seconds: float, can_interface: str) -> dict:
-    sim, ps, _, close = await _rig(th, transport, can_interface, 60.0)
+async def _proc_rig(transport: str):
+    """The simulator in a child process, as a separate device; CAN then runs over udp_multicast."""
+    import subprocess
+    import sys
+    proc = subprocess.Popen([sys.executable, "-m", "bench._power_sim_proc", transport], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True)
+    url = (await asyncio.get_running_loop().run_in_executor(None, proc.stdout.readline)).strip()
+    if transport == "can":
+        ps: PowerSource = CanPowerSource(interface="udp_multicast", channel="239.74.163.9", material=MATERIAL,
+                                         port=43199)
+    else:
+        ps = ModbusPowerSource(url, MATERIAL)
+    await ps.connect()
+
+    async def close() -> None:
+        proc.stdin.close()
+        try:
+            proc.wait(5)
+        except Exception:
+            proc.kill()
+    return ps, close
+
+
+async def cycle_jitter(th: SimThread, transport: str, seconds: float, can_interface: str,
+                       separate: bool = True) -> dict:
+    if separate:
+        ps, close_proc = await _proc_rig(transport)
+        can_interface = "udp_multicast"
+    else:
+        _, ps, _, close_thr = await _rig(th, transport, can_interface, 60.0)
     try:
         samples: list[tuple[float, float, float, float]] = []
         ps.subscribe(lambda s: samples.append((s.t, s.voltage_v, s.current_a, s.wfs_m_min)))
@@ -85,7 +113,10 @@ async def cycle_jitter(th: SimThread, transport: str, seconds: float, can_interf
                 "rate_hz": n / span, "missing_pct": 100.0 * missing / max(expected, 1), "gaps_over_15ms": gaps}
     finally:
         await ps.close()
-        th.run(close())
+        if separate:
+            await close_proc()
+        else:
+            th.run(close_thr())
 
 
 async def start_latency(th: SimThread, transport: str, can_interface: str, n: int) -> list[float]:
@@ -186,7 +217,20 @@ def _line(name: str, xs: list[float], target: float) -> str:
             f"p99 {pct(xs, 99):6.1f} ms  max {max(xs):6.1f} ms  target <= {target:g} ms  {ok}")
 
 
+def _realtime(enable: bool) -> str:
+    """Run the bench (and its child simulator) under SCHED_FIFO when allowed, as a cell PC would."""
+    import os
+    if enable and hasattr(os, "sched_setscheduler"):
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(20))
+            return "SCHED_FIFO 20"
+        except (PermissionError, OSError):
+            pass
+    return "SCHED_OTHER (time-shared)"
+
+
 async def amain(args) -> int:
+    print(f"scheduling: {_realtime(not args.no_rt)}; load average {' '.join(f'{x:.2f}' for x in __import__('os').getloadavg())}")
     th = SimThread()
     try:
         seconds = args.seconds or (10.0 if args.quick else 60.0)
@@ -194,7 +238,7 @@ async def amain(args) -> int:
         print(f"power-source cycle, {seconds:g} s each, period {PERIOD * 1000:g} ms (targets: p99 jitter <= 2 ms, "
               ">= 100 Hz, < 0.1 % missing)")
         for t in transports:
-            r = await cycle_jitter(th, t, seconds, args.can_interface)
+            r = await cycle_jitter(th, t, seconds, args.can_interface, separate=not args.in_process)
             ok = r["jitter_p99_ms"] <= 2.0 and r["rate_hz"] >= 99.0 and r["missing_pct"] < 0.1
             print(f"  {r['transport']:24s} cycles {r['cycles']:6d}  mean {r['period_mean_ms']:6.3f} ms  "
                   f"jitter p50 {r['jitter_p50_ms']:5.3f} p99 {r['jitter_p99_ms']:5.3f} max {r['jitter_max_ms']:6.2f} ms  "
@@ -217,6 +261,9 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--quick", action="store_true", help="10 s per transport instead of 60 s")
     ap.add_argument("--seconds", type=float, default=None)
     ap.add_argument("--transport", default="all", choices=["all", "modbus_tcp", "modbus_rtu", "can"])
+    ap.add_argument("--no-rt", action="store_true", help="do not ask for SCHED_FIFO (time-shared scheduling)")
+    ap.add_argument("--in-process", action="store_true",
+                    help="cycle test with the simulator on a thread of this process (default: a child process)")
     ap.add_argument("--can-interface", default="virtual", choices=["virtual", "udp_multicast"])
     return asyncio.run(amain(ap.parse_args(argv)))
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from concurrent.futures import ThreadPoolExecutor
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -137,6 +138,7 @@ class PowerSource(ABC):
         self._err_subs: list[Callable[[CellError], None]] = []
         self._waiters: list[asyncio.Future] = []
         self._closing = False
+        self._timer: ThreadPoolExecutor | None = None
         self.stats = CycleStats()
 
     # -- transport hooks --------------------------------------------------------------------
@@ -195,6 +197,9 @@ class PowerSource(ABC):
                 except Exception:
                     pass
         await self._close()
+        if self._timer is not None:
+            self._timer.shutdown(wait=False)
+            self._timer = None
         self._fail_waiters(LinkLost(f"{self.where()}: link closed"))
 
     @property
@@ -342,11 +347,23 @@ class PowerSource(ABC):
                 if now - deadline > period:
                     self.stats.late += 1
                     deadline = now
-                await asyncio.sleep(max(0.0, deadline - now))
+                await self._sleep_until(deadline)
         except asyncio.CancelledError:
             raise
         except Exception as exc:  # an unexpected transport error is still a lost link
             self._fail(LinkLost(f"{self.where()}: cycle stopped ({exc!r})"))
+
+    async def _sleep_until(self, deadline: float) -> None:
+        """Sleep to `deadline` (monotonic) to ~0.1 ms: the loop's timers round up to whole
+        milliseconds (epoll), so the last 1.5 ms are slept in a helper thread (no busy wait)."""
+        coarse = deadline - time.monotonic() - 0.0015
+        if coarse > 0:
+            await asyncio.sleep(coarse)
+        rest = deadline - time.monotonic()
+        if rest > 0:
+            if self._timer is None:
+                self._timer = ThreadPoolExecutor(1, thread_name_prefix="power-cycle-timer")
+            await asyncio.get_running_loop().run_in_executor(self._timer, time.sleep, rest)
 
     def _fail(self, exc: CellError) -> None:
         self._error = exc
