@@ -105,6 +105,10 @@ def main(argv: list[str]) -> int:
             print(line, flush=True)
             if sub == 7:
                 print(f"    summary: {summary}")
+    for a, b in zip(subs, subs[1:]):
+        e = math.log(ours[b] / ours[a]) / math.log(SIZES[b] / SIZES[a])
+        print(f"  {SIZES[a]:,} -> {SIZES[b]:,} faces: x{SIZES[b] / SIZES[a]:.0f} faces, x{ours[b] / ours[a]:.2f} time "
+              f"(exponent {e:.2f})")
     first, last = subs[0], subs[-1]
     growth = math.log(ours[last] / ours[first]) / math.log(SIZES[last] / SIZES[first])
     print(f"growth exponent of our wall time in faces ({SIZES[first]:,} -> {SIZES[last]:,}): {growth:.2f} "
