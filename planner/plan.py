@@ -30,12 +30,17 @@ Progress = Callable[[int, int], None]
 class PlanOptions:
     width_mm: float
     layer_height_mm: float | None = None  # default: the bead height of the process model
-    perimeters: int | None = 2  # None: offset until the loops meet ("all")
+    perimeters: int | str | None = 2  # None or "all": offset until the loops meet
     units: str = "mm"
     allow_outside: bool = False  # accept welding points outside the material's envelope
     infill_angle_deg: float = 0.0  # scan direction of layer 0; +90° every layer
 
     def __post_init__(self) -> None:
+        if isinstance(self.perimeters, str):  # "all" or "3", as on the command line
+            p = self.perimeters.strip().lower()
+            if p != "all" and not p.isdigit():
+                raise InputError(f"--perimeters: '{self.perimeters}' is not a number of perimeters or 'all'")
+            object.__setattr__(self, "perimeters", None if p == "all" else int(p))
         if not (self.width_mm > 0 and np.isfinite(self.width_mm)):
             raise InputError(f"--width: must be a positive number of mm, got {self.width_mm}")
         if self.layer_height_mm is not None and not (0 < self.layer_height_mm < self.width_mm * 5):

@@ -124,7 +124,7 @@ def test_infill_turns_and_seams_move_from_layer_to_layer():
 
 def test_all_perimeters_offset_until_they_meet():
     sq = parts.extrude(parts.box(0, 0, 60, 60), 3.0)
-    job = plan_part(sq, PlanOptions(width_mm=W, perimeters=None), MAT)
+    job = plan_part(sq, PlanOptions(width_mm=W, perimeters="all"), MAT)
     layer = job.layers[0]
     assert all(p.role in ("perimeter", "gap") for p in layer.passes)
     d = step_over(W)
