@@ -85,3 +85,32 @@ def test_missing_field_and_bad_json_are_named(job_bytes):
 def test_job_dict_has_no_negative_zero(job_bytes):
     assert b"-0.0," not in job_bytes and b"-0.0]" not in job_bytes
     assert job_to_dict(loads_job(job_bytes))["schema"] == "cell-job/1"
+
+
+def test_same_bytes_across_processes_and_hash_seeds(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    from planner.extrude import stack
+
+    stl = tmp_path / "mix.stl"
+    wall = parts.thin_wall()
+    wall.apply_translation([-40.0, -70.0, 0.0])  # beside the islands, not through them
+    stl.write_bytes(stack(parts.islands(), wall).export(file_type="stl"))
+    outs = []
+    for seed in ("1", "2"):
+        out = tmp_path / f"job{seed}.json"
+        env = dict(os.environ, PYTHONHASHSEED=seed)
+        proc = subprocess.run([sys.executable, "-m", "controller.cli.main", "plan", str(stl), "--width", "6",
+                               "--out", str(out), "--json"], env=env, capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr
+        outs.append(out.read_bytes())
+    assert outs[0] == outs[1]
+
+
+def test_progress_reports_every_layer():
+    seen = []
+    job = plan_part(parts.overhang(), PlanOptions(width_mm=6.0), MAT, progress=lambda d, n: seen.append((d, n)))
+    n = len(job.layers)
+    assert seen == [(i, n) for i in range(1, n + 1)]
