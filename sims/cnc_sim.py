@@ -20,6 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Callable
 
+import numpy as np
+
 from drivers.grbl_protocol import GrblStatus, fmt, format_probe, format_status
 from sims.clock import SimClock
 from sims.faults import parse_fault_spec
@@ -107,8 +109,8 @@ class CncSim:
         self.rx_dropped = 0
         self.rx_bytes = 0
         self.lines_received = 0
-        self.executed: list[Block] = []
-        self.rx_fill_samples: list[int] = []
+        self.executed: deque[Block] = deque(maxlen=10_000)   # the most recent executed lines
+        self.executed_count = 0
         self.starved = 0          # times the planner ran empty while lines were still arriving
         self._rx = bytearray()
         self._line: list[str] = []
@@ -139,7 +141,9 @@ class CncSim:
         top = 0.0
         if self.workpiece is not None:
             m = self.workpiece.part_to_machine()
-            v = self.workpiece._v0 @ m[:3, :3].T + m[:3, 3]
+            wp = self.workpiece
+            pts = np.concatenate([wp._v0, wp._v0 + wp._e1, wp._v0 + wp._e2])
+            v = pts @ m[:3, :3].T + m[:3, 3]
             top = max(float(v[:, 2].max()), 0.0)
         return (0.0, 0.0, 50.0 + math.ceil(top / 10.0) * 10.0, 0.0, 0.0)
 
@@ -334,7 +338,6 @@ class CncSim:
                 self._rx_event.clear()
                 await self._rx_event.wait()
                 continue
-            self.rx_fill_samples.append(len(self._rx)) if len(self.rx_fill_samples) < 1_000_000 else None
             c = chr(self._rx.pop(0))
             if c in "\r\n":
                 line, overflow = "".join(self._line), self._overflow
@@ -592,7 +595,8 @@ class CncSim:
 
     # -- execution --------------------------------------------------------------------------
     def _log_block(self, b: Block, t: float) -> None:
-        self.executed.append(b) if len(self.executed) < 1_000_000 else None
+        self.executed.append(b)
+        self.executed_count += 1
         if self._log is not None:
             self._log.write(json.dumps({"seq": b.seq, "verb": b.verb, "target": [round(v, 4) for v in self.pos[:3]],
                                         "t": round(t, 4), "line": b.line}) + "\n")
