@@ -379,3 +379,23 @@ async def test_served_by_sim_up_with_exec_log_and_world(tmp_path):
     assert all({"seq", "verb", "target", "t", "line"} <= set(e) for e in log)
     segs = [x for x in world.segments if x["device"] == "cnc"]
     assert [s_["to"] for s_ in segs][-2:] == [[10.0, 0.0, z0], [10.0, 10.0, z0]]
+
+
+def test_workpiece_from_a_mesh_file_is_posed_and_probed(tmp_path):
+    import trimesh
+
+    cyl = trimesh.creation.cylinder(radius=20.0, height=30.0, sections=64)  # z ∈ [-15, 15]
+    path = tmp_path / "boss.stl"
+    cyl.export(path)
+    wpc = WorkpieceConfig(mesh="boss.stl", offset_mm=(5.0, 0.0, 10.0), tilt_a_deg=0.0)
+    wp = Workpiece.from_config(wpc, 0.0, base_dir=tmp_path)
+    # top face at z = 15 + 10, probing straight down over the (shifted) axis
+    hit = wp.probe((5.0, 0.0, 60.0), (5.0, 0.0, 0.0))
+    assert hit is not None and hit[2] == pytest.approx(25.0, abs=1e-6)
+    # from the side along -X: the cylinder wall at x = 5 + 20
+    side = wp.probe((60.0, 0.0, 10.0), (0.0, 0.0, 10.0))
+    assert side is not None and side[0] == pytest.approx(25.0, abs=0.1)
+    assert wp.inside((5.0, 0.0, 10.0)) and not wp.inside((5.0, 0.0, 26.0))
+    assert wp.probe((60.0, 60.0, 60.0), (60.0, 60.0, 0.0)) is None     # misses the part
+    # the table's A axis carries the part: turned 90° about X, the top now faces -Y
+    assert wp.surface_hit((5.0, -60.0, 0.0), (5.0, 0.0, 0.0), 90.0, 0.0) == pytest.approx(35.0, abs=1e-6)
