@@ -103,6 +103,7 @@ def plan_part(mesh_or_path, options: PlanOptions,
     interpass = Interpass(material.interpass.max_temperature_c, material.interpass.dwell_s)
     for sl in slices:
         region, paths, pos, travel, stats = _plan_layer(sl, w, step, options, pos)
+        paths = [_as_welded(p, proc) for p in paths]
         q = layer_quality(region, paths, w, height)
         qualities.append(q)
         z = float((sl.index + 1) * height)
@@ -212,6 +213,14 @@ def _plan_layer(sl: LayerSlice, w: float, step: float, opt: PlanOptions, pos: np
         ordered += seq
         pos = end
     return region, ordered, pos, travel, stats
+
+
+def _as_welded(p: Path2D, proc: _Process) -> Path2D:
+    """The bead as the process will weld it: a gap bead may come out wider than its pocket."""
+    w = proc.point(p.width_mm).width_mm
+    if abs(w - p.width_mm) < 1e-9:
+        return p
+    return Path2D(p.role, p.points, w, p.closed, w if p.role == "gap" else p.share_mm)
 
 
 def _passes(paths: list[Path2D], sl: LayerSlice, z: float, proc: _Process) -> list[Pass]:
