@@ -93,6 +93,8 @@ class LinkStats:
 class RobotLink:
     """The robot link driver. All methods are coroutines on one event loop."""
 
+    TICK_S = 0.02  # retransmit / link-loss / keepalive check period
+
     def __init__(self, url: str, *, baud: int = 115200, link_timeout_s: float = 3.0, name: str = "robot",
                  pace: bool = True, max_inflight: int | None = None, auto_reconnect: bool = True,
                  keepalive_s: float = 0.5, control_timeout_s: float = 0.25,
@@ -112,6 +114,7 @@ class RobotLink:
         self.fault: str | None = None
         self._port: SerialPort | None = None
         self._connected = False
+        self._ready = False                # connected and resynchronised
         self._closing = False
         self._history = False              # tickets already assigned in this session
         self._next_ticket = 1              # the ticket send_move assigns next
@@ -145,7 +148,8 @@ class RobotLink:
     # -- public properties ---------------------------------------------------------------------
     @property
     def connected(self) -> bool:
-        return self._connected
+        """True once connect() has resynchronised, until the link is lost."""
+        return self._connected and self._ready
 
     @property
     def last_exec_ticket(self) -> int:
@@ -214,7 +218,9 @@ class RobotLink:
             raise LinkLost(f"{self.name} at {self.url}: no answer to !STATUS; is the robot on?") from None
         self._resync(st, resume_ticket)
         self._tx_paused = False
+        self._ready = True
         self._kick.set()
+        self._notify()
         return self.last_status
 
     def _resync(self, st: rlp.Reply, resume_ticket: int | None) -> None:
@@ -248,8 +254,10 @@ class RobotLink:
 
     async def _drop(self, reason: str, notify: bool = True) -> None:
         was = self._connected
-        self._connected = False
+        self._connected = self._ready = False
         self._lost = LinkLost(f"{self.name} at {self.url}: link lost ({reason})")
+        self._ctrl.clear()
+        self._notify()  # waiters learn of the loss first; closing the port may take a moment
         tasks, self._tasks = self._tasks, []
         cur = asyncio.current_task()
         for t in tasks:
@@ -258,8 +266,6 @@ class RobotLink:
         if self._port is not None:
             port, self._port = self._port, None
             await asyncio.get_running_loop().run_in_executor(None, port.close)
-        self._ctrl.clear()
-        self._notify()
         if was and notify:
             self._emit("link_lost", text=str(self._lost))
             if self.auto_reconnect and not self._closing and self._reconnect_task is None:
@@ -281,7 +287,7 @@ class RobotLink:
 
     async def wait_connected(self, timeout: float | None = None) -> None:
         """Wait until the link is up again (after a loss, with auto_reconnect)."""
-        await self._wait(lambda: self._connected, timeout, "reconnect", fail_on_loss=False)
+        await self._wait(lambda: self._connected and self._ready, timeout, "reconnect", fail_on_loss=False)
 
     # -- motion ---------------------------------------------------------------------------------
     async def send_move(self, verb: str, *args: float, timeout: float | None = None) -> int:
@@ -463,9 +469,9 @@ class RobotLink:
 
     async def _timer(self) -> None:
         while self._connected:
-            await asyncio.sleep(0.02)
+            await asyncio.sleep(self.TICK_S)
             now = time.monotonic()
-            if now - self._last_heard > self.link_timeout_s:
+            if now - self._last_heard >= self.link_timeout_s - self.TICK_S:  # lost within link_timeout_s
                 await self._drop(f"silent for {self.link_timeout_s:.1f} s")
                 return
             oldest = self._last_ack + 1
