@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import shapely
 from shapely import affinity
-from shapely.geometry import LineString, MultiLineString, Polygon
+from shapely.geometry import LineString, Polygon
 
 from planner.path2d import Path2D
 from planner.regions import polygons_of
