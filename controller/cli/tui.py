@@ -1,0 +1,29 @@
+"""`cell tui [--sim]`: the operator's terminal UI (controller/tui/)."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("tui", help="the operator's terminal UI (Job, Align, Build, Log, Devices)")
+    p.add_argument("--sim", action="store_true", help="start the simulators in this process and connect to them")
+    p.add_argument("--config", type=Path, default=None, help="cell.yaml (default: config/cell.yaml)")
+    p.add_argument("--sim-config", type=Path, default=None, help="sim.yaml for --sim (default: config/sim.yaml)")
+    p.add_argument("--fault", default="", metavar="SPEC", help="seeded fault spec for the simulators (--sim)")
+    p.add_argument("--runs", type=Path, default=None, help="runs directory (default: cell.yaml's runs_dir)")
+    p.set_defaults(func=_tui)
+
+
+def _tui(args: argparse.Namespace) -> int:
+    from controller.config import load_cell, load_sim
+    from controller.tui.app import CellApp
+    from controller.tui_adapter import CellSession
+
+    cfg = load_cell(args.config)
+    sim_cfg = load_sim(args.sim_config) if args.sim else None
+    session = CellSession(cfg, sim=args.sim, sim_cfg=sim_cfg, runs_dir=args.runs, faults=args.fault)
+    try:
+        return int(CellApp(session).run() or 0)
+    finally:
+        session.close()

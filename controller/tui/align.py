@@ -1,0 +1,83 @@
+"""Align screen: probe plan, probed points and plane fits with residuals, leveling, apply."""
+from __future__ import annotations
+
+from textual.app import ComposeResult
+from textual.containers import Vertical
+from textual.widgets import DataTable, Static
+
+from controller.tui.widgets import fmt
+from controller.tui_adapter import View
+
+
+class AlignPane(Vertical):
+    """Probe-and-align on the CNC (press l to run, y to apply the transform to the job)."""
+
+    DEFAULT_CSS = """
+    AlignPane #align-head { height: auto; margin-bottom: 1; }
+    AlignPane DataTable { height: auto; max-height: 10; margin-bottom: 1; }
+    AlignPane #align-result { height: auto; }
+    """
+
+    def __init__(self) -> None:
+        super().__init__(id="align-pane")
+        self._key: object = None
+
+    def compose(self) -> ComposeResult:
+        yield Static("", id="align-head")
+        yield DataTable(id="align-points", cursor_type="none")
+        yield DataTable(id="align-planes", cursor_type="none")
+        yield Static("", id="align-result")
+
+    def on_mount(self) -> None:
+        self.query_one("#align-points", DataTable).add_columns("face", "x mm", "y mm", "z mm", "residual mm")
+        self.query_one("#align-planes", DataTable).add_columns("plane", "points", "normal", "rms mm", "max mm",
+                                                                "outliers")
+
+    def refresh_view(self, v: View) -> None:
+        head = self.query_one("#align-head", Static)
+        if v.platform != "cnc":
+            head.update("Alignment probes the substrate on the 5-axis CNC (cell.platform: cnc). This cell deposits "
+                        f"with the [b]{v.platform}[/b]: the job runs in the robot's frame, no alignment is needed.")
+        elif v.busy == "aligning":
+            head.update("[yellow]Probing…[/] the CNC touches each point of the plan; results appear when the fit is done.")
+        elif v.alignment is None:
+            head.update("Not aligned. Press [b]l[/b] to probe the top and side faces and fit the planes.")
+        else:
+            head.update("[green]Aligned.[/] Press [b]y[/b] to apply the transform to the open job.")
+        key = (v.alignment is None, id(v.alignment), v.probe_plan)
+        if key == self._key:
+            return
+        self._key = key
+        a = v.alignment or {}
+        planes = a.get("planes") or []
+        if isinstance(planes, dict):
+            planes = [dict(p, name=k) for k, p in planes.items()]
+        pts = self.query_one("#align-points", DataTable)
+        pts.clear()
+        shown = 0
+        for i, pl in enumerate(planes):
+            name = str(pl.get("name", f"plane {i + 1}"))
+            for k, p in enumerate(pl.get("points") or []):
+                res = (pl.get("residuals") or [None] * (k + 1))[k] if k < len(pl.get("residuals") or []) else None
+                pts.add_row(name, fmt(p[0], 3), fmt(p[1], 3), fmt(p[2], 3), fmt(res, 4))
+                shown += 1
+        if not shown:
+            for face, p in v.probe_plan:
+                pts.add_row(face, fmt(p[0], 3), fmt(p[1], 3), fmt(p[2], 3), "[dim]planned[/]")
+        pl_t = self.query_one("#align-planes", DataTable)
+        pl_t.clear()
+        for i, pl in enumerate(planes):
+            n = pl.get("normal") or [None, None, None]
+            pl_t.add_row(str(pl.get("name", f"plane {i + 1}")), str(pl.get("n_points", len(pl.get("points") or []))),
+                         "(" + ", ".join(fmt(c, 5) for c in n) + ")", fmt(pl.get("rms_mm"), 4),
+                         fmt(pl.get("max_residual_mm"), 4), str(len(pl.get("outliers") or [])))
+        lines = []
+        if a:
+            lines.append(f"leveling  A {fmt(a.get('level_a_deg'), 4)}°   B {fmt(a.get('level_b_deg'), 4)}°")
+            if a.get("face_angle_deg") is not None:
+                lines.append(f"second face angle  {fmt(a.get('face_angle_deg'), 4)}°")
+            tf = a.get("transform")
+            if tf:
+                lines.append("transform (CAD → machine):")
+                lines += ["  [" + "  ".join(f"{c:10.5f}" for c in row) + "]" for row in tf]
+        self.query_one("#align-result", Static).update("\n".join(lines))

@@ -1,0 +1,134 @@
+"""Build screen: state, progress, live process values, interpass, links and alarms."""
+from __future__ import annotations
+
+import time
+
+from textual.app import ComposeResult
+from textual.containers import Horizontal, Vertical
+from textual.widgets import DataTable, Label, ProgressBar, Static
+
+from controller.tui.widgets import LayerPreview, Trend, fmt
+from controller.tui_adapter import View
+
+STATE_STYLE = {"running": "bold black on green", "paused": "bold black on yellow", "fault": "bold white on red",
+               "estop": "bold white on red", "complete": "bold black on bright_cyan",
+               "aborted": "bold black on yellow", "disconnected": "bold white on grey37"}
+
+
+def state_style(state: str) -> str:
+    return STATE_STYLE.get("running" if state.startswith("running_") else state, "bold black on grey70")
+
+
+class BuildPane(Vertical):
+    """The build as it runs."""
+
+    DEFAULT_CSS = """
+    BuildPane #build-state { height: 1; }
+    BuildPane .bar-row { height: 1; }
+    BuildPane .bar-row > Label { width: 14; }
+    BuildPane .bar-row > .bar-text { width: 22; }
+    BuildPane #build-left { width: 1fr; }
+    BuildPane #build-right { width: 40%; }
+    BuildPane #build-interpass { height: 1; margin-top: 1; }
+    BuildPane #build-links { height: auto; max-height: 6; margin-top: 1; }
+    BuildPane #build-alarms { height: auto; max-height: 6; margin-top: 1; }
+    """
+
+    def __init__(self) -> None:
+        super().__init__(id="build-pane")
+        self._links_key: object = None
+
+    def compose(self) -> ComposeResult:
+        yield Static("", id="build-state")
+        with Horizontal():
+            with Vertical(id="build-left"):
+                with Horizontal(classes="bar-row"):
+                    yield Label("passes")
+                    yield Label("", classes="bar-text", id="passes-text")
+                    yield ProgressBar(total=1, show_eta=False, id="passes-bar")
+                with Horizontal(classes="bar-row"):
+                    yield Label("layers")
+                    yield Label("", classes="bar-text", id="layers-text")
+                    yield ProgressBar(total=1, show_eta=False, id="layers-bar")
+                with Horizontal(classes="bar-row"):
+                    yield Label("this layer")
+                    yield Label("", classes="bar-text", id="layer-text")
+                    yield ProgressBar(total=1, show_eta=False, id="layer-bar")
+                yield Trend("current", "A", 1, id="trend-current")
+                yield Trend("voltage", "V", 2, id="trend-voltage")
+                yield Trend("wire feed", "m/min", 2, id="trend-wfs")
+                yield Trend("part temp.", "°C", 0, id="trend-temp")
+                yield Static("", id="build-interpass")
+                yield DataTable(id="build-links", cursor_type="none")
+                yield Static("", id="build-alarms")
+            yield LayerPreview(id="build-preview")
+
+    def on_mount(self) -> None:
+        self.query_one("#build-links", DataTable).add_columns("link", "state", "tx", "rx", "errors", "queue")
+
+    def refresh_view(self, v: View) -> None:
+        s = v.snap
+        msg = f"  {s.message}" if s.message else ""
+        where = ""
+        if s.layer is not None:
+            where = f"  layer {s.layer + 1}/{s.layers_total}"
+            if s.pass_ is not None:
+                where += f", pass {s.pass_ + 1}/{s.passes_in_layer}"
+        self.query_one("#build-state", Static).update(
+            f"[{state_style(s.state)}] {s.state.upper().replace('_', ' ')} [/]"
+            f"  job {s.job_name or '—'}  arc starts {s.arc_starts}{where}{msg}")
+        self._bar("passes", s.passes_done, s.passes_total)
+        self._bar("layers", s.layers_done, s.layers_total)
+        in_layer = s.pass_ or 0 if s.layer is not None else 0
+        self._bar("layer", in_layer, s.passes_in_layer)
+        hist = v.history
+        self.query_one("#trend-current", Trend).show(s.current_a, [h.current_a for h in hist])
+        self.query_one("#trend-voltage", Trend).show(s.voltage_v, [h.voltage_v for h in hist])
+        self.query_one("#trend-wfs", Trend).show(s.wfs_m_min, [h.wfs_m_min for h in hist])
+        self.query_one("#trend-temp", Trend).show(s.temperature_c, [h.temperature_c for h in hist])
+        self.query_one("#build-interpass", Static).update(interpass_text(v))
+        links = tuple((d.device, d.connected, d.frames_tx, d.frames_rx, d.errors, d.queue_free) for d in v.devices)
+        if links != self._links_key:
+            self._links_key = links
+            t = self.query_one("#build-links", DataTable)
+            t.clear()
+            for dev, ok, tx, rx, err, q in links:
+                t.add_row(dev, "[green]up[/]" if ok else "[red]down[/]", str(tx), str(rx),
+                          f"[red]{err}[/]" if err else "0", "—" if q is None else str(q))
+        self.query_one("#build-alarms", Static).update(alarms_text(v))
+        if v.job is not None:
+            layer = s.layer if s.layer is not None else (min(s.layers_done, v.job.layers - 1))
+            self.query_one(LayerPreview).show(v.job.layer_paths, layer, in_layer if s.layer is not None else 0,
+                                              f"layer {layer + 1}/{v.job.layers}")
+        else:
+            self.query_one(LayerPreview).show((), None)
+
+    def _bar(self, name: str, done: int, total: int) -> None:
+        self.query_one(f"#{name}-text", Label).update(f"{done} / {total}")
+        self.query_one(f"#{name}-bar", ProgressBar).update(total=max(total, 1), progress=min(done, max(total, 1)))
+
+
+def interpass_text(v: View) -> str:
+    s = v.snap
+    if s.interpass_remaining_s is not None:
+        return f"[yellow]interpass dwell: {s.interpass_remaining_s:.0f} s left[/] (no pyrometer reading)"
+    if s.state == "running_wait" and s.temperature_c is not None and s.interpass_limit_c is not None \
+            and s.temperature_c >= s.interpass_limit_c:
+        return (f"[yellow]interpass wait: part {s.temperature_c:.0f} °C, "
+                f"arc starts below {s.interpass_limit_c:.0f} °C[/]")
+    if s.interpass_limit_c is not None:
+        return f"interpass limit {s.interpass_limit_c:.0f} °C"
+    return ""
+
+
+def alarms_text(v: View, n: int = 5) -> str:
+    alarms = v.snap.alarms[-n:]
+    if not alarms:
+        return "[dim]no alarms[/]"
+    lines = [f"[b]alarms ({len(v.snap.alarms)})[/b]"]
+    for a in alarms:
+        where = f" (layer {a.layer + 1}, pass {a.pass_ + 1})" if a.layer is not None and a.pass_ is not None else ""
+        stamp = time.strftime("%H:%M:%S", time.gmtime(a.t))
+        colour = "red" if a.kind in ("fault", "estop") else "yellow"
+        lines.append(f"[{colour}]{stamp} {a.kind}[/]: {a.message}{where}")
+    return "\n".join(lines)
