@@ -28,6 +28,8 @@ ERR_WORKSPACE = 10
 class RobotSim:
     """In-process robot controller. Drive it with attach/feed/detach (the ByteSim protocol)."""
 
+    IDLE_TICK_S = 0.01  # wall seconds between executor ticks while nothing can move
+
     def __init__(self, *, clock: SimClock, world: object | None = None, queue_slots: int = 64,
                  log_path: str | Path | None = None, heartbeat_s: float = 1.0,
                  link_timeout_s: float = 3.0,
@@ -243,12 +245,19 @@ class RobotSim:
             self._stopped()
             self._finish(m, t)
 
+    def _runnable(self) -> bool:
+        return bool(self.queue) and not (self.held or self.fault or self.waiting)
+
     async def _exec_loop(self) -> None:
         last = self.clock.now()
+        was = False
         while True:
-            await asyncio.sleep(self.tick_s)
+            # tick fast while moving, slowly while idle (a move noticed at a tick starts then)
+            await asyncio.sleep(self.tick_s if was else self.IDLE_TICK_S)
             now = self.clock.now()
-            self.advance(last, now)
+            if was:
+                self.advance(last, now)
+            was = self._runnable()
             last = now
             if self._log_dirty and self._log is not None:
                 self._log.flush()
