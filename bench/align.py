@@ -107,12 +107,14 @@ def _timing() -> tuple[float, float]:
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="bench.align", description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="30 Monte Carlo runs instead of 100")
+    ap.add_argument("--quick", action="store_true", help="30 Monte Carlo runs instead of 300")
     ap.add_argument("--runs", type=int, default=None)
     ap.add_argument("--sigma", type=float, default=0.002, help="probe noise σ in mm (default 0.002)")
     ap.add_argument("--seed", type=int, default=12345, help="the simulator's noise seed")
     a = ap.parse_args(argv)
-    runs = a.runs or (30 if a.quick else 100)
+    # 300 runs: the std of a std is 1/√(2(N−1)) = 4 % (3 % pooled over both tilt axes), so the
+    # ±10 % target is a 2.5–3.5 SE test, not a coin toss.
+    runs = a.runs or (30 if a.quick else 300)
     sigma = a.sigma
     ok = True
 
@@ -123,12 +125,15 @@ def main(argv: list[str]) -> int:
     print(f"Monte Carlo through the CNC simulator: {runs} runs, σ = {um:.1f} µm, {mc['elapsed']:.1f} s")
     for name, v in (("tilt about y (slope x)", mc["sx"]), ("tilt about x (slope y)", mc["sy"])):
         sd = float(np.std(v, ddof=1))
-        r = sd / bound_t
-        good = abs(r - 1) <= 0.10
-        ok &= good
-        print(f"  {name}: std {sd * 1e6:.2f} µrad = {sd * 1e6 / um:.2f} µrad/µm vs bound {bound_t * 1e6 / um:.2f} "
-              f"µrad/µm (ratio {r:.3f}, target ±10 %: {'ok' if good else 'MISSED'}); "
+        print(f"  {name}: std {sd * 1e6:.2f} µrad = {sd * 1e6 / um:.2f} µrad/µm (ratio {sd / bound_t:.3f}); "
               f"mean {np.mean(v) * 1e6:+.2f} µrad (± {sd / np.sqrt(runs) * 1e6:.2f})")
+    # Both slopes have the same bound and are independent: pool them for the verdict.
+    pooled = float(np.sqrt((np.var(mc["sx"], ddof=1) + np.var(mc["sy"], ddof=1)) / 2))
+    r = pooled / bound_t
+    good = abs(r - 1) <= 0.10
+    ok &= good
+    print(f"  tilt, both axes pooled: std {pooled * 1e6 / um:.2f} µrad/µm vs bound {bound_t * 1e6 / um:.2f} µrad/µm "
+          f"(ratio {r:.3f}, target ±10 %: {'ok' if good else 'MISSED'})")
     bias = float(np.mean(mc["dz"]))
     good = abs(bias) < 0.1 * sigma
     ok &= good

@@ -88,3 +88,18 @@ def test_cli_entry_point_with_negative_pivot():
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     assert np.allclose(json.loads(r.stdout)["points"][0], [2.53553, 0.41421, -1.46447], atol=1e-5)
+
+
+def test_run_without_a_device_or_with_a_bad_job_is_one_error_line(capsys, tmp_path):
+    from controller.config import CONFIG_DIR
+
+    cell = tmp_path / "cell.yaml"
+    cell.write_text((CONFIG_DIR / "cell.yaml").read_text().replace("socket://127.0.0.1:47602", "socket://127.0.0.1:1"))
+    assert main(["align", "run", "--cell-config", str(cell), "--json"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and "socket://127.0.0.1:1" in err
+    bad = tmp_path / "job.json"
+    bad.write_text('{"schema": "cell-job/1",\n "layers": [}\n')
+    assert main(["align", "run", "--sim", "--job", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "job.json" in err and "line 2" in err and err.count("\n") == 1

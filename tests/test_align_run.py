@@ -66,7 +66,11 @@ def test_cli_run_sim_json_and_report(capsys, tmp_path):
     cfg.write_text(yaml.safe_dump({"cnc": {"workpiece": {"mesh": None, "size_mm": [100, 100, 20], "tilt_a_deg": 0.8,
                                                          "tilt_b_deg": -0.5, "rotation_c_deg": 1.5,
                                                          "offset_mm": [0, 0, 0]}, "probe_noise_mm": 0.002}}))
-    rc = main(["align", "run", "--sim", "--sim-config", str(cfg), "--json", "--report", str(tmp_path / "rep")])
+    job = tmp_path / "job.json"
+    job.write_text(json.dumps({"schema": "cell-job/1", "layers": [{"index": 0, "z_mm": 1.0, "passes": [
+        {"role": "infill", "points": [[10.0, -20.0, 1.0], [30.0, -20.0, 1.0]], "normals": [[0, 0, 1], [0, 0, 1]]}]}]}))
+    rc = main(["align", "run", "--sim", "--sim-config", str(cfg), "--json", "--report", str(tmp_path / "rep"),
+               "--job", str(job)])
     out, err = capsys.readouterr()
     assert rc == 0, err
     got = json.loads(out)
@@ -81,6 +85,11 @@ def test_cli_run_sim_json_and_report(capsys, tmp_path):
     png = tmp_path / "rep" / "align.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
     assert json.loads((tmp_path / "rep" / "align.json").read_text())["level_a_deg"] == got["level_a_deg"]
+    # The job is carried into the machine frame by the reported transform.
+    moved = json.loads((tmp_path / "job.aligned.json").read_text())["layers"][0]["passes"][0]
+    m = np.array(got["transform"])
+    assert np.allclose(moved["points"][0], m[:3, :3] @ [10.0, -20.0, 1.0] + m[:3, 3], atol=1e-9)
+    assert np.allclose(moved["normals"][0], m[:3, :3] @ [0, 0, 1.0], atol=1e-12)
 
 
 async def test_missing_part_names_the_point():

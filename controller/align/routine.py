@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -25,7 +26,7 @@ from numpy.typing import NDArray
 
 from controller.align.bestfit import icp
 from controller.align.fit import Datum, LineFit, PlaneFit, cad_transform_321, fit_line, fit_plane, grid_points
-from controller.align.kinematics import Trunnion, apply_transform, homogeneous, rotation_matrix, unit
+from controller.align.kinematics import Trunnion, apply_to_job, apply_transform, homogeneous, rotation_matrix, unit
 from controller.align.leveling import FaceAngle, Leveling, face_angle, leveling_angles
 from controller.align.probe_cycle import ProbedPoint, ProbeLog, ProbeTarget, probe_points
 from drivers.grbl_protocol import fmt
@@ -345,11 +346,24 @@ async def run_with_sim(cell: Any, sim_cfg: Any, plan: ProbePlan, *, config_dir: 
     return await _with_sim(cell, sim_cfg, config_dir, body)
 
 
+def _read_job(path: str) -> dict:
+    try:
+        job = json.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the job ({exc.strerror or exc})") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: line {exc.lineno}: not valid JSON ({exc.msg})") from None
+    if not isinstance(job, dict) or job.get("schema") != "cell-job/1":
+        raise InputError(f"{path}: not a cell-job/1 file (schema key missing or different)")
+    return job
+
+
 def run_cli(args: argparse.Namespace) -> int:
     from controller.cli.main import emit_json
     from controller.config import load_cell, load_sim
 
     cell = load_cell(args.cell_config)
+    job = _read_job(args.job) if getattr(args, "job", None) else None
     sim_path = Path(args.sim_config) if args.sim_config else None
     sim_cfg = load_sim(sim_path)
     base = sim_path.parent if sim_path else None
@@ -365,6 +379,16 @@ def run_cli(args: argparse.Namespace) -> int:
 
         paths = write_report(res, args.report)
         out["report"] = {k: str(v) for k, v in paths.items()}
+    if job is not None:
+        dest = Path(args.job_out) if args.job_out else Path(args.job).with_suffix(".aligned.json")
+        moved = apply_to_job(job, res.transform)
+        moved["alignment"] = {"transform": res.transform.tolist(), "level_a_deg": res.level_a_deg,
+                              "level_b_deg": res.level_b_deg, "face_angle_deg": res.face_angle_deg}
+        try:
+            dest.write_text(json.dumps(moved) + "\n", encoding="utf-8")
+        except OSError as exc:
+            raise InputError(f"{dest}: cannot write the aligned job ({exc.strerror or exc})") from None
+        out["job_out"] = str(dest)
     if args.json:
         emit_json(out)
         return 0
@@ -379,4 +403,6 @@ def run_cli(args: argparse.Namespace) -> int:
     print(f"check: RMS distance of the touches to the moved CAD surface {res.icp_rms_mm * 1000:.2f} µm")
     if args.report:
         print(f"report: {out['report']['png']}, {out['report']['json']}")
+    if job is not None:
+        print(f"aligned job: {out['job_out']}")
     return 0

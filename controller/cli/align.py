@@ -52,6 +52,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     rn.add_argument("--cad", default=None, metavar="FILE",
                     help="CAD mesh of the part in mm, top face up (default: the sim config's workpiece)")
     rn.add_argument("--report", default=None, metavar="DIR", help="write align.json and align.png here")
+    rn.add_argument("--job", default=None, metavar="JOB", help="a cell-job/1 file (CAD frame) to carry into the machine frame")
+    rn.add_argument("--job-out", default=None, metavar="FILE", help="where to write it (default JOB.aligned.json)")
     rn.add_argument("--json", action="store_true", help="print one JSON object")
     rn.set_defaults(func=_run)
     _allow_negative(rn)
