@@ -70,8 +70,19 @@ async def test_clean_link_executes_plan_once_in_order(tmp_path):
         link = RobotLink(cell.url)
         st = await link.connect()
         assert (st.state, st.last_rx, st.last_exec, st.queue_free) == ("IDLE", 0, 0, 64)
+        exe: list[int] = []
+
+        async def collect():
+            async for ev in link.events():
+                if ev.kind == "EXE":
+                    exe.append(ev.ticket)
+
+        task = asyncio.create_task(collect())
+        await asyncio.sleep(0)
         tickets = await run_moves(link, moves)
+        task.cancel()
         assert tickets == list(range(1, 301))
+        assert exe == tickets  # one EXE event per move, in order
         assert link.last_exec_ticket == 300 and link.last_ack_ticket == 300
         assert link.stats.resends == 0 and link.stats.naks == 0
         assert link.stats.frames_sent >= 300 and link.stats.rtt_ms_mean > 0
