@@ -243,7 +243,10 @@ class PowerSource(ABC):
         self._cmd = replace(self._cmd, arc_trim=float(arc), dynamic_trim=float(dynamic))
 
     def set_weld_start(self, on: bool) -> None:
-        """Weld start bit. Dropping it is always accepted (even after a lost link)."""
+        """Weld start bit. Dropping it is always accepted (even after a lost link); raising it
+        on a stopped cycle raises the error that stopped it."""
+        if on and self._error is not None:
+            raise self._error
         self._cmd = replace(self._cmd, weld_start=bool(on))
 
     def set_robot_ready(self, on: bool) -> None:
