@@ -22,6 +22,7 @@ import concurrent.futures
 import gc
 import math
 import sqlite3
+import sys
 import threading
 import time
 from collections import deque
@@ -314,6 +315,11 @@ class CellSession:
 
     def start(self) -> concurrent.futures.Future:
         """Start the controller thread (and the simulators with --sim), then connect."""
+        # Three busy threads share one GIL here (UI, controller, simulators): hand it over
+        # every 2 ms rather than 5 so a device reply waits less behind a screen redraw.
+        sys.setswitchinterval(0.002)
+        import planner.job  # noqa: F401  (open_job imports it: not on the controller's loop)
+
         if not self._thread.is_alive():
             self._thread.start()
         return self.connect()
@@ -344,7 +350,7 @@ class CellSession:
                 freeze_heap()
                 self._note("info", "connected: " + ", ".join(f"{ls.device} {ls.url}" for ls in self.ctl.snapshot().links))
                 if self._job_dict is not None:
-                    self._open_dict(self._job_dict)
+                    await self._open_dict(self._job_dict)
             except Exception as exc:
                 msg = str(exc) or exc.__class__.__name__
                 self._connect_error = msg
@@ -449,7 +455,7 @@ class CellSession:
             return fut
         return self._submit(lambda: self._open_path(p))
 
-    def _open_path(self, p: Path) -> None:
+    async def _open_path(self, p: Path) -> None:
         import json
 
         try:
@@ -459,15 +465,17 @@ class CellSession:
         except json.JSONDecodeError as exc:
             raise InputError(f"{p}: line {exc.lineno}: not valid JSON ({exc.msg})") from None
         self._plan = PlanStatus(state="done", file=str(p))
-        self._open_dict(job)
+        await self._open_dict(job)
 
-    def _open_dict(self, job: dict, info: JobInfo | None = None) -> None:
+    async def _open_dict(self, job: dict, info: JobInfo | None = None) -> None:
         info = info or job_info(job)
         if self.ctl is None or self._snap.state == "disconnected":
             # no cell yet: keep the job, it is opened when the devices connect
             self._job_dict, self._job = job, info
             return
-        self.ctl.open_job(job)
+        # open_job hashes and journals the whole job (~0.1 s for the demo part): off the
+        # controller's loop, so the power source's 10 ms cycle keeps running meanwhile.
+        await asyncio.get_running_loop().run_in_executor(None, self.ctl.open_job, job)
         self._job_dict, self._job = job, replace(info, name=self.ctl.snapshot().job_name or info.name)
         freeze_heap()
         self._note("info", f"job {self._job.name} open: {self._job.layers} layers, {self._job.passes} passes")
@@ -520,7 +528,7 @@ class CellSession:
             try:
                 job, info = await asyncio.get_running_loop().run_in_executor(None, work)
                 self._plan = replace(self._plan, state="done")
-                self._open_dict(job, info)
+                await self._open_dict(job, info)
             except Exception as exc:
                 self._plan = replace(self._plan, state="error", error=str(exc))
                 self._note("alarm", f"planning failed: {exc}")
@@ -582,7 +590,7 @@ class CellSession:
 
     def apply_alignment(self) -> concurrent.futures.Future:
         """Re-open the job moved by the alignment transform (the CAD model moves, not the part)."""
-        def _do() -> None:
+        async def _do() -> None:
             from controller.align.kinematics import apply_to_job
 
             if self._alignment is None or self._job_dict is None:
@@ -592,7 +600,7 @@ class CellSession:
                 raise CellError("the alignment result has no transform")
             job = apply_to_job(self._job_dict, tf)
             job["name"] = f"{self._job.name if self._job else 'job'}-aligned"
-            self._open_dict(job)
+            await self._open_dict(job)
         return self._submit(_do)
 
     def stop_safely(self) -> concurrent.futures.Future:

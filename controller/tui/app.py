@@ -166,6 +166,7 @@ class CellApp(App[int]):
         self.set_interval(1.0 / self.refresh_hz, self.tick)
         self.set_interval(1.0 / self.log_hz, self.poll_log)
         self.tick()
+        self.poll_log()
 
     # -- refresh (rate-limited: reads the latest view only) -------------------------------------
     def tick(self) -> None:
@@ -202,6 +203,8 @@ class CellApp(App[int]):
 
     def on_tabbed_content_tab_activated(self, event: TabbedContent.TabActivated) -> None:
         self.tick()
+        if self.query_one(TabbedContent).active == "log":
+            self.poll_log()
 
     def say(self, text: str, error: bool = False) -> None:
         self.last_message = text

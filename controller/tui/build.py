@@ -28,7 +28,7 @@ class BuildPane(Vertical):
     BuildPane .bar-row > Label { width: 14; }
     BuildPane .bar-row > .bar-text { width: 22; }
     BuildPane #build-left { width: 1fr; }
-    BuildPane #build-right { width: 40%; }
+    BuildPane #build-preview { width: 40%; height: 1fr; }
     BuildPane #build-interpass { height: 1; margin-top: 1; }
     BuildPane #build-links { height: auto; max-height: 6; margin-top: 1; }
     BuildPane #build-alarms { height: auto; max-height: 6; margin-top: 1; }

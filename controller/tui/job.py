@@ -19,7 +19,8 @@ class JobPane(Vertical):
     DEFAULT_CSS = """
     JobPane #job-file { height: auto; }
     JobPane #plan-progress { height: 1; margin: 0 0 1 0; }
-    JobPane #job-left { width: 46; }
+    JobPane #job-left { width: 66; }
+    JobPane #job-preview { width: 1fr; height: 1fr; }
     JobPane #job-summary { height: auto; margin-bottom: 1; }
     JobPane #job-roles { height: auto; max-height: 6; }
     """

@@ -107,7 +107,7 @@ def bounds_of(layers: Sequence[Sequence[tuple[str, Path2]]]) -> tuple[float, flo
 class LayerPreview(Static):
     """One layer of the job in the terminal: beads coloured by role, done beads in green."""
 
-    DEFAULT_CSS = "LayerPreview { height: 1fr; min-height: 8; }"
+    DEFAULT_CSS = "LayerPreview { width: 1fr; height: 1fr; min-height: 8; }"
 
     def __init__(self, *, id: str | None = None) -> None:
         super().__init__("", id=id)

@@ -1,0 +1,156 @@
+"""The operator UI driven with Textual's Pilot against the simulators (`cell tui --sim`).
+
+Main flow: a dimmed command is refused with the controller's message, open the demo part,
+plan it, start, pause, resume, the door opens (fault, alarm on screen), close it, reset.
+Quitting mid-build asks first and stops the arc through the facade; the journal stays.
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import sqlite3
+import time
+from pathlib import Path
+
+import pytest
+
+from controller.tui.app import CellApp, ConfirmQuit, OpenDialog
+from controller.tui_adapter import CellSession
+
+pytestmark = pytest.mark.timeout(180)
+SIZE = (120, 36)
+TIME_SCALE = 600.0   # process time 600x: interpass cooling takes a fraction of a second
+
+
+async def until(pilot, cond, timeout: float, what: str) -> None:  # type: ignore[no-untyped-def]
+    t0 = time.monotonic()
+    while not cond():
+        if time.monotonic() - t0 > timeout:
+            app = pilot.app
+            raise AssertionError(f"timed out waiting for {what}: state {app.view.snap.state}, "
+                                 f"message {app.last_message!r}, alarms {app.view.snap.alarms}")
+        await pilot.pause(0.1)
+
+
+def footer_keys(app: CellApp) -> dict[str, bool]:
+    """Command keys shown in the footer -> enabled (False: shown dimmed)."""
+    out = {}
+    for key, ab in app.screen.active_bindings.items():
+        if ab.binding.show and ab.binding.action.startswith("cmd("):
+            out[key] = ab.enabled
+    return out
+
+
+def state(app: CellApp) -> str:
+    return app.view.snap.state
+
+
+async def test_main_flow_against_the_simulators(tmp_path: Path) -> None:
+    session = CellSession(sim=True, runs_dir=tmp_path / "runs", time_scale=TIME_SCALE)
+    app = CellApp(session)
+    try:
+        async with app.run_test(size=SIZE) as pilot:
+            await until(pilot, lambda: state(app) == "idle", 30, "the simulators to connect")
+            keys = footer_keys(app)
+            assert keys["o"] is True and keys["s"] is False and keys["p"] is False and keys["e"] is True
+
+            # A dimmed command is still sent and refused with the controller's own message.
+            await pilot.press("p")
+            await until(pilot, lambda: "refused" in app.last_message, 5, "the refusal")
+            assert "'pause' is not allowed in state idle" in app.last_message
+
+            # Open the demo part (the dialog offers it) and plan it: progress, then the job is open.
+            await pilot.press("o")
+            await until(pilot, lambda: isinstance(app.screen, OpenDialog), 5, "the open dialog")
+            assert app.screen.query_one("#open-path").value.endswith("square-hole.stl")
+            await pilot.press("enter")
+            await until(pilot, lambda: app.view.plan.state == "loaded", 5, "the part to load")
+            await pilot.press("g")
+            await until(pilot, lambda: state(app) == "ready" and app.view.job is not None, 60, "planning")
+            job = app.view.job
+            assert job.layers == app.view.plan.total > 10 and job.passes == app.view.snap.passes_total
+            summary = str(app.query_one("#job-summary").render())
+            assert f"layers          {job.layers}" in summary and "perimeter" in [r.role for r in job.roles]
+
+            # Start on the Build screen; pause (at the end of a bead), resume.
+            await pilot.press("f3", "s")
+            await until(pilot, lambda: state(app).startswith("running_"), 15, "the build to start")
+            await pilot.press("p")
+            await until(pilot, lambda: state(app) == "paused", 30, "the pause at the end of a bead")
+            keys = footer_keys(app)
+            assert keys["r"] is True and keys["p"] is False and keys["a"] is True
+            banner = str(app.query_one("#build-state").render())
+            assert "PAUSED" in banner
+            done_at_pause = app.view.snap.passes_done
+            await pilot.press("r")
+            await until(pilot, lambda: state(app).startswith("running_"), 10, "the resume")
+            await until(pilot, lambda: app.view.snap.passes_done > done_at_pause, 30, "a bead after the resume")
+
+            # The door opens mid-build: the interlock latches a fault, the alarm is on screen.
+            cellio = session.harness.sim("cellio")
+            session.harness.call(cellio.open_door)
+            await until(pilot, lambda: state(app) == "fault", 10, "the door interlock")
+            await pilot.pause(0.3)
+            alarms = str(app.query_one("#build-alarms").render())
+            assert "door" in alarms
+            assert footer_keys(app)["x"] is True and footer_keys(app)["s"] is False
+            session.harness.call(cellio.close_door)
+            await pilot.press("x")
+            await until(pilot, lambda: state(app) == "idle", 15, "the reset")
+            assert app.view.snap.passes_done >= done_at_pause + 1
+
+            # The journal's events are on the Log screen, filterable.
+            await pilot.press("f4")
+            await until(pilot, lambda: any("door" in r.message for r in app.query_one("LogPane").rows), 5, "the log")
+            await pilot.click("#log-filter")
+            await pilot.press(*"kind:alarm")
+            await pilot.pause(0.2)
+            table = app.query_one("#log-table")
+            shown = [str(table.get_row_at(i)[-1]) for i in range(table.row_count)]
+            assert shown and any("door" in m for m in shown)
+            assert all(str(table.get_row_at(i)[1]).find("alarm") >= 0 for i in range(table.row_count))
+    finally:
+        session.close()
+
+
+async def test_quit_during_a_build_asks_and_stops_the_arc(tmp_path: Path) -> None:
+    from test_tui_snapshots import recorded_job
+
+    job_file = tmp_path / "block.json"
+    job_file.write_text(json.dumps(recorded_job()))
+    session = CellSession(sim=True, runs_dir=tmp_path / "runs", time_scale=10.0)  # beads of seconds
+    app = CellApp(session)
+    async with app.run_test(size=SIZE) as pilot:
+        await until(pilot, lambda: state(app) == "idle", 30, "the simulators to connect")
+        await pilot.press("o")
+        await until(pilot, lambda: isinstance(app.screen, OpenDialog), 5, "the open dialog")
+        app.screen.query_one("#open-path").value = str(job_file)
+        await pilot.click("#open-ok")
+        await until(pilot, lambda: state(app) == "ready", 15, "the job to open")
+        await pilot.press("s")
+        await until(pilot, lambda: state(app) == "running_depositing", 20, "an arc")
+        # Quit asks first; "Stay" leaves the build running.
+        await pilot.press("q")
+        await until(pilot, lambda: isinstance(app.screen, ConfirmQuit), 5, "the confirmation")
+        await pilot.click("#quit-no")
+        await pilot.pause(0.3)
+        assert not isinstance(app.screen, ConfirmQuit) and state(app).startswith("running_")
+        await pilot.press("q")
+        await until(pilot, lambda: isinstance(app.screen, ConfirmQuit), 5, "the confirmation")
+        run_dir = Path(app.view.snap.run_dir)
+        await pilot.click("#quit-yes")
+        t0 = time.monotonic()
+        while app.is_running and time.monotonic() - t0 < 20:
+            await asyncio.sleep(0.1)
+        assert not app.is_running
+    # The arc went off through the facade (software E-stop: weld start dropped, motion held),
+    # and the journal keeps the build for `cell resume`.
+    assert session.ctl.machine.state.value == "estop"
+    db = sqlite3.connect(run_dir / "journal.sqlite")
+    events = [m for (m,) in db.execute("SELECT message FROM events")]
+    assert any("software E-stop" in m for m in events)
+    # the bead under the arc at the stop is journaled as interrupted: that is where `cell resume` re-arcs
+    assert db.execute("SELECT count(*) FROM passes WHERE state = 'interrupted'").fetchone()[0] == 1
+    assert db.execute("SELECT count(*) FROM progress").fetchone()[0] > 0
+    db.close()
+    session.close()
