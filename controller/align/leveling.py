@@ -70,8 +70,3 @@ def face_angle(fitted_normal: ArrayLike, cad_normal: ArrayLike, *, about: ArrayL
     resid = float(np.degrees(np.arccos(np.clip(unit(p1) @ unit(after - ax * (after @ ax)), -1.0, 1.0))))
     return FaceAngle(angle_deg=theta, signed_deg=signed, cad_rotation=m, residual_deg=resid)
 
-
-def tilt_of(normal: ArrayLike) -> tuple[float, float]:
-    """Small-angle tilts (rad) of a near-vertical normal: slope of the plane along x and y."""
-    n = unit(normal)
-    return float(-n[0] / n[2]), float(-n[1] / n[2])
