@@ -221,6 +221,8 @@ class RobotLink:
         self._ready = True
         self._kick.set()
         self._notify()
+        if self.fault and "lost queued moves" in self.fault:
+            raise DeviceError(f"{self.name} at {self.url}: {self.fault}")
         return self.last_status
 
     def _resync(self, st: rlp.Reply, resume_ticket: int | None) -> None:
@@ -232,6 +234,14 @@ class RobotLink:
             rx_t = st.last_rx
         exec_t = rx_t - rlp.seq_diff(st.last_rx, st.last_exec) if rlp.seq_diff(st.last_rx, st.last_exec) >= 0 else rx_t
         self._capacity = st.queue_free + (rx_t - exec_t)
+        lost_acked = self._history and rx_t < self._last_ack
+        if lost_acked:  # the robot forgot moves it had acknowledged (restarted): cannot resend them
+            self._frames.clear()
+            self._sent_at.clear()
+            self._next_ticket = rx_t + 1
+            self._aborted_below = self._next_ticket
+            self.fault = (f"robot reports last_rx {st.last_rx:04X} below acknowledged ticket {self._last_ack}: "
+                          "it lost queued moves (restarted?); re-plan from last_exec")
         for t in [t for t in self._frames if t <= rx_t]:  # the robot has these: acknowledged
             self._frames.pop(t)
             self._sent_at.pop(t, None)
@@ -279,6 +289,10 @@ class RobotLink:
                     st = await self.connect()
                 except LinkLost:
                     continue
+                except DeviceError as exc:  # connected, but the robot lost moves: the controller decides
+                    self.stats.reconnects += 1
+                    self._emit("link_restored", value=self.last_status, text=str(exc))
+                    return
                 self.stats.reconnects += 1
                 self._emit("link_restored", value=st)
                 return

@@ -284,3 +284,23 @@ async def test_duplicates_are_acked_but_never_executed_twice(tmp_path):
         assert replies[:4] == ["ACK 0001 63", "NAK 0002 SEQ", "NAK 0002 CRC", "ACK 0002 62"]
         await asyncio.sleep(0.3)
     assert [e["seq"] for e in cell.executed()] == [1, 2]
+
+
+async def test_a_robot_that_forgot_acknowledged_moves_is_reported(tmp_path):
+    async with Cell(tmp_path, time_scale=1.0) as cell:
+        link = RobotLink(cell.url)
+        restored = asyncio.Event()
+        texts = []
+        link.on_event(lambda e: (texts.append(e.text), restored.set()) if e.kind == "link_restored" else None)
+        await link.connect()
+        tickets = [await link.send_move("MOVL", float(i + 1), 0, 0, 0, 0, 1, 60) for i in range(10)]
+        await link.drain(timeout=5)
+        # the robot controller reboots while the cable is out: its queue and numbers are gone
+        cell.sim.queue.clear()
+        cell.sim.last_rx = cell.sim.last_exec = 0
+        cell.server.unplug()
+        await asyncio.wait_for(restored.wait(), 10)
+        assert "lost queued moves" in texts[0]
+        with pytest.raises(DeviceError, match="lost queued moves"):
+            await link.wait_executed(tickets[-1], timeout=5)
+        await link.close()
