@@ -304,3 +304,25 @@ async def test_a_robot_that_forgot_acknowledged_moves_is_reported(tmp_path):
         with pytest.raises(DeviceError, match="lost queued moves"):
             await link.wait_executed(tickets[-1], timeout=5)
         await link.close()
+
+
+async def test_serial_adapter_on_loop_url_and_a_silent_device():
+    from drivers.serial_async import SerialPort
+
+    port = SerialPort("loop://", baud=115200)
+    await port.open()
+    t0 = time.monotonic()
+    await port.write(b"x" * 576)   # 50 ms of line time at 115200 8N1
+    await port.write(b"!")
+    assert time.monotonic() - t0 > 0.04  # paced like a UART
+    got = b""
+    while len(got) < 577:
+        got += await asyncio.wait_for(port.read(), 2)
+    assert got == b"x" * 576 + b"!"
+    port.close()
+    # loop:// only echoes the host's own frames: nobody answers !STATUS
+    link = RobotLink("loop://", link_timeout_s=0.5, auto_reconnect=False)
+    with pytest.raises(LinkLost, match="no answer to !STATUS"):
+        await link.connect()
+    with pytest.raises(LinkLost, match="cannot open"):
+        await RobotLink("socket://127.0.0.1:1", auto_reconnect=False).connect()
