@@ -104,8 +104,9 @@ class CellController:
                                  f"(allowed now: {', '.join(self.allowed_commands()) or 'none'})")
 
     # -- connection -------------------------------------------------------------------------------
-    async def connect(self, *, resume_ticket: int | None = None) -> None:
-        self.devices = await Devices.open(self.cfg, self.material, resume_ticket=resume_ticket)
+    async def connect(self, *, resume_ticket: int | None = None, reply_timeout_ms: float | None = None) -> None:
+        self.devices = await Devices.open(self.cfg, self.material, resume_ticket=resume_ticket,
+                                          reply_timeout_ms=reply_timeout_ms)
         if self.cfg.cell.platform == "robot":
             from controller.exec_robot import RobotExecutor
 
@@ -217,6 +218,14 @@ class CellController:
         finally:
             self.interlocks.build_task = None
             self._publish_state()
+
+    def write_report(self, plots: bool = True) -> Path:
+        """report.json (+ PNGs) in the run directory, from the journal."""
+        from controller.report import write_report
+
+        if self.journal is None or self.run_dir is None:
+            raise CellError("no job is open: nothing to report")
+        return write_report(self.journal, self.run_dir, self.job, plots=plots)
 
     def pause(self) -> None:
         if self.runner is None or not self.machine.state.running:

@@ -8,6 +8,7 @@ device that does not answer is a `DeviceUnreachable` naming it and its URL (exit
 from __future__ import annotations
 
 import asyncio
+import sys
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -58,6 +59,9 @@ class SimHarness:
         from sims.up import SimContext, serve_all
         from sims.world import World
 
+        # The simulated devices share this process (and its GIL) with the controller: switch
+        # threads more often than the default 5 ms so a 10 ms bus cycle is answered in time.
+        sys.setswitchinterval(0.0005)
         mat = load_material(self.cfg.cell.material)
         self.world = World(self.log_dir, arc_efficiency=mat.arc_efficiency)
         self.clock = SimClock(self.cfg.cell.time_scale)
@@ -73,10 +77,10 @@ class SimHarness:
         """The simulator object of a device (tests open the door, inject faults...)."""
         return self.served[device].sim
 
-    def call(self, fn: Any, *args: Any) -> Any:
-        """Run `fn(*args)` on the simulators' loop and return its result (thread-safe)."""
+    def call(self, fn: Any, *args: Any, **kwargs: Any) -> Any:
+        """Run `fn(*args, **kwargs)` on the simulators' loop and return its result (thread-safe)."""
         async def _do() -> Any:
-            res = fn(*args)
+            res = fn(*args, **kwargs)
             if asyncio.iscoroutine(res):
                 res = await res
             return res
@@ -114,8 +118,15 @@ class Devices:
 
     @classmethod
     async def open(cls, cfg: CellConfig, material: Material | None = None, *,
-                   resume_ticket: int | None = None) -> "Devices":
-        """Connect the motion link of the platform, the power source and the cell I/O."""
+                   resume_ticket: int | None = None, reply_timeout_ms: float | None = None) -> "Devices":
+        """Connect the motion link of the platform, the power source and the cell I/O.
+
+        `reply_timeout_ms` overrides the bus devices' reply timeout (in-process simulators
+        share the GIL with the controller, so `--sim` allows them more than hardware gets).
+        """
+        if reply_timeout_ms is not None:
+            ps = cfg.devices.power_source.model_copy(update={"timeout_ms": reply_timeout_ms})
+            cfg = cfg.model_copy(update={"devices": cfg.devices.model_copy(update={"power_source": ps})})
         mat = material or load_material(cfg.cell.material)
         d = cls(cfg, mat)
         try:
@@ -144,7 +155,8 @@ class Devices:
                 d.cellio = None  # not built yet: interlocks then rely on the power source only
             else:
                 io = cfg.devices.cellio
-                d.cellio = CellIO(io.url, device_id=io.device_id, cycle_ms=io.cycle_ms)
+                d.cellio = CellIO(io.url, device_id=io.device_id, cycle_ms=io.cycle_ms,
+                                  timeout_ms=reply_timeout_ms or 50.0)
                 await _connect("cellio", io.url, d.cellio.connect())
                 d.opened.append(d.cellio)
         except BaseException:

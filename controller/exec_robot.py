@@ -111,5 +111,7 @@ class RobotExecutor:
 
 
 def _fire(x: Any) -> None:
+    """Run a control coroutine in the background; a failure shows up as a lost link anyway."""
     if asyncio.iscoroutine(x):
-        asyncio.get_running_loop().create_task(x)
+        t = asyncio.get_running_loop().create_task(x)
+        t.add_done_callback(lambda f: f.cancelled() or f.exception())

@@ -76,10 +76,11 @@ class Interlocks:
         new = args[-1]
         estop_ok = getattr(new, "estop_released", None)
         door = getattr(new, "door_closed", None)
+        t = getattr(new, "t", None)
         if estop_ok is False and self.m.can("estop"):
-            self.trip("estop", "E-stop pressed")
+            self.trip("estop", "E-stop pressed", t_detect=t)
         elif door is False and self.m.state.running:
-            self.trip("fault", "door opened during the build")
+            self.trip("fault", "door opened during the build", t_detect=t)
 
     def _on_power(self, st: Any) -> None:
         """Power-source faults while welding come from the ArcHandshake's on_fault (wall-time
