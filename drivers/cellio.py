@@ -77,6 +77,7 @@ class CellIO:
         self._err_subs: list[Callable[[CellError], None]] = []
         self._waiters: list[asyncio.Future] = []
         self.cycles = 0
+        self._closing = False
 
     def where(self) -> str:
         return f"cell I/O (Modbus TCP, device id {self.device_id}) at {self.url}"
@@ -94,6 +95,7 @@ class CellIO:
         self._client = client
         self._error = None
         self._written = None
+        self._closing = False
         try:
             await self._cycle()
         except BaseException:
@@ -103,13 +105,12 @@ class CellIO:
         self._task = asyncio.get_running_loop().create_task(self._run(), name=f"cellio {self.url}")
 
     async def close(self) -> None:
+        # the flag ends the loop even if a cancel is swallowed by asyncio.wait_for (Python 3.11)
+        self._closing = True
         task, self._task = self._task, None
         if task is not None:
             task.cancel()
-            try:
-                await task
-            except (asyncio.CancelledError, Exception):
-                pass
+            await asyncio.wait({task}, timeout=1.0)
         if self._client is not None:
             self._client.close()
             self._client = None
@@ -149,8 +150,11 @@ class CellIO:
         self._err_subs.append(fn)
 
     async def next_inputs(self) -> CellInputs:
+        """Wait for the next cycle's reading; LinkLost if the cycle has stopped."""
         if self._error is not None:
             raise self._error
+        if self._task is None or self._task.done():
+            raise LinkLost(f"{self.where()}: not connected")
         fut = asyncio.get_running_loop().create_future()
         self._waiters.append(fut)
         return await fut
@@ -216,7 +220,7 @@ class CellIO:
     async def _run(self) -> None:
         deadline = time.monotonic()
         try:
-            while True:
+            while not self._closing:
                 try:
                     st = await self._cycle()
                 except CellError as exc:
@@ -238,6 +242,8 @@ class CellIO:
                 await asyncio.sleep(max(0.0, deadline - now))
         except asyncio.CancelledError:
             raise
+        except Exception as exc:  # an unexpected transport error is still a lost link
+            self._fail(LinkLost(f"{self.where()}: cycle stopped ({exc!r})"))
 
     def _fail(self, exc: CellError) -> None:
         self._error = exc

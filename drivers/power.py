@@ -184,11 +184,9 @@ class PowerSource(ABC):
         self._closing = True
         task, self._task = self._task, None
         if task is not None:
+            # `_closing` ends the loop even if asyncio.wait_for swallows the cancel (Python 3.11)
             task.cancel()
-            try:
-                await task
-            except (asyncio.CancelledError, Exception):
-                pass
+            await asyncio.wait({task}, timeout=1.0)
             if self._error is None:
                 self._cmd = replace(self._cmd, weld_start=False, gas_test=False, wire_inch=False,
                                     wire_retract=False, error_reset=False)
@@ -294,7 +292,7 @@ class PowerSource(ABC):
         """Wait for the next cycle's status; LinkLost / DeviceError if the cycle has stopped."""
         if self._error is not None:
             raise self._error
-        if self._task is None:
+        if self._task is None or self._task.done():
             raise LinkLost(f"{self.where()}: not connected")
         fut = asyncio.get_running_loop().create_future()
         self._waiters.append(fut)

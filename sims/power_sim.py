@@ -521,6 +521,10 @@ async def serve(ctx) -> list:
         url, close = await serve_modbus_tcp(sim, host, 0 if ctx.ephemeral else port, cfg.device_id)
     elif cfg.transport == "modbus_rtu":
         u = cfg.url
+        if u.startswith("tcp://"):
+            from planner.errors import ConfigError
+            raise ConfigError("devices.power_source.url: transport modbus_rtu needs a serial URL "
+                              f"(socket://host:port, a port); got {u}")
         if ctx.ephemeral and u.startswith("socket://"):
             u = u.rsplit(":", 1)[0] + ":0"
         url, close = await serve_modbus_rtu(sim, u, cfg.device_id)
