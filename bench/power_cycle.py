@@ -17,7 +17,7 @@ import statistics
 import time
 import uuid
 
-from controller.arc_handshake import ArcFault, ArcHandshake
+from controller.arc_handshake import ArcFault, ArcHandshake, drop_start_on_unsafe
 from controller.config import load_material
 from drivers.cellio import CellIO
 from drivers.power import PowerSource
@@ -173,12 +173,7 @@ async def interlock_latency(th: SimThread, n: int) -> list[float]:
     ps = ModbusPowerSource(url, MATERIAL)
     io = CellIO(iourl)
     read_at: list[float] = []
-
-    def interlock(prev, new) -> None:
-        if not new.safe_to_weld():
-            ps.drop_all()
-            read_at.append(new.t)
-    io.on_change(interlock)
+    drop_start_on_unsafe(io, ps, on_trip=lambda new: read_at.append(new.t))
     await ps.connect()
     await io.connect()
     out = []

@@ -191,6 +191,8 @@ class ArcHandshake:
             self._latch(WireStick(f"{w}: wire stuck in the pool (error {st.error_number}); cut the wire, then reset"))
         elif st.error_number == 50:
             self._latch(WatchdogMissed(f"{w}: the device dropped the start on its watchdog (error 50)"))
+        elif st.error_number and self.state != "postflow":
+            self._latch(ArcFault(f"{w}: device error {st.error_number}; see the source's manual, then reset"))
         elif self.state == "welding" and self._arc_false_since is not None \
                 and st.t - self._arc_false_since > self.arc_loss_s:
             lost_ms = (st.t - self._arc_false_since) * 1000
@@ -286,3 +288,16 @@ class ArcHandshake:
         self.faulted.clear()
         self._wd_miss = 0
         self._go("idle", "error reset")
+
+
+def drop_start_on_unsafe(io, power: PowerSource, on_trip: Callable[[object], None] | None = None) -> None:
+    """Wire the cell I/O interlock: when a safety input goes bad (door open, E-stop, gas
+    pressure, fume extraction), drop every start bit in the cycle the input is read; the next
+    power-source cycle carries it. `io` is a `drivers.cellio.CellIO` (anything with
+    `on_change(fn(prev, new))` whose readings have `safe_to_weld()`)."""
+    def _check(prev, new) -> None:
+        if not new.safe_to_weld():
+            power.drop_all()
+            if on_trip is not None:
+                on_trip(new)
+    io.on_change(_check)

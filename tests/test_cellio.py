@@ -8,7 +8,7 @@ from contextlib import asynccontextmanager
 
 import pytest
 
-from controller.arc_handshake import ArcHandshake
+from controller.arc_handshake import ArcHandshake, drop_start_on_unsafe
 from drivers.cellio import CellIO
 from drivers.errors import LinkLost
 from sims.cellio_sim import CellIOSim, serve_modbus_tcp
@@ -145,12 +145,7 @@ async def test_estop_or_door_drops_the_weld_start_within_one_cycle(action):
         async with cellio_rig(th=th, world=world) as (_, iosim, io):
             arc = ArcHandshake(ps)
             dropped = []
-
-            def interlock(prev, new):
-                if not new.safe_to_weld():
-                    ps.drop_all()
-                    dropped.append(new.t)
-            io.on_change(interlock)
+            drop_start_on_unsafe(io, ps, on_trip=lambda new: dropped.append(new.t))
             ps.set_wire_feed(6.0)
             await arc.start()
             th.call(getattr(iosim, action))

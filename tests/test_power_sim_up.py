@@ -88,3 +88,68 @@ async def test_fault_spec_ignition_failure_probability_one_exhausts_the_retries(
         with pytest.raises(IgnitionFailed, match="2 attempts"):
             await arc.start()
         assert urls["power_source"].sim.starts == 2
+
+
+@pytest.mark.parametrize("transport", ["modbus_rtu", "can"])
+async def test_sim_up_serves_the_configured_transport(tmp_path, transport):
+    import uuid
+    cell = load_cell()
+    dev = cell.devices.power_source
+    upd = {"transport": transport}
+    if transport == "modbus_rtu":
+        upd["url"] = "socket://127.0.0.1:0"
+    else:
+        upd["can"] = dev.can.model_copy(update={"interface": "virtual", "channel": f"up-{uuid.uuid4().hex[:8]}"})
+    dev = dev.model_copy(update=upd)
+    cell = cell.model_copy(update={"devices": cell.devices.model_copy(update={"power_source": dev})})
+    world = World(tmp_path)
+    ctx = SimContext(cell=cell, sim=load_sim(), world=world, clock=SimClock(60.0), ephemeral=True)
+    served = await serve_all(ctx, ["sims.power_sim"])
+    try:
+        s = served[0]
+        assert s.describe()["transport"] == transport
+        ps = open_power_source(dev, load_material(), url=s.url if transport == "modbus_rtu" else None)
+        await ps.connect()
+        try:
+            ps.set_wire_feed(6.0)
+            arc = ArcHandshake(ps)
+            await arc.start()
+            assert ps.status.current_a == pytest.approx(133.2, rel=0.05) and world.arc_stable
+            await arc.stop()
+        finally:
+            await ps.close()
+    finally:
+        await close_all(served)
+
+
+async def test_can_between_processes_over_udp_multicast():
+    """`cell sim up` and the controller are two processes: CAN frames cross over udp_multicast."""
+    import random
+    import subprocess
+    import sys
+    from pathlib import Path
+    from drivers.power_can import CanPowerSource
+    port = random.randint(43200, 43999)
+    proc = subprocess.Popen([sys.executable, "-m", "bench._power_sim_proc", "can", "239.74.163.11", str(port)],
+                            cwd=Path(__file__).resolve().parent.parent, stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        line = await asyncio.get_running_loop().run_in_executor(None, proc.stdout.readline)
+        assert line.startswith("can://udp_multicast/")
+        ps = CanPowerSource(interface="udp_multicast", channel="239.74.163.11", port=port,
+                            material=load_material(), timeout_ms=500)
+        await ps.connect()
+        try:
+            ps.set_wire_feed(6.0)
+            arc = ArcHandshake(ps)
+            await arc.start()
+            assert ps.status.arc_stable and ps.status.voltage_v == pytest.approx(20.7, rel=0.05)
+            await arc.stop()
+        finally:
+            await ps.close()
+    finally:
+        proc.stdin.close()
+        try:
+            proc.wait(5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
