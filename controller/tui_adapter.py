@@ -176,18 +176,34 @@ def job_info(job: dict, name: str | None = None) -> JobInfo:
 
 
 def alignment_dict(result: Any) -> dict | None:
-    """An alignment result of any shape (dict, dataclass, object) as plain values for the view."""
+    """An alignment result (AlignResult.to_json(), a dict, a dataclass) as plain values for the view.
+
+    Each plane gets its probed points and their residuals (signed distance along the normal)
+    when the result carries them.
+    """
     if result is None:
         return None
     if isinstance(result, dict):
         d = dict(result)
-    elif hasattr(result, "as_dict"):
-        d = dict(result.as_dict())
+    elif hasattr(result, "to_json"):
+        d = dict(result.to_json())
     elif hasattr(result, "__dataclass_fields__"):
         d = {k: getattr(result, k) for k in result.__dataclass_fields__}
     else:
         d = {k: v for k, v in vars(result).items() if not k.startswith("_")}
-    return _plain(d)
+    d = _plain(d)
+    pts = d.get("points") if isinstance(d.get("points"), dict) else {}
+    planes = d.get("planes") or []
+    for pl in planes if isinstance(planes, list) else []:
+        if not isinstance(pl, dict):
+            continue
+        name = pl.get("name")
+        if "points" not in pl and name in pts:
+            pl["points"] = pts[name]
+        n, c = pl.get("normal"), pl.get("point")
+        if "residuals" not in pl and pl.get("points") and n and c:
+            pl["residuals"] = [sum((p[i] - c[i]) * n[i] for i in range(3)) for p in pl["points"]]
+    return d
 
 
 def _plain(v: Any) -> Any:
@@ -203,23 +219,26 @@ def _plain(v: Any) -> Any:
     return v
 
 
-def probe_plan(cfg: Any) -> tuple[tuple[str, tuple[float, float, float]], ...]:
-    """The probe points the alignment routine visits, as (face, point) for the Align screen.
+def probe_plan(cfg: Any, sim_cfg: Any = None) -> tuple[tuple[str, tuple[float, float, float]], ...]:
+    """The touches of the alignment routine's plan, as (face, CAD point), for the Align screen.
 
-    The routine's own plan when it publishes one (`controller.align.routine.probe_plan(cfg)`),
-    else nothing: the screen then says the plan is the routine's.
+    The plan is the routine's own (`plan_for_mesh` on the nominal part of the sim config's
+    workpiece); nothing on a robot cell, or when the routine is not there.
     """
-    try:
-        from controller.align import routine  # type: ignore[attr-defined]
-    except ImportError:
-        return ()
-    fn = getattr(routine, "probe_plan", None)
-    if fn is None:
+    if cfg.cell.platform != "cnc":
         return ()
     try:
-        return tuple((str(face), tuple(float(c) for c in p)) for face, p in fn(cfg))  # type: ignore[misc]
-    except Exception:
+        from controller.align.routine import cad_mesh, plan_for_mesh
+        from controller.config import load_sim
+
+        wp = (sim_cfg or load_sim()).cnc.workpiece
+        plan = plan_for_mesh(cad_mesh(wp))
+    except Exception:  # no routine, no workpiece: the screen says the plan is the routine's
         return ()
+    out = [("top", (float(x), float(y), plan.top_z)) for x, y in plan.top_xy]
+    out += [("side", (plan.side_x, float(y), plan.side_z)) for y in plan.side_y]
+    out.append(("tertiary", (plan.tertiary_xy[0], plan.tertiary_xy[1], plan.side_z)))
+    return tuple(out)
 
 
 def _plan_main(argv: list[str]) -> int:
@@ -297,7 +316,7 @@ class CellSession:
         self._ui_log: list[LogRow] = []
         self._build: concurrent.futures.Future | None = None
         self._unsub: Callable[[], None] | None = None
-        self._probe_plan = probe_plan(self.cfg)
+        self._probe_plan = probe_plan(self.cfg, self.sim_cfg)
 
     # -- lifecycle ------------------------------------------------------------------------------
     def _run_loop(self) -> None:
@@ -620,6 +639,9 @@ class CellSession:
     def build_active(self) -> bool:
         st = self._snap.state
         return st.startswith("running_") or st == "paused"
+
+    def busy_connecting(self) -> bool:
+        return self._busy == "connecting"
 
 
 class ReplaySession:

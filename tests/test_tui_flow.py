@@ -13,6 +13,8 @@ import time
 from pathlib import Path
 
 import pytest
+from textual.events import Key
+from textual.widgets import Button, Input
 
 from controller.tui.app import CellApp, ConfirmQuit, OpenDialog
 from controller.tui_adapter import CellSession
@@ -30,6 +32,22 @@ async def until(pilot, cond, timeout: float, what: str) -> None:  # type: ignore
             raise AssertionError(f"timed out waiting for {what}: state {app.view.snap.state}, "
                                  f"message {app.last_message!r}, alarms {app.view.snap.alarms}")
         await pilot.pause(0.1)
+
+
+async def press(pilot, *keys: str) -> None:  # type: ignore[no-untyped-def]
+    """Key presses as the terminal driver posts them.
+
+    (Pilot.press then waits for the whole process to go idle, which never happens while the
+    simulators and the controller run in it: a second per key for nothing.)
+    """
+    for k in keys:
+        pilot.app.post_message(Key(k, k if len(k) == 1 else None))
+        await pilot.pause(0.05)
+
+
+async def click(pilot, selector: str) -> None:  # type: ignore[no-untyped-def]
+    pilot.app.screen.query_one(selector, Button).press()
+    await pilot.pause(0.05)
 
 
 def footer_keys(app: CellApp) -> dict[str, bool]:
@@ -55,17 +73,17 @@ async def test_main_flow_against_the_simulators(tmp_path: Path) -> None:
             assert keys["o"] is True and keys["s"] is False and keys["p"] is False and keys["e"] is True
 
             # A dimmed command is still sent and refused with the controller's own message.
-            await pilot.press("p")
+            await press(pilot, "p")
             await until(pilot, lambda: "refused" in app.last_message, 5, "the refusal")
             assert "'pause' is not allowed in state idle" in app.last_message
 
             # Open the demo part (the dialog offers it) and plan it: progress, then the job is open.
-            await pilot.press("o")
+            await press(pilot, "o")
             await until(pilot, lambda: isinstance(app.screen, OpenDialog), 5, "the open dialog")
             assert app.screen.query_one("#open-path").value.endswith("square-hole.stl")
-            await pilot.press("enter")
+            await press(pilot, "enter")
             await until(pilot, lambda: app.view.plan.state == "loaded", 5, "the part to load")
-            await pilot.press("g")
+            await press(pilot, "g")
             await until(pilot, lambda: state(app) == "ready" and app.view.job is not None, 60, "planning")
             job = app.view.job
             assert job.layers == app.view.plan.total > 10 and job.passes == app.view.snap.passes_total
@@ -73,16 +91,16 @@ async def test_main_flow_against_the_simulators(tmp_path: Path) -> None:
             assert f"layers          {job.layers}" in summary and "perimeter" in [r.role for r in job.roles]
 
             # Start on the Build screen; pause (at the end of a bead), resume.
-            await pilot.press("f3", "s")
+            await press(pilot, "f3", "s")
             await until(pilot, lambda: state(app).startswith("running_"), 15, "the build to start")
-            await pilot.press("p")
+            await press(pilot, "p")
             await until(pilot, lambda: state(app) == "paused", 30, "the pause at the end of a bead")
             keys = footer_keys(app)
             assert keys["r"] is True and keys["p"] is False and keys["a"] is True
             banner = str(app.query_one("#build-state").render())
             assert "PAUSED" in banner
             done_at_pause = app.view.snap.passes_done
-            await pilot.press("r")
+            await press(pilot, "r")
             await until(pilot, lambda: state(app).startswith("running_"), 10, "the resume")
             await until(pilot, lambda: app.view.snap.passes_done > done_at_pause, 30, "a bead after the resume")
 
@@ -95,15 +113,15 @@ async def test_main_flow_against_the_simulators(tmp_path: Path) -> None:
             assert "door" in alarms
             assert footer_keys(app)["x"] is True and footer_keys(app)["s"] is False
             session.harness.call(cellio.close_door)
-            await pilot.press("x")
+            await press(pilot, "x")
             await until(pilot, lambda: state(app) == "idle", 15, "the reset")
             assert app.view.snap.passes_done >= done_at_pause + 1
 
             # The journal's events are on the Log screen, filterable.
-            await pilot.press("f4")
+            await press(pilot, "f4")
             await until(pilot, lambda: any("door" in r.message for r in app.query_one("LogPane").rows), 5, "the log")
-            await pilot.click("#log-filter")
-            await pilot.press(*"kind:alarm")
+            app.set_focus(app.query_one("#log-filter", Input))
+            await press(pilot, *"kind:alarm")
             await pilot.pause(0.2)
             table = app.query_one("#log-table")
             shown = [str(table.get_row_at(i)[-1]) for i in range(table.row_count)]
@@ -122,23 +140,23 @@ async def test_quit_during_a_build_asks_and_stops_the_arc(tmp_path: Path) -> Non
     app = CellApp(session)
     async with app.run_test(size=SIZE) as pilot:
         await until(pilot, lambda: state(app) == "idle", 30, "the simulators to connect")
-        await pilot.press("o")
+        await press(pilot, "o")
         await until(pilot, lambda: isinstance(app.screen, OpenDialog), 5, "the open dialog")
         app.screen.query_one("#open-path").value = str(job_file)
-        await pilot.click("#open-ok")
+        await click(pilot, "#open-ok")
         await until(pilot, lambda: state(app) == "ready", 15, "the job to open")
-        await pilot.press("s")
+        await press(pilot, "s")
         await until(pilot, lambda: state(app) == "running_depositing", 20, "an arc")
         # Quit asks first; "Stay" leaves the build running.
-        await pilot.press("q")
+        await press(pilot, "q")
         await until(pilot, lambda: isinstance(app.screen, ConfirmQuit), 5, "the confirmation")
-        await pilot.click("#quit-no")
+        await click(pilot, "#quit-no")
         await pilot.pause(0.3)
         assert not isinstance(app.screen, ConfirmQuit) and state(app).startswith("running_")
-        await pilot.press("q")
+        await press(pilot, "q")
         await until(pilot, lambda: isinstance(app.screen, ConfirmQuit), 5, "the confirmation")
         run_dir = Path(app.view.snap.run_dir)
-        await pilot.click("#quit-yes")
+        await click(pilot, "#quit-yes")
         t0 = time.monotonic()
         while app.is_running and time.monotonic() - t0 < 20:
             await asyncio.sleep(0.1)

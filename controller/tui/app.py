@@ -125,7 +125,9 @@ class CellApp(App[int]):
     CSS = """
     #status { height: 1; background: $panel; }
     #message { height: 1; color: $text-muted; }
-    TabPane { padding: 0 1; }
+    #tabs { height: 1fr; }
+    #tabs > ContentSwitcher { height: 1fr; }
+    TabPane { height: 1fr; padding: 0 1; }
     """
     BINDINGS = [
         *(Binding(k, f"cmd('{c}')", label) for k, (c, label) in COMMAND_KEYS.items()),

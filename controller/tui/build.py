@@ -27,7 +27,7 @@ class BuildPane(Vertical):
     BuildPane .bar-row { height: 1; }
     BuildPane .bar-row > Label { width: 14; }
     BuildPane .bar-row > .bar-text { width: 22; }
-    BuildPane #build-left { width: 1fr; }
+    BuildPane #build-left { width: 1fr; height: 1fr; overflow-y: auto; }
     BuildPane #build-preview { width: 40%; height: 1fr; }
     BuildPane #build-interpass { height: 1; margin-top: 1; }
     BuildPane #build-links { height: auto; max-height: 6; margin-top: 1; }
@@ -45,15 +45,15 @@ class BuildPane(Vertical):
                 with Horizontal(classes="bar-row"):
                     yield Label("passes")
                     yield Label("", classes="bar-text", id="passes-text")
-                    yield ProgressBar(total=1, show_eta=False, id="passes-bar")
+                    yield ProgressBar(total=1, show_eta=False, show_percentage=False, id="passes-bar")
                 with Horizontal(classes="bar-row"):
                     yield Label("layers")
                     yield Label("", classes="bar-text", id="layers-text")
-                    yield ProgressBar(total=1, show_eta=False, id="layers-bar")
+                    yield ProgressBar(total=1, show_eta=False, show_percentage=False, id="layers-bar")
                 with Horizontal(classes="bar-row"):
                     yield Label("this layer")
                     yield Label("", classes="bar-text", id="layer-text")
-                    yield ProgressBar(total=1, show_eta=False, id="layer-bar")
+                    yield ProgressBar(total=1, show_eta=False, show_percentage=False, id="layer-bar")
                 yield Trend("current", "A", 1, id="trend-current")
                 yield Trend("voltage", "V", 2, id="trend-voltage")
                 yield Trend("wire feed", "m/min", 2, id="trend-wfs")

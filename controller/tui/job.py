@@ -19,7 +19,7 @@ class JobPane(Vertical):
     DEFAULT_CSS = """
     JobPane #job-file { height: auto; }
     JobPane #plan-progress { height: 1; margin: 0 0 1 0; }
-    JobPane #job-left { width: 66; }
+    JobPane #job-left { width: 66; height: 1fr; overflow-y: auto; }
     JobPane #job-preview { width: 1fr; height: 1fr; }
     JobPane #job-summary { height: auto; margin-bottom: 1; }
     JobPane #job-roles { height: auto; max-height: 6; }

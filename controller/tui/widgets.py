@@ -128,9 +128,10 @@ class LayerPreview(Static):
         paths = [(DONE_STYLE if k < done else ROLE_STYLE.get(role, "white"), pts)
                  for k, (role, pts) in enumerate(layers[layer])]
         pic = braille(paths, bounds_of(layers), cols, rows)
-        legend = Text(title + "  ", style="bold")
+        legend = Text(title + " ", style="bold", no_wrap=True, overflow="ellipsis")
         for role, st in ROLE_STYLE.items():
-            legend.append("■ ", style=st).append(role + "  ")
+            legend.append("■", style=st).append(role + " ")
         if done:
-            legend.append("■ ", style=DONE_STYLE).append("done")
+            legend.append("■", style=DONE_STYLE).append("done")
+        legend.truncate(cols, overflow="ellipsis")
         self.update(Text.assemble(legend, "\n", pic))
