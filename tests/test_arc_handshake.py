@@ -175,3 +175,13 @@ async def test_gas_fault_during_preflow_fails_the_start():
         th.call(sim.inject, "gas_fault")
         with pytest.raises(GasFault):
             await task
+
+
+@pytest.mark.parametrize("scale,lo,hi", [(1.0, 0.15, 0.40), (60.0, 0.04, 0.12)])
+async def test_process_phases_scale_with_time_but_never_below_two_cycles(scale, lo, hi):
+    # pre-flow 0.1 s + ignition 0.05 s of process time; each phase at least 20 ms of wall time
+    async with power_rig(time_scale=scale) as (th, sim, ps, _):
+        arc, _ = await _welding(ps)
+        by = {t.to: t.t for t in arc.transitions}
+        assert lo <= by["ignition"] - by["preflow"] <= hi
+        await arc.stop()
