@@ -171,6 +171,7 @@ class PowerSource(ABC):
         self._cmd = replace(PowerCommand(), mode=self._cmd.mode, job=self._cmd.job,
                             wfs_m_min=self._cmd.wfs_m_min, arc_trim=self._cmd.arc_trim,
                             dynamic_trim=self._cmd.dynamic_trim)
+        await self._close()          # a reconnect after a lost link starts from a fresh transport
         await self._open()
         try:
             await self._one_cycle()      # errors here surface from connect() itself

@@ -186,3 +186,21 @@ def test_can_frames_follow_the_dbc():
     assert data[4] == (-34) & 0xFF and data[6] == 42
     back = codec.decode_command(data)
     assert back["wfs"] == pytest.approx(6.25) and back["counter"] == 42 and back["bits"]["weld_start"]
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+async def test_reconnect_after_the_device_comes_back(transport):
+    async with power_rig(transport, timeout_ms=150) as (th, sim, ps, _):
+        ps.set_wire_feed(5.0)
+        ps.set_weld_start(False)
+        th.call(sim.inject, "silence", duration_s=0.4)
+        with pytest.raises(LinkLost):
+            for _ in range(100):
+                await ps.next_status()
+        with pytest.raises(LinkLost):
+            ps.set_weld_start(True)           # no start on a dead link
+        await asyncio.sleep(0.5)
+        await ps.connect()
+        st = await ps.next_status()
+        assert st.watchdog_ok and not st.command.weld_start
+        assert th.call(lambda: sim.cmd.wfs) == pytest.approx(5.0, abs=0.005)
