@@ -194,7 +194,9 @@ class ArcHandshake:
         elif st.error_number and self.state != "postflow":
             self._latch(ArcFault(f"{w}: device error {st.error_number}; see the source's manual, then reset"))
         elif self.state == "welding" and self._arc_false_since is not None \
-                and st.t - self._arc_false_since > self.arc_loss_s:
+                and st.t - self._arc_false_since >= self.arc_loss_s - 0.001:
+            # measured from the first status without the arc: the loss began up to one cycle
+            # earlier, so it has lasted at least arc_loss_s here (1 ms allowance for jitter)
             lost_ms = (st.t - self._arc_false_since) * 1000
             self._latch(ArcLost(f"{w}: arc lost for {lost_ms:.0f} ms (> {self.arc_loss_s * 1000:.0f} ms)"))
 
