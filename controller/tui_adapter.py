@@ -37,6 +37,9 @@ DEMO_PART = Path(__file__).resolve().parent.parent / "config" / "parts" / "squar
 HISTORY_LEN = 300          # samples kept for the live plots (30 s at 10 Hz)
 SAMPLE_PERIOD_S = 0.1      # history sampling period (wall seconds)
 ROLES = ("perimeter", "infill", "gap")
+# How the drivers and the interlocks name each device in their messages.
+DEVICE_WORDS = {"robot": ("robot",), "cnc": ("cnc", "CNC"), "power_source": ("power_source", "power source"),
+                "cellio": ("cellio", "cell I/O")}
 
 
 @dataclass(frozen=True)
@@ -365,7 +368,6 @@ class CellSession:
                 self._unsub = self.ctl.subscribe(self._on_snapshot)
                 await self.ctl.connect()
                 self._connect_error = None
-                self._dev_errors.clear()
                 freeze_heap()
                 self._note("info", "connected: " + ", ".join(f"{ls.device} {ls.url}" for ls in self.ctl.snapshot().links))
                 if self._job_dict is not None:
@@ -373,8 +375,8 @@ class CellSession:
             except Exception as exc:
                 msg = str(exc) or exc.__class__.__name__
                 self._connect_error = msg
-                for dev in ("robot", "cnc", "power_source", "cellio"):
-                    if dev in msg:
+                for dev, words in DEVICE_WORDS.items():
+                    if any(w in msg for w in words):
                         self._dev_errors[dev] = msg
                 self._note("alarm", f"connect failed: {msg}")
             finally:
@@ -426,9 +428,11 @@ class CellSession:
                     devices=tuple(devices), sim=self.sim, connect_error=self._connect_error, busy=self._busy)
 
     def _last_error(self, device: str, s: Snapshot) -> str | None:
-        for a in reversed(s.alarms):
-            if device in a.message or device.replace("_", " ") in a.message:
-                return a.message
+        """The device's latest error: kept across reconnects (a new controller starts with no alarms)."""
+        for a in s.alarms:
+            for dev, words in DEVICE_WORDS.items():
+                if any(w in a.message for w in words):
+                    self._dev_errors[dev] = a.message
         return self._dev_errors.get(device)
 
     def _note(self, kind: str, message: str) -> None:

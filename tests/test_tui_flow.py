@@ -172,3 +172,32 @@ async def test_quit_during_a_build_asks_and_stops_the_arc(tmp_path: Path) -> Non
     assert db.execute("SELECT count(*) FROM progress").fetchone()[0] > 0
     db.close()
     session.close()
+
+
+async def test_a_link_that_drops_and_comes_back(tmp_path: Path) -> None:
+    """The cell I/O stops answering: fault, the Devices screen names it; it answers again: reconnect."""
+    session = CellSession(sim=True, runs_dir=tmp_path / "runs", time_scale=TIME_SCALE)
+    app = CellApp(session)
+    try:
+        async with app.run_test(size=SIZE) as pilot:
+            await until(pilot, lambda: state(app) == "idle", 30, "the simulators to connect")
+            assert "c" not in footer_keys(app)           # Connect is hidden while connected
+            session.harness.sim("cellio").silence(1.5)
+            await until(pilot, lambda: state(app) == "fault", 10, "the link loss")
+            await press(pilot, "f5")
+            await until(pilot, lambda: any(d.device == "cellio" and d.last_error for d in app.view.devices), 5,
+                        "the device's last error")
+            await pilot.pause(0.3)
+            table = app.query_one("#dev-table")
+            rows = [table.get_row_at(i) for i in range(table.row_count)]
+            assert any(row[0] == "cellio" and "cell I/O" in str(row[-1]) for row in rows)
+            assert footer_keys(app)["c"] is True
+            await pilot.pause(1.5)                       # the coupler answers again
+            await press(pilot, "c")
+            await until(pilot, lambda: state(app) == "idle" and not app.view.busy, 20, "the reconnect")
+            assert all(d.connected for d in app.view.devices)
+            cellio = next(d for d in app.view.devices if d.device == "cellio")
+            assert cellio.last_error and "cell I/O" in cellio.last_error   # the last error stays visible
+            assert "c" not in footer_keys(app)
+    finally:
+        session.close()

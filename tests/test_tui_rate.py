@@ -38,7 +38,7 @@ async def test_100_hz_telemetry_shows_the_latest_value_without_backlog(tmp_path)
     try:
         async with app.run_test(size=(120, 36)) as pilot:
             t0 = time.monotonic()
-            while session.busy_connecting() and time.monotonic() - t0 < 30:
+            while (session.busy_connecting() or app.view.busy) and time.monotonic() - t0 < 30:
                 await pilot.pause(0.1)
             # Unreachable devices: shown, not raised; the Devices screen names them.
             assert app.view.connect_error and app.view.snap.state == "disconnected"
