@@ -37,6 +37,9 @@ DEMO_PART = Path(__file__).resolve().parent.parent / "config" / "parts" / "squar
 HISTORY_LEN = 300          # samples kept for the live plots (30 s at 10 Hz)
 SAMPLE_PERIOD_S = 0.1      # history sampling period (wall seconds)
 ROLES = ("perimeter", "infill", "gap")
+# Where the substrate may be probed on the CNC's link outside the facade (as `cell demo` does on a
+# robot cell): the cell is connected and no build runs.
+PROBE_STATES = ("idle", "ready", "aligned", "complete", "aborted")
 # How the drivers and the interlocks name each device in their messages.
 DEVICE_WORDS = {"robot": ("robot",), "cnc": ("cnc", "CNC"), "power_source": ("power_source", "power source"),
                 "cellio": ("cellio", "cell I/O")}
@@ -124,6 +127,8 @@ class View:
     job: JobInfo | None = None
     alignment: dict | None = None  # planes, level_a_deg, level_b_deg, face_angle_deg, transform
     probe_plan: tuple[tuple[str, tuple[float, float, float]], ...] = ()
+    probed: tuple[tuple[str, tuple[float, float, float], float], ...] = ()  # (name, xyz, spread) as they arrive
+    can_probe: bool = False        # a CNC with the touch probe is there (CNC platform, or --sim)
     platform: str = "robot"
     devices: tuple[DeviceInfo, ...] = ()
     sim: bool = False
@@ -142,8 +147,10 @@ class View:
             return self.snap.state in ("disconnected", "fault") and self.busy is None
         if command == "open":
             return self.busy is None and (self.snap.state == "disconnected" or "open_job" in self.snap.allowed_commands)
-        if command == "run_alignment" and self.busy is not None:
-            return False
+        if command == "run_alignment":
+            if self.busy is not None or not self.can_probe:
+                return False
+            return "run_alignment" in self.snap.allowed_commands or self.snap.state in PROBE_STATES
         return command in self.snap.allowed_commands
 
 
@@ -228,8 +235,6 @@ def probe_plan(cfg: Any, sim_cfg: Any = None) -> tuple[tuple[str, tuple[float, f
     The plan is the routine's own (`plan_for_mesh` on the nominal part of the sim config's
     workpiece); nothing on a robot cell, or when the routine is not there.
     """
-    if cfg.cell.platform != "cnc":
-        return ()
     try:
         from controller.align.routine import cad_mesh, plan_for_mesh
         from controller.config import load_sim
@@ -269,6 +274,15 @@ def _plan_main(argv: list[str]) -> int:
         print("error " + (str(exc) or exc.__class__.__name__).replace("\n", " "), flush=True)
         sys.stdout.flush()
         return 2
+
+
+def _sim_reply_timeout_ms() -> float:
+    """The bus devices' reply timeout with in-process simulators: `cell run --sim`'s own figure."""
+    try:
+        from controller.cli.run import SIM_REPLY_TIMEOUT_MS
+    except ImportError:
+        return 250.0
+    return float(SIM_REPLY_TIMEOUT_MS)
 
 
 def freeze_heap() -> None:
@@ -319,7 +333,9 @@ class CellSession:
         self._ui_log: list[LogRow] = []
         self._build: concurrent.futures.Future | None = None
         self._unsub: Callable[[], None] | None = None
-        self._probe_plan = probe_plan(self.cfg, self.sim_cfg)
+        self._can_probe = self.cfg.cell.platform == "cnc" or sim
+        self._probe_plan = probe_plan(self.cfg, self.sim_cfg) if self._can_probe else ()
+        self._probed: list[tuple[str, tuple[float, float, float], float]] = []
 
     # -- lifecycle ------------------------------------------------------------------------------
     def _run_loop(self) -> None:
@@ -366,7 +382,7 @@ class CellSession:
                     self.cfg = with_urls(self.cfg, urls)
                 self.ctl = CellController(self.cfg, runs_dir=self.runs_dir)
                 self._unsub = self.ctl.subscribe(self._on_snapshot)
-                await self.ctl.connect()
+                await self.ctl.connect(reply_timeout_ms=_sim_reply_timeout_ms() if self.sim else None)
                 self._connect_error = None
                 freeze_heap()
                 self._note("info", "connected: " + ", ".join(f"{ls.device} {ls.url}" for ls in self.ctl.snapshot().links))
@@ -424,7 +440,8 @@ class CellSession:
                 devices.append(DeviceInfo(name, str(getattr(d, name).url), False,
                                           last_error=self._dev_errors.get(name)))
         return View(snap=s, seq=self._seq, history=tuple(self._hist), plan=self._plan, job=self._job,
-                    alignment=self._alignment, probe_plan=self._probe_plan, platform=self.cfg.cell.platform,
+                    alignment=self._alignment, probe_plan=self._probe_plan, probed=tuple(self._probed),
+                    can_probe=self._can_probe, platform=self.cfg.cell.platform,
                     devices=tuple(devices), sim=self.sim, connect_error=self._connect_error, busy=self._busy)
 
     def _last_error(self, device: str, s: Snapshot) -> str | None:
@@ -600,16 +617,57 @@ class CellSession:
         return started
 
     def _align(self) -> concurrent.futures.Future:
+        """Probe and align: the facade's `run_alignment` on a CNC cell; on a robot cell with the
+        simulators, the routine on the CNC's link as `cell demo` does (the state machine stays put)."""
         self._busy = "aligning"
+        self._probed = []
 
         async def _do() -> Any:
             try:
-                res = await self.ctl.run_alignment()
+                if "run_alignment" in self.ctl.allowed_commands():
+                    res = await self.ctl.run_alignment()
+                else:
+                    if self._snap.state not in PROBE_STATES:
+                        raise CellError(f"'run_alignment' is not allowed in state {self._snap.state} "
+                                        f"(probe with the cell connected and no build running)")
+                    # its own loop on a worker thread: the routine's fitting (ICP) must not
+                    # hold up the controller's loop and the power source's cycle
+                    res = await asyncio.get_running_loop().run_in_executor(None, self._align_on_cnc_link)
                 self._alignment = alignment_dict(res)
+                a = self._alignment or {}
+                self._note("info", f"aligned: A {a.get('level_a_deg', math.nan):.4f}°, "
+                                   f"B {a.get('level_b_deg', math.nan):.4f}°, face {a.get('face_angle_deg', math.nan):.4f}°")
                 return res
+            except Exception as exc:
+                self._note("alarm", f"alignment failed: {exc}")
+                raise
             finally:
                 self._busy = None
         return self._submit(_do)
+
+    def _align_on_cnc_link(self) -> Any:
+        from controller.align.routine import align, cad_mesh, plan_for_mesh
+        from controller.config import load_sim
+        from drivers.grbl import CncLink
+
+        plan = plan_for_mesh(cad_mesh((self.sim_cfg or load_sim()).cnc.workpiece))
+        dev = self.cfg.devices.cnc
+
+        def on_point(pp: Any) -> None:
+            pos = tuple(float(c) for c in pp.position)
+            self._probed = self._probed + [(str(pp.name), pos, float(pp.spread_mm))]  # type: ignore[list-item]
+
+        async def run() -> Any:
+            link = CncLink(dev.url, baud=dev.baud, rx_buffer_bytes=dev.rx_buffer_bytes, status_hz=dev.status_hz)
+            await link.connect()
+            try:
+                return await asyncio.wait_for(align(link, self.cfg, plan, on_point=on_point), 120.0)
+            finally:
+                await link.close()
+        try:
+            return asyncio.run(run())
+        except asyncio.TimeoutError:
+            raise CellError("alignment: the probe cycle did not finish within 120 s; check the CNC link") from None
 
     def apply_alignment(self) -> concurrent.futures.Future:
         """Re-open the job moved by the alignment transform (the CAD model moves, not the part)."""

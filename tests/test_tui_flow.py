@@ -90,6 +90,19 @@ async def test_main_flow_against_the_simulators(tmp_path: Path) -> None:
             summary = str(app.query_one("#job-summary").render())
             assert f"layers          {job.layers}" in summary and "perimeter" in [r.role for r in job.roles]
 
+            # Probe and align the substrate on the CNC (touches listed as they arrive), apply the
+            # transform: the job re-opens moved by it.
+            await press(pilot, "f2", "l")
+            await until(pilot, lambda: app.view.alignment is not None and not app.view.busy, 60, "the alignment")
+            await pilot.pause(0.3)
+            planes = app.query_one("#align-planes")
+            assert [str(planes.get_row_at(i)[0]) for i in range(planes.row_count)][:2] == ["top", "side"]
+            assert abs(app.view.alignment["face_angle_deg"]) > 0.5        # sim.yaml turns the part 1.5°
+            assert "leveling" in str(app.query_one("#align-result").render())
+            await press(pilot, "y")
+            await until(pilot, lambda: (app.view.snap.job_name or "").endswith("-aligned"), 15, "the aligned job")
+            await until(pilot, lambda: state(app) == "ready", 5, "ready")
+
             # Start on the Build screen; pause (at the end of a bead), resume.
             await press(pilot, "f3", "s")
             await until(pilot, lambda: state(app).startswith("running_"), 15, "the build to start")

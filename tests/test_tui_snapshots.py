@@ -75,7 +75,7 @@ def recorded_view(**snap_changes: object) -> View:
         "transform": [[0.99966, -0.02618, 0.0, 1.2], [0.02618, 0.99966, 0.0, -0.4], [0.0, 0.0, 1.0, 0.1],
                       [0.0, 0.0, 0.0, 1.0]]}
     return View(snap=snap, seq=4242, history=hist, plan=PlanStatus("done", "jobs/block-slot.json"),
-                job=job_info(recorded_job(), "block-slot"), alignment=align, platform="cnc",
+                job=job_info(recorded_job(), "block-slot"), alignment=align, platform="cnc", can_probe=True,
                 devices=tuple(_dev(ls) for ls in links), sim=True)
 
 

@@ -35,16 +35,17 @@ class AlignPane(Vertical):
 
     def refresh_view(self, v: View) -> None:
         head = self.query_one("#align-head", Static)
-        if v.platform != "cnc":
-            head.update("Alignment probes the substrate on the 5-axis CNC (cell.platform: cnc). This cell deposits "
-                        f"with the [b]{v.platform}[/b]: the job runs in the robot's frame, no alignment is needed.")
+        if not v.can_probe:
+            head.update("Alignment probes the substrate with the touch probe on the 5-axis CNC. This cell has none "
+                        f"(it deposits with the [b]{v.platform}[/b] in its own frame): no alignment is needed.")
         elif v.busy == "aligning":
-            head.update("[yellow]Probing…[/] the CNC touches each point of the plan; results appear when the fit is done.")
+            head.update(f"[yellow]Probing…[/] {len(v.probed)} of {len(v.probe_plan) or '?'} touches so far "
+                        "(top grid, side face, third face; the top is probed again after leveling).")
         elif v.alignment is None:
             head.update("Not aligned. Press [b]l[/b] to probe the top and side faces and fit the planes.")
         else:
             head.update("[green]Aligned.[/] Press [b]y[/b] to apply the transform to the open job.")
-        key = (v.alignment is None, id(v.alignment), v.probe_plan)
+        key = (id(v.alignment), v.probe_plan, len(v.probed))
         if key == self._key:
             return
         self._key = key
@@ -61,6 +62,11 @@ class AlignPane(Vertical):
                 res = (pl.get("residuals") or [None] * (k + 1))[k] if k < len(pl.get("residuals") or []) else None
                 pts.add_row(name, fmt(p[0], 3), fmt(p[1], 3), fmt(p[2], 3), fmt(res, 4))
                 shown += 1
+        if not shown and v.probed:
+            for name, p, spread in v.probed:
+                pts.add_row(name, fmt(p[0], 3), fmt(p[1], 3), fmt(p[2], 3), f"[dim]spread {fmt(spread, 4)}[/]")
+            pts.move_cursor(row=pts.row_count - 1)
+            shown = len(v.probed)
         if not shown:
             for face, p in v.probe_plan:
                 pts.add_row(face, fmt(p[0], 3), fmt(p[1], 3), fmt(p[2], 3), "[dim]planned[/]")

@@ -118,6 +118,15 @@ class ConfirmQuit(ModalScreen[bool]):
         self.dismiss(False)
 
 
+def _demo_width_mm() -> float:
+    """The demo's bead width (`cell demo`'s), offered in the open dialog."""
+    try:
+        from controller.cli.run import DEMO_WIDTH_MM
+    except ImportError:
+        return 7.0
+    return float(DEMO_WIDTH_MM)
+
+
 class CellApp(App[int]):
     """`cell tui`: Job, Align, Build, Log and Devices over one session."""
 
@@ -139,11 +148,12 @@ class CellApp(App[int]):
     ]
 
     def __init__(self, session: Any, *, refresh_hz: float = 10.0, log_hz: float = 2.0,
-                 default_part: Path = DEMO_PART, default_width_mm: float = 6.0) -> None:
+                 default_part: Path = DEMO_PART, default_width_mm: float | None = None) -> None:
         super().__init__()
         self.session = session
         self.refresh_hz, self.log_hz = refresh_hz, log_hz
-        self.default_part, self.default_width = default_part, default_width_mm
+        self.default_part = default_part
+        self.default_width = default_width_mm if default_width_mm is not None else _demo_width_mm()
         self.view: View = session.view()
         self.renders = 0             # UI refreshes done (the 100 Hz test counts them)
         self.last_message = ""
@@ -222,7 +232,7 @@ class CellApp(App[int]):
                 return True
             if name in HIDDEN_WHEN_OFF:
                 return False
-            if name == "run_alignment" and self.view.platform != "cnc":
+            if name in ("run_alignment", "apply_alignment") and not self.view.can_probe:
                 return False
             return None  # shown, dimmed
         return True

@@ -59,7 +59,7 @@ class JobPane(Vertical):
             head = f"[red]Planning failed:[/red] {p.error}"
         else:
             head = f"Job [b]{v.job.name if v.job else '?'}[/b] open" + (f" (from {p.file})" if p.file else "") \
-                + ". Press [b]s[/b] to start" + (" or [b]l[/b] to align first." if v.platform == "cnc" else ".")
+                + ". Press [b]s[/b] to start" + (" or [b]l[/b] to align first." if v.can_probe else ".")
         self.query_one("#job-file", Static).update(head)
         bar = self.query_one("#plan-progress", ProgressBar)
         if p.state == "planning":
