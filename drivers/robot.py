@@ -444,6 +444,7 @@ class RobotLink:
                 await self._kick.wait()
                 self._kick.clear()
                 while self._connected:
+                    t = None
                     if self._ctrl:
                         data = self._ctrl.popleft()
                     else:
@@ -452,14 +453,15 @@ class RobotLink:
                                 or (self.max_inflight and t - self._last_ack > self.max_inflight)):
                             break
                         data = self._frames[t]
-                        now = time.monotonic()
                         if t in self._sent_at:
                             self.stats.resends += 1
                             self._retx.add(t)
-                        self._sent_at[t] = now
+                        self._sent_at[t] = time.monotonic()
                         self._send_next = t + 1
-                    await port.write(data)
+                    await port.write(data)  # waits for the line (pacing)
                     self._last_tx = time.monotonic()
+                    if t is not None and t in self._frames:
+                        self._sent_at[t] = self._last_tx  # on the wire now: the RTT starts here
                     self.stats.frames_sent += 1
                     self.stats.bytes_sent += len(data)
         except LinkLost as exc:

@@ -61,6 +61,7 @@ class RobotSim:
         self._write: Callable[[bytes], None] | None = None
         self._splitter = rlp.LineSplitter()
         self._ack_due = False
+        self._exe_due: int | None = None
         self._last_heard = time.monotonic()
         self._log: IO[str] | None = None
         self._log_dirty = False
@@ -183,7 +184,13 @@ class RobotSim:
             self._stopped()
         self.send_status()
 
+    def _flush_exe(self) -> None:
+        if self._exe_due is not None:
+            self._send(rlp.exe(self._exe_due))
+            self._exe_due = None
+
     def send_status(self) -> None:
+        self._flush_exe()
         self._send(rlp.sta(self.state, self.last_rx, self.last_exec, self.slots - len(self.queue), self.pos))
 
     # -- execution --------------------------------------------------------------------------------
@@ -201,7 +208,7 @@ class RobotSim:
             self._log.write(json.dumps({"seq": m.seq, "verb": m.verb, "target": [round(v, 3) for v in self.pos],
                                         "t": round(t, 4)}) + "\n")
             self._log_dirty = True
-        self._send(rlp.exe(m.seq))
+        self._exe_due = m.seq  # EXE is cumulative: one per executor tick keeps the return line free
         if not self.queue:
             self.underruns += 1
 
@@ -219,6 +226,7 @@ class RobotSim:
                 self.waiting = True
                 break
             if m.verb == "MARK":
+                self._flush_exe()
                 self._send(f"MRK {m.mark}")
                 self._finish(m, t)
                 continue
@@ -257,6 +265,7 @@ class RobotSim:
             now = self.clock.now()
             if was:
                 self.advance(last, now)
+                self._flush_exe()
             was = self._runnable()
             last = now
             if self._log_dirty and self._log is not None:
