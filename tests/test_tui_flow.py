@@ -46,6 +46,7 @@ async def press(pilot, *keys: str) -> None:  # type: ignore[no-untyped-def]
 
 
 async def click(pilot, selector: str) -> None:  # type: ignore[no-untyped-def]
+    await until(pilot, lambda: bool(pilot.app.screen.query(selector)), 5, f"{selector} on screen")
     pilot.app.screen.query_one(selector, Button).press()
     await pilot.pause(0.05)
 
@@ -79,7 +80,8 @@ async def test_main_flow_against_the_simulators(tmp_path: Path) -> None:
 
             # Open the demo part (the dialog offers it) and plan it: progress, then the job is open.
             await press(pilot, "o")
-            await until(pilot, lambda: isinstance(app.screen, OpenDialog), 5, "the open dialog")
+            await until(pilot, lambda: isinstance(app.screen, OpenDialog) and app.screen.query("#open-path"), 5,
+                        "the open dialog")
             assert app.screen.query_one("#open-path").value.endswith("square-hole.stl")
             await press(pilot, "enter")
             await until(pilot, lambda: app.view.plan.state == "loaded", 5, "the part to load")
@@ -154,7 +156,8 @@ async def test_quit_during_a_build_asks_and_stops_the_arc(tmp_path: Path) -> Non
     async with app.run_test(size=SIZE) as pilot:
         await until(pilot, lambda: state(app) == "idle", 30, "the simulators to connect")
         await press(pilot, "o")
-        await until(pilot, lambda: isinstance(app.screen, OpenDialog), 5, "the open dialog")
+        await until(pilot, lambda: isinstance(app.screen, OpenDialog) and app.screen.query("#open-path"), 5,
+                    "the open dialog")
         app.screen.query_one("#open-path").value = str(job_file)
         await click(pilot, "#open-ok")
         await until(pilot, lambda: state(app) == "ready", 15, "the job to open")

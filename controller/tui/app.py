@@ -140,6 +140,8 @@ class CellApp(App[int]):
     """
     BINDINGS = [
         *(Binding(k, f"cmd('{c}')", label) for k, (c, label) in COMMAND_KEYS.items()),
+        # The software E-stop also from a text field or a dialog, where `e` is typed as a letter.
+        Binding("ctrl+e", "cmd('estop')", "E-STOP", show=False, priority=True),
         Binding("q", "quit_safe", "Quit"),
         Binding("ctrl+c", "quit_safe", "Quit", show=False, priority=True),
         *(Binding(f"f{i + 1}", f"tab('{tid}')", title, show=False) for i, (tid, title) in enumerate(TABS)),

@@ -79,7 +79,9 @@ class BuildPane(Vertical):
             f"  job {s.job_name or '—'}  arc starts {s.arc_starts}{where}{msg}")
         self._bar("passes", s.passes_done, s.passes_total)
         self._bar("layers", s.layers_done, s.layers_total)
-        in_layer = s.pass_ or 0 if s.layer is not None else 0
+        in_layer = (s.pass_ or 0) if s.layer is not None else 0
+        if s.state == "complete":
+            in_layer = s.passes_in_layer
         self._bar("layer", in_layer, s.passes_in_layer)
         hist = v.history
         self.query_one("#trend-current", Trend).show(s.current_a, [h.current_a for h in hist])
