@@ -59,6 +59,7 @@ class CellController:
         self.runner: BuildRunner | None = None
         self.alignment: Any = None
         self.arc: Any = None
+        self.last_result: BuildResult | None = None
         self.machine.subscribe(self._on_transition)
         self._publish_state()
 
@@ -137,6 +138,20 @@ class CellController:
             out.append(LinkStat(device=name, url=str(getattr(dev, "url", "")), connected=True))
         return tuple(out)
 
+    async def disconnect(self) -> None:
+        """Drop every start bit and close the devices (the journal stays open for the report)."""
+        if self.interlocks is not None:
+            self.interlocks.disarm()
+        if self.devices is not None:
+            try:
+                self.devices.power.drop_all()
+            except Exception:
+                pass
+            await self.devices.close()
+            self.devices = None
+        if self.machine.can("disconnect"):
+            self.machine.send("disconnect")
+
     async def close(self) -> None:
         if self.interlocks is not None:
             self.interlocks.disarm()
@@ -166,7 +181,7 @@ class CellController:
         self.run_dir = Path(run_dir) if run_dir else run_dir_for(job, self.runs_dir)
         if self.journal is not None:
             self.journal.close()
-        self.journal = Journal(self.run_dir / "journal.sqlite")
+        self.journal = Journal(self.run_dir / "journal.sqlite", background=True)
         self.journal.start_job(job_hash(job), job_name(job), self.cfg.cell.platform, canonical_json(job))
         if self.interlocks is not None:
             self.interlocks.journal = self.journal
@@ -204,6 +219,8 @@ class CellController:
         assert self.devices is not None and self.interlocks is not None
         work = remaining_work(self.job, self.journal)
         self.journal.event("info", f"run {self.journal.run}: {len(work)} passes to deposit")
+        self.journal.event("run", json.dumps({"run": self.journal.run, "time_scale": self.options.time_scale,
+                                              "passes_left": len(work)}))
         self.runner = BuildRunner(job=self.job, journal=self.journal, machine=self.machine, bus=self.bus,
                                   executor=self.executor, power=self.devices.power, cellio=self.devices.cellio,
                                   options=self.options, arc=self.arc)
@@ -211,13 +228,14 @@ class CellController:
         task = asyncio.get_running_loop().create_task(self.runner.run(work))
         self.interlocks.build_task = task
         try:
-            return await task
+            self.last_result = await task
         except CellError as exc:  # a device refused during the build: latch a fault with it
             self.interlocks.trip("fault", str(exc))
-            return self.runner._result()
+            self.last_result = self.runner._result()
         finally:
             self.interlocks.build_task = None
             self._publish_state()
+        return self.last_result
 
     def write_report(self, plots: bool = True) -> Path:
         """report.json (+ PNGs) in the run directory, from the journal."""
@@ -225,7 +243,8 @@ class CellController:
 
         if self.journal is None or self.run_dir is None:
             raise CellError("no job is open: nothing to report")
-        return write_report(self.journal, self.run_dir, self.job, plots=plots)
+        state = self.last_result.state if self.last_result is not None else None
+        return write_report(self.journal, self.run_dir, self.job, plots=plots, state=state)
 
     def pause(self) -> None:
         if self.runner is None or not self.machine.state.running:

@@ -14,9 +14,12 @@ from controller.journal import Journal
 ALARM_KINDS = ("alarm",)
 
 
-def summarize(journal: Journal, job: dict | None = None) -> dict[str, Any]:
-    """The build's summary as a JSON-ready dict."""
+def summarize(journal: Journal, job: dict | None = None, state: str | None = None) -> dict[str, Any]:
+    """The build's summary as a JSON-ready dict (times in process seconds)."""
     meta = journal.job() or {}
+    scale = 1.0
+    for (msg,) in journal.query("SELECT message FROM events WHERE kind='run' ORDER BY id DESC LIMIT 1"):
+        scale = float(json.loads(msg).get("time_scale", 1.0))
     layers_total = len(job["layers"]) if job else None
     passes_total = sum(len(la["passes"]) for la in job["layers"]) if job else None
     done = {(la, pa) for la, pa, st in journal.query(
@@ -36,7 +39,7 @@ def summarize(journal: Journal, job: dict | None = None) -> dict[str, Any]:
     per_layer: dict[int, dict[str, float]] = {}
     for layer, _p, _r, on, off, length, _i, _u, _w, hi, _int in beads:
         d = per_layer.setdefault(layer, {"arc_time_s": 0.0, "heat_j": 0.0, "length_mm": 0.0})
-        d["arc_time_s"] += max(0.0, off - on)
+        d["arc_time_s"] += max(0.0, off - on) * scale
         d["length_mm"] += length
         d["heat_j"] += (hi or 0.0) * length
     alarms = [
@@ -46,7 +49,9 @@ def summarize(journal: Journal, job: dict | None = None) -> dict[str, Any]:
             "SELECT t, message, state, layer, pass, x, y, z, run FROM events WHERE kind='alarm' ORDER BY id")
     ]
     defects = [a for a in alarms if a["position"] is not None]
-    state_row = journal.query("SELECT state FROM events WHERE kind='transition' ORDER BY id DESC LIMIT 1")
+    state_row = [(state,)] if state else journal.query(
+        "SELECT state FROM events WHERE kind='transition' AND state NOT IN ('disconnected', 'idle')"
+        " ORDER BY id DESC LIMIT 1")
     runs = journal.query("SELECT count(DISTINCT run) FROM events")[0][0]
     arc_starts = journal.query("SELECT count(*) FROM passes WHERE state='arc_on'")[0][0]
     return {
@@ -58,6 +63,7 @@ def summarize(journal: Journal, job: dict | None = None) -> dict[str, Any]:
         "passes_done": len(done),
         "arc_starts": arc_starts,
         "runs": runs,
+        "time_scale": scale,
         "arc_time_s": round(sum(d["arc_time_s"] for d in per_layer.values()), 3),
         "deposit_length_mm": round(sum(d["length_mm"] for d in per_layer.values()), 2),
         "per_layer": [
@@ -70,11 +76,12 @@ def summarize(journal: Journal, job: dict | None = None) -> dict[str, Any]:
     }
 
 
-def write_report(journal: Journal, out_dir: str | Path, job: dict | None = None, plots: bool = True) -> Path:
+def write_report(journal: Journal, out_dir: str | Path, job: dict | None = None, plots: bool = True,
+                 state: str | None = None) -> Path:
     """Write report.json (and the PNGs) into `out_dir`; returns the path of report.json."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    summary = summarize(journal, job)
+    summary = summarize(journal, job, state)
     pngs = _plots(journal, out, job, summary) if plots else []
     summary["plots"] = [p.name for p in pngs]
     path = out / "report.json"
@@ -103,7 +110,8 @@ def _plots(journal: Journal, out: Path, job: dict | None, summary: dict) -> list
 
     rows = journal.query("SELECT t, current_a, voltage_v, wfs_m_min, temperature_c FROM samples ORDER BY t")
     t0 = rows[0][0] if rows else 0.0
-    t = [r[0] - t0 for r in rows]
+    scale = summary.get("time_scale") or 1.0
+    t = [(r[0] - t0) * scale for r in rows]  # process time
     fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
     ax[0].plot(t, [r[1] for r in rows], lw=0.6, color="tab:orange")
     ax[0].set_ylabel("current [A]")

@@ -83,3 +83,18 @@ def test_pass_progress_replays_the_append_only_rows(tmp_path: Path) -> None:
         j2.start_job("other", "part", "robot", "{}")
     assert j2.query("PRAGMA journal_mode") == [("wal",)]
     assert j2.query("PRAGMA synchronous") == [(2,)]  # FULL
+
+
+def test_background_writer_commits_in_order_and_reads_see_every_write(tmp_path: Path) -> None:
+    j = Journal(tmp_path / "j.sqlite", background=True)
+    j.start_job("h", "part", "robot", "{}")
+    j.pass_state(0, 0, "started")
+    for i in range(500):
+        j.progress(i + 1, 0, 0, i + 1)
+    j.pass_state(0, 0, "done")
+    # a read waits for the queued writes: the replay sees the last one
+    prog = j.pass_progress()
+    assert prog[(0, 0)].state == "done" and prog[(0, 0)].done_idx == 500
+    assert [r[0] for r in j.query("SELECT ticket FROM progress ORDER BY id")] == list(range(1, 501))
+    j.close()
+    assert Journal(tmp_path / "j.sqlite").query("SELECT count(*) FROM progress") == [(500,)]
