@@ -163,8 +163,8 @@ async def test_quit_during_a_build_asks_and_stops_the_arc(tmp_path: Path) -> Non
         await until(pilot, lambda: state(app) == "ready", 15, "the job to open")
         await press(pilot, "s")
         await until(pilot, lambda: state(app) == "running_depositing", 20, "an arc")
-        # Quit asks first; "Stay" leaves the build running.
-        await press(pilot, "q")
+        # Quit (Textual's Ctrl+Q as well as q) asks first; "Stay" leaves the build running.
+        await press(pilot, "ctrl+q")
         await until(pilot, lambda: isinstance(app.screen, ConfirmQuit), 5, "the confirmation")
         await click(pilot, "#quit-no")
         await pilot.pause(0.3)

@@ -302,6 +302,10 @@ class CellApp(App[int]):
         self.tick()
 
     # -- quitting -------------------------------------------------------------------------------
+    async def action_quit(self) -> None:
+        """Textual's own quit (Ctrl+Q, the command palette) asks first too during a build."""
+        self.action_quit_safe()
+
     def action_quit_safe(self) -> None:
         if self._quitting:
             return
