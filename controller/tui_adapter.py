@@ -137,10 +137,10 @@ class View:
 
     def allowed(self, command: str) -> bool:
         """Whether a command may be sent now (the controller's allowed_commands, plus UI steps)."""
-        if command == "plan":
+        if command == "plan":  # planning needs no cell; the job opens when the devices answer
             return self.plan.state in ("loaded", "error", "done") and self.plan.file is not None \
                 and self.plan.file.lower().endswith((".stl", ".obj", ".3mf")) and self.busy is None \
-                and "open_job" in self.snap.allowed_commands
+                and (self.snap.state == "disconnected" or "open_job" in self.snap.allowed_commands)
         if command == "apply_alignment":
             return self.alignment is not None and self.job is not None and "open_job" in self.snap.allowed_commands
         if command == "connect":  # (re)connect: at start, or after a link loss latched a fault
@@ -355,6 +355,7 @@ class CellSession:
         """Start the controller thread (and the simulators with --sim), then connect."""
         # Three busy threads share one GIL here (UI, controller, simulators): hand it over
         # every 2 ms rather than 5 so a device reply waits less behind a screen redraw.
+        self._switch_interval = sys.getswitchinterval()
         sys.setswitchinterval(0.002)
         import planner.job  # noqa: F401  (open_job imports it: not on the controller's loop)
 
@@ -416,6 +417,9 @@ class CellSession:
         self._thread.join(timeout)
         if self.harness is not None:
             self.harness.stop()
+        # leave the process as it was (tests run many sessions in one process)
+        sys.setswitchinterval(getattr(self, "_switch_interval", sys.getswitchinterval()))
+        gc.unfreeze()
 
     # -- snapshots ------------------------------------------------------------------------------
     def _on_snapshot(self, s: Snapshot) -> None:

@@ -1,6 +1,7 @@
-"""The UI keeps up with 100 Hz telemetry: it shows the latest value, redraws at its own rate, no backlog.
+"""The UI with no device answering: it keeps up with 100 Hz telemetry, and it plans offline.
 
-The controller's real event bus is fed from another thread at 100 Hz for 3 s, as the power
+100 Hz: the UI shows the latest value and redraws at its own rate, with no backlog. The
+controller's real event bus is fed from another thread at 100 Hz for 3 s, as the power
 source's cycle does during a weld. The devices are unreachable (port 1), which is also the
 "no link" case: the UI stays up and says which device does not answer.
 """
@@ -86,5 +87,37 @@ async def test_100_hz_telemetry_shows_the_latest_value_without_backlog(tmp_path)
             assert final >= RATE_HZ * SECONDS * 0.5           # the publisher really ran near 100 Hz
             # While it ran, the value on screen was never more than ~0.5 s (50 events) behind.
             assert lags and max(lags) <= 50, lags
+    finally:
+        session.close()
+
+
+async def test_planning_error_is_shown_and_a_job_waits_for_the_cell(tmp_path) -> None:
+    """Planning runs without a connected cell; a bad width shows the planner's message, then a
+    good plan is kept until the devices answer (no crash, nothing sent)."""
+    session = CellSession(_dead_cfg(), runs_dir=tmp_path)
+    app = CellApp(session)
+    try:
+        async with app.run_test(size=(120, 36)) as pilot:
+            while session.busy_connecting() or app.view.busy:
+                await pilot.pause(0.1)
+            session.choose_file(app.default_part, 0.5).result(5)     # a 0.5 mm bead: outside the envelope
+            await pilot.pause(0.2)
+            assert app.view.allowed("plan")                           # planning needs no cell
+            app.send("plan")
+            t0 = time.monotonic()
+            while app.view.plan.state != "error" and time.monotonic() - t0 < 60:
+                await pilot.pause(0.1)
+            await pilot.pause(0.2)
+            head = str(app.query_one("#job-file").render())
+            assert "Planning failed" in head and "0.5" in head, head
+            assert app.view.snap.state == "disconnected" and app.view.job is None
+            session.choose_file(app.default_part, 7.0).result(5)
+            app.send("plan")
+            t0 = time.monotonic()
+            while app.view.plan.state != "done" and time.monotonic() - t0 < 60:
+                await pilot.pause(0.1)
+            await pilot.pause(0.2)
+            assert app.view.job is not None and app.view.job.layers > 10
+            assert app.view.snap.state == "disconnected" and app.view.snap.job_name is None  # kept, not sent
     finally:
         session.close()
