@@ -365,6 +365,10 @@ class CellSession:
 
     def connect(self) -> concurrent.futures.Future:
         """(Re)connect every device of cell.yaml; a failure is shown, never raised into the UI."""
+        if self.build_active():  # never drop the devices under a running build
+            fut: concurrent.futures.Future = concurrent.futures.Future()
+            fut.set_exception(CellError(f"'connect' is not allowed in state {self._snap.state}: a build is running"))
+            return fut
         self._busy = "connecting"
 
         async def _do() -> None:

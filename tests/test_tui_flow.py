@@ -115,6 +115,13 @@ async def test_main_flow_against_the_simulators(tmp_path: Path) -> None:
             banner = str(app.query_one("#build-state").render())
             assert "PAUSED" in banner
             done_at_pause = app.view.snap.passes_done
+            # Keys of steps that do not apply now are refused too, never acted on (no reconnect
+            # under a build, no other job).
+            await press(pilot, "c")
+            await until(pilot, lambda: "'connect' is not allowed in state paused" in app.last_message, 5, "refusal")
+            await press(pilot, "o")
+            await until(pilot, lambda: "'open' is not allowed in state paused" in app.last_message, 5, "refusal")
+            assert not isinstance(app.screen, OpenDialog) and state(app) == "paused"
             await press(pilot, "r")
             await until(pilot, lambda: state(app).startswith("running_"), 10, "the resume")
             await until(pilot, lambda: app.view.snap.passes_done > done_at_pause, 30, "a bead after the resume")

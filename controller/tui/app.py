@@ -35,7 +35,8 @@ COMMAND_KEYS = {
     "s": ("start", "Start"), "p": ("pause", "Pause"), "r": ("resume", "Resume"), "a": ("abort", "Abort"),
     "x": ("reset", "Reset fault"), "e": ("estop", "E-STOP"), "c": ("connect", "Connect"),
 }
-HIDDEN_WHEN_OFF = {"connect", "apply_alignment"}   # not dimmed but hidden when they do not apply
+HIDDEN_WHEN_OFF = {"connect", "apply_alignment"}
+UI_STEPS = {"open", "plan", "connect", "apply_alignment"}   # steps of the UI, not controller commands   # not dimmed but hidden when they do not apply
 
 
 def _display_path(p: Path) -> str:
@@ -254,6 +255,12 @@ class CellApp(App[int]):
     def send(self, name: str) -> None:
         """Send a command; the controller's refusal (or the outcome) shows on the message line."""
         s = self.session
+        if name in UI_STEPS and not self.view.allowed(name):
+            # not a controller command: refused here, in the controller's words
+            allowed = ", ".join(self.view.snap.allowed_commands) or "none"
+            self.say(f"{name} refused: '{name}' is not allowed in state {self.view.snap.state} "
+                     f"(allowed now: {allowed})", error=True)
+            return
         try:
             if name == "open":
                 self.push_screen(OpenDialog(_display_path(self.default_part), self.default_width), self._opened)
