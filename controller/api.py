@@ -234,6 +234,7 @@ class CellController:
             self.last_result = self.runner._result()
         finally:
             self.interlocks.build_task = None
+            await self.interlocks.settle()
             self._publish_state()
         return self.last_result
 

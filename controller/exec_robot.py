@@ -105,6 +105,11 @@ class RobotExecutor:
         """Write `!HOLD` at once (control frames bypass the queue)."""
         _fire(self.link.hold())
 
+    async def held_position(self) -> Point:
+        """Where motion stopped: waits for the robot to confirm HOLD (idempotent) and reads it."""
+        st = await self.link.hold()
+        return tuple(st.pos)
+
     async def position(self) -> Point | None:
         st = await self.link.status()
         return tuple(st.pos)

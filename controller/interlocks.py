@@ -49,6 +49,7 @@ class Interlocks:
         self.trips: list[TripRecord] = []
         self.on_trip: list[Callable[[TripRecord], None]] = []
         self._unsub: list[Callable[[], None]] = []
+        self.pending: set[asyncio.Task] = set()
         self._loop: asyncio.AbstractEventLoop | None = None
 
     def arm(self) -> None:
@@ -123,14 +124,21 @@ class Interlocks:
         if self.build_task is not None and not self.build_task.done():
             self.build_task.cancel()
         if self._loop is not None:
-            self._loop.create_task(self._record(rec))
+            task = self._loop.create_task(self._record(rec))
+            self.pending.add(task)
+            task.add_done_callback(self.pending.discard)
         for fn in self.on_trip:
             fn(rec)
         return rec
 
+    async def settle(self, timeout: float = 3.0) -> None:
+        """Wait until every trip is journaled with its position."""
+        if self.pending:
+            await asyncio.wait(list(self.pending), timeout=timeout)
+
     async def _record(self, rec: TripRecord) -> None:
         try:
-            pos = await asyncio.wait_for(self.ex.position(), 2.0)
+            pos = await asyncio.wait_for(self.ex.held_position(), 2.0)
         except Exception:
             pos = None
         rec.position = tuple(pos) if pos is not None else None
