@@ -7,7 +7,7 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widgets import DataTable, Label, ProgressBar, Static
 
-from controller.tui.widgets import LayerPreview, Trend, fmt
+from controller.tui.widgets import LayerPreview, Trend
 from controller.tui_adapter import View
 
 STATE_STYLE = {"running": "bold black on green", "paused": "bold black on yellow", "fault": "bold white on red",

@@ -7,7 +7,6 @@ from typing import Sequence
 from rich.text import Text
 from textual.app import ComposeResult
 from textual.containers import Horizontal
-from textual.widget import Widget
 from textual.widgets import Label, Sparkline, Static
 
 ROLE_STYLE = {"perimeter": "bright_cyan", "infill": "yellow", "gap": "magenta"}
