@@ -25,11 +25,15 @@ class Coverage:
     excess_mm: float
     samples: int
     uncovered: list[tuple[float, float, float]]
+    overlaps_mm: list[float]      # lengths of the stretches deposited more than once
+
 
     def as_dict(self) -> dict:
         return {"planned_mm": round(self.planned_mm, 2), "deposited_mm": round(self.deposited_mm, 2),
                 "missing_mm": round(self.missing_mm, 3), "excess_mm": round(self.excess_mm, 3),
-                "samples": self.samples, "uncovered_first": self.uncovered[:5]}
+                "samples": self.samples, "uncovered_first": self.uncovered[:5],
+                "overlaps": len(self.overlaps_mm),
+                "max_overlap_mm": round(max(self.overlaps_mm, default=0.0), 3)}
 
 
 def read_segments(path: str | Path) -> list[dict]:
@@ -60,7 +64,9 @@ def coverage(passes: Iterable[Sequence[Sequence[float]]], segments: list[dict], 
     missing = 0.0
     n = 0
     uncovered: list[tuple[float, float, float]] = []
+    overlaps: list[float] = []
     for pts in passes:
+        run = 0.0  # length of the current stretch covered twice or more
         P = np.asarray(pts, float)[:, :3]
         for i in range(len(P) - 1):
             a, b = P[i], P[i + 1]
@@ -73,6 +79,9 @@ def coverage(passes: Iterable[Sequence[Sequence[float]]], segments: list[dict], 
             if not idx:
                 missing += L
                 n += 1
+                if run > 0:
+                    overlaps.append(run)
+                    run = 0.0
                 continue
             A, B = seg_a[idx], seg_b[idx]
             D = B - A
@@ -88,11 +97,24 @@ def coverage(passes: Iterable[Sequence[Sequence[float]]], segments: list[dict], 
                 w = s - A
                 tt = np.clip(np.einsum("ij,ij->i", w, D) / np.maximum(Ls ** 2, 1e-12), 0, 1)
                 dist = np.linalg.norm(A + tt[:, None] * D - s, axis=1)
-                if not np.any((dist < tol) & par):
+                near = (dist < tol) & par
+                hits = int(np.count_nonzero(near))
+                # two segments meeting at the sample (one move ending, the next starting) are not
+                # a double deposit: count only those that run past it by more than `tol`
+                inner = int(np.count_nonzero(near & (tt * Ls > tol) & ((1 - tt) * Ls > tol)))
+                hits = min(hits, 1) if inner + (hits - inner) / 2 < 2 else 2  # multiplicity of the deposit
+                if hits == 0:
                     missing += L / m
                     if len(uncovered) < 50:
                         uncovered.append(tuple(round(float(v), 3) for v in s))
-    return Coverage(planned, deposited, missing, max(0.0, deposited - (planned - missing)), n, uncovered)
+                if hits >= 2:
+                    run += L / m
+                elif run > 0:
+                    overlaps.append(run)
+                    run = 0.0
+        if run > 0:
+            overlaps.append(run)
+    return Coverage(planned, deposited, missing, max(0.0, deposited - (planned - missing)), n, uncovered, overlaps)
 
 
 def exec_log_duplicates(path: str | Path) -> int:

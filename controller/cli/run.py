@@ -250,7 +250,10 @@ async def _drive(ctl: Any, job: dict, run_dir: Path | None, session: SimSession,
         ctl.open_job(job, run_dir)
         ctl.subscribe(Progress(say))
         if resume:
-            ctl.journal.event("info", "cell resume: reconnected, continuing from the journal")
+            # `cell resume` is the operator's explicit reset: clear what the crash latched on the
+            # power source (its watchdog) and flush what the robot still holds queued
+            await ctl.arc.reset()
+            ctl.journal.event("info", "cell resume: reconnected, reset, continuing from the journal")
             if ctl.devices.robot is not None:
                 st = ctl.devices.robot.last_status
                 ctl.journal.event("info", f"robot: last executed seq {st.last_exec} (ticket {st.last_exec_ticket}), "
