@@ -26,6 +26,7 @@ class RobotExecutor:
         self._all_sent = False
         self.starved = 0                        # queue ran empty inside a bead
         self.exec_count = 0
+        self.min_ahead: int | None = None       # fewest weld moves queued ahead at an EXE inside a bead
         self._lost_cbs: list[Callable[[Any], None]] = []
         self._subscribe()
 
@@ -53,6 +54,9 @@ class RobotExecutor:
             return
         if self._on_exec is not None:
             self._on_exec(ticket, idx)
+        if not self._all_sent and self._sent_last is not None:
+            ahead = self._sent_last - ticket
+            self.min_ahead = ahead if self.min_ahead is None else min(self.min_ahead, ahead)
         # the queue is empty inside a bead when the move just executed was the last one sent
         if ticket == self._sent_last and not self._all_sent:
             self.starved += 1

@@ -1,0 +1,116 @@
+"""Controller overhead: does it keep a robot's queue full with 1 mm moves at 1,500 mm/min on a
+115200-baud link? Runs single long beads against `cell sim up` (a separate process, as real
+hardware would be) at increasing time scales (1 = the real case; higher scales shorten the
+moves in wall time until the link or the controller cannot keep up) and reports, per scale:
+queue-empty events inside a bead, the fewest moves queued ahead, the controller's CPU per
+move, and the wall time per move against the 40 ms a move lasts at scale 1.
+
+    .venv/bin/python -m bench.controller_overhead [--quick]
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+SPEED = 1500.0   # mm/min
+STEP = 1.0       # mm per move
+
+
+def zigzag_job(length_mm: float) -> dict:
+    """One layer, one bead: a zigzag of 50 mm legs, `length_mm` long."""
+    pts, y, x = [[0.0, 0.0, 1.0]], 0.0, 0.0
+    while len(pts) * 50 < length_mm:
+        x = 50.0 - x
+        pts.append([x, y, 1.0])
+        y += 4.0
+        pts.append([x, y, 1.0])
+    return {"schema": "cell-job/1", "source": {"file": "zigzag.stl", "sha256": "0" * 64, "units": "mm"},
+            "material": {"name": "inconel718-1.0mm"},
+            "bead": {"width_mm": 5, "height_mm": 1, "step_over_mm": 3.7, "model": "tangent"},
+            "layers": [{"index": 0, "z_mm": 1.0, "height_mm": 1.0, "passes": [
+                {"role": "infill", "width_mm": 5, "current_a": 120, "speed_mm_min": SPEED, "wfs_m_min": 5.5,
+                 "points": pts}]}], "summary": {}}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+async def one(cfgp: Path, scale: float, length: float, runs: Path) -> dict:
+    from controller.api import CellController
+    from controller.build import BuildOptions
+    from controller.config import load_cell
+
+    cfg = load_cell(cfgp)
+    cfg = cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"time_scale": scale})})
+    ctl = CellController(cfg, runs_dir=runs)
+    ctl.options = BuildOptions(**{**ctl.options.__dict__, "max_step_mm": STEP})
+    await ctl.connect()
+    job = zigzag_job(length)
+    job["source"]["file"] = f"zigzag-x{scale:g}.stl"
+    ctl.open_job(job)
+    cpu0, t0 = time.process_time(), time.monotonic()
+    res = await ctl.start()
+    cpu, wall = time.process_time() - cpu0, time.monotonic() - t0
+    ex = ctl.executor
+    moves = ex.exec_count
+    stats = ctl.devices.robot.stats
+    await ctl.close()
+    return {"time_scale": scale, "state": res.state, "moves": moves,
+            "move_wall_ms": round(STEP / (SPEED / 60.0) / scale * 1000, 2),
+            "queue_empty_in_bead": ex.starved, "min_moves_ahead": ex.min_ahead,
+            "controller_cpu_ms_per_move": round(cpu / max(moves, 1) * 1000, 3),
+            "wall_s": round(wall, 2), "naks": getattr(stats, "naks", None)}
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="bench.controller_overhead")
+    ap.add_argument("--quick", action="store_true", help="scale 1 and 4 only, short beads")
+    a = ap.parse_args(argv)
+    scales = [1.0, 4.0] if a.quick else [1.0, 2.0, 4.0, 8.0, 16.0]
+    work = Path(tempfile.mkdtemp(prefix="overhead-"))
+    cfg = yaml.safe_load((ROOT / "config" / "cell.yaml").read_text())
+    for dev, scheme in (("robot", "socket"), ("cnc", "socket"), ("power_source", "tcp"), ("cellio", "tcp")):
+        cfg["devices"][dev]["url"] = f"{scheme}://127.0.0.1:{_free_port()}"
+    ok = True
+    for scale in scales:
+        cfg["cell"]["time_scale"] = scale
+        cfgp = work / f"cell-{scale:g}.yaml"
+        cfgp.write_text(yaml.safe_dump(cfg))
+        sim = subprocess.Popen([sys.executable, "-m", "controller.cli.main", "sim", "up", "--cell-config", str(cfgp)],
+                               cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=subprocess.PIPE,
+                               stderr=subprocess.DEVNULL, text=True, start_new_session=True)
+        try:
+            for _ in range(4):
+                sim.stdout.readline()
+            # ~12 s of bead at every scale (longer in wall time at low scales is not needed)
+            length = (150.0 if a.quick else 300.0) * min(scale, 4.0)
+            fig = asyncio.run(one(cfgp, scale, length, work / "runs"))
+        finally:
+            os.killpg(sim.pid, signal.SIGINT)
+            sim.wait(10)
+        print(json.dumps(fig), flush=True)
+        if scale == 1.0:
+            ok = fig["state"] == "complete" and fig["queue_empty_in_bead"] == 0
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

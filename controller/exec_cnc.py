@@ -1,0 +1,116 @@
+"""CNC executor (grbl 1.1, DESIGN.md §5): the robot's sequence with `G4 P0` sync points and M3/M5.
+
+Per pass: `G0` above the start and down to it, `G4 P0` (grbl answers `ok` only once motion has
+stopped: the torch is at the start); arc start handshake on the power source; then `M3 S…`,
+the `G1` weld moves streamed with character counting, `M5`, and the stream's closing `G4 P0`
+marks the last weld move executed. grbl reports no per-line execution, so progress comes from
+the status reports (≤ 5 Hz): a point counts as reached once the machine position lies on a
+later segment of the bead — conservative, so a resumed bead re-arcs at or before the point
+where it stopped (the overlap is bounded by one status period of motion, not by one move).
+"""
+from __future__ import annotations
+
+import asyncio
+import math
+from typing import Any, Callable
+
+Point = tuple[float, float, float]
+
+
+def _f(v: float) -> str:
+    return f"{v:.3f}"
+
+
+class CncExecutor:
+    platform = "cnc"
+
+    def __init__(self, link: Any, power: Any = None, spindle_s: int = 1000) -> None:
+        self.link = link
+        self.power = power
+        self.spindle_s = spindle_s
+        self._release = asyncio.Event()
+        self.starved = 0
+        self.exec_count = 0
+        self.min_ahead: int | None = None
+        self._lost_cbs: list[Callable[[Any], None]] = []
+
+    def on_link_lost(self, fn: Callable[[Any], None]) -> None:
+        self._lost_cbs.append(fn)
+
+    async def prepare(self) -> None:
+        st = await self.link.status()
+        if str(getattr(st, "state", "Idle")).startswith("Alarm"):
+            await self.link.unlock()
+        elif str(getattr(st, "state", "Idle")).startswith("Hold"):
+            await self.link.soft_reset()
+        await self.link.command("G90 G21 G94")
+
+    async def approach(self, p: Point, clearance: float, speed: float) -> None:
+        await self.link.stream([f"G0 Z{_f(p[2] + clearance)}", f"G0 X{_f(p[0])} Y{_f(p[1])}",
+                                f"G1 Z{_f(p[2])} F{speed:.0f}"])  # ends with G4 P0: at the start
+
+    def queue_weld(self, pts: list[Point], i0: int, speed: float,
+                   on_exec: Callable[[int, int], None]) -> "asyncio.Task[int]":
+        self._release = asyncio.Event()
+        lines = [f"M3 S{self.spindle_s}"]
+        lines += [f"G1 X{_f(p[0])} Y{_f(p[1])} Z{_f(p[2])} F{speed:.0f}" for p in pts[i0 + 1:]]
+        lines.append("M5")
+
+        async def run() -> int:
+            await self._release.wait()
+            poll = asyncio.get_running_loop().create_task(self._track(pts, i0, on_exec))
+            try:
+                await self.link.stream(lines)
+            finally:
+                poll.cancel()
+            last = len(pts) - 1
+            on_exec(last, last)
+            self.exec_count += len(lines)
+            return last
+
+        return asyncio.get_running_loop().create_task(run())
+
+    async def _track(self, pts: list[Point], i0: int, on_exec: Callable[[int, int], None]) -> None:
+        """Progress from the status reports: the points the position has passed."""
+        k = i0
+        while True:
+            st = await self.link.status()
+            pos = tuple(float(v) for v in st.mpos[:3])
+            for j in range(k, min(k + 200, len(pts) - 1)):
+                if _on_segment(pos, pts[j], pts[j + 1]):
+                    if j > k:
+                        k = j
+                        on_exec(j, j)
+                    break
+
+    async def at_start(self) -> None:
+        return None  # approach() returned after its G4 P0: the torch is there
+
+    def release(self) -> None:
+        self._release.set()
+
+    async def weld_done(self, _last: int) -> None:
+        return None  # the stream's closing G4 P0 came back: every weld move has executed
+
+    def hold_now(self) -> None:
+        t = asyncio.get_running_loop().create_task(self.link.feed_hold())
+        t.add_done_callback(lambda f: f.cancelled() or f.exception())
+
+    async def held_position(self) -> Point:
+        st = await self.link.status()
+        return tuple(float(v) for v in st.mpos[:3])
+
+    async def position(self) -> Point | None:
+        return await self.held_position()
+
+
+def _on_segment(p: Point, a: Point, b: Point, tol: float = 0.02) -> bool:
+    ab = [y - x for x, y in zip(a, b)]
+    L2 = sum(v * v for v in ab)
+    if L2 < 1e-12:
+        return math.dist(p, a) < tol
+    t = sum((pv - av) * v for pv, av, v in zip(p, a, ab)) / L2
+    if t < 0 or t > 1:
+        return False
+    q = [av + t * v for av, v in zip(a, ab)]
+    return math.dist(p, q) < tol

@@ -1,0 +1,35 @@
+"""A build on the CNC platform (grbl, G4 P0 sync points, M3/M5) against the simulators."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from bench._coverage import coverage, read_segments
+from controller.api import CellController
+from controller.cell import SimHarness, with_urls
+from controller.config import load_cell, load_sim
+from tests.test_build_robot import SIM_REPLY_TIMEOUT_MS, planned, small_job
+
+
+async def test_cnc_build_deposits_every_planned_segment_once(tmp_path: Path) -> None:
+    cfg = with_urls(load_cell(), {}, time_scale=20)
+    cfg = cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"platform": "cnc"})})
+    harness = SimHarness(cfg, load_sim(), log_dir=tmp_path / "log")
+    cfg = with_urls(cfg, harness.start())
+    ctl = CellController(cfg, runs_dir=tmp_path / "runs")
+    job = small_job(n_layers=2)
+    for la in job["layers"]:  # above the simulated substrate block (20 mm tall)
+        for p in la["passes"]:
+            p["points"] = [[x, y, z + 20.0] for x, y, z in p["points"]]
+    try:
+        await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
+        ctl.open_job(job)
+        res = await ctl.start()
+        progress = ctl.journal.query("SELECT count(*) FROM progress")[0][0]
+    finally:
+        await ctl.close()
+        harness.stop()
+    assert res.state == "complete" and res.passes_done == 4 and res.arc_starts == 4
+    segs = [s for s in read_segments(tmp_path / "log" / "deposit.jsonl") if s["device"] == "cnc"]
+    cov = coverage(planned(job), segs)
+    assert cov.missing_mm < 0.05 and cov.excess_mm < 0.05, cov.as_dict()
+    assert progress >= 4  # points reached were journaled from the status reports
