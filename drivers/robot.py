@@ -263,11 +263,14 @@ class RobotLink:
         await self._drop("closed", notify=False)
 
     async def _drop(self, reason: str, notify: bool = True) -> None:
-        was = self._connected
+        was = self._connected and self._ready  # a failed (re)connect attempt is no new loss
         self._connected = self._ready = False
         self._lost = LinkLost(f"{self.name} at {self.url}: link lost ({reason})")
         self._ctrl.clear()
-        self._notify()  # waiters learn of the loss first; closing the port may take a moment
+        # waiters and listeners learn of the loss first: closing a socket:// port takes 0.3 s
+        self._notify()
+        if was and notify:
+            self._emit("link_lost", text=str(self._lost))
         tasks, self._tasks = self._tasks, []
         cur = asyncio.current_task()
         for t in tasks:
@@ -276,10 +279,8 @@ class RobotLink:
         if self._port is not None:
             port, self._port = self._port, None
             await asyncio.get_running_loop().run_in_executor(None, port.close)
-        if was and notify:
-            self._emit("link_lost", text=str(self._lost))
-            if self.auto_reconnect and not self._closing and self._reconnect_task is None:
-                self._reconnect_task = asyncio.get_running_loop().create_task(self._reconnect())
+        if was and notify and self.auto_reconnect and not self._closing and self._reconnect_task is None:
+            self._reconnect_task = asyncio.get_running_loop().create_task(self._reconnect())
 
     async def _reconnect(self) -> None:
         try:

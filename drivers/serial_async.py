@@ -8,6 +8,7 @@ Errors and a closed peer surface as LinkLost naming the device and URL. Shared b
 from __future__ import annotations
 
 import asyncio
+import select
 import socket
 import threading
 import time
@@ -66,11 +67,30 @@ class SerialPort:
 
     def _reader(self) -> None:
         ser, loop = self._ser, self._loop
+        # pyserial's socket:// reports in_waiting as 0/1 and reads byte by byte: read what is
+        # there straight from the socket, so the loop gets chunks, not thousands of 1-byte items
+        sock = getattr(ser, "_socket", None)
         try:
             while not self._stop.is_set():
-                data = ser.read(max(1, min(ser.in_waiting, 4096)))
-                if data:
+                data = ser.read(1)
+                if not data:
+                    continue
+                if sock is not None:
+                    eof = False
+                    while len(data) < 65536 and select.select([sock], [], [], 0)[0]:
+                        more = sock.recv(65536)
+                        if not more:
+                            eof = True
+                            break
+                        data += more
                     loop.call_soon_threadsafe(self._queue.put_nowait, data)
+                    if eof:
+                        raise serial.SerialException("socket disconnected")
+                    continue
+                n = ser.in_waiting
+                if n:
+                    data += ser.read(n)
+                loop.call_soon_threadsafe(self._queue.put_nowait, data)
         except Exception as exc:  # closed port or peer: report it once, to the reader
             if not self._stop.is_set():
                 try:

@@ -326,3 +326,28 @@ async def test_serial_adapter_on_loop_url_and_a_silent_device():
         await link.connect()
     with pytest.raises(LinkLost, match="cannot open"):
         await RobotLink("socket://127.0.0.1:1", auto_reconnect=False).connect()
+
+
+async def test_unplug_from_the_fault_spec_keeps_the_cable_out_then_resumes(tmp_path):
+    moves = plan(60)
+    async with Cell(tmp_path, spec="seed=2,unplug@t=0.6s,unplug=0.8s", time_scale=1.0) as cell:
+        link = RobotLink(cell.url)
+        times = {}
+        link.on_event(lambda e: times.setdefault(e.kind, time.monotonic()))
+        await link.connect()
+        sent = 0
+        while sent < len(moves):
+            try:
+                await link.send_move(*moves[sent])
+                sent += 1
+            except LinkLost:
+                await link.wait_connected(timeout=10)
+        while True:  # the cable is pulled while the robot works through its queue
+            try:
+                await link.wait_executed(len(moves), timeout=30)
+                break
+            except LinkLost:
+                await link.wait_connected(timeout=10)
+        assert times["link_restored"] - times["link_lost"] >= 0.7  # refused while unplugged
+        await link.close()
+    assert_exactly_once(cell.executed(), moves)
