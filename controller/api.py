@@ -75,7 +75,7 @@ class CellController:
         out = []
         if m.can("open_job"):
             out.append("open_job")
-        if m.can("probe") and self.cfg.cell.platform == "cnc":
+        if m.can("probe"):
             out.append("run_alignment")
         if self.job is not None and (m.can("start") or s is State.IDLE):
             out.append("start")
@@ -191,21 +191,38 @@ class CellController:
                         passes_total=sum(len(la["passes"]) for la in job["layers"]), passes_done=done)
         return self.run_dir
 
-    async def run_alignment(self) -> Any:
+    async def run_alignment(self, plan: Any = None) -> Any:
+        """Probe and align the substrate on the CNC (its touch probe); Probing → Aligned.
+
+        `plan`: the probe plan (default: from the workpiece of config/sim.yaml). On a robot
+        cell the CNC link is opened for the routine and closed after it.
+        """
         if not self.machine.can("probe"):
             raise self._refuse("run_alignment")
         try:
-            from controller.align.routine import run_alignment as routine
+            from controller.align.routine import align, cad_mesh, plan_for_mesh, run_on_url
         except ImportError:
             raise CellError("the alignment routine is not installed (controller/align/routine.py)") from None
+        if plan is None:
+            from controller.config import load_sim
+
+            plan = plan_for_mesh(cad_mesh(load_sim().cnc.workpiece))
         self.machine.send("probe")
         try:
-            self.alignment = await routine(self.devices.cnc, self.cfg)  # type: ignore[union-attr]
+            cnc = self.devices.cnc if self.devices is not None else None
+            if cnc is not None:
+                self.alignment = await align(cnc, self.cfg, plan)
+            else:
+                self.alignment = await run_on_url(self.cfg.devices.cnc.url, self.cfg, plan)
         except BaseException as exc:
             if self.machine.can("fault"):
                 self.machine.send("fault", cause=f"alignment: {exc}")
             raise
         self.machine.send("aligned")
+        if self.journal is not None:
+            a = self.alignment
+            self.journal.event("info", f"aligned: A {a.level_a_deg:.5f}°, B {a.level_b_deg:.5f}°, "
+                                       f"face angle {a.face_angle_deg:.5f}°")
         return self.alignment
 
     async def start(self) -> BuildResult:

@@ -33,3 +33,23 @@ async def test_cnc_build_deposits_every_planned_segment_once(tmp_path: Path) -> 
     cov = coverage(planned(job), segs)
     assert cov.missing_mm < 0.05 and cov.excess_mm < 0.05, cov.as_dict()
     assert progress >= 4  # points reached were journaled from the status reports
+
+
+async def test_run_alignment_through_the_api_finds_the_substrate_pose(tmp_path: Path) -> None:
+    cfg = with_urls(load_cell(), {}, time_scale=60)
+    harness = SimHarness(cfg, load_sim())
+    cfg = with_urls(cfg, harness.start())
+    ctl = CellController(cfg, runs_dir=tmp_path / "runs")
+    try:
+        await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
+        assert "run_alignment" in ctl.allowed_commands() and "start" not in ctl.allowed_commands()
+        res = await ctl.run_alignment()
+        state = ctl.machine.state.value
+        allowed = ctl.allowed_commands()
+    finally:
+        await ctl.close()
+        harness.stop()
+    assert state == "aligned" and "open_job" in allowed
+    # config/sim.yaml: the block is turned 1.5° about z and tilted 0.8° / -0.5°
+    assert abs(abs(res.face_angle_deg) - 1.5) < 0.05
+    assert abs(abs(res.level_a_deg) - 0.8) < 0.05 and abs(abs(res.level_b_deg) - 0.5) < 0.05
