@@ -28,7 +28,7 @@ if str(ROOT) not in sys.path:
 
 from bench._coverage import coverage, exec_log_duplicates, read_segments  # noqa: E402
 
-MAX_STEP_MM = 1.0     # 1 mm weld moves: the re-arc overlap stays within one move + the watchdog
+MAX_STEP_MM = 0.5     # weld moves: the re-arc overlap is one move + (watchdog 100 ms + burn-back) of travel
 
 
 def soak_job(n_layers: int) -> dict:
