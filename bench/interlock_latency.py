@@ -1,0 +1,93 @@
+"""Door opened during a bead: how fast the controller drops weld start and holds motion.
+
+Opens the simulated door at random moments of beads (in-process simulators, real protocols),
+and measures from the cycle that read the input: the trip action (start dropped, `!HOLD`
+written), the first power-source cycle carrying weld start 0, and the HOLD confirmed by the
+robot; then resets and continues the build, N times.
+
+    .venv/bin/python -m bench.interlock_latency [--trials 10] [--quick]
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import random
+import statistics
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from bench.kill_resume import soak_job  # noqa: E402
+
+
+async def run(trials: int, seed: int) -> dict:
+    from controller.api import CellController
+    from controller.cell import SimHarness, with_urls
+    from controller.cli.run import SIM_REPLY_TIMEOUT_MS
+    from controller.config import load_cell, load_sim
+
+    rng = random.Random(seed)
+    work = Path(tempfile.mkdtemp(prefix="interlock-"))
+    cfg = with_urls(load_cell(), {}, time_scale=2.0)
+    harness = SimHarness(cfg, load_sim())
+    cfg = with_urls(cfg, harness.start())
+    ctl = CellController(cfg, runs_dir=work)
+    door = harness.sim("cellio")
+    act, drop, hold = [], [], []
+    statuses: list[tuple[float, bool]] = []
+    try:
+        await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
+        ctl.devices.power.subscribe(lambda st: statuses.append((st.t, st.command.weld_start)))
+        ctl.open_job(soak_job(20))
+        for _ in range(trials):
+            build = asyncio.ensure_future(ctl.start())
+            while ctl.snapshot().state != "running_depositing":
+                await asyncio.sleep(0.002)
+            await asyncio.sleep(rng.uniform(0.1, 1.5))
+            if ctl.snapshot().state != "running_depositing":
+                continue
+            n0 = len(ctl.interlocks.trips)
+            harness.call(door.open_door)
+            res = await build
+            await ctl.interlocks.settle()
+            await asyncio.sleep(0.05)
+            trip = ctl.interlocks.trips[n0]
+            act.append((trip.t_acted - trip.t_detect) * 1000)
+            first_off = next((t for t, ws in statuses if t > trip.t_acted and not ws), None)
+            if first_off is not None:
+                drop.append((first_off - trip.t_detect) * 1000)
+            await ctl.devices.robot.hold()  # confirmed already: returns at once with HOLD
+            hold.append(ctl.devices.robot.last_status.state == "HOLD")
+            assert res.state == "fault", res
+            harness.call(door.close_door)
+            await asyncio.sleep(0.05)
+            await ctl.reset()
+    finally:
+        await ctl.close()
+        harness.stop()
+
+    def stat(xs: list[float]) -> dict:
+        return {"n": len(xs), "median_ms": round(statistics.median(xs), 3), "max_ms": round(max(xs), 3)} if xs else {}
+
+    return {"trials": len(act), "trip_action": stat(act), "weld_start_0_on_the_bus": stat(drop),
+            "robot_held": sum(hold), "within_one_cycle": all(x <= 10.0 for x in act)}
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="bench.interlock_latency")
+    ap.add_argument("--trials", type=int, default=10)
+    ap.add_argument("--seed", type=int, default=3)
+    ap.add_argument("--quick", action="store_true")
+    a = ap.parse_args(argv)
+    fig = asyncio.run(run(3 if a.quick else a.trials, a.seed))
+    print(json.dumps(fig))
+    return 0 if fig["within_one_cycle"] and fig["robot_held"] == fig["trials"] else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
