@@ -153,7 +153,7 @@ class ProgressPrinter:
             temp = f", part {s.temperature_c:.0f} °C" if s.temperature_c is not None else ""
             lines.append(f"layer {s.layer + 1}/{s.layers_total}: {s.passes_done}/{s.passes_total} passes done{temp}")
         for a in s.alarms[self._alarms:]:
-            where = f" (layer {a.layer + 1}, pass {a.pass_ + 1})" if a.layer is not None and a.pass_ is not None else ""
+            where = f" (layer {a.layer}, pass {a.pass_}: job indices)" if a.layer is not None and a.pass_ is not None else ""
             lines.append(f"{a.kind}: {a.message}{where}")
         self._alarms = len(s.alarms)
         for line in lines:

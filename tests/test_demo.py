@@ -34,21 +34,22 @@ def test_demo_plans_aligns_builds_and_reports(tmp_path: Path) -> None:
     assert "layer 2/2" in r.stderr  # progress lines while it runs (on stderr with --json)
 
 
-def test_run_with_an_arc_loss_in_layer_2_then_resume_completes(tmp_path: Path) -> None:
+def test_run_with_an_arc_loss_in_layer_1_then_resume_completes(tmp_path: Path) -> None:
     job = tmp_path / "square.job.json"
     job.write_text(json.dumps(small_job(n_layers=3)))
     cfg = yaml.safe_load((ROOT / "config" / "cell.yaml").read_text())
     cfg["cell"]["time_scale"] = 4.0  # long enough beads for a 0.5 s arc loss to be one
     cfgp = tmp_path / "cell.yaml"
     cfgp.write_text(yaml.safe_dump(cfg))
-    r = cell("run", str(job), "--sim", "--fault", "arc_loss@layer=2", "--json", "--runs", str(tmp_path / "runs"),
+    r = cell("run", str(job), "--sim", "--fault", "arc_loss@layer=1", "--json", "--runs", str(tmp_path / "runs"),
              "--cell-config", str(cfgp))
     assert r.returncode == 1, r.stderr[-2000:]
     out = json.loads(r.stdout)
     assert out["state"] == "fault" and out["layers_done"] == 1
     assert out["alarms"][0]["layer"] == 1 and "arc" in out["alarms"][0]["message"].lower()
     assert out["alarms"][0]["position"][2] == 2.0
-    r = cell("resume", "--sim", "--json", "--runs", str(tmp_path / "runs"), "--cell-config", str(cfgp))
+    # the interrupted build ran with --sim: so does `cell resume` without being told
+    r = cell("resume", "--json", "--runs", str(tmp_path / "runs"), "--cell-config", str(cfgp))
     assert r.returncode == 0, r.stderr[-2000:]
     out2 = json.loads(r.stdout)
     assert out2["state"] == "complete" and out2["layers_done"] == 3 and out2["passes_done"] == 6

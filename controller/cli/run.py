@@ -102,11 +102,12 @@ def split_faults(spec: str | None) -> tuple[str, list[tuple[str, int, float | No
 
 
 async def _scenario(ctl: Any, harness: Any, scen: list[tuple[str, int, float | None]]) -> None:
-    """Inject `name@layer=N` faults in the middle of layer N's first bead (N counts from 1)."""
+    """Inject `name@layer=N` faults in the middle of the first bead of the job's layer index N
+    (the `index` of the job file, as the alarms report it)."""
     for name, layer, dur in scen:
         while True:
             s = ctl.snapshot()
-            if s.layer is not None and s.layer >= layer - 1 and s.state == "running_depositing":
+            if s.layer is not None and s.layer >= layer and s.state == "running_depositing":
                 break
             if s.state in ("complete", "aborted", "fault", "estop"):
                 return
@@ -203,7 +204,11 @@ def _resume(args: argparse.Namespace) -> int:
         raise CellError(f"{run_dir}: no journal.sqlite here; nothing to resume")
     j = Journal(jpath)
     meta = j.job()
+    modes = j.query("SELECT message FROM events WHERE kind='mode' ORDER BY id DESC LIMIT 1")
     j.close()
+    if modes and json.loads(modes[0][0]).get("sim") and not args.sim:
+        # the interrupted build ran on in-process simulators: so does its resume
+        args.sim = True
     if meta is None:
         raise CellError(f"{jpath}: the journal holds no job; start the build with `cell run JOB`")
     job = json.loads(meta["job_json"])
@@ -248,6 +253,7 @@ async def _drive(ctl: Any, job: dict, run_dir: Path | None, session: SimSession,
     await ctl.connect(resume_ticket=resume_ticket, reply_timeout_ms=session.reply_timeout_ms)
     try:
         ctl.open_job(job, run_dir)
+        ctl.journal.event("mode", json.dumps({"sim": session.harness is not None}))
         ctl.subscribe(Progress(say))
         if resume:
             # `cell resume` is the operator's explicit reset: clear what the crash latched on the
@@ -278,7 +284,7 @@ def _print_summary(out: dict, say: Callable[[str], None]) -> None:
     say(f"state {out['state']}: {out['layers_done']} layers, {out['passes_done']} passes done, "
         f"{out['arc_starts']} arc starts")
     for a in out["alarms"]:
-        where = f" at layer {a['layer'] + 1}, pass {a['pass'] + 1}" if a["layer"] is not None else ""
+        where = f" at layer {a['layer']}, pass {a['pass']} (job indices)" if a["layer"] is not None else ""
         pos = f", position {tuple(round(v, 2) for v in a['position'])}" if a["position"] else ""
         say(f"  alarm: {a['message']}{where}{pos}")
     say(f"report: {out['report']}")
