@@ -291,7 +291,7 @@ class CellController:
             raise self._refuse("reset")
         released = True
         io = self.devices.cellio if self.devices else None
-        if io is not None and getattr(io, "estop_released", True) is False:
+        if io is not None and not io.inputs.estop_released:
             released = False
         if self.machine.state is State.ESTOP and not released:
             self.machine.send("reset", estop_released=False)  # raises with the reason
