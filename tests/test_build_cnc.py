@@ -36,7 +36,7 @@ async def test_cnc_build_deposits_every_planned_segment_once(tmp_path: Path) -> 
 
 
 async def test_run_alignment_through_the_api_finds_the_substrate_pose(tmp_path: Path) -> None:
-    cfg = with_urls(load_cell(), {}, time_scale=60)
+    cfg = with_urls(load_cell(), {}, time_scale=200)
     harness = SimHarness(cfg, load_sim())
     cfg = with_urls(cfg, harness.start())
     ctl = CellController(cfg, runs_dir=tmp_path / "runs")
