@@ -18,6 +18,7 @@ Commands (each refused with a CellError naming the state when not allowed):
 from __future__ import annotations
 
 import asyncio
+import gc
 import json
 from pathlib import Path
 from typing import Any, Callable
@@ -60,6 +61,7 @@ class CellController:
         self.alignment: Any = None
         self.arc: Any = None
         self.last_result: BuildResult | None = None
+        self._stats_task: asyncio.Task | None = None
         self.machine.subscribe(self._on_transition)
         self._publish_state()
 
@@ -126,20 +128,42 @@ class CellController:
         self.devices.power.set_job(mode=0, job=0)
         self.machine.send("connect")
         self.bus.update(links=self._links())
+        self._stats_task = asyncio.get_running_loop().create_task(self._stats_loop())
+        _quiet_gc()
 
     def _links(self) -> tuple[LinkStat, ...]:
+        """Link statistics of every connected device, for the views."""
         d = self.devices
         if d is None:
             return ()
         out = []
-        for name, dev in (("robot", d.robot), ("cnc", d.cnc), ("power_source", d.power), ("cellio", d.cellio)):
-            if dev is None:
-                continue
-            out.append(LinkStat(device=name, url=str(getattr(dev, "url", "")), connected=True))
+        if d.robot is not None:
+            st = d.robot.stats
+            q = d.robot.last_status.queue_free if d.robot.last_status else None
+            out.append(LinkStat("robot", d.robot.url, d.robot.connected, st.frames_sent, st.frames_received,
+                                st.naks + st.crc_errors + st.bad_frames + st.timeouts + st.resends, q))
+        if d.cnc is not None:
+            out.append(LinkStat("cnc", d.cnc.url, bool(getattr(d.cnc, "connected", True))))
+        if d.power is not None:
+            ps = d.power.stats
+            out.append(LinkStat("power_source", d.power.url, d.power.error is None, ps.cycles, ps.cycles, ps.late))
+        if d.cellio is not None:
+            out.append(LinkStat("cellio", d.cellio.url, d.cellio.error is None))
         return tuple(out)
+
+    async def _stats_loop(self) -> None:
+        while True:
+            await asyncio.sleep(0.5)
+            try:
+                self.bus.update(links=self._links(), allowed_commands=tuple(self.allowed_commands()))
+            except Exception:
+                pass
 
     async def disconnect(self) -> None:
         """Drop every start bit and close the devices (the journal stays open for the report)."""
+        if self._stats_task is not None:
+            self._stats_task.cancel()
+            self._stats_task = None
         if self.interlocks is not None:
             self.interlocks.disarm()
         if self.devices is not None:
@@ -153,6 +177,9 @@ class CellController:
             self.machine.send("disconnect")
 
     async def close(self) -> None:
+        if self._stats_task is not None:
+            self._stats_task.cancel()
+            self._stats_task = None
         if self.interlocks is not None:
             self.interlocks.disarm()
         if self.devices is not None:
@@ -235,6 +262,7 @@ class CellController:
             raise self._refuse("start")
         assert self.devices is not None and self.interlocks is not None
         work = remaining_work(self.job, self.journal)
+        _quiet_gc()
         self.journal.event("info", f"run {self.journal.run}: {len(work)} passes to deposit")
         self.journal.event("run", json.dumps({"run": self.journal.run, "time_scale": self.options.time_scale,
                                               "passes_left": len(work)}))
@@ -301,6 +329,17 @@ class CellController:
         self.machine.send("reset", estop_released=released)
         if self.journal is not None:
             self.journal.event("info", "reset by the operator", state=self.machine.state.value)
+
+
+def _quiet_gc() -> None:
+    """Move everything alive now out of the collector's reach (gc.freeze).
+
+    A full collection of this process's heap (numpy, scipy, trimesh, matplotlib, pymodbus…)
+    stops every thread for ~100 ms: as long as the power source's watchdog. Frozen objects are
+    never scanned again, so later collections only look at what the build allocates. (No
+    gc.collect() first: it would be that very pause while the bus cycles run.)
+    """
+    gc.freeze()
 
 
 def _validated(job: dict) -> dict:

@@ -8,6 +8,7 @@ device that does not answer is a `DeviceUnreachable` naming it and its URL (exit
 from __future__ import annotations
 
 import asyncio
+import gc
 import sys
 import threading
 from dataclasses import dataclass, field
@@ -71,6 +72,7 @@ class SimHarness:
         fut = asyncio.run_coroutine_threadsafe(serve_all(ctx, self.modules), self.loop)
         served = fut.result(timeout)
         self.served = {s.device: s for s in served}
+        gc.freeze()  # full collections of the heap would stall the simulated devices (~100 ms)
         return {s.device: s.url for s in served}
 
     def sim(self, device: str) -> Any:

@@ -32,6 +32,7 @@ async def test_pause_waits_for_the_end_of_the_bead_then_resume_and_abort(tmp_pat
         await c.wait_for(lambda s: s.state == "running_depositing" and s.layer == 1)
         c.ctl.abort()
         res = await asyncio.wait_for(build, 20)
+        links = {ls.device: ls for ls in c.ctl.snapshot().links}
     assert res.state == "aborted" and res.passes_done in (3, 4)
     # nothing deposited twice and every bead that was started was finished
     cov = coverage(planned(job)[: res.passes_done], read_segments(c.log / "deposit.jsonl"))
@@ -39,6 +40,7 @@ async def test_pause_waits_for_the_end_of_the_bead_then_resume_and_abort(tmp_pat
     states = [s.state for s in snaps]
     assert states.index("paused") < states.index("aborted")
     assert max(s.passes_done for s in snaps) == res.passes_done and any(s.current_a for s in snaps)
+    assert links["robot"].frames_tx > 50 and links["power_source"].frames_tx > 50 and links["cellio"].connected
 
 
 async def test_estop_latches_until_the_input_is_released_and_reset(tmp_path: Path) -> None:
