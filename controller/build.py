@@ -301,6 +301,9 @@ class BuildRunner:
         self.journal.pass_state(la, pa, "started", start_idx=start_idx, points=len(pts))
         # approach with the weld moves already queued behind the hold point
         await self.ex.approach(pts[start_idx], self.o.clearance_mm, self.o.travel_speed_mm_min)
+        ahead = self.ex.next_tickets(len(pts) - 1 - start_idx)
+        if ahead:  # write-ahead: the tickets of this bead's weld moves and the points they reach
+            self.journal.moves_sent([(tk, la, pa, start_idx + 1 + k, "weld") for k, tk in enumerate(ahead)])
         tickets = self._stream = self.ex.queue_weld(pts, start_idx, speed, self._on_exec)
         await self.ex.at_start()
         self.m.send("arc_start")

@@ -49,6 +49,9 @@ class CncExecutor:
         await self.link.stream([f"G0 Z{_f(p[2] + clearance)}", f"G0 X{_f(p[0])} Y{_f(p[1])}",
                                 f"G1 Z{_f(p[2])} F{speed:.0f}"])  # ends with G4 P0: at the start
 
+    def next_tickets(self, n: int) -> list[int] | None:
+        return None  # grbl lines carry no sequence numbers
+
     def queue_weld(self, pts: list[Point], i0: int, speed: float,
                    on_exec: Callable[[int, int], None]) -> "asyncio.Task[int]":
         self._release = asyncio.Event()

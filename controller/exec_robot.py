@@ -77,6 +77,11 @@ class RobotExecutor:
         self._at_start = await self.link.send_move("MOVJ", *p, *AXIS, speed)
         await self.link.send_move("WAIT")
 
+    def next_tickets(self, n: int) -> list[int]:
+        """The tickets the next `n` moves will get (only this executor sends moves on the link)."""
+        first = self.link.next_ticket
+        return list(range(first, first + n))
+
     def queue_weld(self, pts: list[Point], i0: int, speed: float,
                    on_exec: Callable[[int, int], None]) -> "asyncio.Task[int]":
         """Stream MOVL to pts[i0+1:]; the task's result is the last ticket."""

@@ -4,7 +4,7 @@ Append-only: rows are inserted, never updated or deleted, so a `kill -9` at any 
 the journal at the last committed row, and replaying the rows gives the build's state:
 
 - `job`       the job's hash, name and canonical JSON (one row);
-- `moves`     write-ahead: every motion command with its ticket, written *before* it is sent;
+- `moves`     write-ahead: every weld move's ticket and the point it reaches, before it is sent;
 - `progress`  a weld move executed while the arc was stable: (layer, pass, point index);
 - `passes`    each pass's state changes (started, arc_on, done, interrupted);
 - `beads`     per bead: arc-on/off times, current/voltage/WFS statistics, heat input;

@@ -77,6 +77,12 @@ async def test_a_build_deposits_every_planned_segment_exactly_once(tmp_path: Pat
         run_dir = c.ctl.open_job(job)
         res = await c.ctl.start()
         report = c.ctl.write_report()
+        # the journal's write-ahead tickets are the ones the robot executed, point for point
+        mismatched = c.ctl.journal.query(
+            "SELECT count(*) FROM progress p JOIN moves m ON m.ticket = p.ticket AND m.run = p.run"
+            " WHERE m.layer != p.layer OR m.pass != p.pass OR m.idx != p.idx")
+        counts = c.ctl.journal.query("SELECT (SELECT count(*) FROM progress), (SELECT count(*) FROM moves)")
+    assert mismatched == [(0,)] and counts[0][0] == counts[0][1] > 100
     assert res.state == "complete" and res.layers_done == 3 and res.passes_done == 6 and res.arc_starts == 6
     cov = coverage(planned(job), read_segments(c.log / "deposit.jsonl"))
     assert cov.missing_mm < 0.05 and cov.excess_mm < 0.05, cov.as_dict()
