@@ -26,8 +26,8 @@ from planner.errors import CellError, InputError
 
 DEMO_PART = CONFIG_DIR / "parts" / "square-hole.stl"
 DEMO_WIDTH_MM = 7.0          # Inconel 718 bead; 39 layers of 0.77 mm for the 30 mm part
-DEMO_TIME_SCALE = 120.0      # ~75 min of process time (arc + interpass) in about 70 s wall
-DEMO_MAX_STEP_MM = 6.0       # weld moves of the demo: a 115200-baud link keeps ahead of them
+DEMO_TIME_SCALE = 120.0      # ~70 min of arc in ~35 s of motion; the 10k weld frames at 115200 baud take ~50 s
+DEMO_MAX_STEP_MM = 6.0       # split only long demo segments (the planner's own points are 1.7 mm apart, median)
 SIM_REPLY_TIMEOUT_MS = 250.0  # in-process simulators share the GIL with the controller
 SCENARIO_FAULTS = ("arc_loss", "wire_stick")  # `name@layer=N` is driven by the controller's sim harness
 
