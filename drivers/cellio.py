@@ -30,6 +30,7 @@ from typing import Callable
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
+from drivers.cyclic import CyclicDevice
 from drivers.errors import DeviceError, LinkLost
 from drivers.power_modbus import parse_tcp_url
 from planner.errors import CellError
@@ -56,28 +57,20 @@ class CellInputs:
         return self.door_closed and self.estop_released and self.gas_ok and self.fume_ok
 
 
-class CellIO:
+class CellIO(CyclicDevice[CellInputs]):
     """Cyclic driver of the cell's I/O coupler."""
 
     device = "cellio"
 
     def __init__(self, url: str, *, device_id: int = 1, cycle_ms: float = 10.0, timeout_ms: float = 50.0) -> None:
-        self.url = url
+        super().__init__(url, cycle_ms=cycle_ms, timeout_ms=timeout_ms)
         self.device_id = device_id
-        self.cycle_s = cycle_ms / 1000.0
-        self.timeout_s = timeout_ms / 1000.0
         self._client: AsyncModbusTcpClient | None = None
         self._inputs = CellInputs(t=0.0)
         self._coils = {k: False for k in COILS}
         self._written: dict | None = None
-        self._task: asyncio.Task | None = None
-        self._error: CellError | None = None
         self._change: list[Callable[[CellInputs, CellInputs], None]] = []
-        self._subs: list[Callable[[CellInputs], None]] = []
-        self._err_subs: list[Callable[[CellError], None]] = []
-        self._waiters: list[asyncio.Future] = []
         self.cycles = 0
-        self._closing = False
 
     def where(self) -> str:
         return f"cell I/O (Modbus TCP, device id {self.device_id}) at {self.url}"
@@ -97,7 +90,7 @@ class CellIO:
         self._written = None
         self._closing = False
         try:
-            await self._cycle()
+            await self._one_cycle()
         except BaseException:
             client.close()
             self._client = None
@@ -105,19 +98,10 @@ class CellIO:
         self._task = asyncio.get_running_loop().create_task(self._run(), name=f"cellio {self.url}")
 
     async def close(self) -> None:
-        # the flag ends the loop even if a cancel is swallowed by asyncio.wait_for (Python 3.11)
-        self._closing = True
-        task, self._task = self._task, None
-        if task is not None:
-            task.cancel()
-            await asyncio.wait({task}, timeout=1.0)
+        await self._stop_cycle()
         if self._client is not None:
             self._client.close()
             self._client = None
-
-    @property
-    def error(self) -> CellError | None:
-        return self._error
 
     # -- inputs ------------------------------------------------------------------------------
     @property
@@ -141,23 +125,9 @@ class CellIO:
         """Call `fn(previous, new)` in the cycle a discrete input changes (before the registers are read)."""
         self._change.append(fn)
 
-    def subscribe(self, fn: Callable[[CellInputs], None]) -> Callable[[], None]:
-        """Call `fn(inputs)` every cycle."""
-        self._subs.append(fn)
-        return lambda: self._subs.remove(fn) if fn in self._subs else None
-
-    def on_error(self, fn: Callable[[CellError], None]) -> None:
-        self._err_subs.append(fn)
-
     async def next_inputs(self) -> CellInputs:
         """Wait for the next cycle's reading; LinkLost if the cycle has stopped."""
-        if self._error is not None:
-            raise self._error
-        if self._task is None or self._task.done():
-            raise LinkLost(f"{self.where()}: not connected")
-        fut = asyncio.get_running_loop().create_future()
-        self._waiters.append(fut)
-        return await fut
+        return await self._next_cycle()
 
     # -- outputs -----------------------------------------------------------------------------
     @property
@@ -191,7 +161,7 @@ class CellIO:
                               "check its I/O map against DESIGN.md §5")
         return rr
 
-    async def _cycle(self) -> CellInputs:
+    async def _one_cycle(self) -> CellInputs:
         c, dev = self._client, self.device_id
         if c is None or not c.connected:
             raise LinkLost(f"{self.where()}: not connected")
@@ -216,47 +186,6 @@ class CellIO:
             self._written = want
         self.cycles += 1
         return new
-
-    async def _run(self) -> None:
-        deadline = time.monotonic()
-        try:
-            while not self._closing:
-                try:
-                    st = await self._cycle()
-                except CellError as exc:
-                    self._fail(exc)
-                    return
-                for fn in list(self._subs):
-                    try:
-                        fn(st)
-                    except Exception:
-                        pass
-                waiters, self._waiters = self._waiters, []
-                for f in waiters:
-                    if not f.done():
-                        f.set_result(st)
-                deadline += self.cycle_s
-                now = time.monotonic()
-                if now - deadline > self.cycle_s:
-                    deadline = now
-                await asyncio.sleep(max(0.0, deadline - now))
-        except asyncio.CancelledError:
-            raise
-        except Exception as exc:  # an unexpected transport error is still a lost link
-            self._fail(LinkLost(f"{self.where()}: cycle stopped ({exc!r})"))
-
-    def _fail(self, exc: CellError) -> None:
-        self._error = exc
-        self._task = None
-        waiters, self._waiters = self._waiters, []
-        for f in waiters:
-            if not f.done():
-                f.set_exception(exc)
-        for fn in list(self._err_subs):
-            try:
-                fn(exc)
-            except Exception:
-                pass
 
 
 def open_cellio(cfg, url: str | None = None) -> CellIO:

@@ -28,11 +28,12 @@ from __future__ import annotations
 import asyncio
 import time
 from concurrent.futures import ThreadPoolExecutor
-from abc import ABC, abstractmethod
+from abc import abstractmethod
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
 
+from drivers.cyclic import CycleStats, CyclicDevice
 from drivers.errors import DeviceError, LinkLost
 from drivers.power_registers import ARC_TRIM_LIMIT, COMMAND_BITS, DYNAMIC_TRIM_LIMIT, MODES, STATUS_BITS
 from planner.errors import CellError
@@ -106,17 +107,7 @@ class PowerStatus:
                    wfs_m_min=wfs, command=command)
 
 
-@dataclass
-class CycleStats:
-    """Timing of the cyclic exchange (for the benchmark and the journal)."""
-
-    cycles: int = 0
-    late: int = 0               # cycles started more than one period after their deadline
-    periods: list[float] = field(default_factory=list)   # wall seconds between cycle starts
-    keep: bool = False          # record periods (benchmark)
-
-
-class PowerSource(ABC):
+class PowerSource(CyclicDevice[PowerStatus]):
     """A synergic MIG/MAG power source driven cyclically (DESIGN.md §5)."""
 
     device = "power_source"
@@ -124,22 +115,13 @@ class PowerSource(ABC):
 
     def __init__(self, url: str, material: "Material | None" = None, *, cycle_ms: float = 10.0,
                  timeout_ms: float = 50.0) -> None:
-        self.url = url
+        super().__init__(url, cycle_ms=cycle_ms, timeout_ms=timeout_ms)
         self.material = material
-        self.cycle_s = cycle_ms / 1000.0
-        self.timeout_s = timeout_ms / 1000.0
         self._cmd = PowerCommand()
         self._status: PowerStatus | None = None
         self._counter = 0
         self._cycle = 0
-        self._task: asyncio.Task | None = None
-        self._error: CellError | None = None
-        self._subs: list[Callable[[PowerStatus], None]] = []
-        self._err_subs: list[Callable[[CellError], None]] = []
-        self._waiters: list[asyncio.Future] = []
-        self._closing = False
         self._timer: ThreadPoolExecutor | None = None
-        self.stats = CycleStats()
 
     # -- transport hooks --------------------------------------------------------------------
     @abstractmethod
@@ -182,19 +164,13 @@ class PowerSource(ABC):
 
     async def close(self) -> None:
         """Clear the start bits on the wire (best effort), stop the cycle, close the link."""
-        self._closing = True
-        task, self._task = self._task, None
-        if task is not None:
-            # `_closing` ends the loop even if asyncio.wait_for swallows the cancel (Python 3.11)
-            task.cancel()
-            await asyncio.wait({task}, timeout=1.0)
-            if self._error is None:
-                self._cmd = replace(self._cmd, weld_start=False, gas_test=False, wire_inch=False,
-                                    wire_retract=False, error_reset=False)
-                try:
-                    await self._one_cycle()
-                except Exception:
-                    pass
+        if await self._stop_cycle() and self._error is None:
+            self._cmd = replace(self._cmd, weld_start=False, gas_test=False, wire_inch=False,
+                                wire_retract=False, error_reset=False)
+            try:
+                await self._one_cycle()
+            except Exception:
+                pass
         await self._close()
         if self._timer is not None:
             self._timer.shutdown(wait=False)
@@ -204,11 +180,6 @@ class PowerSource(ABC):
     @property
     def connected(self) -> bool:
         return self._task is not None and self._error is None
-
-    @property
-    def error(self) -> CellError | None:
-        """The error that stopped the cycle (LinkLost, DeviceError), if any."""
-        return self._error
 
     # -- commands (checked before anything is sent; taken by the next cycle) -----------------
     @property
@@ -280,24 +251,9 @@ class PowerSource(ABC):
         """The latest status snapshot (None before connect)."""
         return self._status
 
-    def subscribe(self, fn: Callable[[PowerStatus], None]) -> Callable[[], None]:
-        """Call `fn(status)` every cycle (≥ 100 Hz), on the loop; returns an unsubscribe."""
-        self._subs.append(fn)
-        return lambda: self._subs.remove(fn) if fn in self._subs else None
-
-    def on_error(self, fn: Callable[[CellError], None]) -> None:
-        """Call `fn(error)` once when the cycle stops on LinkLost or DeviceError."""
-        self._err_subs.append(fn)
-
     async def next_status(self) -> PowerStatus:
         """Wait for the next cycle's status; LinkLost / DeviceError if the cycle has stopped."""
-        if self._error is not None:
-            raise self._error
-        if self._task is None or self._task.done():
-            raise LinkLost(f"{self.where()}: not connected")
-        fut = asyncio.get_running_loop().create_future()
-        self._waiters.append(fut)
-        return await fut
+        return await self._next_cycle()
 
     # -- the cycle --------------------------------------------------------------------------
     async def _one_cycle(self) -> PowerStatus:
@@ -318,43 +274,6 @@ class PowerSource(ABC):
         self._status = st
         return st
 
-    async def _run(self) -> None:
-        period = self.cycle_s
-        deadline = time.monotonic()
-        last_start: float | None = None
-        try:
-            while not self._closing:
-                now = time.monotonic()
-                if last_start is not None and self.stats.keep:
-                    self.stats.periods.append(now - last_start)
-                last_start = now
-                try:
-                    st = await self._one_cycle()
-                except CellError as exc:
-                    self._fail(exc)
-                    return
-                self.stats.cycles += 1
-                for fn in list(self._subs):
-                    try:
-                        fn(st)
-                    except Exception:  # a subscriber's bug must not stop the bus cycle
-                        pass
-                waiters, self._waiters = self._waiters, []
-                for fut in waiters:
-                    if not fut.done():
-                        fut.set_result(st)
-                # absolute deadlines: no drift; after an overrun resynchronise instead of bursting
-                deadline += period
-                now = time.monotonic()
-                if now - deadline > period:
-                    self.stats.late += 1
-                    deadline = now
-                await self._sleep_until(deadline)
-        except asyncio.CancelledError:
-            raise
-        except Exception as exc:  # an unexpected transport error is still a lost link
-            self._fail(LinkLost(f"{self.where()}: cycle stopped ({exc!r})"))
-
     async def _sleep_until(self, deadline: float) -> None:
         """Sleep to `deadline` (monotonic) to ~0.1 ms: the loop's timers round up to whole
         milliseconds (epoll), so the last 1.5 ms are slept in a helper thread (no busy wait)."""
@@ -366,22 +285,6 @@ class PowerSource(ABC):
             if self._timer is None:
                 self._timer = ThreadPoolExecutor(1, thread_name_prefix="power-cycle-timer")
             await asyncio.get_running_loop().run_in_executor(self._timer, time.sleep, rest)
-
-    def _fail(self, exc: CellError) -> None:
-        self._error = exc
-        self._task = None
-        self._fail_waiters(exc)
-        for fn in list(self._err_subs):
-            try:
-                fn(exc)
-            except Exception:
-                pass
-
-    def _fail_waiters(self, exc: CellError) -> None:
-        waiters, self._waiters = self._waiters, []
-        for fut in waiters:
-            if not fut.done():
-                fut.set_exception(exc)
 
 
 def open_power_source(cfg: "PowerSourceDevice", material: "Material | None" = None,

@@ -1,0 +1,147 @@
+"""The plumbing shared by the cyclic device drivers (power source, cell I/O).
+
+A `CyclicDevice` runs `_one_cycle()` every `cycle_ms` (wall time, never scaled) on the asyncio
+loop, hands each cycle's reading to the subscribers and to the tasks waiting for the next cycle,
+and stops on the first CellError (LinkLost, DeviceError), which it reports once to the
+`on_error` callbacks and to every waiter. Subclasses implement the exchange and the lifecycle
+(connect / close) around `_run()` and `_stop_cycle()`.
+"""
+from __future__ import annotations
+
+import asyncio
+import time
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Callable, Generic, TypeVar
+
+from drivers.errors import LinkLost
+from planner.errors import CellError
+
+S = TypeVar("S")
+
+
+@dataclass
+class CycleStats:
+    """Timing of the cyclic exchange (for the benchmark and the journal)."""
+
+    cycles: int = 0
+    late: int = 0               # cycles started more than one period after their deadline
+    periods: list[float] = field(default_factory=list)   # wall seconds between cycle starts
+    keep: bool = False          # record periods (benchmark)
+
+
+class CyclicDevice(ABC, Generic[S]):
+    """A device read (and written) once per cycle; `S` is one cycle's reading."""
+
+    device = "device"
+
+    def __init__(self, url: str, *, cycle_ms: float = 10.0, timeout_ms: float = 50.0) -> None:
+        self.url = url
+        self.cycle_s = cycle_ms / 1000.0
+        self.timeout_s = timeout_ms / 1000.0
+        self._task: asyncio.Task | None = None
+        self._error: CellError | None = None
+        self._subs: list[Callable[[S], None]] = []
+        self._err_subs: list[Callable[[CellError], None]] = []
+        self._waiters: list[asyncio.Future] = []
+        self._closing = False
+        self.stats = CycleStats()
+
+    def where(self) -> str:
+        return f"{self.device} at {self.url}"
+
+    @abstractmethod
+    async def _one_cycle(self) -> S:
+        """One exchange on the wire; raise LinkLost / DeviceError, never retry."""
+
+    @property
+    def error(self) -> CellError | None:
+        """The error that stopped the cycle (LinkLost, DeviceError), if any."""
+        return self._error
+
+    def subscribe(self, fn: Callable[[S], None]) -> Callable[[], None]:
+        """Call `fn(reading)` every cycle, on the loop; returns an unsubscribe."""
+        self._subs.append(fn)
+        return lambda: self._subs.remove(fn) if fn in self._subs else None
+
+    def on_error(self, fn: Callable[[CellError], None]) -> None:
+        """Call `fn(error)` once when the cycle stops on LinkLost or DeviceError."""
+        self._err_subs.append(fn)
+
+    async def _next_cycle(self) -> S:
+        """Wait for the next cycle's reading; the stopping error if the cycle has stopped."""
+        if self._error is not None:
+            raise self._error
+        if self._task is None or self._task.done():
+            raise LinkLost(f"{self.where()}: not connected")
+        fut = asyncio.get_running_loop().create_future()
+        self._waiters.append(fut)
+        return await fut
+
+    async def _stop_cycle(self) -> bool:
+        """Stop the cycle task; True if one was running."""
+        # the flag ends the loop even if asyncio.wait_for swallows the cancel (Python 3.11)
+        self._closing = True
+        task, self._task = self._task, None
+        if task is None:
+            return False
+        task.cancel()
+        await asyncio.wait({task}, timeout=1.0)
+        return True
+
+    async def _run(self) -> None:
+        period = self.cycle_s
+        deadline = time.monotonic()
+        last_start: float | None = None
+        try:
+            while not self._closing:
+                now = time.monotonic()
+                if last_start is not None and self.stats.keep:
+                    self.stats.periods.append(now - last_start)
+                last_start = now
+                try:
+                    st = await self._one_cycle()
+                except CellError as exc:
+                    self._fail(exc)
+                    return
+                self.stats.cycles += 1
+                for fn in list(self._subs):
+                    try:
+                        fn(st)
+                    except Exception:  # a subscriber's bug must not stop the bus cycle
+                        pass
+                waiters, self._waiters = self._waiters, []
+                for fut in waiters:
+                    if not fut.done():
+                        fut.set_result(st)
+                # absolute deadlines: no drift; after an overrun resynchronise instead of bursting
+                deadline += period
+                now = time.monotonic()
+                if now - deadline > period:
+                    self.stats.late += 1
+                    deadline = now
+                await self._sleep_until(deadline)
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:  # an unexpected transport error is still a lost link
+            self._fail(LinkLost(f"{self.where()}: cycle stopped ({exc!r})"))
+
+    async def _sleep_until(self, deadline: float) -> None:
+        """Sleep to `deadline` (time.monotonic())."""
+        await asyncio.sleep(max(0.0, deadline - time.monotonic()))
+
+    def _fail(self, exc: CellError) -> None:
+        self._error = exc
+        self._task = None
+        self._fail_waiters(exc)
+        for fn in list(self._err_subs):
+            try:
+                fn(exc)
+            except Exception:
+                pass
+
+    def _fail_waiters(self, exc: CellError) -> None:
+        waiters, self._waiters = self._waiters, []
+        for fut in waiters:
+            if not fut.done():
+                fut.set_exception(exc)
