@@ -25,7 +25,7 @@ import numpy as np
 from drivers.grbl_protocol import GrblStatus, fmt, format_probe, format_status
 from sims.clock import SimClock
 from sims.faults import parse_fault_spec
-from sims.transport import SerialServer
+from sims.transport import serve_serial
 from sims.workpiece import Workpiece
 
 DEVICE = "cnc"
@@ -703,25 +703,10 @@ class CncSim:
 
 async def serve(ctx) -> list:
     """Start the CNC simulator on cell.yaml's cnc URL (or port 0 / a pty), per ctx."""
-    from sims.up import Served
-
     dev = ctx.cell.devices.cnc
     spec = parse_fault_spec(ctx.faults)
     wp = Workpiece.from_config(ctx.sim.cnc.workpiece, ctx.sim.cnc.probe_noise_mm, seed=spec.seed,
                                kinematics=ctx.cell.kinematics, base_dir=ctx.config_dir)
     sim = CncSim(clock=ctx.clock, world=ctx.world, workpiece=wp, rx_buffer_bytes=dev.rx_buffer_bytes,
                  log_path=(Path(ctx.log_dir) / "cnc.jsonl") if ctx.log_dir else None)
-    sim.start()
-    server = SerialServer(sim, name=DEVICE, spec=spec, baud=dev.baud)
-    sim.server = server  # tests pull the cable with sim.server.unplug()
-    try:
-        url = await server.start(dev.url, pty=ctx.pty, ephemeral=ctx.ephemeral)
-    except BaseException:
-        await sim.close()
-        raise
-
-    async def close() -> None:
-        await server.close()
-        await sim.close()
-
-    return [Served(DEVICE, url, close, sim=sim, extra={"baud": dev.baud, "protocol": "grbl 1.1"})]
+    return await serve_serial(sim, DEVICE, dev, ctx, spec, {"protocol": "grbl 1.1"})

@@ -19,7 +19,7 @@ from typing import IO, Callable
 from drivers import rlp
 from sims.clock import SimClock
 from sims.faults import parse_fault_spec
-from sims.transport import SerialServer
+from sims.transport import serve_serial
 
 DEVICE = "robot"
 ERR_WORKSPACE = 10
@@ -289,25 +289,10 @@ class RobotSim:
 
 async def serve(ctx) -> list:
     """Start the robot simulator on cell.yaml's robot URL (or port 0 / a pty), per ctx."""
-    from sims.up import Served
-
     dev = ctx.cell.devices.robot
     lim = ctx.cell.limits
     sim = RobotSim(clock=ctx.clock, world=ctx.world, queue_slots=dev.queue_slots,
                    log_path=(Path(ctx.log_dir) / "robot.jsonl") if ctx.log_dir else None,
                    heartbeat_s=dev.heartbeat_s, link_timeout_s=dev.link_timeout_s,
                    workspace=(tuple(lim.workspace_min_mm), tuple(lim.workspace_max_mm)))
-    sim.start()
-    server = SerialServer(sim, name=DEVICE, spec=parse_fault_spec(ctx.faults), baud=dev.baud)
-    sim.server = server  # tests pull the cable with sim.server.unplug()
-    try:
-        url = await server.start(dev.url, pty=ctx.pty, ephemeral=ctx.ephemeral)
-    except BaseException:
-        await sim.close()
-        raise
-
-    async def close() -> None:
-        await server.close()
-        await sim.close()
-
-    return [Served(DEVICE, url, close, sim=sim, extra={"baud": dev.baud, "protocol": "RLP/1"})]
+    return await serve_serial(sim, DEVICE, dev, ctx, parse_fault_spec(ctx.faults), {"protocol": "RLP/1"})

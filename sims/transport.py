@@ -185,3 +185,24 @@ class SerialServer:
                 self.pipes[0].send(data)
 
         loop.add_reader(master, readable)
+
+
+async def serve_serial(sim, device: str, dev_cfg, ctx, spec: FaultSpec, extra: dict) -> list:
+    """Start `sim` and serve it on `dev_cfg.url` (or port 0 / a pty, per ctx): the tail of a
+    serial simulator's `serve(ctx)`. The simulator is closed again if the server cannot start."""
+    from sims.up import Served  # sims.up imports the simulator modules
+
+    sim.start()
+    server = SerialServer(sim, name=device, spec=spec, baud=dev_cfg.baud)
+    sim.server = server  # tests pull the cable with sim.server.unplug()
+    try:
+        url = await server.start(dev_cfg.url, pty=ctx.pty, ephemeral=ctx.ephemeral)
+    except BaseException:
+        await sim.close()
+        raise
+
+    async def close() -> None:
+        await server.close()
+        await sim.close()
+
+    return [Served(device, url, close, sim=sim, extra={"baud": dev_cfg.baud, **extra})]
