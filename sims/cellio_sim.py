@@ -146,14 +146,8 @@ class CellIOSim:
 
 async def serve_modbus_tcp(sim: CellIOSim, host: str = "127.0.0.1", port: int = 0, device_id: int = 1):
     """Start the coupler on Modbus TCP and the model's ticking; returns (url, close)."""
-    from sims.modbus_server import start_tcp, stop
-    server, bound = await start_tcp(sim, host, port, device_id)
-    ticker = asyncio.get_running_loop().create_task(sim.run())
-
-    async def close() -> None:
-        ticker.cancel()
-        await stop(server)
-    return f"tcp://{host}:{bound}", close
+    from sims.modbus_server import serve_tcp
+    return await serve_tcp(sim, host, port, device_id)
 
 
 async def serve(ctx) -> list:

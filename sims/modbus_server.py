@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from typing import Protocol
+from typing import Awaitable, Callable, Protocol
 from urllib.parse import urlsplit
 
 from pymodbus.constants import ExcCodes
@@ -26,6 +26,11 @@ class ModbusModel(Protocol):
     def read(self, fc: int, address: int, count: int) -> list | None: ...
     def write(self, fc: int, address: int, values: list) -> bool: ...
     def silent(self) -> bool: ...
+
+
+class TickingModel(ModbusModel, Protocol):
+    async def run(self) -> None:
+        """Advance the model forever (cancelled on close)."""
 
 
 class DeviceContext(ModbusServerContext):
@@ -78,6 +83,30 @@ async def start_rtu(model: ModbusModel, url: str, device_id: int = 1) -> tuple[M
         parts = urlsplit(url)
         url = f"socket://{parts.hostname}:{_bound_port(server, parts.port or 0)}"
     return server, url
+
+
+async def serve_tcp(model: TickingModel, host: str = "127.0.0.1", port: int = 0,
+                    device_id: int = 1) -> tuple[str, Callable[[], Awaitable[None]]]:
+    """Serve `model` over Modbus TCP and start its ticking; returns (url, close)."""
+    server, bound = await start_tcp(model, host, port, device_id)
+    return f"tcp://{host}:{bound}", _tick(model, server)
+
+
+async def serve_rtu(model: TickingModel, url: str = "socket://127.0.0.1:0",
+                    device_id: int = 1) -> tuple[str, Callable[[], Awaitable[None]]]:
+    """Serve `model` over Modbus RTU on a serial URL and start its ticking; returns (url, close)."""
+    server, real = await start_rtu(model, url, device_id)
+    return real, _tick(model, server)
+
+
+def _tick(model: TickingModel, server) -> Callable[[], Awaitable[None]]:
+    """Start `model.run()`; the returned close stops it and the server."""
+    ticker = asyncio.get_running_loop().create_task(model.run())
+
+    async def close() -> None:
+        ticker.cancel()
+        await stop(server)
+    return close
 
 
 def _bound_port(server, asked: int) -> int:

@@ -465,26 +465,14 @@ class CanNode:
 
 async def serve_modbus_tcp(sim: PowerSourceSim, host: str = "127.0.0.1", port: int = 0, device_id: int = 1):
     """Start the Modbus TCP server and the model's ticking; returns (url, close)."""
-    from sims.modbus_server import start_tcp, stop
-    server, bound = await start_tcp(sim, host, port, device_id)
-    ticker = asyncio.get_running_loop().create_task(sim.run())
-
-    async def close() -> None:
-        ticker.cancel()
-        await stop(server)
-    return f"tcp://{host}:{bound}", close
+    from sims.modbus_server import serve_tcp
+    return await serve_tcp(sim, host, port, device_id)
 
 
 async def serve_modbus_rtu(sim: PowerSourceSim, url: str = "socket://127.0.0.1:0", device_id: int = 1):
     """Start the Modbus RTU server on a serial URL and the model's ticking; returns (url, close)."""
-    from sims.modbus_server import start_rtu, stop
-    server, real = await start_rtu(sim, url, device_id)
-    ticker = asyncio.get_running_loop().create_task(sim.run())
-
-    async def close() -> None:
-        ticker.cancel()
-        await stop(server)
-    return real, close
+    from sims.modbus_server import serve_rtu
+    return await serve_rtu(sim, url, device_id)
 
 
 async def serve_can(sim: PowerSourceSim, interface: str, channel: str, dbc: str | Path | None = None,
