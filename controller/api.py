@@ -161,35 +161,34 @@ class CellController:
 
     async def disconnect(self) -> None:
         """Drop every start bit and close the devices (the journal stays open for the report)."""
-        if self._stats_task is not None:
-            self._stats_task.cancel()
-            self._stats_task = None
-        if self.interlocks is not None:
-            self.interlocks.disarm()
-        if self.devices is not None:
-            try:
-                self.devices.power.drop_all()
-            except Exception:
-                pass
-            await self.devices.close()
+        if await self._release_devices():
             self.devices = None
         if self.machine.can("disconnect"):
             self.machine.send("disconnect")
 
     async def close(self) -> None:
+        """Drop every start bit, close the devices and the journal."""
+        # not disconnect(): its state transition would be journaled (and published) while closing
+        await self._release_devices()
+        if self.journal is not None:
+            self.journal.close()
+
+    async def _release_devices(self) -> bool:
+        """Stop the stats loop, disarm the interlocks, drop every start bit and close the devices
+        (still referenced); True if there were devices."""
         if self._stats_task is not None:
             self._stats_task.cancel()
             self._stats_task = None
         if self.interlocks is not None:
             self.interlocks.disarm()
-        if self.devices is not None:
-            try:
-                self.devices.power.drop_all()
-            except Exception:
-                pass
-            await self.devices.close()
-        if self.journal is not None:
-            self.journal.close()
+        if self.devices is None:
+            return False
+        try:
+            self.devices.power.drop_all()
+        except Exception:
+            pass
+        await self.devices.close()
+        return True
 
     # -- commands ---------------------------------------------------------------------------------
     def open_job(self, job: dict | str | Path, run_dir: str | Path | None = None) -> Path:
