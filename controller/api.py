@@ -28,6 +28,7 @@ from controller.cell import Devices
 from controller.config import CellConfig, load_material
 from controller.events import EventBus, LinkStat, Snapshot
 from controller.interlocks import Interlocks
+from controller.jobfile import read_job
 from controller.journal import Journal
 from controller.machine import CellMachine, State, TransitionRefused
 from controller.resume import remaining_work
@@ -195,13 +196,7 @@ class CellController:
         if not self.machine.can("open_job"):
             raise self._refuse("open_job")
         if not isinstance(job, dict):
-            p = Path(job)
-            try:
-                job = json.loads(p.read_text(encoding="utf-8"))
-            except OSError as exc:
-                raise InputError(f"{p}: cannot read the job ({exc.strerror}); check the path") from None
-            except json.JSONDecodeError as exc:
-                raise InputError(f"{p}: line {exc.lineno}: not valid JSON ({exc.msg})") from None
+            job = read_job(job)
         job = _validated(job)
         self.job = job
         self.run_dir = Path(run_dir) if run_dir else run_dir_for(job, self.runs_dir)

@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from controller.events import Snapshot
+from controller.jobfile import read_job
 from planner.errors import CellError, InputError
 
 DEMO_PART = Path(__file__).resolve().parent.parent / "config" / "parts" / "square-hole.stl"
@@ -504,14 +505,7 @@ class CellSession:
         return self._submit(lambda: self._open_path(p))
 
     async def _open_path(self, p: Path) -> None:
-        import json
-
-        try:
-            job = json.loads(p.read_text(encoding="utf-8"))
-        except OSError as exc:
-            raise InputError(f"{p}: cannot read the job ({exc.strerror})") from None
-        except json.JSONDecodeError as exc:
-            raise InputError(f"{p}: line {exc.lineno}: not valid JSON ({exc.msg})") from None
+        job = read_job(p)
         self._plan = PlanStatus(state="done", file=str(p))
         await self._open_dict(job)
 

@@ -29,6 +29,7 @@ from controller.align.fit import Datum, LineFit, PlaneFit, cad_transform_321, fi
 from controller.align.kinematics import Trunnion, apply_to_job, apply_transform, homogeneous, rotation_matrix, unit
 from controller.align.leveling import FaceAngle, Leveling, face_angle, leveling_angles
 from controller.align.probe_cycle import ProbedPoint, ProbeLog, ProbeTarget, probe_points
+from controller.jobfile import read_job
 from drivers.grbl_protocol import fmt
 from planner.errors import InputError
 
@@ -347,13 +348,8 @@ async def run_with_sim(cell: Any, sim_cfg: Any, plan: ProbePlan, *, config_dir: 
 
 
 def _read_job(path: str) -> dict:
-    try:
-        job = json.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read the job ({exc.strerror or exc})") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: line {exc.lineno}: not valid JSON ({exc.msg})") from None
-    if not isinstance(job, dict) or job.get("schema") != "cell-job/1":
+    job = read_job(path)
+    if job.get("schema") != "cell-job/1":
         raise InputError(f"{path}: not a cell-job/1 file (schema key missing or different)")
     return job
 

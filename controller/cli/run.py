@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from controller.config import CONFIG_DIR, CellConfig, load_cell, load_sim
+from controller.jobfile import read_job
 from planner.errors import CellError, InputError
 
 DEMO_PART = CONFIG_DIR / "parts" / "square-hole.stl"
@@ -66,19 +67,6 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 # -- helpers -------------------------------------------------------------------------------------
-
-
-def read_job(path: str | Path) -> dict:
-    p = Path(path)
-    try:
-        job = json.loads(p.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read the job ({exc.strerror or exc}); check the path") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{p}: line {exc.lineno}: not valid JSON ({exc.msg})") from None
-    if not isinstance(job, dict):
-        raise InputError(f"{p}: not a cell-job/1 file")
-    return job
 
 
 def split_faults(spec: str | None) -> tuple[str, list[tuple[str, int, float | None]]]:
