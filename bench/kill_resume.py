@@ -1,14 +1,18 @@
 """Kill the controller with SIGKILL at random moments of a build against `cell sim up`, resume
 each time, then prove against the simulators' own logs (DESIGN.md §6a) that every planned weld
 segment was deposited exactly once (re-arc overlaps of at most 2 mm per restart) and that the
-robot executed no sequence number twice.
+robot executed no sequence number twice. `rearc_overlap_*`: the signed overlap at each re-arc
+(deposit already there beyond the point where a later arc started; negative would be a gap);
+`max_overlap_mm` is the checker's, which merges the stretches of nearby re-arcs.
 
     .venv/bin/python -m bench.kill_resume [--kills 20] [--seed 1] [--quick] [--keep DIR]
+        [--max-step 0.5] [--speed 600] [--time-scale 1]
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import random
 import signal
@@ -28,10 +32,10 @@ if str(ROOT) not in sys.path:
 
 from bench._coverage import coverage, exec_log_duplicates, read_segments  # noqa: E402
 
-MAX_STEP_MM = 0.5     # weld moves: the re-arc overlap is one move + (watchdog 100 ms + burn-back) of travel
+MAX_STEP_MM = 0.5     # weld moves (default of --max-step)
 
 
-def soak_job(n_layers: int) -> dict:
+def soak_job(n_layers: int, speed: float = 600.0) -> dict:
     """Two square perimeters per layer (30 mm and 20 mm), 600 mm/min: ~20 s of arc per layer."""
     layers = []
     for li in range(n_layers):
@@ -39,14 +43,49 @@ def soak_job(n_layers: int) -> dict:
         outer = [[0, 0, z], [30, 0, z], [30, 30, z], [0, 30, z], [0, 0.5, z]]
         inner = [[5, 5, z], [25, 5, z], [25, 25, z], [5, 25, z], [5, 5.5, z]]
         layers.append({"index": li, "z_mm": z, "height_mm": 1.0, "passes": [
-            {"role": "perimeter", "width_mm": 5, "current_a": 120, "speed_mm_min": 600, "wfs_m_min": 5.5,
+            {"role": "perimeter", "width_mm": 5, "current_a": 120, "speed_mm_min": speed, "wfs_m_min": 5.5,
              "points": outer},
-            {"role": "perimeter", "width_mm": 5, "current_a": 120, "speed_mm_min": 600, "wfs_m_min": 5.5,
+            {"role": "perimeter", "width_mm": 5, "current_a": 120, "speed_mm_min": speed, "wfs_m_min": 5.5,
              "points": inner}]})
     return {"schema": "cell-job/1", "source": {"file": "soak.stl", "sha256": "0" * 64, "units": "mm"},
             "material": {"name": "inconel718-1.0mm"},
             "bead": {"width_mm": 5, "height_mm": 1, "step_over_mm": 3.69, "model": "tangent"},
             "layers": layers, "summary": {}}
+
+
+def _along(P: list, q: list, tol: float = 0.05) -> float | None:
+    """Length along polyline P of point q (first match), None when q is off it."""
+    acc = 0.0
+    for a, b in zip(P, P[1:]):
+        d = [bi - ai for ai, bi in zip(a, b)]
+        L2 = sum(v * v for v in d)
+        if L2 <= 1e-18:
+            continue
+        t = max(0.0, min(1.0, sum((qi - ai) * v for qi, ai, v in zip(q, a, d)) / L2))
+        if math.dist([ai + t * v for ai, v in zip(a, d)], q) <= tol:
+            return acc + t * math.sqrt(L2)
+        acc += math.sqrt(L2)
+    return None
+
+
+def rearc_joints(passes: list, segments: list[dict], pause_s: float = 0.3) -> list[float]:
+    """Signed overlap at every re-arc (deposit of a later arc starting where an earlier one
+    ended): positive = laid twice, negative = a gap. Joints between consecutive moves of one
+    arc (no pause in time) are not re-arcs."""
+    out = []
+    for P in passes:
+        iv = []
+        for sg in segments:
+            a, b = _along(P, sg["from"]), _along(P, sg["to"])
+            if a is not None and b is not None and b > a + 1e-6:
+                iv.append((sg["t0"], sg["t1"], a, b))
+        iv.sort()
+        for k in range(1, len(iv)):
+            t0, _t1, a, _b = iv[k]
+            if t0 - iv[k - 1][1] > pause_s and a > 1e-3:   # a new arc, not at the pass's start
+                reach = max((x[3] for x in iv[:k]), default=0.0)
+                out.append(reach - a)
+    return out
 
 
 def _free_port() -> int:
@@ -67,6 +106,9 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--layers", type=int, default=3)
     ap.add_argument("--quick", action="store_true", help="5 kills, 2 layers")
     ap.add_argument("--keep", default=None, metavar="DIR", help="work here and keep the logs")
+    ap.add_argument("--max-step", type=float, default=MAX_STEP_MM, help="weld move length, mm")
+    ap.add_argument("--speed", type=float, default=600.0, help="weld speed, mm/min")
+    ap.add_argument("--time-scale", type=float, default=1.0, help="process time / wall time")
     a = ap.parse_args(argv)
     if a.quick:
         a.kills, a.layers = 5, 2
@@ -74,14 +116,14 @@ def main(argv: list[str]) -> int:
     work = Path(a.keep) if a.keep else Path(tempfile.mkdtemp(prefix="kill_resume-"))
     work.mkdir(parents=True, exist_ok=True)
     cfg = yaml.safe_load((ROOT / "config" / "cell.yaml").read_text())
-    cfg["cell"]["time_scale"] = 1.0  # real time: the watchdog and link timings are real too
+    cfg["cell"]["time_scale"] = a.time_scale  # 1: real time, as the watchdog and link timings are
     cfg["devices"]["robot"]["url"] = f"socket://127.0.0.1:{_free_port()}"
     cfg["devices"]["cnc"]["url"] = f"socket://127.0.0.1:{_free_port()}"
     cfg["devices"]["power_source"]["url"] = f"tcp://127.0.0.1:{_free_port()}"
     cfg["devices"]["cellio"]["url"] = f"tcp://127.0.0.1:{_free_port()}"
     cfgp = work / "cell.yaml"
     cfgp.write_text(yaml.safe_dump(cfg))
-    job = soak_job(a.layers)
+    job = soak_job(a.layers, a.speed)
     jobp = work / "soak.job.json"
     jobp.write_text(json.dumps(job))
     logs, runs = work / "simlog", work / "runs"
@@ -99,7 +141,7 @@ def main(argv: list[str]) -> int:
         while True:
             args = ["run", str(jobp)] if attempt == 0 else ["resume"]
             p = _cell(*args, "--cell-config", str(cfgp), "--runs", str(runs), "--json", "--max-step",
-                      str(MAX_STEP_MM), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                      str(a.max_step), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             attempt += 1
             if kills < a.kills:
                 started = threading.Event()
@@ -134,13 +176,20 @@ def main(argv: list[str]) -> int:
     passes = [p["points"] for la in job["layers"] for p in la["passes"]]
     cov = coverage(passes, read_segments(logs / "deposit.jsonl"))
     dups = exec_log_duplicates(logs / "robot.jsonl")
+    joints = rearc_joints(passes, read_segments(logs / "deposit.jsonl"))
     restarts = kills
-    ok = cov.missing_mm < 0.05 and max(cov.overlaps_mm, default=0.0) <= 2.0 and dups == 0
+    ok = cov.missing_mm < 0.05 and max(cov.overlaps_mm, default=0.0) <= 2.0 and dups == 0 \
+        and min(joints, default=0.0) > -0.01
     fig = {"kills": kills, "state": final["state"] if final else None, "wall_s": round(wall, 1),
            "planned_mm": round(cov.planned_mm, 1), "deposited_mm": round(cov.deposited_mm, 2),
            "missing_mm": round(cov.missing_mm, 3), "excess_mm": round(cov.excess_mm, 3),
            "excess_per_restart_mm": round(cov.excess_mm / max(restarts, 1), 3),
            "overlaps": len(cov.overlaps_mm), "max_overlap_mm": round(max(cov.overlaps_mm, default=0.0), 3),
+           "mean_overlap_mm": round(sum(cov.overlaps_mm) / max(len(cov.overlaps_mm), 1), 3),
+           "max_step_mm": a.max_step, "speed_mm_min": a.speed, "time_scale": a.time_scale,
+           "rearcs": len(joints), "rearc_overlap_max_mm": round(max(joints, default=0.0), 3),
+           "rearc_overlap_mean_mm": round(sum(joints) / max(len(joints), 1), 3),
+           "rearc_overlap_min_mm": round(min(joints, default=0.0), 3),
            "robot_seq_duplicates": dups, "ok": ok, "logs": str(logs)}
     print(json.dumps(fig))
     return 0 if ok else 1

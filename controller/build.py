@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from controller.arc_out import RunOn, arc_lengths, arc_out_lower_bound, point_at, project
 from controller.events import EventBus
 from controller.journal import Journal
 from controller.machine import CellMachine, State
@@ -127,6 +128,7 @@ class BuildOptions:
     interpass_timeout_s: float = 3600.0  # process seconds before the wait becomes a fault
     arc_efficiency: float = 0.8
     sample_period_s: float = 0.1        # wall seconds between journal samples
+    run_on: RunOn = RunOn()             # how long the arc burns on after a crash (resume estimate)
 
 
 @dataclass
@@ -162,6 +164,8 @@ class BuildRunner:
         self.cur_idx: int | None = None       # last point index reached with the arc stable
         self._bead: BeadStats | None = None
         self._arc_lit = False
+        self._unstable_noted = False
+        self._first_pass = True               # the first pass of a run may be the one a crash cut
         self._samples: list[tuple] = []
         self._last_sample = 0.0
         self._unsub: list[Callable[[], None]] = []
@@ -171,6 +175,7 @@ class BuildRunner:
         self.totals = (len(self.layers), sum(len(la["passes"]) for la in self.layers))
         progress = journal.pass_progress()
         self.done = {k for k, v in progress.items() if v.state == "done"}
+        self._journaled = set(progress)       # passes an earlier run started
 
     # -- operator requests (honoured at the end of the current bead) -------------------------
     def request_pause(self) -> None:
@@ -190,6 +195,7 @@ class BuildRunner:
         self.bus.update(layers_total=self.totals[0], passes_total=self.totals[1],
                         passes_done=len(self.done), layers_done=self._layers_done())
         try:
+            await self._arc_out()
             await self.ex.prepare()
             if self.m.state is not State.RUNNING_WAIT:
                 self.m.send("start")
@@ -286,21 +292,62 @@ class BuildRunner:
             return None
         return None if t is None or math.isnan(t) else float(t)
 
+    async def _arc_out(self) -> None:
+        """Before a run: let an arc a crash left burning go out, so the robot's position read
+        next bounds the deposit (the new power cycle carries weld start 0)."""
+        st = self.power.status
+        t0 = time.monotonic()
+        while st is not None and st.arc_stable and time.monotonic() - t0 < 2.0:
+            st = await self.power.next_status()
+
+    def _start_point(self, item: WorkItem, pts: list[Point], speed: float) -> tuple[int, Point, float]:
+        """(k, P, s): re-arc at P, at length s along the pass, on the move pts[k] -> pts[k + 1].
+
+        From the journal: the last point reached with the arc stable, or the latest re-arc point,
+        whichever lies further; when the controller died with the arc on, further still, to a
+        lower bound of where the arc went out (controller/arc_out.py).
+        """
+        first, self._first_pass = self._first_pass, False
+        start_idx = min(item.start_idx, len(pts) - 1)
+        if (item.layer, item.pass_) not in self._journaled:  # never started: from its first point
+            return start_idx, pts[start_idx], arc_lengths(pts[:start_idx + 1])[-1]
+        cum = arc_lengths(pts)
+        s = cum[start_idx]
+        hist = self.journal.pass_resume(item.layer, item.pass_)
+        if hist is not None and hist.start_mm is not None:
+            s = max(s, min(hist.start_mm, cum[-1]))
+        if first and hist is not None and hist.state == "arc_on" and not hist.arc_unstable:
+            # the controller died while this bead was depositing: the arc ran on after `s`
+            stopped = getattr(self.ex, "stopped_at", None)
+            s_robot = project(pts, cum, stopped, s) if stopped is not None else None
+            scale = self.journal.run_time_scale(hist.run) or self.o.time_scale
+            s_new = arc_out_lower_bound(s, speed, scale, self.o.run_on, s_robot, cum[-1])
+            self.journal.event("info", f"resume: arc of run {hist.run} went out at or after "
+                                       f"{s_new:.2f} mm along the pass (last known {s:.2f} mm, robot stopped at "
+                                       f"{'?' if s_robot is None else f'{s_robot:.2f}'} mm)",
+                               layer=item.layer, pass_=item.pass_)
+            s = s_new
+        if s >= cum[-1] - 1e-6:
+            return len(pts) - 1, pts[-1], cum[-1]
+        k, pt = point_at(pts, cum, s)
+        return k, pt, s
+
     async def _one_pass(self, item: WorkItem) -> None:
         la, pa = item.layer, item.pass_
         p = self.layers[la]["passes"][pa]
         pts = weld_points(p["points"], self.o.max_step_mm)
-        start_idx = min(item.start_idx, len(pts) - 1)
+        speed = float(p["speed_mm_min"])
+        start_idx, start_pt, start_mm = self._start_point(item, pts, speed)
         self.current, self.cur_idx = item, start_idx
         self.bus.update(layer=la, pass_=pa, passes_in_layer=len(self.layers[la]["passes"]))
         if start_idx >= len(pts) - 1:  # nothing left of this bead (it stopped on its last point)
             self._pass_done(la, pa)
             return
-        speed = float(p["speed_mm_min"])
         self.m.send("travel")
-        self.journal.pass_state(la, pa, "started", start_idx=start_idx, points=len(pts))
+        self.journal.pass_state(la, pa, "started", start_idx=start_idx, points=len(pts),
+                                start_mm=round(start_mm, 4))
         # approach with the weld moves already queued behind the hold point
-        await self.ex.approach(pts[start_idx], self.o.clearance_mm, self.o.travel_speed_mm_min)
+        await self.ex.approach(start_pt, self.o.clearance_mm, self.o.travel_speed_mm_min)
         ahead = self.ex.next_tickets(len(pts) - 1 - start_idx)
         if ahead:  # write-ahead: the tickets of this bead's weld moves and the points they reach
             self.journal.moves_sent([(tk, la, pa, start_idx + 1 + k, "weld") for k, tk in enumerate(ahead)])
@@ -311,15 +358,16 @@ class BuildRunner:
         await self.arc.start()
         self.arc_starts += 1
         self._arc_lit = True
+        self._unstable_noted = False
         self._bead = BeadStats(arc_on=time.time())
-        self.journal.pass_state(la, pa, "arc_on", idx=start_idx)
+        self.journal.pass_state(la, pa, "arc_on", idx=start_idx, start_mm=round(start_mm, 4))
         self.bus.update(arc_starts=self.bus.latest.arc_starts + 1)
         self.m.send("arc_on")
         self.ex.release()
         await self.ex.weld_done(await tickets)
         self.m.send("arc_end")
+        self._arc_lit = False  # before the arc end: its falling arc-stable is no arc loss
         await self.arc.stop()
-        self._arc_lit = False
         self._close_bead(la, pa, pts, start_idx, len(pts) - 1, speed, interrupted=False)
         self._pass_done(la, pa)
 
@@ -356,6 +404,12 @@ class BuildRunner:
     def _on_power(self, st: Any) -> None:
         if self._bead is not None and st.arc_stable:
             self._bead.add(st.current_a, st.voltage_v, st.wfs_m_min)
+        if self._arc_lit and not st.arc_stable and not self._unstable_noted and self.current is not None:
+            # the deposit may have stopped here while the torch moves on: a resume after a crash
+            # must not assume the arc ran on (controller/arc_out.py)
+            self._unstable_noted = True
+            self.journal.event("arc", "arc unstable while depositing", layer=self.current.layer,
+                               pass_=self.current.pass_)
         now = time.monotonic()
         if now - self._last_sample >= self.o.sample_period_s:
             self._last_sample = now

@@ -61,6 +61,11 @@ class PowerSourceDevice(_Frozen):
     cycle_ms: float = Field(default=10.0, gt=0.0, le=1000.0)
     timeout_ms: float = Field(default=50.0, gt=0.0)
     can: CanSettings = CanSettings()
+    # device properties a resume after a crash relies on (controller/arc_out.py): the start is
+    # dropped after watchdog_ms (wall) without a new counter; the arc then burns on for
+    # watchdog_burnback_s (process time; 0: the source goes idle at once, as the simulator does)
+    watchdog_ms: float = Field(default=100.0, gt=0.0, le=10000.0)
+    watchdog_burnback_s: float = Field(default=0.0, ge=0.0, le=10.0)
 
 
 class CellIODevice(_Frozen):

@@ -28,6 +28,7 @@ class RobotExecutor:
         self.exec_count = 0
         self.min_ahead: int | None = None       # fewest weld moves queued ahead at an EXE inside a bead
         self._lost_cbs: list[Callable[[Any], None]] = []
+        self.stopped_at: Point | None = None    # where prepare() found the robot stopped (queue flushed)
         self._subscribe()
 
     def _subscribe(self) -> None:
@@ -66,10 +67,13 @@ class RobotExecutor:
         st = await self.link.status()
         if st.state == "FAULT":
             # a robot fault (workspace) needs !RESET; the sequence numbers restart at 0001
-            await self.link.reset()
+            st = await self.link.reset()
         else:
             # flush whatever an earlier run left queued (held by the silence rule or by a trip)
-            await self.link.abort()
+            st = await self.link.abort()
+        # after the flush the robot stands still: no torch went further than this (resume caps
+        # its estimate of where a crashed bead's arc went out with it)
+        self.stopped_at = tuple(float(v) for v in st.pos) if st is not None and st.pos is not None else None
 
     async def approach(self, p: Point, clearance: float, speed: float) -> None:
         above = (p[0], p[1], p[2] + clearance)

@@ -8,7 +8,8 @@ the journal at the last committed row, and replaying the rows gives the build's 
 - `progress`  a weld move executed while the arc was stable: (layer, pass, point index);
 - `passes`    each pass's state changes (started, arc_on, done, interrupted);
 - `beads`     per bead: arc-on/off times, current/voltage/WFS statistics, heat input;
-- `events`    state transitions, alarms and notes, with the torch position;
+- `events`    state transitions, alarms and notes, with the torch position (kind `arc`: the arc
+              went unstable while depositing, which a resume must not extrapolate past);
 - `samples`   I, U, WFS and part temperature, for the report's traces.
 
 Every write is its own committed transaction; resume reads only committed rows. With
@@ -64,6 +65,17 @@ class PassProgress:
     pass_: int
     state: str            # planned, started, arc_on, interrupted, done
     done_idx: int         # last point index reached with the arc stable (-1: none, 0: at the start)
+
+
+@dataclass(frozen=True)
+class PassResume:
+    """What a resume needs of one pass beyond its progress rows."""
+
+    state: str                # the latest row's state
+    run: int                  # the run that wrote it
+    start_mm: float | None    # where the latest run that started the pass (re-)arced, along the pass
+    arc_run: int | None       # the latest run that lit the arc on the pass
+    arc_unstable: bool        # that run saw the arc unstable while depositing (arc loss)
 
 
 class Journal:
@@ -222,6 +234,38 @@ class Journal:
             state = p.state if p else "started"
             out[(layer, pass_)] = PassProgress(layer, pass_, state, int(idx))
         return out
+
+    def pass_resume(self, layer: int, pass_: int) -> PassResume | None:
+        """The pass's latest state, its latest re-arc point and whether its last arc faltered."""
+        rows = self.query("SELECT state, run, info FROM passes WHERE layer=? AND pass=? ORDER BY id", (layer, pass_))
+        if not rows:
+            return None
+        start_mm: float | None = None
+        arc_run: int | None = None
+        for state, run, info in rows:
+            try:
+                d = json.loads(info or "{}")
+            except ValueError:
+                d = {}
+            if state in ("started", "arc_on") and d.get("start_mm") is not None:
+                start_mm = float(d["start_mm"])
+            if state == "arc_on":
+                arc_run = int(run)
+        unstable = arc_run is not None and bool(self.query(
+            "SELECT 1 FROM events WHERE kind='arc' AND layer=? AND pass=? AND run=? LIMIT 1",
+            (layer, pass_, arc_run)))
+        return PassResume(rows[-1][0], int(rows[-1][1]), start_mm, arc_run, unstable)
+
+    def run_time_scale(self, run: int) -> float | None:
+        """The time scale a run was started with (its `run` event), None if not journaled."""
+        for (msg,) in self.query("SELECT message FROM events WHERE kind='run' AND run=? ORDER BY id DESC", (run,)):
+            try:
+                ts = json.loads(msg).get("time_scale")
+            except (ValueError, AttributeError):
+                continue
+            if ts:
+                return float(ts)
+        return None
 
     def last_ticket(self) -> int:
         """The highest ticket ever written ahead (0 when none)."""

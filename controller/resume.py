@@ -1,10 +1,15 @@
-"""Resume: what is left of a build, from the job and the journal alone.
+"""Resume: what is left of a build, from the job and the journal alone, and where the arc of an
+interrupted bead really went out.
 
-A pass journaled `done` is skipped. A pass that was started re-arcs at the last point its weld
-moves reached with the arc stable (`progress` rows): the moves up to it are not sent again
-(nothing twice), the ones after it are (nothing skipped). The re-arc overlap is bounded by the
-distance the torch travelled with the arc on after that point: at most one weld move
-(`max_step_mm`) plus the arc's burn-back / watchdog time at the travel speed.
+A pass journaled `done` is skipped. A pass that was started re-arcs where its deposit is known to
+end: at least the last point its weld moves reached with the arc stable (`progress` rows) or the
+point where the latest run re-arced (`start_mm` of its `started` row), whichever lies further.
+
+When the controller died with the arc on (the pass's latest row is `arc_on`: no hold, no arc end
+was journaled), the deposit went on after that point: the robot keeps executing its queue and the
+power source keeps the arc until its watchdog drops the start and the burn-back ends. The build
+runner re-arcs such a bead at a lower bound of where the arc went out (controller/arc_out.py),
+computed once the robot has reported where it stopped.
 """
 from __future__ import annotations
 
