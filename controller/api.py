@@ -23,6 +23,7 @@ import json
 from pathlib import Path
 from typing import Any, Callable
 
+from controller.arc_out import RunOn
 from controller.build import BuildOptions, BuildResult, BuildRunner, canonical_json, job_hash, job_name, run_dir_for
 from controller.cell import Devices
 from controller.config import CellConfig, load_material
@@ -49,7 +50,8 @@ class CellController:
         self.options = options or BuildOptions(
             time_scale=cfg.cell.time_scale, travel_speed_mm_min=cfg.limits.travel_speed_mm_min,
             interpass_limit_c=mat.interpass.max_temperature_c, interpass_dwell_s=mat.interpass.dwell_s,
-            arc_efficiency=mat.arc_efficiency)
+            arc_efficiency=mat.arc_efficiency,
+            run_on=RunOn.from_device(cfg.devices.power_source))
         self.machine = CellMachine()
         self.bus = EventBus()
         self.devices: Devices | None = None
