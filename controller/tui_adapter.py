@@ -279,11 +279,8 @@ def _plan_main(argv: list[str]) -> int:
 
 def _sim_reply_timeout_ms() -> float:
     """The bus devices' reply timeout with in-process simulators: `cell run --sim`'s own figure."""
-    try:
-        from controller.cli.run import SIM_REPLY_TIMEOUT_MS
-    except ImportError:
-        return 250.0
-    return float(SIM_REPLY_TIMEOUT_MS)
+    from controller.cli.run import sim_reply_timeout_ms
+    return sim_reply_timeout_ms()
 
 
 def freeze_heap() -> None:

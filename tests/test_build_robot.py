@@ -45,7 +45,7 @@ def planned(job: dict) -> list:
     return [p["points"] for la in job["layers"] for p in la["passes"]]
 
 
-SIM_REPLY_TIMEOUT_MS = 250.0  # in-process simulators share the GIL with the controller
+SIM_REPLY_TIMEOUT_MS = 500.0  # in-process simulators share the GIL with the controller (and a test worker)
 
 
 class Cell:
