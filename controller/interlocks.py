@@ -21,7 +21,7 @@ from typing import Any, Callable
 
 from controller.events import EventBus
 from controller.journal import Journal
-from controller.machine import CellMachine, State
+from controller.machine import CellMachine
 
 
 @dataclass

@@ -762,8 +762,6 @@ class ReplaySession:
 
 
 if __name__ == "__main__":
-    import sys
-
     if len(sys.argv) == 6 and sys.argv[1] == "plan":
         raise SystemExit(_plan_main(sys.argv[2:]))
     sys.stderr.write("usage: python -m controller.tui_adapter plan PATH WIDTH MATERIAL OUT\n")

@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from controller.config import CONFIG_DIR, CellConfig, load_cell, load_material, load_sim, parse_model
+from controller.config import CONFIG_DIR, load_cell, load_material, load_sim, parse_model
 from planner.errors import ConfigError
 from planner.material import Material
 
