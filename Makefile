@@ -4,7 +4,7 @@ PY ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench venv clean docs
+.PHONY: demo test lint bench venv clean docs
 
 $(STAMP): pyproject.toml
 	@test -x $(VENV)/bin/python || $(PY) -m venv $(VENV)
@@ -19,6 +19,10 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(VENV)/bin/python -m pytest -q -n 2 --dist loadfile
+
+# ruff, mypy and the import contracts (docs/architecture.md)
+lint: $(STAMP)
+	PY=$(VENV)/bin/python .ci/lint
 
 bench: $(STAMP)
 	$(VENV)/bin/python -m bench

@@ -7,7 +7,7 @@ from __future__ import annotations
 import asyncio
 import sys
 
-from controller.config import load_material
+from core.config import load_material
 from sims.clock import SimClock
 from sims.power_sim import PowerSourceSim, serve_can, serve_modbus_rtu, serve_modbus_tcp
 from sims.world import World

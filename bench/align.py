@@ -21,7 +21,7 @@ import numpy as np
 from controller.align.fit import fit_line, fit_plane
 from controller.align.probe_cycle import ProbeTarget, probe_points
 from controller.align.routine import _with_sim
-from controller.config import load_cell, load_sim
+from core.config import load_cell, load_sim
 from sims.workpiece import rot
 
 GRID = [(x, y) for y in (-50.0, 0.0, 50.0) for x in (-50.0, 0.0, 50.0)]

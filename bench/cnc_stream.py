@@ -20,7 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from controller.config import Workpiece as WorkpieceConfig
+from core.config import Workpiece as WorkpieceConfig
 from drivers.grbl import CncLink, GrblError
 from sims.clock import SimClock
 from sims.cnc_sim import CncSim

@@ -75,7 +75,7 @@ def robot_starvation(log: Path) -> tuple[int, int, float]:
 async def one(cfgp: Path, scale: float, length: float, runs: Path) -> dict:
     from controller.api import CellController
     from controller.build import BuildOptions
-    from controller.config import load_cell
+    from core.config import load_cell
 
     cfg = load_cell(cfgp)
     cfg = cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"time_scale": scale})})

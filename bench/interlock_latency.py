@@ -28,8 +28,8 @@ from bench.kill_resume import soak_job  # noqa: E402
 async def run(trials: int, seed: int) -> dict:
     from controller.api import CellController
     from controller.cell import SimHarness, with_urls
-    from controller.cli.run import SIM_REPLY_TIMEOUT_MS
-    from controller.config import load_cell, load_sim
+    from controller.defaults import SIM_REPLY_TIMEOUT_MS
+    from core.config import load_cell, load_sim
 
     rng = random.Random(seed)
     work = Path(tempfile.mkdtemp(prefix="interlock-"))

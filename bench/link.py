@@ -20,7 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from drivers import rlp
+from wire import rlp
 from drivers.errors import LinkLost
 from drivers.robot import RobotLink
 from sims.clock import SimClock
@@ -129,7 +129,7 @@ async def hold_latency(trials: int) -> dict:
     lat, queued = [], []
     async with Rig(time_scale=1.0) as rig:  # real time: simulated ms = wall ms
         link = rig.link
-        for k in range(trials):
+        for _ in range(trials):
             while link.next_ticket - 1 - link.last_exec_ticket < 64:
                 await link.send_move("MOVL", float(link.next_ticket % 100), 0, 0, 0, 0, 1, 60)
             await link.drain(timeout=30)

@@ -18,7 +18,7 @@ import time
 import uuid
 
 from controller.arc_handshake import ArcFault, ArcHandshake, drop_start_on_unsafe
-from controller.config import load_material
+from core.config import load_material
 from drivers.cellio import CellIO
 from drivers.power import PowerSource
 from drivers.power_can import CanPowerSource

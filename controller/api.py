@@ -18,22 +18,23 @@ Commands (each refused with a CellError naming the state when not allowed):
 from __future__ import annotations
 
 import asyncio
-import gc
 import json
 from pathlib import Path
 from typing import Any, Callable
 
+from core.realtime import elevate, quiet_gc, relax
 from controller.arc_out import RunOn
+from controller.jobcheck import check_job, job_material
 from controller.build import BuildOptions, BuildResult, BuildRunner, canonical_json, job_hash, job_name, run_dir_for
 from controller.cell import Devices
-from controller.config import CellConfig, load_material
+from core.config import CellConfig, load_material
 from controller.events import EventBus, LinkStat, Snapshot
 from controller.interlocks import Interlocks
 from controller.jobfile import read_job
 from controller.journal import Journal
 from controller.machine import CellMachine, State, TransitionRefused
 from controller.resume import remaining_work
-from planner.errors import CellError, InputError
+from core.errors import CellError, InputError
 
 COMMANDS = ("open_job", "run_alignment", "start", "pause", "resume", "abort", "reset", "estop")
 
@@ -51,7 +52,7 @@ class CellController:
             time_scale=cfg.cell.time_scale, travel_speed_mm_min=cfg.limits.travel_speed_mm_min,
             interpass_limit_c=mat.interpass.max_temperature_c, interpass_dwell_s=mat.interpass.dwell_s,
             arc_efficiency=mat.arc_efficiency,
-            run_on=RunOn.from_device(cfg.devices.power_source))
+            run_on=RunOn.from_device(cfg.devices.power_source), tolerance=mat.tolerance)
         self.machine = CellMachine()
         self.bus = EventBus()
         self.devices: Devices | None = None
@@ -64,7 +65,10 @@ class CellController:
         self.alignment: Any = None
         self.arc: Any = None
         self.last_result: BuildResult | None = None
+        self.last_report: Path | None = None
         self._stats_task: asyncio.Task | None = None
+        self.realtime = ""      # what elevate() obtained for the device cycles (a log line)
+        self.opcua: Any = None   # controller.opcua.server.FactoryServer when cell.yaml enables it
         self.machine.subscribe(self._on_transition)
         self._publish_state()
 
@@ -111,28 +115,39 @@ class CellController:
 
     # -- connection -------------------------------------------------------------------------------
     async def connect(self, *, resume_ticket: int | None = None, reply_timeout_ms: float | None = None) -> None:
+        # The device cycles run on this thread's loop: real-time priority while connected, so that
+        # CPU-bound work beside the controller cannot delay them (docs/false-trips.md).
+        self.realtime = elevate("controller device cycles")
+        self.bus.update(message=self.realtime)
         self.devices = await Devices.open(self.cfg, self.material, resume_ticket=resume_ticket,
                                           reply_timeout_ms=reply_timeout_ms)
         if self.cfg.cell.platform == "robot":
             from controller.exec_robot import RobotExecutor
 
-            self.executor = RobotExecutor(self.devices.robot)
+            self.executor = RobotExecutor(self.devices.robot_link())
         else:
+            from controller.align.kinematics import Trunnion
             from controller.exec_cnc import CncExecutor
 
-            self.executor = CncExecutor(self.devices.cnc, self.devices.power)
+            self.executor = CncExecutor(self.devices.cnc_link(), self.devices.power_source(),
+                                        trunnion=Trunnion.from_config(self.cfg.kinematics))
         self.interlocks = Interlocks(machine=self.machine, journal=self.journal, bus=self.bus,
-                                     power=self.devices.power, executor=self.executor, cellio=self.devices.cellio)
+                                     power=self.devices.power_source(), executor=self.executor,
+                                     cellio=self.devices.cellio)
         self.interlocks.arm()
         from controller.arc_handshake import ArcHandshake
 
         ilk = self.interlocks
-        self.arc = ArcHandshake(self.devices.power, on_fault=lambda exc: ilk.trip("fault", str(exc)))
-        self.devices.power.set_job(mode=0, job=0)
+        self.arc = ArcHandshake(self.devices.power_source(), on_fault=lambda exc: ilk.fault(str(exc)))
+        self.devices.power_source().set_job(mode=0, job=0)
         self.machine.send("connect")
         self.bus.update(links=self._links())
         self._stats_task = asyncio.get_running_loop().create_task(self._stats_loop())
-        _quiet_gc()
+        if self.cfg.opcua.enabled and self.opcua is None:
+            from controller.opcua.attach import serve
+
+            self.opcua = serve(self)
+        quiet_gc()
 
     def _links(self) -> tuple[LinkStat, ...]:
         """Link statistics of every connected device, for the views."""
@@ -143,15 +158,19 @@ class CellController:
         if d.robot is not None:
             st = d.robot.stats
             q = d.robot.last_status.queue_free if d.robot.last_status else None
+            late, bad = st.timeouts + st.resends, st.naks + st.crc_errors + st.bad_frames
             out.append(LinkStat("robot", d.robot.url, d.robot.connected, st.frames_sent, st.frames_received,
-                                st.naks + st.crc_errors + st.bad_frames + st.timeouts + st.resends, q))
+                                late + bad, q, late=late, lost=int(not d.robot.connected), bad=bad))
         if d.cnc is not None:
-            out.append(LinkStat("cnc", d.cnc.url, bool(getattr(d.cnc, "connected", True))))
+            out.append(LinkStat("cnc", d.cnc.url, d.cnc.connected))
         if d.power is not None:
             ps = d.power.stats
-            out.append(LinkStat("power_source", d.power.url, d.power.error is None, ps.cycles, ps.cycles, ps.late))
+            out.append(LinkStat("power_source", d.power.url, d.power.error is None, ps.cycles, ps.cycles,
+                                ps.late + ps.bad, late=ps.late, lost=ps.lost, bad=ps.bad))
         if d.cellio is not None:
-            out.append(LinkStat("cellio", d.cellio.url, d.cellio.error is None))
+            cs = d.cellio.stats
+            out.append(LinkStat("cellio", d.cellio.url, d.cellio.error is None, cs.cycles, cs.cycles,
+                                cs.late + cs.bad, late=cs.late, lost=cs.lost, bad=cs.bad))
         return tuple(out)
 
     async def _stats_loop(self) -> None:
@@ -184,10 +203,14 @@ class CellController:
             self._stats_task = None
         if self.interlocks is not None:
             self.interlocks.disarm()
+        if self.opcua is not None:
+            self.opcua.stop()
+            self.opcua = None
+        relax()
         if self.devices is None:
             return False
         try:
-            self.devices.power.drop_all()
+            self.devices.power_source().drop_all()
         except Exception:
             pass
         await self.devices.close()
@@ -200,6 +223,8 @@ class CellController:
         if not isinstance(job, dict):
             job = read_job(job)
         job = _validated(job)
+        # the whole job against the cell before it can start (the CLI checks it before connecting)
+        check_job(job, self.cfg, job_material(job, self.cfg))
         self.job = job
         self.run_dir = Path(run_dir) if run_dir else run_dir_for(job, self.runs_dir)
         if self.journal is not None:
@@ -210,7 +235,8 @@ class CellController:
             self.interlocks.journal = self.journal
         self.machine.send("open_job")
         done = sum(1 for v in self.journal.pass_progress().values() if v.state == "done")
-        self.bus.update(job_name=job_name(job), run_dir=str(self.run_dir), layers_total=len(job["layers"]),
+        self.bus.update(job_name=job_name(job), job_hash=job_hash(job), run_dir=str(self.run_dir),
+                        layers_total=len(job["layers"]),
                         passes_total=sum(len(la["passes"]) for la in job["layers"]), passes_done=done)
         return self.run_dir
 
@@ -222,12 +248,10 @@ class CellController:
         """
         if not self.machine.can("probe"):
             raise self._refuse("run_alignment")
-        try:
-            from controller.align.routine import align, cad_mesh, plan_for_mesh, run_on_url
-        except ImportError:
-            raise CellError("the alignment routine is not installed (controller/align/routine.py)") from None
+        from controller.align.routine import align, cad_mesh, plan_for_mesh, run_on_url
+
         if plan is None:
-            from controller.config import load_sim
+            from core.config import load_sim
 
             plan = plan_for_mesh(cad_mesh(load_sim().cnc.workpiece))
         self.machine.send("probe")
@@ -258,12 +282,12 @@ class CellController:
             raise self._refuse("start")
         assert self.devices is not None and self.interlocks is not None
         work = remaining_work(self.job, self.journal)
-        _quiet_gc()
+        quiet_gc()
         self.journal.event("info", f"run {self.journal.run}: {len(work)} passes to deposit")
         self.journal.event("run", json.dumps({"run": self.journal.run, "time_scale": self.options.time_scale,
                                               "passes_left": len(work)}))
         self.runner = BuildRunner(job=self.job, journal=self.journal, machine=self.machine, bus=self.bus,
-                                  executor=self.executor, power=self.devices.power, cellio=self.devices.cellio,
+                                  executor=self.executor, power=self.devices.power_source(), cellio=self.devices.cellio,
                                   options=self.options, arc=self.arc)
         self.interlocks.runner = self.runner
         task = asyncio.get_running_loop().create_task(self.runner.run(work))
@@ -276,7 +300,13 @@ class CellController:
         finally:
             self.interlocks.build_task = None
             await self.interlocks.settle()
+            if self.runner.closing is not None:  # an interrupted bead's measured length
+                await asyncio.wait([self.runner.closing], timeout=3.0)
             self._publish_state()
+        # The build record is written at the end of every build, whoever started it (CLI or TUI),
+        # on a worker thread: plotting takes seconds, and the device cycles (the power source's
+        # watchdog counter) run on this loop while the cell stays connected.
+        self.last_report = await asyncio.to_thread(self.write_report)
         return self.last_result
 
     def write_report(self, plots: bool = True) -> Path:
@@ -327,25 +357,11 @@ class CellController:
             self.journal.event("info", "reset by the operator", state=self.machine.state.value)
 
 
-def _quiet_gc() -> None:
-    """Move everything alive now out of the collector's reach (gc.freeze).
-
-    A full collection of this process's heap (numpy, scipy, trimesh, matplotlib, pymodbus…)
-    stops every thread for ~100 ms: as long as the power source's watchdog. Frozen objects are
-    never scanned again, so later collections only look at what the build allocates. (No
-    gc.collect() first: it would be that very pause while the bus cycles run.)
-    """
-    gc.freeze()
-
-
 def _validated(job: dict) -> dict:
-    """The job, checked: planner.job.load_job when installed, else the fields the build reads."""
-    try:
-        from planner.job import load_job
-    except ImportError:
-        load_job = None
-    if load_job is not None:
-        load_job(job)  # raises a CellError naming the field
+    """The job, checked by planner.job.load_job (a CellError naming the field), then the fields the build reads."""
+    from planner.job import load_job
+
+    load_job(job)
     if not isinstance(job, dict) or job.get("schema") != "cell-job/1":
         raise InputError("not a cell-job/1 file (missing or wrong 'schema')")
     layers = job.get("layers")

@@ -32,8 +32,9 @@ from dataclasses import dataclass
 from typing import Callable
 
 from drivers.errors import DeviceError, LinkLost
-from drivers.power import PowerSource, PowerStatus
-from planner.errors import CellError
+from controller.ports import PowerSourcePort
+from drivers.power import PowerStatus
+from core.errors import CellError
 
 STATES = ("idle", "ready", "preflow", "ignition", "welding", "crater", "postflow", "fault")
 ACTIVE = ("preflow", "ignition", "welding", "crater", "postflow")
@@ -102,7 +103,7 @@ class Transition:
 class ArcHandshake:
     """Ignition, welding and arc end against a `PowerSource`, with latched faults."""
 
-    def __init__(self, power: PowerSource, *, ignition_timeout_s: float = 1.5, ignition_retries: int = 2,
+    def __init__(self, power: PowerSourcePort, *, ignition_timeout_s: float = 1.5, ignition_retries: int = 2,
                  arc_hold_s: float = 0.016, arc_loss_s: float = 0.200, watchdog_cycles: int = 3,
                  ready_timeout_s: float = 1.0, end_timeout_s: float = 10.0,
                  on_transition: Callable[[Transition], None] | None = None,
@@ -206,7 +207,7 @@ class ArcHandshake:
             st = await self.power.next_status()
         except LinkLost as exc:
             self._latch(PowerLinkLost(str(exc)))
-            raise self.fault from None
+            raise (self.fault or PowerLinkLost(str(exc))) from None  # the latched fault (the first one)
         if self.fault is not None:
             raise self.fault
         return st
@@ -292,7 +293,7 @@ class ArcHandshake:
         self._go("idle", "error reset")
 
 
-def drop_start_on_unsafe(io, power: PowerSource, on_trip: Callable[[object], None] | None = None) -> None:
+def drop_start_on_unsafe(io, power: PowerSourcePort, on_trip: Callable[[object], None] | None = None) -> None:
     """Wire the cell I/O interlock: when a safety input goes bad (door open, E-stop, gas
     pressure, fume extraction), drop every start bit in the cycle the input is read; the next
     power-source cycle carries it. `io` is a `drivers.cellio.CellIO` (anything with

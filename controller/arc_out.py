@@ -15,6 +15,8 @@ import math
 from dataclasses import dataclass
 from typing import Sequence
 
+from core.config import PowerSourceDevice
+
 Point = tuple[float, float, float]
 
 
@@ -34,10 +36,9 @@ class RunOn:
     margin_mm: float = 0.1           # taken off the estimated arc-out point (position rounding)
 
     @classmethod
-    def from_device(cls, dev: object, **kw: float) -> "RunOn":
+    def from_device(cls, dev: PowerSourceDevice, **kw: float) -> "RunOn":
         """From cell.yaml's `devices.power_source` (watchdog_ms, watchdog_burnback_s)."""
-        return cls(watchdog_s=float(getattr(dev, "watchdog_ms", 100.0)) / 1000.0,
-                   burnback_s=float(getattr(dev, "watchdog_burnback_s", 0.0)), **kw)
+        return cls(watchdog_s=dev.watchdog_ms / 1000.0, burnback_s=dev.watchdog_burnback_s, **kw)
 
     def wall_s(self, time_scale: float) -> float:
         """Wall seconds the torch surely moved with the arc on after the last journaled EXE."""

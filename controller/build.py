@@ -22,13 +22,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from controller.arc_handshake import ArcHandshake
 from controller.arc_out import RunOn, arc_lengths, arc_out_lower_bound, point_at, project
+from controller.bead_check import judge
 from controller.events import EventBus
 from controller.journal import Journal
 from controller.machine import CellMachine, State
-from planner.errors import CellError
+from controller.ports import ArcControl, CellIOPort, MotionExecutor, PowerSourcePort
+from core.errors import CellError
 
 Point = tuple[float, float, float]
+STALE_STATUS_S = 0.1  # a power-source status older than its watchdog (100 ms) does not vouch for a move
 
 
 class BuildError(CellError):
@@ -96,6 +100,8 @@ class BeadStats:
     i_sum: float = 0.0
     u_sum: float = 0.0
     w_sum: float = 0.0
+    w_min: float = math.inf
+    w_max: float = -math.inf
     i_min: float = math.inf
     i_max: float = -math.inf
     u_min: float = math.inf
@@ -108,13 +114,14 @@ class BeadStats:
         self.w_sum += w
         self.i_min, self.i_max = min(self.i_min, i), max(self.i_max, i)
         self.u_min, self.u_max = min(self.u_min, u), max(self.u_max, u)
+        self.w_min, self.w_max = min(self.w_min, w), max(self.w_max, w)
 
     def as_dict(self) -> dict[str, float | None]:
         if not self.n:
             return {}
         return {"i_mean": self.i_sum / self.n, "i_min": self.i_min, "i_max": self.i_max,
                 "u_mean": self.u_sum / self.n, "u_min": self.u_min, "u_max": self.u_max,
-                "wfs_mean": self.w_sum / self.n}
+                "wfs_mean": self.w_sum / self.n, "wfs_min": self.w_min, "wfs_max": self.w_max}
 
 
 @dataclass
@@ -129,6 +136,8 @@ class BuildOptions:
     arc_efficiency: float = 0.8
     sample_period_s: float = 0.1        # wall seconds between journal samples
     run_on: RunOn = RunOn()             # how long the arc burns on after a crash (resume estimate)
+    tolerance: Any = None               # planner.material.ProcessTolerance (None: its defaults)
+    reset_errors: bool = False          # readiness may clear a latched power-source error (journaled)
 
 
 @dataclass
@@ -138,6 +147,7 @@ class BuildResult:
     passes_done: int
     arc_starts: int
     alarms: list[dict] = field(default_factory=list)
+    defects: int = 0                    # beads of this job that were not deposited as planned
 
 
 class Interrupted(Exception):
@@ -148,12 +158,13 @@ class BuildRunner:
     """Runs a list of work items; one instance per run (first run or resume)."""
 
     def __init__(self, *, job: dict, journal: Journal, machine: CellMachine, bus: EventBus,
-                 executor: Any, power: Any, cellio: Any = None, options: BuildOptions | None = None,
-                 arc: Any = None, log: Callable[[str], None] | None = None) -> None:
+                 executor: MotionExecutor, power: PowerSourcePort, cellio: CellIOPort | None = None,
+                 options: BuildOptions | None = None, arc: ArcControl | None = None,
+                 log: Callable[[str], None] | None = None) -> None:
         self.job, self.journal, self.m, self.bus = job, journal, machine, bus
         self.ex, self.power, self.cellio = executor, power, cellio
         self.o = options or BuildOptions()
-        self.arc = arc or _make_handshake(power, self.o.time_scale)
+        self.arc: ArcControl = arc or ArcHandshake(power)
         self.log = log or (lambda _s: None)
         self.pause_requested = False
         self.abort_requested = False
@@ -166,6 +177,15 @@ class BuildRunner:
         self._arc_lit = False
         self._unstable_noted = False
         self._first_pass = True               # the first pass of a run may be the one a crash cut
+        self._pts: list[Point] = []           # the current pass's weld points
+        self._cum: Sequence[float] = []
+        self._start_mm = 0.0
+        self._t_exe = 0.0                     # monotonic time of the last EXE with the arc stable
+        self.closing: asyncio.Task | None = None  # an interrupted bead's close (awaits the held position)
+        self._measured_mm = 0.0               # length executed with the arc stable (this bead)
+        self._faltered = False                # the arc was not stable at some point of this bead
+        self._unstable_since_exe = False
+        self._defect_at: Point | None = None  # where the bead first went wrong
         self._samples: list[tuple] = []
         self._last_sample = 0.0
         self._unsub: list[Callable[[], None]] = []
@@ -190,13 +210,25 @@ class BuildRunner:
         self._resume_evt.set()
 
     # -- the run --------------------------------------------------------------------------------
+    async def _before_motion(self) -> None:
+        """Everything checked and prepared before the first move (5-axis post, devices ready)."""
+        post = getattr(self.ex, "post_job", None)
+        if post is not None:  # 5-axis: every pass to machine axes, refused before any motion
+            done = post(self.job, self.o.max_step_mm)
+            if asyncio.iscoroutine(done):
+                await done
+        await self._arc_out()
+        await self.ex.prepare()
+        from controller.readiness import ensure_ready
+
+        await ensure_ready(self.ex, self.power, self.journal, reset_errors=self.o.reset_errors, arc=self.arc)
+
     async def run(self, work: list[WorkItem]) -> BuildResult:
         self._unsub.append(self.power.subscribe(self._on_power))
         self.bus.update(layers_total=self.totals[0], passes_total=self.totals[1],
                         passes_done=len(self.done), layers_done=self._layers_done())
         try:
-            await self._arc_out()
-            await self.ex.prepare()
+            await self._before_motion()
             if self.m.state is not State.RUNNING_WAIT:
                 self.m.send("start")
             prev_layer: int | None = None
@@ -244,7 +276,8 @@ class BuildRunner:
 
     def _result(self) -> BuildResult:
         return BuildResult(state=self.m.state.value, layers_done=self._layers_done(),
-                           passes_done=len(self.done), arc_starts=self.arc_starts)
+                           passes_done=len(self.done), arc_starts=self.arc_starts,
+                           defects=self.journal.defect_count())
 
     def _layers_done(self) -> int:
         n = 0
@@ -339,10 +372,14 @@ class BuildRunner:
         speed = float(p["speed_mm_min"])
         start_idx, start_pt, start_mm = self._start_point(item, pts, speed)
         self.current, self.cur_idx = item, start_idx
+        self._pts, self._measured_mm, self._faltered, self._defect_at = pts, 0.0, False, None
+        self._cum, self._start_mm = arc_lengths(pts), start_mm
         self.bus.update(layer=la, pass_=pa, passes_in_layer=len(self.layers[la]["passes"]))
         if start_idx >= len(pts) - 1:  # nothing left of this bead (it stopped on its last point)
             self._pass_done(la, pa)
             return
+        if hasattr(self.ex, "use_pass"):
+            self.ex.use_pass(la, pa)  # the executor's tool axes for this pass
         self.m.send("travel")
         self.journal.pass_state(la, pa, "started", start_idx=start_idx, points=len(pts),
                                 start_mm=round(start_mm, 4))
@@ -359,17 +396,37 @@ class BuildRunner:
         self.arc_starts += 1
         self._arc_lit = True
         self._unstable_noted = False
+        self._unstable_since_exe = False
         self._bead = BeadStats(arc_on=time.time())
         self.journal.pass_state(la, pa, "arc_on", idx=start_idx, start_mm=round(start_mm, 4))
-        self.bus.update(arc_starts=self.bus.latest.arc_starts + 1)
+        self.bus.update(arc_starts=self.bus.latest.arc_starts + 1, travel_speed_mm_min=speed)
         self.m.send("arc_on")
+        self._t_exe = time.monotonic()
         self.ex.release()
         await self.ex.weld_done(await tickets)
         self.m.send("arc_end")
         self._arc_lit = False  # before the arc end: its falling arc-stable is no arc loss
         await self.arc.stop()
-        self._close_bead(la, pa, pts, start_idx, len(pts) - 1, speed, interrupted=False)
+        self.bus.update(travel_speed_mm_min=None)
+        stats = self._close_bead(la, pa, pts, start_idx, len(pts) - 1, speed, interrupted=False)
+        why = judge(stats or {}, float(p["current_a"]), float(p["wfs_m_min"]), self._tolerance(),
+                    self._faltered)
+        if why is not None:
+            self._defect(la, pa, why)
         self._pass_done(la, pa)
+
+    def _tolerance(self) -> Any:
+        if self.o.tolerance is None:
+            from core.material import ProcessTolerance
+
+            self.o.tolerance = ProcessTolerance()
+        return self.o.tolerance
+
+    def _defect(self, la: int, pa: int, why: str) -> None:
+        """A bead that was not deposited as planned: journaled with its position (report, state line)."""
+        pos = self._defect_at or (self._pts[self.cur_idx] if self._pts and self.cur_idx is not None else None)
+        self.journal.defect(la, pa, why, pos=pos, measured_mm=round(self._measured_mm, 3))
+        self.journal.event("defect", why, layer=la, pass_=pa, pos=pos)
 
     def _pass_done(self, la: int, pa: int) -> None:
         self.journal.pass_state(la, pa, "done")
@@ -377,12 +434,15 @@ class BuildRunner:
         self.bus.update(passes_done=len(self.done), layers_done=self._layers_done())
 
     def _close_bead(self, la: int, pa: int, pts: list[Point], i0: int, i1: int, speed: float,
-                    interrupted: bool) -> None:
+                    interrupted: bool) -> dict | None:
         b, self._bead = self._bead, None
         if b is None:
-            return
+            return None
         b.arc_off = time.time()
-        length = sum(math.dist(pts[i], pts[i + 1]) for i in range(i0, max(i0, i1)))
+        # the deposited length is what the robot executed with the arc stable (measured), not
+        # the plan's i0..i1
+        del i1
+        length = self._measured_mm
         stats = b.as_dict()
         hi = None
         if stats:
@@ -390,20 +450,34 @@ class BuildRunner:
             hi = self.o.arc_efficiency * stats["u_mean"] * stats["i_mean"] / (speed / 60.0)  # type: ignore[operator]
         self.journal.bead(la, pa, arc_on=b.arc_on, arc_off=b.arc_off, length_mm=length, speed_mm_min=speed,
                           stats=stats, heat_input_j_mm=hi, interrupted=interrupted)
+        return stats
 
     # -- callbacks ------------------------------------------------------------------------------
     def _on_exec(self, ticket: int, idx: int) -> None:
         """A weld move ending at point `idx` was executed: journal it if the arc was stable."""
         item = self.current
         st = self.power.status
+        faltered, self._unstable_since_exe = self._unstable_since_exe, False
         if item is None or st is None or not st.arc_stable or not self._arc_lit:
             return
+        if time.monotonic() - st.t > STALE_STATUS_S:
+            # the source's last word is older than its own watchdog: it may have dropped the arc
+            # since; the move is not counted as deposited (never report metal that was not)
+            faltered = True
+        if not faltered and self._pts and 0 < idx < len(self._pts):
+            self._measured_mm += max(0.0, self._cum[idx] - max(self._cum[idx - 1], self._start_mm))
+        self._t_exe = time.monotonic()
         self.cur_idx = idx
         self.journal.progress(ticket, item.layer, item.pass_, idx)
 
     def _on_power(self, st: Any) -> None:
-        if self._bead is not None and st.arc_stable:
+        if self._bead is not None and st.arc_stable and self._arc_lit:  # not the burn-back after weld start drops
             self._bead.add(st.current_a, st.voltage_v, st.wfs_m_min)
+        if self._arc_lit and not st.arc_stable:
+            self._unstable_since_exe = True
+            if not self._faltered and self._pts and self.cur_idx is not None:
+                self._defect_at = self._pts[min(self.cur_idx, len(self._pts) - 1)]
+            self._faltered = True
         if self._arc_lit and not st.arc_stable and not self._unstable_noted and self.current is not None:
             # the deposit may have stopped here while the torch moves on: a resume after a crash
             # must not assume the arc ran on (controller/arc_out.py)
@@ -418,7 +492,7 @@ class BuildRunner:
             self._samples.append((time.time(), st.current_a, st.voltage_v, st.wfs_m_min, temp,
                                   item.layer if item else None, item.pass_ if item else None))
             self.bus.update(current_a=st.current_a, voltage_v=st.voltage_v, wfs_m_min=st.wfs_m_min,
-                            temperature_c=temp)
+                            temperature_c=temp, arc_on=st.arc_stable)
             if len(self._samples) >= 10:
                 self._flush_samples()
 
@@ -438,49 +512,46 @@ class BuildRunner:
         if item is not None and self._bead is not None:
             p = self.layers[item.layer]["passes"][item.pass_]
             pts = weld_points(p["points"], self.o.max_step_mm)
-            self._close_bead(item.layer, item.pass_, pts, item.start_idx, self.cur_idx or item.start_idx,
-                             float(p["speed_mm_min"]), interrupted=True)
+            args = (item.layer, item.pass_, pts, item.start_idx, self.cur_idx or item.start_idx,
+                    float(p["speed_mm_min"]))
+            try:
+                self.closing = asyncio.get_running_loop().create_task(self._close_interrupted(*args))
+            except RuntimeError:
+                self._close_bead(*args, interrupted=True)
         if item is not None:
             self.journal.pass_state(item.layer, item.pass_, "interrupted", reason=message,
                                     idx=self.cur_idx if self.cur_idx is not None else -1)
 
 
-def _make_handshake(power: Any, time_scale: float) -> Any:
-    try:
-        from controller.arc_handshake import ArcHandshake
-    except ModuleNotFoundError:
-        return _MiniHandshake(power, time_scale)
-    try:
-        return ArcHandshake(power, time_scale=time_scale)
-    except TypeError:
-        return ArcHandshake(power)
-
-
-class _MiniHandshake:
-    """Stand-in for controller.arc_handshake while it is not there: the §5 sequence, nothing more."""
-
-    def __init__(self, power: Any, time_scale: float) -> None:
-        self.power, self.scale = power, time_scale
-
-    async def _until(self, pred: Callable[[Any], bool], timeout_wall: float, what: str) -> None:
-        t0 = time.monotonic()
-        while True:
-            st = await self.power.next_status()
-            if pred(st):
-                return
-            if time.monotonic() - t0 > timeout_wall:
-                raise BuildError(f"power source: {what} did not come within {timeout_wall:.2f} s")
-
-    async def start(self) -> None:
-        self.power.set_robot_ready(True)
-        self.power.set_weld_start(True)
+    async def _close_interrupted(self, la: int, pa: int, pts: list[Point], i0: int, i1: int, speed: float) -> None:
+        """Close a bead a trip cut: the torch went on from the last executed move to where the
+        robot held, with the arc still on until the start dropped (the sim's deposit log shows it)."""
+        faltered, idx = self._unstable_since_exe, self.cur_idx
+        t_trip, t_exe = time.monotonic(), self._t_exe
         try:
-            await self._until(lambda s: s.motion_release and s.arc_stable, max(0.2, 3.0 / self.scale) + 1.0,
-                              "motion release")
-        except BaseException:
-            self.power.set_weld_start(False)
-            raise
+            pos = await asyncio.wait_for(self.ex.held_position(), 1.0)
+        except Exception:
+            pos = None
+        if pos is not None and not faltered and idx is not None and self._pts and len(self._pts) == len(pts):
+            from_s = max(self._cum[idx], self._start_mm)
+            s = project(pts, self._cum, pos, from_s)
+            if s is not None:
+                self._measured_mm += max(0.0, s - from_s)
+        elif pos is None and not faltered and idx is not None and self._pts and len(self._pts) == len(pts):
+            # the robot cannot say where it stopped (link lost / garbled): it went on at the
+            # planned speed from the last EXE until the link's own !HOLD or the trip
+            held = getattr(getattr(self.ex, "link", None), "held_at", None)
+            t_stop = min(t_trip, held) if held is not None and held > t_exe else t_trip
+            from_s = max(self._cum[idx], self._start_mm)
+            # never beyond the last weld move the robot was sent (it may have starved on the way)
+            sent = getattr(getattr(self.ex, "link", None), "_max_sent", None)
+            weld = getattr(self.ex, "_weld", {}) or {}
+            reach = max((i for tk, i in weld.items() if sent is not None and tk <= sent), default=len(pts) - 1)
+            blind = min(max(0.0, t_stop - t_exe) * speed / 60.0 * self.o.time_scale,
+                        max(0.0, self._cum[min(reach, len(pts) - 1)] - from_s))
+            self._measured_mm += blind
+            self.journal.event("info", f"bead cut with the robot unreachable: {blind:.2f} mm after the last "
+                                       "executed move estimated from the time and the planned speed",
+                               layer=la, pass_=pa)
+        self._close_bead(la, pa, pts, i0, i1, speed, interrupted=True)
 
-    async def stop(self) -> None:
-        self.power.set_weld_start(False)
-        await self._until(lambda s: not s.arc_stable, 2.0, "arc off")

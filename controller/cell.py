@@ -15,9 +15,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from controller.config import CellConfig, SimConfig, load_material
+from core.config import CellConfig, SimConfig, load_material
 from drivers.errors import DeviceError
-from planner.material import Material
+from controller.ports import CellIOPort, CncLinkPort, PowerSourcePort, RobotLinkPort
+from core.material import Material
 
 
 class DeviceUnreachable(DeviceError):
@@ -108,14 +109,32 @@ class Devices:
 
     cfg: CellConfig
     material: Material
-    robot: Any = None
-    cnc: Any = None
-    power: Any = None
-    cellio: Any = None
-    opened: list[Any] = field(default_factory=list)
+    robot: RobotLinkPort | None = None
+    cnc: CncLinkPort | None = None
+    power: PowerSourcePort | None = None
+    cellio: CellIOPort | None = None
+    opened: list[RobotLinkPort | CncLinkPort | PowerSourcePort | CellIOPort] = field(default_factory=list)
+
+    def robot_link(self) -> RobotLinkPort:
+        """The robot link; a DeviceError naming it when it is not connected."""
+        if self.robot is None:
+            raise DeviceError(f"robot at {self.cfg.devices.robot.url}: not connected")
+        return self.robot
+
+    def cnc_link(self) -> CncLinkPort:
+        """The CNC link; a DeviceError naming it when it is not connected."""
+        if self.cnc is None:
+            raise DeviceError(f"cnc at {self.cfg.devices.cnc.url}: not connected")
+        return self.cnc
+
+    def power_source(self) -> PowerSourcePort:
+        """The power source; a DeviceError naming it when it is not connected."""
+        if self.power is None:
+            raise DeviceError(f"power source at {self.cfg.devices.power_source.url}: not connected")
+        return self.power
 
     @property
-    def motion(self) -> Any:
+    def motion(self) -> RobotLinkPort | CncLinkPort | None:
         return self.robot if self.cfg.cell.platform == "robot" else self.cnc
 
     @classmethod
@@ -146,21 +165,18 @@ class Devices:
                 d.cnc = CncLink(c.url)
                 await _connect("cnc", c.url, d.cnc.connect())
                 d.opened.append(d.cnc)
-            from drivers.power import open_power_source
+            from drivers.power_open import open_power_source
 
             d.power = open_power_source(cfg.devices.power_source, mat)
             await _connect("power_source", cfg.devices.power_source.url, d.power.connect())
             d.opened.append(d.power)
-            try:
-                from drivers.cellio import CellIO
-            except ModuleNotFoundError:
-                d.cellio = None  # not built yet: interlocks then rely on the power source only
-            else:
-                io = cfg.devices.cellio
-                d.cellio = CellIO(io.url, device_id=io.device_id, cycle_ms=io.cycle_ms,
-                                  timeout_ms=reply_timeout_ms or 50.0)
-                await _connect("cellio", io.url, d.cellio.connect())
-                d.opened.append(d.cellio)
+            from drivers.cellio import CellIO
+
+            io = cfg.devices.cellio
+            d.cellio = CellIO(io.url, device_id=io.device_id, cycle_ms=io.cycle_ms,
+                              timeout_ms=reply_timeout_ms, lost_after_cycles=io.lost_after_cycles)
+            await _connect("cellio", io.url, d.cellio.connect())
+            d.opened.append(d.cellio)
         except BaseException:
             await d.close()
             raise

@@ -30,8 +30,11 @@ class LinkStat:
     connected: bool = False
     frames_tx: int = 0
     frames_rx: int = 0
-    errors: int = 0                 # NAKs, CRC errors, retries, timeouts
+    errors: int = 0                 # late + bad (kept for the views that show one number)
     queue_free: int | None = None   # robot queue slots free, CNC rx buffer bytes free
+    late: int = 0                   # valid replies after their cycle (robot: resends, timeouts)
+    lost: int = 0                   # link losses
+    bad: int = 0                    # invalid frames (CRC, NAK, garbage)
 
 
 @dataclass(frozen=True)
@@ -53,6 +56,9 @@ class Snapshot:
     current_a: float | None = None
     voltage_v: float | None = None
     wfs_m_min: float | None = None
+    arc_on: bool | None = None      # the power source's arc-stable bit (None: not read)
+    travel_speed_mm_min: float | None = None   # the bead's speed while depositing
+    job_hash: str | None = None
     temperature_c: float | None = None
     interpass_limit_c: float | None = None
     interpass_remaining_s: float | None = None   # dwell countdown when no pyrometer reading

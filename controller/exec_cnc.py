@@ -14,6 +14,10 @@ import asyncio
 import math
 from typing import Any, Callable
 
+from controller.ports import CncLinkPort, PowerSourcePort
+from controller.exec_cnc5 import Five
+from drivers.errors import DeviceError
+
 Point = tuple[float, float, float]
 
 
@@ -24,8 +28,10 @@ def _f(v: float) -> str:
 class CncExecutor:
     platform = "cnc"
 
-    def __init__(self, link: Any, power: Any = None, spindle_s: int = 1000) -> None:
+    def __init__(self, link: CncLinkPort, power: PowerSourcePort | None = None, spindle_s: int = 1000,
+                 trunnion: Any = None) -> None:
         self.link = link
+        self.five = Five(trunnion)  # 5-axis passes (controller/exec_cnc5.py); inactive for 3-axis jobs
         self.power = power
         self.spindle_s = spindle_s
         self._release = asyncio.Event()
@@ -39,13 +45,62 @@ class CncExecutor:
 
     async def prepare(self) -> None:
         st = await self.link.status()
-        if str(getattr(st, "state", "Idle")).startswith("Alarm"):
+        if st.state.startswith("Alarm"):
             await self.link.unlock()
-        elif str(getattr(st, "state", "Idle")).startswith("Hold"):
+        elif st.state.startswith("Hold"):
             await self.link.soft_reset()
         await self.link.command("G90 G21 G94")
+        await self._laser_mode()
+        await self._level_table()
+
+    async def _level_table(self) -> None:
+        """The job's A/B leveling, commanded and read back from the status report before any bead."""
+        lines = self.five.level_lines()
+        if not lines:
+            return
+        await self.link.stream(lines)  # ends with G4 P0: the table has arrived
+        st = await self.link.status()
+        if not self.five.level_ok(st.mpos):
+            from core.errors import CellError
+
+            raise CellError(f"cnc: the table reports A/B {st.mpos[3]:.4f}/{st.mpos[4]:.4f}°, not the job's "
+                            f"leveling {self.five.level[0]:.4f}/{self.five.level[1]:.4f}°; check the rotary axes")
+
+    async def post_job(self, job: dict, max_step_mm: float) -> None:
+        """Before any motion: every 5-axis pass to machine axes, or InputError naming the point."""
+        self.five.check_alignment(job, float(getattr(self.link, "reset_at", 0.0)))
+        await self.five.post_job(job, max_step_mm)
+
+    def use_pass(self, layer: int, pass_: int) -> None:
+        self.five.use(layer, pass_)
+
+    async def _laser_mode(self) -> None:
+        """`$32=1` before any M3 (power-up default is 0): in laser mode grbl drops the process
+        power on feed hold and between motions; checked by reading it back."""
+        if _setting(await self.link.command("$$"), 32) != "1":
+            await self.link.command("$32=1")
+            if _setting(await self.link.command("$$"), 32) != "1":
+                raise DeviceError(f"cnc at {getattr(self.link, 'url', '?')}: laser mode ($32=1) did not stick; "
+                                  "check the controller's settings before running a job")
+
+    async def process_off(self) -> Any:
+        """Process off and motion held: feed hold (laser mode drops S), then confirm `FS:f,0`
+        in a status report; a soft reset (which stops the spindle) if power still shows."""
+        await self.link.feed_hold()
+        st = await self.link.status()
+        for _ in range(25):
+            if not str(st.state).startswith(("Run", "Hold:1", "Jog")):
+                break
+            st = await self.link.status()
+        if st.spindle != 0:
+            await self.link.soft_reset()
+            st = await self.link.status()
+        return st
 
     async def approach(self, p: Point, clearance: float, speed: float) -> None:
+        if self.five.active:
+            await self.link.stream(self.five.approach_lines(p, clearance, speed))
+            return
         await self.link.stream([f"G0 Z{_f(p[2] + clearance)}", f"G0 X{_f(p[0])} Y{_f(p[1])}",
                                 f"G1 Z{_f(p[2])} F{speed:.0f}"])  # ends with G4 P0: at the start
 
@@ -56,12 +111,17 @@ class CncExecutor:
                    on_exec: Callable[[int, int], None]) -> "asyncio.Task[int]":
         self._release = asyncio.Event()
         lines = [f"M3 S{self.spindle_s}"]
-        lines += [f"G1 X{_f(p[0])} Y{_f(p[1])} Z{_f(p[2])} F{speed:.0f}" for p in pts[i0 + 1:]]
+        if self.five.active:
+            lines += self.five.weld_lines(i0, speed)
+            track = self.five.machine_xyz()
+        else:
+            lines += [f"G1 X{_f(p[0])} Y{_f(p[1])} Z{_f(p[2])} F{speed:.0f}" for p in pts[i0 + 1:]]
+            track = pts
         lines.append("M5")
 
         async def run() -> int:
             await self._release.wait()
-            poll = asyncio.get_running_loop().create_task(self._track(pts, i0, on_exec))
+            poll = asyncio.get_running_loop().create_task(self._track(track, i0, on_exec))
             try:
                 await self.link.stream(lines)
             finally:
@@ -78,7 +138,7 @@ class CncExecutor:
         k = i0
         while True:
             st = await self.link.status()
-            pos = tuple(float(v) for v in st.mpos[:3])
+            pos = _xyz(st.mpos)
             for j in range(k, min(k + 200, len(pts) - 1)):
                 if _on_segment(pos, pts[j], pts[j + 1]):
                     if j > k:
@@ -96,15 +156,29 @@ class CncExecutor:
         return None  # the stream's closing G4 P0 came back: every weld move has executed
 
     def hold_now(self) -> None:
-        t = asyncio.get_running_loop().create_task(self.link.feed_hold())
+        t = asyncio.get_running_loop().create_task(self.process_off())
         t.add_done_callback(lambda f: f.cancelled() or f.exception())
 
     async def held_position(self) -> Point:
         st = await self.link.status()
-        return tuple(float(v) for v in st.mpos[:3])
+        if self.five.active:
+            return self.five.part_point(st.mpos)
+        return _xyz(st.mpos)
 
     async def position(self) -> Point | None:
         return await self.held_position()
+
+
+def _xyz(pos: tuple[float, ...]) -> Point:
+    """X, Y, Z of a reported machine position."""
+    return (float(pos[0]), float(pos[1]), float(pos[2]))
+
+
+def _setting(lines: list[str], n: int) -> str | None:
+    for text in lines:
+        if text.startswith(f"${n}="):
+            return text.split("=", 1)[1]
+    return None
 
 
 def _on_segment(p: Point, a: Point, b: Point, tol: float = 0.02) -> bool:

@@ -10,14 +10,16 @@ from __future__ import annotations
 import asyncio
 from typing import Any, Callable
 
+from controller.ports import RobotLinkPort
+
 Point = tuple[float, float, float]
-AXIS = (0.0, 0.0, 1.0)  # tool axis: vertical torch (3-axis deposition)
+AXIS = (0.0, 0.0, 1.0)  # tool axis of a 3-axis pass: vertical torch
 
 
 class RobotExecutor:
     platform = "robot"
 
-    def __init__(self, link: Any) -> None:
+    def __init__(self, link: RobotLinkPort) -> None:
         self.link = link
         self._at_start: int | None = None
         self._weld: dict[int, int] = {}       # ticket -> point index reached by that move
@@ -29,7 +31,38 @@ class RobotExecutor:
         self.min_ahead: int | None = None       # fewest weld moves queued ahead at an EXE inside a bead
         self._lost_cbs: list[Callable[[Any], None]] = []
         self.stopped_at: Point | None = None    # where prepare() found the robot stopped (queue flushed)
+        self._axes: dict[tuple[int, int], list[Point]] = {}
+        self._cur_axes: list[Point] | None = None  # the planned tool axis per weld point (5-axis)
+        self._pts: dict[tuple[int, int], list[Point]] = {}
+        self._weld_pts: list[Point] | None = None
         self._subscribe()
+
+    def post_job(self, job: dict, max_step_mm: float) -> None:
+        """The planned tool axis per weld point of every 5-axis pass (`axes`), before any motion."""
+        from controller.build import weld_points
+        from controller.post5 import weld_axes
+
+        if job.get("frame") == "cad" and not job.get("alignment"):
+            from core.errors import InputError
+
+            raise InputError("the job is in the CAD frame and carries no alignment: the controller does not know "
+                             "where the substrate is; align it (cell align run --job) or plan with --frame substrate")
+
+        self._axes, self._pts = {}, {}
+        for li, la in enumerate(job.get("layers", [])):
+            for pi, p in enumerate(la.get("passes", [])):
+                if p.get("axes"):
+                    self._axes[(li, pi)] = weld_axes(p["points"], p["axes"], max_step_mm)
+                    self._pts[(li, pi)] = weld_points(p["points"], max_step_mm)
+
+    def use_pass(self, layer: int, pass_: int) -> None:
+        self._cur_axes = self._axes.get((layer, pass_))
+        self._weld_pts = self._pts.get((layer, pass_))
+
+    def _axis(self, i: int | None) -> Point:
+        if self._cur_axes is None or i is None:
+            return AXIS
+        return self._cur_axes[min(max(i, 0), len(self._cur_axes) - 1)]
 
     def _subscribe(self) -> None:
         self.link.on_event(self._event)
@@ -65,21 +98,29 @@ class RobotExecutor:
     async def prepare(self) -> None:
         """Before a run: an empty, released queue (after a crash the robot may hold old moves)."""
         st = await self.link.status()
-        if st.state == "FAULT":
-            # a robot fault (workspace) needs !RESET; the sequence numbers restart at 0001
+        if st.state == "FAULT" or getattr(self.link, "protocol_fault", None):
+            # a robot fault (workspace) or a latched protocol fault (a robot that lied) needs
+            # !RESET; the sequence numbers restart at 0001
             st = await self.link.reset()
         else:
             # flush whatever an earlier run left queued (held by the silence rule or by a trip)
             st = await self.link.abort()
         # after the flush the robot stands still: no torch went further than this (resume caps
         # its estimate of where a crashed bead's arc went out with it)
-        self.stopped_at = tuple(float(v) for v in st.pos) if st is not None and st.pos is not None else None
+        self.stopped_at = _xyz(st.pos) if st is not None and st.pos is not None else None
 
     async def approach(self, p: Point, clearance: float, speed: float) -> None:
-        above = (p[0], p[1], p[2] + clearance)
-        await self.link.send_move("MOVJ", *above, *AXIS, speed)
-        self._at_start = await self.link.send_move("MOVJ", *p, *AXIS, speed)
+        ax = self._axis(self._start_index(p))
+        above = (p[0] + ax[0] * clearance, p[1] + ax[1] * clearance, p[2] + ax[2] * clearance)  # along the tool
+        await self.link.send_move("MOVJ", *above, *ax, speed)
+        self._at_start = await self.link.send_move("MOVJ", *p, *ax, speed)
         await self.link.send_move("WAIT")
+
+    def _start_index(self, p: Point) -> int | None:
+        """Index of the weld point nearest the approached start (a resume may start mid-pass)."""
+        if self._cur_axes is None or self._weld_pts is None:
+            return None
+        return min(range(len(self._weld_pts)), key=lambda k: sum((a - b) ** 2 for a, b in zip(self._weld_pts[k], p)))
 
     def next_tickets(self, n: int) -> list[int]:
         """The tickets the next `n` moves will get (only this executor sends moves on the link)."""
@@ -96,7 +137,7 @@ class RobotExecutor:
         async def stream() -> int:
             last = 0
             for i in range(i0 + 1, len(pts)):
-                last = await self.link.send_move("MOVL", *pts[i], *AXIS, speed)
+                last = await self.link.send_move("MOVL", *pts[i], *self._axis(i), speed)
                 self._weld[last] = i
                 self._sent_last = last
             self._all_sent = True
@@ -121,11 +162,16 @@ class RobotExecutor:
     async def held_position(self) -> Point:
         """Where motion stopped: waits for the robot to confirm HOLD (idempotent) and reads it."""
         st = await self.link.hold()
-        return tuple(st.pos)
+        return _xyz(st.pos)
 
     async def position(self) -> Point | None:
         st = await self.link.status()
-        return tuple(st.pos)
+        return _xyz(st.pos)
+
+
+def _xyz(pos: tuple[float, ...]) -> Point:
+    """The first three coordinates of a reported position, as a point."""
+    return (float(pos[0]), float(pos[1]), float(pos[2]))
 
 
 def _fire(x: Any) -> None:

@@ -17,11 +17,15 @@ from __future__ import annotations
 import asyncio
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Callable
 
+from controller.build import BuildRunner
 from controller.events import EventBus
 from controller.journal import Journal
 from controller.machine import CellMachine
+from controller.ports import CellIOPort, MotionExecutor, PowerSourcePort
+from drivers.cellio import CellInputs
+from drivers.power import PowerStatus
 
 
 @dataclass
@@ -40,11 +44,11 @@ class TripRecord:
 class Interlocks:
     """Watches the devices and trips the cell. One instance per connected cell."""
 
-    def __init__(self, *, machine: CellMachine, journal: Journal | None, bus: EventBus, power: Any,
-                 executor: Any, cellio: Any = None) -> None:
+    def __init__(self, *, machine: CellMachine, journal: Journal | None, bus: EventBus, power: PowerSourcePort,
+                 executor: MotionExecutor, cellio: CellIOPort | None = None) -> None:
         self.m, self.journal, self.bus = machine, journal, bus
         self.power, self.ex, self.cellio = power, executor, cellio
-        self.runner: Any = None              # the BuildRunner to stop, set while a build runs
+        self.runner: BuildRunner | None = None  # the BuildRunner to stop, set while a build runs
         self.build_task: asyncio.Task | None = None
         self.trips: list[TripRecord] = []
         self.on_trip: list[Callable[[TripRecord], None]] = []
@@ -55,13 +59,11 @@ class Interlocks:
     def arm(self) -> None:
         self._loop = asyncio.get_running_loop()
         self._unsub.append(self.power.subscribe(self._on_power))
-        self.power.on_error(lambda exc: self.trip("fault", f"power source: {exc}"))
+        self.power.on_error(lambda exc: self.fault(f"power source: {exc}"))
         if self.cellio is not None:
             self.cellio.on_change(self._on_inputs)
-            self.cellio.on_error(lambda exc: self.trip("fault", f"cell I/O: {exc}"))
-        link_lost = getattr(self.ex, "on_link_lost", None)
-        if link_lost is not None:
-            link_lost(lambda exc: self.trip("fault", f"link lost: {exc}"))
+            self.cellio.on_error(lambda exc: self.fault(f"cell I/O: {exc}"))
+        self.ex.on_link_lost(lambda exc: self.fault(f"link lost: {exc}"))
 
     def disarm(self) -> None:
         for u in self._unsub:
@@ -72,18 +74,14 @@ class Interlocks:
         self._unsub.clear()
 
     # -- sources ------------------------------------------------------------------------------
-    def _on_inputs(self, *args: Any) -> None:
+    def _on_inputs(self, _prev: CellInputs, new: CellInputs) -> None:
         """CellIO input-change callback `(previous, new)`, called in the cycle that read the change."""
-        new = args[-1]
-        estop_ok = getattr(new, "estop_released", None)
-        door = getattr(new, "door_closed", None)
-        t = getattr(new, "t", None)
-        if estop_ok is False and self.m.can("estop"):
-            self.trip("estop", "E-stop pressed", t_detect=t)
-        elif door is False and self.m.state.running:
-            self.trip("fault", "door opened during the build", t_detect=t)
+        if not new.estop_released and self.m.can("estop"):
+            self.trip("estop", "E-stop pressed", t_detect=new.t)
+        elif not new.door_closed and self.m.state.running:
+            self.trip("fault", "door opened during the build", t_detect=new.t)
 
-    def _on_power(self, st: Any) -> None:
+    def _on_power(self, st: PowerStatus) -> None:
         """Power-source faults while welding come from the ArcHandshake's on_fault (wall-time
         supervision: arc lost > 200 ms, wire stick, gas, collision, watchdog); here only the
         faults it does not watch outside a weld: a torch collision or gas fault at any time
@@ -96,6 +94,10 @@ class Interlocks:
             self.trip("fault", "gas fault", t_detect=st.t)
 
     # -- the action -----------------------------------------------------------------------------
+    def fault(self, message: str) -> None:
+        """Trip to Fault (a device callback: returns nothing)."""
+        self.trip("fault", message)
+
     def trip(self, kind: str, message: str, t_detect: float | None = None) -> TripRecord | None:
         """Drop start, hold motion, latch. Idempotent while latched."""
         t0 = time.monotonic() if t_detect is None else t_detect
@@ -113,10 +115,11 @@ class Interlocks:
         if not self.m.can(event):
             return None  # already latched (or disconnected): the action above is all there is
         runner = self.runner
-        item = getattr(runner, "current", None) if runner is not None and self.m.state.running else None
+        item = runner.current if runner is not None and self.m.state.running else None
+        st = self.power.status
         rec = TripRecord(kind=event, message=message, t_detect=t0, t_acted=t_acted,
                          layer=item.layer if item else None, pass_=item.pass_ if item else None,
-                         power_cycle_at_trip=getattr(self.power.status, "cycle", None))
+                         power_cycle_at_trip=st.cycle if st is not None else None)
         self.m.send(event, cause=message)
         self.trips.append(rec)
         if runner is not None and item is not None:
@@ -141,7 +144,7 @@ class Interlocks:
             pos = await asyncio.wait_for(self.ex.held_position(), 2.0)
         except Exception:
             pos = None
-        rec.position = tuple(pos) if pos is not None else None
+        rec.position = (float(pos[0]), float(pos[1]), float(pos[2])) if pos is not None else None
         if self.journal is not None:
             self.journal.event("alarm", rec.message, state=rec.kind, layer=rec.layer, pass_=rec.pass_, pos=pos)
         self.bus.alarm(rec.kind, rec.message, layer=rec.layer, pass_=rec.pass_, position=rec.position)

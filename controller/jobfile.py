@@ -4,7 +4,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from planner.errors import InputError
+from core.errors import InputError
 
 
 def read_job(path: str | Path) -> dict:
@@ -12,6 +12,10 @@ def read_job(path: str | Path) -> dict:
     p = Path(path)
     try:
         job = json.loads(p.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{p}: not UTF-8 text (byte {exc.start}); not a cell-job/1 file") from None
+    except RecursionError:
+        raise InputError(f"{p}: nested too deeply; not a cell-job/1 file") from None
     except OSError as exc:
         raise InputError(f"{p}: cannot read the job ({exc.strerror or exc}); check the path") from None
     except json.JSONDecodeError as exc:

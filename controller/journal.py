@@ -29,7 +29,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from planner.errors import CellError
+from controller.journal_check import inspect, uri
+from core.errors import CellError
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS job (id INTEGER PRIMARY KEY, hash TEXT NOT NULL, name TEXT NOT NULL,
@@ -48,6 +49,8 @@ CREATE TABLE IF NOT EXISTS events (id INTEGER PRIMARY KEY, t REAL NOT NULL, kind
     state TEXT, message TEXT NOT NULL, layer INTEGER, pass INTEGER, x REAL, y REAL, z REAL, run INTEGER);
 CREATE TABLE IF NOT EXISTS samples (t REAL NOT NULL, current_a REAL, voltage_v REAL, wfs_m_min REAL,
     temperature_c REAL, layer INTEGER, pass INTEGER);
+CREATE TABLE IF NOT EXISTS defects (id INTEGER PRIMARY KEY, layer INTEGER NOT NULL, pass INTEGER NOT NULL,
+    run INTEGER NOT NULL, t REAL NOT NULL, reason TEXT NOT NULL, x REAL, y REAL, z REAL, measured_mm REAL);
 CREATE INDEX IF NOT EXISTS progress_lp ON progress(layer, pass);
 CREATE INDEX IF NOT EXISTS passes_lp ON passes(layer, pass);
 """
@@ -88,14 +91,23 @@ class Journal:
         self._thread: threading.Thread | None = None
         self.write_errors = 0
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        # an existing journal is inspected read-only first and opened read-write only when
+        # healthy: a damaged one is never overwritten, truncated or replaced (issue 14)
+        health = inspect(self.path)
+        if health.damage is not None:
+            raise JournalError(f"journal {self.path} is damaged ({health.damage}); it was left untouched: "
+                               f"`cell journal check {self.path.parent}` says what is readable")
+        mode = "rw" if health.exists else "rwc"
         try:
             # autocommit mode: every execute() is its own transaction, committed at once
-            self.db = sqlite3.connect(str(self.path), isolation_level=None, check_same_thread=False)
+            self.db = sqlite3.connect(uri(self.path, mode), uri=True, isolation_level=None,
+                                      check_same_thread=False)
             mode = self.db.execute("PRAGMA journal_mode=WAL").fetchone()[0]
             self.db.execute("PRAGMA synchronous=FULL")
             self.db.executescript(SCHEMA)
         except sqlite3.DatabaseError as exc:
-            raise JournalError(f"{self.path}: cannot open the journal ({exc}); move it away to start afresh") from None
+            raise JournalError(f"journal {self.path} is damaged ({exc}); it was left untouched: "
+                               f"`cell journal check {self.path.parent}` says what is readable") from None
         if str(mode).lower() != "wal":
             raise JournalError(f"{self.path}: the file system does not support SQLite WAL mode")
         self.run = self._next_run()
@@ -205,6 +217,20 @@ class Journal:
              stats.get("wfs_mean"), heat_input_j_mm, int(interrupted)),
         )
 
+    def defect(self, layer: int, pass_: int, reason: str, *, pos: Sequence[float] | None = None,
+               measured_mm: float | None = None) -> None:
+        """A bead not deposited as planned (arc faltered, process outside tolerance): where and why."""
+        x, y, z = (list(pos) + [None, None, None])[:3] if pos is not None else (None, None, None)
+        self._write(
+            "INSERT INTO defects (layer, pass, run, t, reason, x, y, z, measured_mm) VALUES (?,?,?,?,?,?,?,?,?)",
+            (layer, pass_, self.run, time.time(), reason, x, y, z, measured_mm),
+        )
+
+    def defect_count(self) -> int:
+        """Beads with a defect in this journal (every run)."""
+        self.flush()
+        return int(self.query("SELECT count(DISTINCT layer || '/' || pass) FROM defects")[0][0])
+
     def event(self, kind: str, message: str, *, state: str | None = None, layer: int | None = None,
               pass_: int | None = None, pos: Sequence[float] | None = None) -> None:
         """kind: transition, alarm, info."""
@@ -270,13 +296,107 @@ class Journal:
     def last_ticket(self) -> int:
         """The highest ticket ever written ahead (0 when none)."""
         row = self._read1("SELECT max(ticket) FROM moves")
-        return int(row[0] or 0)
+        return int(row[0] or 0) if row else 0
 
     def move_of(self, ticket: int) -> tuple[int, int, int, str] | None:
         """(layer, pass, idx, kind) of a ticket, from the latest run that sent it."""
         row = self._read1(
             "SELECT layer, pass, idx, kind FROM moves WHERE ticket=? ORDER BY run DESC LIMIT 1", (ticket,))
-        return tuple(row) if row else None  # type: ignore[return-value]
+        return (int(row[0]), int(row[1]), int(row[2]), str(row[3])) if row else None
+
+    # -- read queries for the report, `cell runs`, the CLI and the TUI (the only SQL outside writes) --
+    def latest_time_scale(self) -> float:
+        """The time scale of the latest journaled run (1.0 when none was journaled)."""
+        for (msg,) in self.query("SELECT message FROM events WHERE kind='run' ORDER BY id DESC LIMIT 1"):
+            try:
+                return float(json.loads(msg).get("time_scale", 1.0))
+            except (ValueError, AttributeError, TypeError):
+                return 1.0
+        return 1.0
+
+    def done_passes(self) -> set[tuple[int, int]]:
+        """(layer, pass) of every pass whose latest state is `done`."""
+        return {(la, pa) for la, pa, st in self.query(
+            "SELECT layer, pass, state FROM passes WHERE id IN (SELECT max(id) FROM passes GROUP BY layer, pass)")
+            if st == "done"}
+
+    def bead_rows(self) -> list[dict[str, Any]]:
+        """Every bead row as a dict (column names of the `beads` table), in the order written."""
+        cols = ("layer", "pass", "run", "arc_on", "arc_off", "length_mm", "speed_mm_min", "i_mean", "i_min",
+                "i_max", "u_mean", "u_min", "u_max", "wfs_mean", "heat_input_j_mm", "interrupted")
+        rows = self.query(f"SELECT {', '.join(cols)} FROM beads ORDER BY id")
+        return [dict(zip(cols, r)) for r in rows]
+
+    def alarm_rows(self) -> list[dict[str, Any]]:
+        """Alarms with their state, layer, pass, torch position and run."""
+        return [
+            {"t": t, "message": msg, "state": st, "layer": la, "pass": pa,
+             "position": [x, y, z] if x is not None else None, "run": run}
+            for t, msg, st, la, pa, x, y, z, run in self.query(
+                "SELECT t, message, state, layer, pass, x, y, z, run FROM events WHERE kind='alarm' ORDER BY id")
+        ]
+
+    def last_build_state(self) -> str | None:
+        """The latest journaled state other than disconnected/idle."""
+        row = self._read1("SELECT state FROM events WHERE kind='transition' AND state NOT IN"
+                          " ('disconnected', 'idle') ORDER BY id DESC LIMIT 1")
+        return str(row[0]) if row else None
+
+    def run_count(self) -> int:
+        """How many runs (start plus resumes) wrote events."""
+        row = self._read1("SELECT count(DISTINCT run) FROM events")
+        return int(row[0] or 0) if row else 0
+
+    def arc_start_count(self) -> int:
+        """How many times an arc was struck on a pass."""
+        row = self._read1("SELECT count(*) FROM passes WHERE state='arc_on'")
+        return int(row[0] or 0) if row else 0
+
+    def arc_on_spans(self) -> list[tuple[int, int, float, float]]:
+        """(layer, pass, t arc_on, t next state) per arc strike, from the pass-state rows."""
+        rows = self.query("SELECT layer, pass, state, t FROM passes ORDER BY id")
+        open_: dict[tuple[int, int], float] = {}
+        out: list[tuple[int, int, float, float]] = []
+        for la, pa, st, t in rows:
+            key = (la, pa)
+            if key in open_ and st != "arc_on":
+                out.append((la, pa, open_.pop(key), t))
+            if st == "arc_on":
+                open_[key] = t
+        return out
+
+    def sample_rows(self) -> list[tuple[float, float | None, float | None, float | None, float | None,
+                                        int | None, int | None]]:
+        """(t, current, voltage, wfs, temperature, layer, pass) samples in time order."""
+        return self.query("SELECT t, current_a, voltage_v, wfs_m_min, temperature_c, layer, pass FROM samples"
+                          " ORDER BY t")
+
+    def wall_clock_span(self) -> tuple[float | None, float | None]:
+        """(first, last) wall-clock time (Unix s) of the journal's events."""
+        row = self._read1("SELECT min(t), max(t) FROM events")
+        return (row[0], row[1]) if row else (None, None)
+
+    def latest_mode(self) -> str | None:
+        """The message of the latest `mode` event (how the run was started), None if none."""
+        row = self._read1("SELECT message FROM events WHERE kind='mode' ORDER BY id DESC LIMIT 1")
+        return str(row[0]) if row else None
+
+    def max_progress_ticket(self) -> int | None:
+        """The highest ticket executed with the arc stable, None if none."""
+        row = self._read1("SELECT max(ticket) FROM progress")
+        return int(row[0]) if row and row[0] is not None else None
+
+    def events_after(self, last_id: int, limit: int = 200) -> list[tuple]:
+        """(id, t, kind, state, message, layer, pass) of events after `last_id`."""
+        return self.query("SELECT id, t, kind, state, message, layer, pass FROM events WHERE id > ? ORDER BY id"
+                          " LIMIT ?", (last_id, limit))
+
+    def defect_rows(self) -> list[dict[str, Any]]:
+        """Beads the measurements say were not deposited as planned, oldest first."""
+        return [{"t": t, "layer": la, "pass": pa, "reason": reason, "run": run, "measured_mm": mm,
+                 "position": [x, y, z] if x is not None else None}
+                for t, la, pa, reason, x, y, z, run, mm in self.query(
+                    "SELECT t, layer, pass, reason, x, y, z, run, measured_mm FROM defects ORDER BY id")]
 
     def query(self, sql: str, params: Sequence[Any] = ()) -> list[tuple]:
         """Rows of a read (after every queued write is committed)."""
@@ -297,3 +417,23 @@ class Journal:
             self.db.close()
         except sqlite3.Error:
             pass
+
+
+def read_events_after(path: str | Path, after_id: int = 0, limit: int = 2000) -> list[tuple]:
+    """(id, t, kind, state, message, layer, pass) after `after_id`, on a read-only connection.
+
+    For a reader in another thread or process (the TUI's log): WAL lets it read mid-build without
+    touching the writer's connection; a journal that cannot be read yet gives no rows.
+    """
+    p = Path(path)
+    if not p.exists():
+        return []
+    try:
+        db = sqlite3.connect(f"file:{p}?mode=ro", uri=True, timeout=0.2)
+        try:
+            return db.execute("SELECT id, t, kind, state, message, layer, pass FROM events WHERE id > ? "
+                              "ORDER BY id LIMIT ?", (after_id, limit)).fetchall()
+        finally:
+            db.close()
+    except sqlite3.Error:
+        return []

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Callable
 
-from planner.errors import CellError
+from core.errors import CellError
 
 
 class State(str, Enum):

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from controller.build import WorkItem
 from controller.journal import Journal
-from planner.errors import CellError
+from core.errors import CellError
 
 
 def remaining_work(job: dict, journal: Journal) -> list[WorkItem]:

@@ -21,265 +21,29 @@ import asyncio
 import concurrent.futures
 import gc
 import math
-import sqlite3
 import sys
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
 from controller.events import Snapshot
 from controller.jobfile import read_job
-from planner.errors import CellError, InputError
+from core.errors import CellError, InputError
 
-DEMO_PART = Path(__file__).resolve().parent.parent / "config" / "parts" / "square-hole.stl"
-HISTORY_LEN = 300          # samples kept for the live plots (30 s at 10 Hz)
-SAMPLE_PERIOD_S = 0.1      # history sampling period (wall seconds)
-ROLES = ("perimeter", "infill", "gap")
-# Where the substrate may be probed on the CNC's link outside the facade (as `cell demo` does on a
-# robot cell): the cell is connected and no build runs.
-PROBE_STATES = ("idle", "ready", "aligned", "complete", "aborted")
-# How the drivers and the interlocks name each device in their messages.
-DEVICE_WORDS = {"robot": ("robot",), "cnc": ("cnc", "CNC"), "power_source": ("power_source", "power source"),
-                "cellio": ("cellio", "cell I/O")}
-
-
-@dataclass(frozen=True)
-class Sample:
-    """Live process values at one moment (for the Build screen's plots)."""
-
-    t: float
-    current_a: float | None
-    voltage_v: float | None
-    wfs_m_min: float | None
-    temperature_c: float | None
-
-
-@dataclass(frozen=True)
-class RoleParams:
-    """Process parameters of one bead role in the job (ranges over its passes)."""
-
-    role: str
-    passes: int
-    width_mm: float
-    current_a: tuple[float, float]
-    speed_mm_min: tuple[float, float]
-    wfs_m_min: tuple[float, float]
-
-
-@dataclass(frozen=True)
-class JobInfo:
-    """The open job as the Job screen shows it."""
-
-    name: str
-    source: str
-    layers: int
-    passes: int
-    bead: dict
-    summary: dict
-    roles: tuple[RoleParams, ...]
-    # per layer: tuple of (role, ((x, y), ...)) for the terminal preview
-    layer_paths: tuple[tuple[tuple[str, tuple[tuple[float, float], ...]], ...], ...] = ()
-
-
-@dataclass(frozen=True)
-class PlanStatus:
-    state: str = "none"            # none, loaded (STL chosen, not planned), planning, done, error
-    file: str | None = None
-    width_mm: float | None = None
-    done: int = 0                  # layers sliced so far
-    total: int = 0
-    error: str | None = None
-
-
-@dataclass(frozen=True)
-class DeviceInfo:
-    device: str
-    url: str
-    connected: bool
-    frames_tx: int = 0
-    frames_rx: int = 0
-    errors: int = 0
-    queue_free: int | None = None
-    last_error: str | None = None
-
-
-@dataclass(frozen=True)
-class LogRow:
-    id: int
-    t: float
-    kind: str                      # transition, alarm, info, ui
-    state: str | None
-    message: str
-    layer: int | None = None
-    pass_: int | None = None
-
-
-@dataclass(frozen=True)
-class View:
-    """Everything the TUI draws, at one moment. Plain immutable values."""
-
-    snap: Snapshot
-    seq: int = 0                   # snapshots received so far (the UI shows the latest only)
-    history: tuple[Sample, ...] = ()
-    plan: PlanStatus = PlanStatus()
-    job: JobInfo | None = None
-    alignment: dict | None = None  # planes, level_a_deg, level_b_deg, face_angle_deg, transform
-    probe_plan: tuple[tuple[str, tuple[float, float, float]], ...] = ()
-    probed: tuple[tuple[str, tuple[float, float, float], float], ...] = ()  # (name, xyz, spread) as they arrive
-    can_probe: bool = False        # a CNC with the touch probe is there (CNC platform, or --sim)
-    platform: str = "robot"
-    devices: tuple[DeviceInfo, ...] = ()
-    sim: bool = False
-    connect_error: str | None = None
-    busy: str | None = None        # a command in progress (planning, aligning, connecting)
-
-    def allowed(self, command: str) -> bool:
-        """Whether a command may be sent now (the controller's allowed_commands, plus UI steps)."""
-        if command == "plan":  # planning needs no cell; the job opens when the devices answer
-            return self.plan.state in ("loaded", "error", "done") and self.plan.file is not None \
-                and self.plan.file.lower().endswith((".stl", ".obj", ".3mf")) and self.busy is None \
-                and (self.snap.state == "disconnected" or "open_job" in self.snap.allowed_commands)
-        if command == "apply_alignment":
-            return self.alignment is not None and self.job is not None and "open_job" in self.snap.allowed_commands
-        if command == "connect":  # (re)connect: at start, or after a link loss latched a fault
-            return self.snap.state in ("disconnected", "fault") and self.busy is None
-        if command == "open":
-            return self.busy is None and (self.snap.state == "disconnected" or "open_job" in self.snap.allowed_commands)
-        if command == "run_alignment":
-            if self.busy is not None or not self.can_probe:
-                return False
-            return "run_alignment" in self.snap.allowed_commands or self.snap.state in PROBE_STATES
-        return command in self.snap.allowed_commands
-
-
-# -- job helpers (pure) --------------------------------------------------------------------------
-
-
-def job_info(job: dict, name: str | None = None) -> JobInfo:
-    """The summary, per-role parameters and 2-D layer paths of a `cell-job/1` dict."""
-    per: dict[str, list[dict]] = {}
-    layer_paths = []
-    for la in job["layers"]:
-        paths = []
-        for p in la.get("passes", []):
-            per.setdefault(p.get("role", "?"), []).append(p)
-            pts = tuple((round(float(q[0]), 3), round(float(q[1]), 3)) for q in p["points"])
-            paths.append((p.get("role", "?"), pts))
-        layer_paths.append(tuple(paths))
-
-    def rng(ps: list[dict], key: str) -> tuple[float, float]:
-        vals = [float(p[key]) for p in ps if key in p]
-        return (min(vals), max(vals)) if vals else (math.nan, math.nan)
-
-    roles = tuple(RoleParams(role=r, passes=len(ps), width_mm=rng(ps, "width_mm")[1],
-                             current_a=rng(ps, "current_a"), speed_mm_min=rng(ps, "speed_mm_min"),
-                             wfs_m_min=rng(ps, "wfs_m_min"))
-                  for r, ps in sorted(per.items(), key=lambda kv: (ROLES + (kv[0],)).index(kv[0])))
-    src = job.get("source") or {}
-    if name is None:
-        name = Path(str(src.get("file") or "job")).stem
-    return JobInfo(name=name, source=str(src.get("file", "")), layers=len(job["layers"]),
-                   passes=sum(len(la.get("passes", [])) for la in job["layers"]), bead=dict(job.get("bead") or {}),
-                   summary=dict(job.get("summary") or {}), roles=roles, layer_paths=tuple(layer_paths))
-
-
-def alignment_dict(result: Any) -> dict | None:
-    """An alignment result (AlignResult.to_json(), a dict, a dataclass) as plain values for the view.
-
-    Each plane gets its probed points and their residuals (signed distance along the normal)
-    when the result carries them.
-    """
-    if result is None:
-        return None
-    if isinstance(result, dict):
-        d = dict(result)
-    elif hasattr(result, "to_json"):
-        d = dict(result.to_json())
-    elif hasattr(result, "__dataclass_fields__"):
-        d = {k: getattr(result, k) for k in result.__dataclass_fields__}
-    else:
-        d = {k: v for k, v in vars(result).items() if not k.startswith("_")}
-    d = _plain(d)
-    pts = d.get("points") if isinstance(d.get("points"), dict) else {}
-    planes = d.get("planes") or []
-    for pl in planes if isinstance(planes, list) else []:
-        if not isinstance(pl, dict):
-            continue
-        name = pl.get("name")
-        if "points" not in pl and name in pts:
-            pl["points"] = pts[name]
-        n, c = pl.get("normal"), pl.get("point")
-        if "residuals" not in pl and pl.get("points") and n and c:
-            pl["residuals"] = [sum((p[i] - c[i]) * n[i] for i in range(3)) for p in pl["points"]]
-    return d
-
-
-def _plain(v: Any) -> Any:
-    if hasattr(v, "tolist"):
-        return v.tolist()
-    if isinstance(v, dict):
-        return {str(k): _plain(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_plain(x) for x in v]
-    if hasattr(v, "__dataclass_fields__"):
-        out = {k: _plain(getattr(v, k)) for k in v.__dataclass_fields__}
-        return out
-    return v
-
-
-def probe_plan(cfg: Any, sim_cfg: Any = None) -> tuple[tuple[str, tuple[float, float, float]], ...]:
-    """The touches of the alignment routine's plan, as (face, CAD point), for the Align screen.
-
-    The plan is the routine's own (`plan_for_mesh` on the nominal part of the sim config's
-    workpiece); nothing on a robot cell, or when the routine is not there.
-    """
-    try:
-        from controller.align.routine import cad_mesh, plan_for_mesh
-        from controller.config import load_sim
-
-        wp = (sim_cfg or load_sim()).cnc.workpiece
-        plan = plan_for_mesh(cad_mesh(wp))
-    except Exception:  # no routine, no workpiece: the screen says the plan is the routine's
-        return ()
-    out = [("top", (float(x), float(y), plan.top_z)) for x, y in plan.top_xy]
-    out += [("side", (plan.side_x, float(y), plan.side_z)) for y in plan.side_y]
-    out.append(("tertiary", (plan.tertiary_xy[0], plan.tertiary_xy[1], plan.side_z)))
-    return tuple(out)
-
-
-def _plan_main(argv: list[str]) -> int:
-    """Child process of `CellSession.plan`: PATH WIDTH MATERIAL OUT.
-
-    Prints `progress i n` lines, writes the job JSON to OUT, or prints `error <message>`.
-    """
-    import json
-    import sys
-
-    path, width, material, out = argv
-    try:
-        from controller.config import load_material
-        from planner.job import job_to_dict
-        from planner.plan import PlanOptions, plan_part
-
-        def progress(i: int, n: int) -> None:
-            print(f"progress {i} {n}", flush=True)
-
-        job = plan_part(path, PlanOptions(width_mm=float(width)), load_material(material), progress=progress)
-        Path(out).write_text(json.dumps(job_to_dict(job)), encoding="utf-8")
-        print("done", flush=True)
-        return 0
-    except Exception as exc:  # the message goes to the operator
-        print("error " + (str(exc) or exc.__class__.__name__).replace("\n", " "), flush=True)
-        sys.stdout.flush()
-        return 2
+from controller.tui_plan import _plan_main, probe_plan  # noqa: F401  (re-exported)
+from controller.tui_replay import ReplaySession  # noqa: F401  (re-exported)
+from controller.tui_view import *  # noqa: F401,F403  (the view types, re-exported for the screens)
+from controller.tui_view import (DEVICE_WORDS, HISTORY_LEN, PROBE_STATES, SAMPLE_PERIOD_S,
+                                 DeviceInfo, JobInfo, LogRow, PlanStatus, Sample, View,
+                                 alignment_dict, job_info)
 
 
 def _sim_reply_timeout_ms() -> float:
     """The bus devices' reply timeout with in-process simulators: `cell run --sim`'s own figure."""
-    from controller.cli.run import sim_reply_timeout_ms
+    from controller.defaults import sim_reply_timeout_ms
     return sim_reply_timeout_ms()
 
 
@@ -300,7 +64,7 @@ class CellSession:
 
     def __init__(self, cfg: Any = None, *, sim: bool = False, sim_cfg: Any = None, runs_dir: str | Path | None = None,
                  time_scale: float | None = None, faults: str = "", sim_log_dir: str | Path | None = None) -> None:
-        from controller.config import load_cell, load_sim
+        from core.config import load_cell, load_sim
 
         self.cfg = cfg if cfg is not None else load_cell()
         if time_scale is not None:
@@ -325,6 +89,7 @@ class CellSession:
         self._job: JobInfo | None = None
         self._job_dict: dict | None = None
         self._alignment: dict | None = None
+        self._alignment_applied = False  # DESIGN.md §3: one alignment per job, applied once
         self._busy: str | None = None
         self._connect_error: str | None = None
         self._dev_errors: dict[str, str] = {}
@@ -446,7 +211,7 @@ class CellSession:
                 devices.append(DeviceInfo(name, str(getattr(d, name).url), False,
                                           last_error=self._dev_errors.get(name)))
         return View(snap=s, seq=self._seq, history=tuple(self._hist), plan=self._plan, job=self._job,
-                    alignment=self._alignment, probe_plan=self._probe_plan, probed=tuple(self._probed),
+                    alignment=self._alignment, alignment_applied=self._alignment_applied, probe_plan=self._probe_plan, probed=tuple(self._probed),
                     can_probe=self._can_probe, platform=self.cfg.cell.platform,
                     devices=tuple(devices), sim=self.sim, connect_error=self._connect_error, busy=self._busy)
 
@@ -467,18 +232,9 @@ class CellSession:
         rd = self._snap.run_dir
         if not rd:
             return []
-        path = Path(rd) / "journal.sqlite"
-        if not path.exists():
-            return []
-        try:
-            db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=0.2)
-            try:
-                rows = db.execute("SELECT id, t, kind, state, message, layer, pass FROM events WHERE id > ? "
-                                  "ORDER BY id LIMIT ?", (after_id, limit)).fetchall()
-            finally:
-                db.close()
-        except sqlite3.Error:
-            return []
+        from controller.journal import read_events_after
+
+        rows = read_events_after(Path(rd) / "journal.sqlite", after_id, limit)
         return [LogRow(*r) for r in rows]
 
     def ui_log(self) -> list[LogRow]:
@@ -504,6 +260,7 @@ class CellSession:
     async def _open_path(self, p: Path) -> None:
         job = read_job(p)
         self._plan = PlanStatus(state="done", file=str(p))
+        self._alignment_applied = False  # a new job: the alignment may be applied to it once
         await self._open_dict(job)
 
     async def _open_dict(self, job: dict, info: JobInfo | None = None) -> None:
@@ -541,7 +298,7 @@ class CellSession:
 
             with tempfile.TemporaryDirectory(prefix="cell-plan-") as tmp:
                 out = Path(tmp) / "job.json"
-                proc = subprocess.Popen([sys.executable, "-m", "controller.tui_adapter", "plan", str(st.file),
+                proc = subprocess.Popen([sys.executable, "-m", "controller.tui_plan", "plan", str(st.file),
                                          str(width), material, str(out)],
                                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
                 error = None
@@ -567,6 +324,7 @@ class CellSession:
             try:
                 job, info = await asyncio.get_running_loop().run_in_executor(None, work)
                 self._plan = replace(self._plan, state="done")
+                self._alignment_applied = False  # a new job: the alignment may be applied to it once
                 await self._open_dict(job, info)
             except Exception as exc:
                 self._plan = replace(self._plan, state="error", error=str(exc))
@@ -633,6 +391,9 @@ class CellSession:
                     # hold up the controller's loop and the power source's cycle
                     res = await asyncio.get_running_loop().run_in_executor(None, self._align_on_cnc_link)
                 self._alignment = alignment_dict(res)
+                if self._alignment is not None:  # when it was probed: the CNC refuses it after a reset/homing
+                    self._alignment.setdefault("probed_at", __import__("time").time())
+                self._alignment_applied = False
                 a = self._alignment or {}
                 self._note("info", f"aligned: A {a.get('level_a_deg', math.nan):.4f}°, "
                                    f"B {a.get('level_b_deg', math.nan):.4f}°, face {a.get('face_angle_deg', math.nan):.4f}°")
@@ -645,9 +406,8 @@ class CellSession:
         return self._submit(_do)
 
     def _align_on_cnc_link(self) -> Any:
-        from controller.align.routine import align, cad_mesh, plan_for_mesh
-        from controller.config import load_sim
-        from drivers.grbl import CncLink
+        from controller.align.routine import cad_mesh, plan_for_mesh, run_on_url
+        from core.config import load_sim
 
         plan = plan_for_mesh(cad_mesh((self.sim_cfg or load_sim()).cnc.workpiece))
         dev = self.cfg.devices.cnc
@@ -657,12 +417,7 @@ class CellSession:
             self._probed = self._probed + [(str(pp.name), pos, float(pp.spread_mm))]  # type: ignore[list-item]
 
         async def run() -> Any:
-            link = CncLink(dev.url, baud=dev.baud, rx_buffer_bytes=dev.rx_buffer_bytes, status_hz=dev.status_hz)
-            await link.connect()
-            try:
-                return await asyncio.wait_for(align(link, self.cfg, plan, on_point=on_point), 120.0)
-            finally:
-                await link.close()
+            return await asyncio.wait_for(run_on_url(dev.url, self.cfg, plan, on_point=on_point), 120.0)
         try:
             return asyncio.run(run())
         except asyncio.TimeoutError:
@@ -675,12 +430,23 @@ class CellSession:
 
             if self._alignment is None or self._job_dict is None:
                 raise CellError("nothing to apply: run the alignment and open a job first")
+            if self._alignment_applied:
+                raise CellError("the alignment is already applied to this job (one alignment per job); "
+                                "run the alignment again to re-align")
             tf = self._alignment.get("transform")
             if tf is None:
                 raise CellError("the alignment result has no transform")
-            job = apply_to_job(self._job_dict, tf)
+            a = self._alignment
+            job = apply_to_job(self._job_dict, tf, {"transform": tf, "level_a_deg": a.get("level_a_deg"),
+                                                     "level_b_deg": a.get("level_b_deg"),
+                                                     "probed_at": a.get("probed_at")})  # a second: refused
             job["name"] = f"{self._job.name if self._job else 'job'}-aligned"
-            await self._open_dict(job)
+            self._alignment_applied = True  # set before the await: a second key press is refused at once
+            try:
+                await self._open_dict(job)
+            except BaseException:
+                self._alignment_applied = False
+                raise
         return self._submit(_do)
 
     def stop_safely(self) -> concurrent.futures.Future:
@@ -703,66 +469,3 @@ class CellSession:
 
     def busy_connecting(self) -> bool:
         return self._busy == "connecting"
-
-
-class ReplaySession:
-    """A recorded, fixed view: for snapshot tests and screenshots (no clock, no devices)."""
-
-    def __init__(self, view: View, log: list[LogRow] | None = None) -> None:
-        self._view = view
-        self._log = list(log or [])
-        self.refused: list[str] = []
-
-    def start(self) -> concurrent.futures.Future:
-        f: concurrent.futures.Future = concurrent.futures.Future()
-        f.set_result(None)
-        return f
-
-    def view(self) -> View:
-        return self._view
-
-    def log_rows(self, after_id: int = 0, limit: int = 2000) -> list[LogRow]:
-        return [r for r in self._log if r.id > after_id][:limit]
-
-    def ui_log(self) -> list[LogRow]:
-        return []
-
-    def _refuse(self, what: str) -> concurrent.futures.Future:
-        self.refused.append(what)
-        f: concurrent.futures.Future = concurrent.futures.Future()
-        f.set_exception(CellError(f"'{what}' is not available in a recorded view"))
-        return f
-
-    def command(self, name: str) -> concurrent.futures.Future:
-        return self._refuse(name)
-
-    def choose_file(self, path: str | Path, width_mm: float | None = None) -> concurrent.futures.Future:
-        return self._refuse("open")
-
-    def plan(self, width_mm: float | None = None) -> concurrent.futures.Future:
-        return self._refuse("plan")
-
-    def connect(self) -> concurrent.futures.Future:
-        return self._refuse("connect")
-
-    def apply_alignment(self) -> concurrent.futures.Future:
-        return self._refuse("apply_alignment")
-
-    def stop_safely(self) -> concurrent.futures.Future:
-        f: concurrent.futures.Future = concurrent.futures.Future()
-        f.set_result(False)
-        return f
-
-    def build_active(self) -> bool:
-        st = self._view.snap.state
-        return st.startswith("running_") or st == "paused"
-
-    def close(self, timeout: float = 10.0) -> None:
-        pass
-
-
-if __name__ == "__main__":
-    if len(sys.argv) == 6 and sys.argv[1] == "plan":
-        raise SystemExit(_plan_main(sys.argv[2:]))
-    sys.stderr.write("usage: python -m controller.tui_adapter plan PATH WIDTH MATERIAL OUT\n")
-    raise SystemExit(2)

@@ -16,7 +16,7 @@ Usage (the controller):
 
 Every `cycle_ms` (10 ms, wall time) the driver reads the inputs first (and calls the change
 callbacks at once), then the two input registers, and writes the coils when they changed.
-No reply within `timeout_ms` stops the cycle with LinkLost naming the URL; all inputs are
+No valid reply for `lost_after_cycles` cycles stops the cycle with LinkLost naming the URL; all inputs are
 then treated as unsafe by `inputs_safe()`.
 """
 from __future__ import annotations
@@ -25,19 +25,20 @@ import asyncio
 import logging
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Awaitable, Callable
 
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
+from core.config import CellIODevice
 from drivers.cyclic import CyclicDevice
 from drivers.errors import DeviceError, LinkLost
-from drivers.power_modbus import parse_tcp_url
-from planner.errors import CellError
+from wire.cellio_map import COILS, INPUT_REGISTERS, INPUTS, from_register
+from wire.urls import parse_tcp_url
+from core.errors import CellError
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
-COILS = ("gas_valve", "beacon_green", "beacon_amber", "beacon_red", "door_lock")
 
 
 @dataclass(frozen=True)
@@ -62,13 +63,14 @@ class CellIO(CyclicDevice[CellInputs]):
 
     device = "cellio"
 
-    def __init__(self, url: str, *, device_id: int = 1, cycle_ms: float = 10.0, timeout_ms: float = 50.0) -> None:
-        super().__init__(url, cycle_ms=cycle_ms, timeout_ms=timeout_ms)
+    def __init__(self, url: str, *, device_id: int = 1, cycle_ms: float = 10.0, timeout_ms: float | None = None,
+                 lost_after_cycles: int = 3) -> None:
+        super().__init__(url, cycle_ms=cycle_ms, timeout_ms=timeout_ms, lost_after_cycles=lost_after_cycles)
         self.device_id = device_id
         self._client: AsyncModbusTcpClient | None = None
         self._inputs = CellInputs(t=0.0)
         self._coils = {k: False for k in COILS}
-        self._written: dict | None = None
+        self._written: dict[str, bool] | None = None
         self._change: list[Callable[[CellInputs, CellInputs], None]] = []
         self.cycles = 0
 
@@ -148,7 +150,7 @@ class CellIO(CyclicDevice[CellInputs]):
         self._coils["door_lock"] = bool(on)
 
     # -- the cycle ---------------------------------------------------------------------------
-    async def _call(self, coro):
+    async def _call(self, coro: Awaitable[Any]) -> Any:
         try:
             rr = await asyncio.wait_for(coro, self.timeout_s)
         except (asyncio.TimeoutError, ModbusException) as exc:
@@ -165,10 +167,10 @@ class CellIO(CyclicDevice[CellInputs]):
         c, dev = self._client, self.device_id
         if c is None or not c.connected:
             raise LinkLost(f"{self.where()}: not connected")
-        di = await self._call(c.read_discrete_inputs(0, count=4, device_id=dev))
+        di = await self._call(c.read_discrete_inputs(0, count=len(INPUTS), device_id=dev))
         t = time.monotonic()
         prev = self._inputs
-        b = list(di.bits[:4])
+        b = list(di.bits[:len(INPUTS)])
         new = CellInputs(t, b[0], b[1], b[2], b[3], prev.part_temperature_c, prev.gas_flow_l_min)
         if (prev.door_closed, prev.estop_released, prev.gas_ok, prev.fume_ok) != tuple(b) and self.cycles:
             self._inputs = new
@@ -177,8 +179,8 @@ class CellIO(CyclicDevice[CellInputs]):
                     fn(prev, new)
                 except Exception:
                     pass
-        ir = await self._call(c.read_input_registers(0, count=2, device_id=dev))
-        new = CellInputs(t, b[0], b[1], b[2], b[3], ir.registers[0] / 10.0, ir.registers[1] / 10.0)
+        ir = await self._call(c.read_input_registers(0, count=len(INPUT_REGISTERS), device_id=dev))
+        new = CellInputs(t, b[0], b[1], b[2], b[3], from_register(ir.registers[0]), from_register(ir.registers[1]))
         self._inputs = new
         if self._written != self._coils:
             want = dict(self._coils)
@@ -188,6 +190,7 @@ class CellIO(CyclicDevice[CellInputs]):
         return new
 
 
-def open_cellio(cfg, url: str | None = None) -> CellIO:
-    """The driver for `devices.cellio` of cell.yaml."""
-    return CellIO(url or cfg.url, device_id=cfg.device_id, cycle_ms=cfg.cycle_ms)
+def open_cellio(cfg: CellIODevice, url: str | None = None, timeout_ms: float | None = None) -> CellIO:
+    """The driver for `devices.cellio` of cell.yaml; `timeout_ms` overrides its link watchdog."""
+    return CellIO(url or cfg.url, device_id=cfg.device_id, cycle_ms=cfg.cycle_ms, timeout_ms=timeout_ms,
+                  lost_after_cycles=cfg.lost_after_cycles)

@@ -15,17 +15,20 @@ from dataclasses import dataclass, field
 from typing import Callable, Generic, TypeVar
 
 from drivers.errors import LinkLost
-from planner.errors import CellError
+from core.errors import CellError
 
 S = TypeVar("S")
 
 
 @dataclass
 class CycleStats:
-    """Timing of the cyclic exchange (for the benchmark and the journal)."""
+    """Link statistics of the cyclic exchange (DESIGN.md §5, "Link health"): the views, the
+    report and the benchmark read them. A late reply is counted, never a fault."""
 
     cycles: int = 0
-    late: int = 0               # cycles started more than one period after their deadline
+    late: int = 0               # replies that came after their cycle's period (still valid)
+    bad: int = 0                # replies the device sent but that were not valid
+    lost: int = 0               # link losses: `lost_after_cycles` cycles without a valid reply
     periods: list[float] = field(default_factory=list)   # wall seconds between cycle starts
     keep: bool = False          # record periods (benchmark)
 
@@ -35,10 +38,14 @@ class CyclicDevice(ABC, Generic[S]):
 
     device = "device"
 
-    def __init__(self, url: str, *, cycle_ms: float = 10.0, timeout_ms: float = 50.0) -> None:
+    def __init__(self, url: str, *, cycle_ms: float = 10.0, timeout_ms: float | None = None,
+                 lost_after_cycles: int = 3) -> None:
         self.url = url
         self.cycle_s = cycle_ms / 1000.0
-        self.timeout_s = timeout_ms / 1000.0
+        self.lost_after_cycles = lost_after_cycles
+        # A fieldbus watchdog: the link is lost after `lost_after_cycles` cycles without a valid
+        # reply. `timeout_ms` overrides it (in-process simulators share the controller's GIL).
+        self.timeout_s = timeout_ms / 1000.0 if timeout_ms else lost_after_cycles * self.cycle_s
         self._task: asyncio.Task | None = None
         self._error: CellError | None = None
         self._subs: list[Callable[[S], None]] = []
@@ -102,9 +109,15 @@ class CyclicDevice(ABC, Generic[S]):
                 try:
                     st = await self._one_cycle()
                 except CellError as exc:
+                    if isinstance(exc, LinkLost):
+                        self.stats.lost += 1
+                    else:
+                        self.stats.bad += 1
                     self._fail(exc)
                     return
                 self.stats.cycles += 1
+                if time.monotonic() - now > period:
+                    self.stats.late += 1    # valid, but after its cycle: counted, not a fault
                 for fn in list(self._subs):
                     try:
                         fn(st)
@@ -118,7 +131,6 @@ class CyclicDevice(ABC, Generic[S]):
                 deadline += period
                 now = time.monotonic()
                 if now - deadline > period:
-                    self.stats.late += 1
                     deadline = now
                 await self._sleep_until(deadline)
         except asyncio.CancelledError:

@@ -1,5 +1,5 @@
 """Device errors shared by every driver."""
-from planner.errors import CellError
+from core.errors import CellError
 
 
 class DeviceError(CellError):

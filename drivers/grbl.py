@@ -22,13 +22,13 @@ from dataclasses import dataclass, field
 from typing import Callable, Iterable
 
 from drivers.errors import DeviceError, DeviceTimeout, LinkLost
-from drivers.grbl_protocol import (
+from wire.grbl_protocol import (
     AXES, POSITION_LOST_ALARMS, RT_CYCLE_START, RT_FEED_HOLD, RT_SOFT_RESET, RT_STATUS, Alarm, Banner,
     Error, GrblStatus, Ok, Pos5, Probe, StreamResult, alarm_meaning, clean_line, error_meaning, fmt,
     parse_line, parse_probe,
 )
 from drivers.serial_async import SerialPort
-from planner.errors import InputError
+from core.errors import InputError
 
 __all__ = ["CncLink", "GrblError", "GrblAlarm", "ProbeError", "GrblReset", "GrblAckLost", "GrblStatus", "ProbeResult",
            "StreamResult"]
@@ -115,8 +115,8 @@ class CncLink:
     """
 
     def __init__(self, url: str, *, baud: int = 115200, rx_buffer_bytes: int = 128, status_hz: float = 5.0,
-                 link_timeout_s: float = 3.0, connect_timeout_s: float = 5.0, alarm_grace_s: float = 0.5,
-                 ack_grace_s: float = 2.0, pace: bool = True) -> None:
+                 link_timeout_s: float = 3.0, connect_timeout_s: float = 5.0, alarm_grace_s: float = 3.0,
+                 ack_grace_s: float = 2.0, pace: bool = True, homing_timeout_s: float = 120.0) -> None:
         if not 0 < status_hz <= 5.0:
             raise ValueError("status_hz must be in (0, 5]: grbl recommends at most 5 status reports a second")
         if rx_buffer_bytes < 16:
@@ -129,11 +129,16 @@ class CncLink:
         self.connect_timeout_s = connect_timeout_s
         self.alarm_grace_s = alarm_grace_s
         self.ack_grace_s = ack_grace_s
+        self.homing_timeout_s = homing_timeout_s
+        self._jogging = False     # a `$J=` was sent and may still be running
+        self._quiet_until = 0.0   # grbl answers nothing during $H: no link/ack watchdog until then
         self._last_ack = time.monotonic()
         self._still_since: float | None = None   # since when grbl has reported Idle / Alarm
         self._pace = pace
         self._port = SerialPort(url, baud=baud, name="cnc", pace=pace)
         self.version: str | None = None
+        self.firmware = "grbl"          # "Grbl 1.1h", "GrblHAL 1.1f" once the banner was seen
+        self.rx_buffer_reported: int | None = None   # from `$I` [OPT:…,blocks,rx]
         self.latest_status: GrblStatus | None = None
         self.messages: deque[str] = deque(maxlen=200)   # unsolicited feedback lines
         self.alarms: list[int] = []
@@ -148,6 +153,7 @@ class CncLink:
         self._last_q = 0.0
         self._status_waiters: list[asyncio.Future] = []
         self._banner_event = asyncio.Event()
+        self.reset_at = 0.0  # wall time of the last banner (power-up/reset) or homing seen
         self._changed = asyncio.Event()
         self._send_lock = asyncio.Lock()
         self._tasks: list[asyncio.Task] = []
@@ -217,7 +223,36 @@ class CncLink:
             await self.close()
             raise
         self._tasks.append(asyncio.get_running_loop().create_task(self._poll_loop()))
-        return await self.status()
+        st = await self.status()
+        if st.state not in ("Run", "Hold", "Home", "Jog"):
+            await self._read_build_info()
+        return st
+
+    async def _read_build_info(self) -> None:
+        """`$I`: never fill grbl's RX ring beyond what the firmware says it has."""
+        try:
+            lines = await self.command("$I", timeout=5.0)
+        except DeviceError:
+            return
+        for text in lines:
+            m = re.match(r"\[OPT:[^,]*,(\d+),(\d+)", text)
+            if m:
+                self.rx_buffer_reported = int(m.group(2))
+                self.capacity = min(self.capacity, self.rx_buffer_reported - 1)
+
+    @property
+    def axes(self) -> int:
+        """Axes the controller has: the field count of its status report's position."""
+        return self.latest_status.axes if self.latest_status is not None else 3
+
+    def require_axes(self, letters: str, what: str) -> None:
+        """Refuse (before any motion) `what` when it needs an axis this controller lacks."""
+        have = "XYZAB"[:self.axes]
+        lack = [c for c in letters.upper() if c not in have]
+        if lack:
+            raise DeviceError(f"cnc at {self.url}: {what} needs axis {', '.join(lack)} but {self.firmware} "
+                              f"reports {self.axes} axes ({have}); use a controller with {'XYZAB'[:3 + len(lack)]} "
+                              "or a 3-axis job")
 
     async def close(self) -> None:
         """Stop polling and close the port (the controller keeps running what it has)."""
@@ -295,14 +330,25 @@ class CncLink:
             if self._pending:
                 self._pending[0].alarm = r
                 self._stream_alarm = self._stream_alarm or r
-                # grbl answers the line that raised a probe alarm; after a hard limit or an
-                # abort it may not: whatever is still unanswered then fails after a grace time.
-                asyncio.get_running_loop().call_later(self.alarm_grace_s, self._expire_after_alarm, r)
+                # grbl still answers the lines it holds (a probe alarm: [PRB:…:0] then `ok` for
+                # the G38 line after ~500 ms of silence; later lines `error:9`), or resets and
+                # prints its banner. Replies stay matched to the lines sent; lines never
+                # answered fail in _check_acks (Alarm state and quiet for ack_grace_s).
+                self._last_ack = time.monotonic() + self.alarm_grace_s
             else:
                 self.messages.append(text)
+            # grbl sleeps after printing an alarm (delay_ms(500) in report_alarm_message) and
+            # answers nothing, not even `?`: the watchdog allows that on top of link_timeout_s.
+            self._last_rx = time.monotonic() + self.alarm_grace_s
         elif isinstance(r, Banner):
             self.version = r.version
+            self.reset_at = time.time()  # power-up or reset: the table may not be where it was
+            self.firmware = f"{r.name} {r.version}"
             self._banner_event.set()
+            if self._pending and self._pending[0].alarm is not None:
+                a = self._pending[0].alarm
+                self._fail_pending(GrblAlarm(a.code, self._pending[0].line, self.url,
+                                             " (grbl reset itself; the lines after it were flushed)"))
             self._fail_pending(GrblReset(f"cnc at {self.url}: controller reset (banner 'Grbl {r.version}') "
                                          "while lines were unacknowledged; they were flushed"))
         else:
@@ -312,11 +358,6 @@ class CncLink:
                 self._pending[0].lines.append(text)
             else:
                 self.messages.append(text)
-
-    def _expire_after_alarm(self, alarm: Alarm) -> None:
-        if self._pending and self._pending[0].alarm is alarm:
-            err = GrblAlarm(alarm.code, self._pending[0].line, self.url)
-            self._fail_pending(err)
 
     def _fail_pending(self, exc: Exception) -> None:
         pend, self._pending = self._pending, deque()
@@ -399,6 +440,7 @@ class CncLink:
         `timeout` seconds (None: wait, the link watchdog still applies) → DeviceTimeout."""
         line = self._check_line(line.strip())
         self._check_lost()
+        self._jogging = self._jogging or line.startswith("$J=")
         async with self._send_lock:
             self._stream_alarm = None
             await self._room(len(line) + 1)
@@ -513,13 +555,17 @@ class CncLink:
         """Fail the pending lines when grbl has been Idle (or in Alarm) and silent on them for
         longer than `ack_grace_s` plus any dwell they ask for: a standing grbl answers every line
         in its buffer within milliseconds, so their `ok` was lost (grbl has no checksums)."""
-        if not self._pending or self._still_since is None:
+        if not self._pending or self._still_since is None or now < self._quiet_until:
             return
         dwell = sum(_dwell_s(p.line) for p in self._pending)
         quiet = min(now - self._still_since, now - self._last_ack,
                     now - max(p.sent_at for p in self._pending))
         if quiet > self.ack_grace_s + dwell:
             n = len(self._pending)
+            a = self._pending[0].alarm
+            if a is not None:   # the alarm's own line was never answered (hard limit, abort)
+                self._fail_pending((ProbeError if a.code in (4, 5) else GrblAlarm)(a.code, self._pending[0].line, self.url))
+                return
             self._fail_pending(GrblAckLost(
                 f"cnc at {self.url}: grbl is {self.latest_status.state if self.latest_status else '?'} but "
                 f"{n} line(s) from {self._pending[0].line!r} on were never acknowledged (an 'ok' was lost "
@@ -530,7 +576,7 @@ class CncLink:
             await asyncio.sleep(self.status_period / 2)
             now = time.monotonic()
             self._check_acks(now)
-            if now - self._last_rx > self.link_timeout_s:
+            if now - self._last_rx > self.link_timeout_s and now >= self._quiet_until:
                 self._port.close()
                 self._on_lost(LinkLost(f"cnc at {self.url}: silent for {self.link_timeout_s:.1f} s "
                                        "(no answer to status requests); check the cable and the controller"))
@@ -561,7 +607,10 @@ class CncLink:
         """Wait until all motion has finished and the controller is Idle (G4 P0, then status)."""
         deadline = time.monotonic() + timeout
         st = self.latest_status
-        if st is None or st.state != "Alarm":
+        if st is not None and st.state == "Jog" or self._jogging:
+            st = await self.status()   # grbl refuses G-code (error:9) while jogging: poll instead
+        self._jogging = False
+        if st is None or st.state not in ("Alarm", "Jog"):
             try:
                 await self.command("G4 P0", timeout=max(deadline - time.monotonic(), 0.01))
             except DeviceTimeout:
@@ -571,21 +620,46 @@ class CncLink:
             st = await self.status()
             if st.state == "Idle":
                 return st
+            if st.state == "Jog":
+                continue
             if st.state == "Alarm":
                 raise GrblAlarm(self.alarms[-1] if self.alarms else 0, None, self.url, "; unlock ($X) or home ($H)")
             if time.monotonic() > deadline:
                 raise DeviceTimeout(f"cnc at {self.url}: not idle within {timeout} s (state {st.state})")
 
     # -- machine commands ---------------------------------------------------------------------
-    async def home(self) -> GrblStatus:
-        """`$H`: run the homing cycle (answered once homing has finished)."""
-        await self.command("$H")
+    async def home(self, timeout: float | None = None) -> GrblStatus:
+        """`$H`: run the homing cycle, answered once homing has finished. grbl answers nothing
+        (not even `?`) meanwhile, so the link watchdog waits `timeout` (default
+        `homing_timeout_s`, cell.yaml) instead of `link_timeout_s`."""
+        limit = self.homing_timeout_s if timeout is None else timeout
+        self._quiet_until = time.monotonic() + limit
+        try:
+            await self.command("$H", timeout=limit)
+        except DeviceTimeout:
+            raise DeviceTimeout(f"cnc at {self.url}: homing ($H) not finished within {limit:.0f} s "
+                                "(cnc.homing_timeout_s in cell.yaml); check the limit switches") from None
+        finally:
+            self._quiet_until = 0.0
+            self._last_rx = time.monotonic()
         self._homed = True
+        self.reset_at = time.time()  # homing: an alignment probed before it no longer holds
         return await self.status()
 
     async def unlock(self) -> list[str]:
         """`$X`: clear the alarm lock ("[MSG:Caution: Unlocked]"); the position is not re-homed."""
         return await self.command("$X")
+
+    async def _recover_probe(self, start: GrblStatus) -> str:
+        """After a failed probe: `$X`, retract Z to where the probe started (machine
+        coordinates), and confirm Idle from a status report. Returns a note for the error."""
+        try:
+            await self.command("$X")
+            await self.command(f"G53 G0 Z{fmt(start.mpos[2])}")
+            st = await self.wait_idle(30.0)
+        except DeviceError as e:
+            return f"; recovery failed ({e}): unlock ($X) and retract by hand"
+        return f"; recovered: unlocked, Z retracted to {start.mpos[2]:.3f} (machine), state {st.state}"
 
     async def probe(self, target: dict[str, float] | tuple[float, float, float], feed_mm_min: float, *,
                     mode: str = "G38.2", unlock_on_fail: bool = True) -> ProbeResult:
@@ -611,16 +685,14 @@ class CncLink:
         words = " ".join(f"{k}{fmt(v)}" for k, v in items)
         line = f"{mode} G90 {words} F{feed_mm_min:g}"
         where = f" toward {words}"
+        start = await self.status()
         try:
             lines = await self.command(line)
         except ProbeError as exc:
-            if unlock_on_fail:
-                try:
-                    await self.command("$X")
-                except DeviceError:
-                    pass
             hint = ("; back off before probing again" if exc.code == 4
                     else "; check the travel, the part's position and the probe")
+            if unlock_on_fail:
+                hint += await self._recover_probe(start)
             raise ProbeError(exc.code, line, self.url, where + hint) from None
         for text in reversed(lines):
             if text.startswith("[PRB:"):

@@ -2,7 +2,7 @@
 
 Usage (the controller):
 
-    ps = open_power_source(cell.devices.power_source, material)
+    ps = open_power_source(cell.devices.power_source, material)   # drivers/power_open.py
     await ps.connect()                 # first cycle sends every start bit cleared
     ps.set_job(mode=0, job=5); ps.set_wire_feed(6.2); ps.set_trims(arc=0.0, dynamic=0.0)
     ps.subscribe(record)               # record(PowerStatus) once per 10 ms cycle
@@ -15,7 +15,7 @@ Usage (the controller):
 The cyclic task runs on the asyncio loop every `cycle_ms` (10 ms, wall time, never scaled):
 it increments the watchdog counter, sends the whole command and reads the whole status in one
 exchange, and hands the status to the subscribers. A reply that does not come within
-`timeout_ms` stops the cycle and is reported as `LinkLost` naming the device and URL: writes
+`lost_after_cycles` cycles without a valid reply stop the cycle, reported as `LinkLost` naming the device and URL: writes
 are never retried (a retried weld start could come late), the device's own watchdog drops the
 start 100 ms after the counter stops.
 
@@ -27,20 +27,16 @@ from __future__ import annotations
 
 import asyncio
 import time
-from concurrent.futures import ThreadPoolExecutor
 from abc import abstractmethod
 from dataclasses import dataclass, field, replace
-from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 from drivers.cyclic import CycleStats, CyclicDevice
-from drivers.errors import DeviceError, LinkLost
-from drivers.power_registers import ARC_TRIM_LIMIT, COMMAND_BITS, DYNAMIC_TRIM_LIMIT, MODES, STATUS_BITS
-from planner.errors import CellError
+from drivers.errors import LinkLost
+from wire.power_registers import ARC_TRIM_LIMIT, COMMAND_BITS, DYNAMIC_TRIM_LIMIT, MODES, STATUS_BITS
+from core.errors import CellError
 
-if TYPE_CHECKING:  # pragma: no cover
-    from controller.config import PowerSourceDevice
-    from planner.material import Material
+from core.material import Material
 
 
 class CommandRangeError(CellError):
@@ -114,14 +110,13 @@ class PowerSource(CyclicDevice[PowerStatus]):
     COUNTER_MOD = 0x10000       # watchdog counter width (u16 on Modbus, u8 on CAN)
 
     def __init__(self, url: str, material: "Material | None" = None, *, cycle_ms: float = 10.0,
-                 timeout_ms: float = 50.0) -> None:
-        super().__init__(url, cycle_ms=cycle_ms, timeout_ms=timeout_ms)
+                 timeout_ms: float | None = None, lost_after_cycles: int = 3) -> None:
+        super().__init__(url, cycle_ms=cycle_ms, timeout_ms=timeout_ms, lost_after_cycles=lost_after_cycles)
         self.material = material
         self._cmd = PowerCommand()
         self._status: PowerStatus | None = None
         self._counter = 0
         self._cycle = 0
-        self._timer: ThreadPoolExecutor | None = None
 
     # -- transport hooks --------------------------------------------------------------------
     @abstractmethod
@@ -133,7 +128,7 @@ class PowerSource(CyclicDevice[PowerStatus]):
         """Close the transport."""
 
     @abstractmethod
-    async def _exchange(self, cmd: PowerCommand, counter: int) -> dict:
+    async def _exchange(self, cmd: PowerCommand, counter: int) -> dict[str, Any]:
         """One cycle on the wire: send `cmd` with `counter`, return the decoded reply.
 
         The reply dict has keys echo, bits (by STATUS_BITS name), error, voltage, current, wfs.
@@ -172,9 +167,6 @@ class PowerSource(CyclicDevice[PowerStatus]):
             except Exception:
                 pass
         await self._close()
-        if self._timer is not None:
-            self._timer.shutdown(wait=False)
-            self._timer = None
         self._fail_waiters(LinkLost(f"{self.where()}: link closed"))
 
     @property
@@ -274,34 +266,5 @@ class PowerSource(CyclicDevice[PowerStatus]):
         self._status = st
         return st
 
-    async def _sleep_until(self, deadline: float) -> None:
-        """Sleep to `deadline` (monotonic) to ~0.1 ms: the loop's timers round up to whole
-        milliseconds (epoll), so the last 1.5 ms are slept in a helper thread (no busy wait)."""
-        coarse = deadline - time.monotonic() - 0.0015
-        if coarse > 0:
-            await asyncio.sleep(coarse)
-        rest = deadline - time.monotonic()
-        if rest > 0:
-            if self._timer is None:
-                self._timer = ThreadPoolExecutor(1, thread_name_prefix="power-cycle-timer")
-            await asyncio.get_running_loop().run_in_executor(self._timer, time.sleep, rest)
 
-
-def open_power_source(cfg: "PowerSourceDevice", material: "Material | None" = None,
-                      config_dir: str | Path | None = None, url: str | None = None) -> PowerSource:
-    """The driver for `devices.power_source` of cell.yaml (transport modbus_tcp|modbus_rtu|can)."""
-    if cfg.transport in ("modbus_tcp", "modbus_rtu"):
-        from drivers.power_modbus import ModbusPowerSource
-        return ModbusPowerSource(url or cfg.url, material, device_id=cfg.device_id,
-                                 cycle_ms=cfg.cycle_ms, timeout_ms=cfg.timeout_ms,
-                                 rtu=cfg.transport == "modbus_rtu")
-    if cfg.transport == "can":
-        from drivers.power_can import CanPowerSource, dbc_path
-        return CanPowerSource(interface=cfg.can.interface, channel=url or cfg.can.channel,
-                              node=cfg.can.node, dbc=dbc_path(cfg.can.dbc, config_dir),
-                              material=material, cycle_ms=cfg.cycle_ms, timeout_ms=cfg.timeout_ms)
-    raise DeviceError(f"power source: unknown transport '{cfg.transport}'")  # pragma: no cover
-
-
-__all__ = ["PowerSource", "PowerCommand", "PowerStatus", "CommandRangeError", "open_power_source",
-           "CycleStats"]
+__all__ = ["PowerSource", "PowerCommand", "PowerStatus", "CommandRangeError", "CycleStats"]

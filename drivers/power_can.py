@@ -2,7 +2,7 @@
 
 Each 10 ms cycle the host sends `WELD_CMD` (0x200+n) with an incremented 8-bit alive counter
 and waits for `WELD_STATUS` (0x180+n) and `WELD_ACTUALS` (0x280+n) echoing that counter. The
-DBC describes node 1; node n shifts every id by n-1. No reply within `timeout_ms` is a lost
+DBC describes node 1; node n shifts every id by n-1. No valid reply for `lost_after_cycles` cycles is a lost
 link (LinkLost naming the interface and channel); a frame is never re-sent.
 
 Buses: any python-can interface. `virtual` (in-process, tests), `udp_multicast` (between
@@ -12,81 +12,13 @@ from __future__ import annotations
 
 import asyncio
 from pathlib import Path
+from typing import Any
 
+from core.errors import ConfigError
+from core.material import Material
 from drivers.errors import DeviceError, LinkLost
 from drivers.power import PowerCommand, PowerSource
-from planner.errors import ConfigError
-
-_CMD_BITS = {"weld_start": "WeldStart", "robot_ready": "RobotReady", "error_reset": "ErrorReset",
-             "gas_test": "GasTest", "wire_inch": "WireInch", "wire_retract": "WireRetract"}
-_STATUS_BITS = {"heartbeat": "Heartbeat", "ready": "Ready", "arc_stable": "ArcStable",
-                "current_flow": "CurrentFlow", "main_current": "MainCurrent",
-                "collision_ok": "CollisionOK", "gas_fault": "GasFault", "wire_out": "WireOut",
-                "process_active": "ProcessActive", "motion_release": "MotionRelease",
-                "wire_stick": "WireStick"}
-DEFAULT_DBC = Path(__file__).resolve().parent.parent / "config" / "power_source.dbc"
-
-
-def dbc_path(name: str, config_dir: str | Path | None = None) -> Path:
-    """cell.yaml's `can.dbc` (relative to the config directory) as a path that exists."""
-    p = Path(name)
-    if not p.is_absolute():
-        p = Path(config_dir or DEFAULT_DBC.parent) / p
-    if not p.exists():
-        raise ConfigError(f"devices.power_source.can.dbc: '{p}' not found; point it at power_source.dbc")
-    return p
-
-
-class CanCodec:
-    """Encode/decode the three frames of node `node` with a cantools database."""
-
-    def __init__(self, db, node: int = 1) -> None:
-        try:
-            self.cmd = db.get_message_by_name("WELD_CMD")
-            self.sta = db.get_message_by_name("WELD_STATUS")
-            self.act = db.get_message_by_name("WELD_ACTUALS")
-        except KeyError as exc:
-            raise ConfigError(f"power_source.dbc: message {exc} missing (need WELD_CMD, WELD_STATUS, WELD_ACTUALS)") from None
-        off = node - 1
-        self.cmd_id = self.cmd.frame_id + off
-        self.sta_id = self.sta.frame_id + off
-        self.act_id = self.act.frame_id + off
-        for m, base in ((self.cmd, 0x200), (self.sta, 0x180), (self.act, 0x280)):
-            if m.frame_id != base + 1:
-                raise ConfigError(f"power_source.dbc: {m.name} has id 0x{m.frame_id:X}, expected 0x{base + 1:X} for node 1")
-
-    def encode_command(self, cmd: PowerCommand, counter: int) -> bytes:
-        sig = {v: int(getattr(cmd, k)) for k, v in _CMD_BITS.items()}
-        sig.update(Mode=cmd.mode, Job=cmd.job, WFS=round(cmd.wfs_m_min, 2), ArcTrim=round(cmd.arc_trim, 1),
-                   DynamicTrim=round(cmd.dynamic_trim, 1), AliveCounter=counter & 0xFF)
-        return self.cmd.encode(sig)
-
-    def decode_command(self, data: bytes) -> dict:
-        s = self.cmd.decode(data, decode_choices=False)
-        return {"bits": {k: bool(s[v]) for k, v in _CMD_BITS.items()}, "mode": int(s["Mode"]),
-                "job": int(s["Job"]), "wfs": float(s["WFS"]), "arc_trim": float(s["ArcTrim"]),
-                "dynamic_trim": float(s["DynamicTrim"]), "counter": int(s["AliveCounter"])}
-
-    def encode_status(self, st: dict, counter: int) -> list:
-        """The status dict of the simulator -> [WELD_STATUS, WELD_ACTUALS] python-can messages."""
-        import can
-        sig = {v: int(bool(st["bits"][k])) for k, v in _STATUS_BITS.items()}
-        sig.update(ErrorNumber=int(st["error"]), CounterEcho=counter & 0xFF)
-        act = {"Voltage": round(min(max(st["voltage"], 0.0), 655.35), 2),
-               "Current": round(min(max(st["current"], 0.0), 6553.5), 1),
-               "WFSActual": round(max(min(st["wfs"], 327.67), -327.68), 2), "CounterEcho": counter & 0xFF}
-        return [can.Message(arbitration_id=self.sta_id, data=self.sta.encode(sig), is_extended_id=False),
-                can.Message(arbitration_id=self.act_id, data=self.act.encode(act), is_extended_id=False)]
-
-    def decode_status(self, data: bytes) -> dict:
-        s = self.sta.decode(data, decode_choices=False)
-        return {"bits": {k: bool(s[v]) for k, v in _STATUS_BITS.items()}, "error": int(s["ErrorNumber"]),
-                "echo": int(s["CounterEcho"])}
-
-    def decode_actuals(self, data: bytes) -> dict:
-        s = self.act.decode(data, decode_choices=False)
-        return {"voltage": float(s["Voltage"]), "current": float(s["Current"]), "wfs": float(s["WFSActual"]),
-                "echo": int(s["CounterEcho"])}
+from wire.can_codec import DEFAULT_DBC, CanCodec
 
 
 class CanPowerSource(PowerSource):
@@ -95,9 +27,10 @@ class CanPowerSource(PowerSource):
     COUNTER_MOD = 0x100
 
     def __init__(self, *, interface: str, channel: str, node: int = 1, dbc: str | Path = DEFAULT_DBC,
-                 material=None, cycle_ms: float = 10.0, timeout_ms: float = 50.0, **bus_kwargs) -> None:
+                 material: Material | None = None, cycle_ms: float = 10.0, timeout_ms: float | None = None,
+                 allow_network: bool = False, lost_after_cycles: int = 3, **bus_kwargs: Any) -> None:
         super().__init__(f"can://{interface}/{channel}?node={node}", material, cycle_ms=cycle_ms,
-                         timeout_ms=timeout_ms)
+                         timeout_ms=timeout_ms, lost_after_cycles=lost_after_cycles)
         import cantools
         try:
             db = cantools.database.load_file(str(dbc))
@@ -105,10 +38,14 @@ class CanPowerSource(PowerSource):
             raise ConfigError(f"{dbc}: cannot load the CAN database ({exc})") from None
         self.codec = CanCodec(db, node)
         self.interface, self.channel, self.node = interface, channel, node
+        self.allow_network = allow_network
+        from wire.can_net import check_channel
+
+        check_channel(interface, channel, allow_network, self.where())  # refused before any I/O
         self.bus_kwargs = bus_kwargs
-        self._bus = None
-        self._notifier = None
-        self._pending: tuple[int, asyncio.Future, dict] | None = None
+        self._bus: Any = None                # can.BusABC once open (python-can has no stubs here)
+        self._notifier: Any = None
+        self._pending: tuple[int, asyncio.Future[dict[str, Any]], dict[str, Any]] | None = None
 
     def where(self) -> str:
         return f"power source (CAN node {self.node}) on {self.interface} channel {self.channel}"
@@ -116,7 +53,12 @@ class CanPowerSource(PowerSource):
     async def _open(self) -> None:
         import can
         try:
-            self._bus = can.Bus(interface=self.interface, channel=self.channel, **self.bus_kwargs)
+            from wire.can_net import open_bus
+
+            self._bus = open_bus(self.interface, self.channel, allow_network=self.allow_network,
+                                 device=self.where(), **self.bus_kwargs)
+        except ConfigError:
+            raise
         except Exception as exc:
             raise LinkLost(f"{self.where()}: cannot open the bus ({exc})") from None
         self._notifier = can.Notifier(self._bus, [self._on_message], timeout=0.1,
@@ -130,7 +72,7 @@ class CanPowerSource(PowerSource):
             self._bus.shutdown()
             self._bus = None
 
-    def _on_message(self, msg) -> None:
+    def _on_message(self, msg: Any) -> None:
         p = self._pending
         if p is None or msg.is_extended_id:
             return
@@ -151,7 +93,7 @@ class CanPowerSource(PowerSource):
         if "status" in got and "actuals" in got and not fut.done():
             fut.set_result(got)
 
-    async def _exchange(self, cmd: PowerCommand, counter: int) -> dict:
+    async def _exchange(self, cmd: PowerCommand, counter: int) -> dict[str, Any]:
         import can
         if self._bus is None:
             raise LinkLost(f"{self.where()}: not connected")

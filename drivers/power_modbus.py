@@ -8,15 +8,17 @@ link (LinkLost), never silently repeated.
 from __future__ import annotations
 
 import logging
-from urllib.parse import urlsplit
+from typing import Any
 
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 from pymodbus.framer import FramerType
 
+from core.material import Material
 from drivers.errors import DeviceError, LinkLost
 from drivers.power import PowerCommand, PowerSource
-from drivers.power_registers import (
+from wire.urls import parse_tcp_url
+from wire.power_registers import (
     COMMAND_BITS, POWER_MAP, STATUS_BITS, RegisterMap, decode_block, encode_command_block,
     pack_bits, unpack_bits,
 )
@@ -28,21 +30,14 @@ _EXC_TEXT = {1: "illegal function", 2: "illegal data address", 3: "illegal data 
              4: "device failure", 6: "device busy", 0x0B: "gateway target did not respond"}
 
 
-def parse_tcp_url(url: str) -> tuple[str, int]:
-    """`tcp://host:port` -> (host, port); anything else is a ConfigError-like DeviceError."""
-    parts = urlsplit(url)
-    if parts.scheme != "tcp" or not parts.hostname or parts.port is None:
-        raise DeviceError(f"device URL '{url}' is not tcp://host:port")
-    return parts.hostname, parts.port
-
-
 class ModbusPowerSource(PowerSource):
     """`PowerSource` over Modbus TCP or RTU."""
 
-    def __init__(self, url: str, material=None, *, device_id: int = 1, cycle_ms: float = 10.0,
-                 timeout_ms: float = 50.0, rtu: bool | None = None, baudrate: int = 115200,
-                 register_map: RegisterMap = POWER_MAP) -> None:
-        super().__init__(url, material, cycle_ms=cycle_ms, timeout_ms=timeout_ms)
+    def __init__(self, url: str, material: Material | None = None, *, device_id: int = 1, cycle_ms: float = 10.0,
+                 timeout_ms: float | None = None, rtu: bool | None = None, baudrate: int = 115200,
+                 register_map: RegisterMap = POWER_MAP, lost_after_cycles: int = 3) -> None:
+        super().__init__(url, material, cycle_ms=cycle_ms, timeout_ms=timeout_ms,
+                         lost_after_cycles=lost_after_cycles)
         self.device_id = device_id
         self.rtu = (not url.startswith("tcp://")) if rtu is None else rtu
         self.baudrate = baudrate
@@ -55,6 +50,7 @@ class ModbusPowerSource(PowerSource):
 
     async def _open(self) -> None:
         timeout = self.timeout_s
+        client: AsyncModbusTcpClient | AsyncModbusSerialClient
         if self.rtu:
             if self.url.startswith("tcp://"):
                 raise DeviceError(f"{self.where()}: Modbus RTU needs a serial URL (a port, socket://, a pty), not tcp://")
@@ -76,7 +72,7 @@ class ModbusPowerSource(PowerSource):
             self._client.close()
             self._client = None
 
-    async def _exchange(self, cmd: PowerCommand, counter: int) -> dict:
+    async def _exchange(self, cmd: PowerCommand, counter: int) -> dict[str, Any]:
         client = self._client
         if client is None or not client.connected:
             raise LinkLost(f"{self.where()}: not connected")

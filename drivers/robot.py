@@ -25,7 +25,8 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import AsyncIterator, Callable
 
-from drivers import rlp
+from wire import rlp
+from drivers.robot_guard import GARBLED_RUN, MAX_HB_PER_READ, MAX_OWN_PER_READ, SUSPECT_S, FloodMeter, split_lines
 from drivers.errors import DeviceError, DeviceTimeout, LinkLost
 from drivers.serial_async import SerialPort
 
@@ -68,6 +69,9 @@ class LinkStats:
     naks: int = 0            # NAKs received from the robot
     naks_by_reason: dict = field(default_factory=dict)
     reconnects: int = 0
+    heartbeats: int = 0      # HB-looking lines received (a flood counts every one)
+    hb_skipped: int = 0      # of those, not decoded (over the per-read bound)
+    protocol_faults: int = 0
     rtt_s: deque = field(default_factory=lambda: deque(maxlen=2000))
 
     @property
@@ -86,7 +90,8 @@ class LinkStats:
                 "bytes_sent": self.bytes_sent, "bytes_received": self.bytes_received,
                 "resends": self.resends, "timeouts": self.timeouts, "crc_errors": self.crc_errors,
                 "bad_frames": self.bad_frames, "naks": self.naks, "naks_by_reason": dict(self.naks_by_reason),
-                "reconnects": self.reconnects,
+                "reconnects": self.reconnects, "heartbeats": self.heartbeats, "hb_skipped": self.hb_skipped,
+                "protocol_faults": self.protocol_faults,
                 "rtt_ms_mean": round(self.rtt_ms_mean, 3), "rtt_ms_p99": round(self.rtt_ms_p99, 3)}
 
 
@@ -144,6 +149,13 @@ class RobotLink:
         self._lost: LinkLost | None = None
         self._sta_seen: rlp.Reply | None = None
         self._aborted_below = 0            # tickets below this and not executed were flushed
+        self._max_sent = 0                 # highest ticket ever transmitted (an ACK/EXE above: a lie)
+        self._bad_at_ack = 0               # bad frames received up to the last ACK
+        self._flood = FloodMeter()
+        self.protocol_fault: str | None = None  # latched: holds motion until reset()
+        self._bad_run = 0                  # consecutive bad frames (no valid one between)
+        self._suspect_held = False         # we wrote !HOLD because the robot went quiet
+        self.held_at: float | None = None  # monotonic time the link itself last wrote !HOLD
 
     # -- public properties ---------------------------------------------------------------------
     @property
@@ -217,7 +229,7 @@ class RobotLink:
             await self._drop(str(exc), notify=False)
             raise LinkLost(f"{self.name} at {self.url}: no answer to !STATUS; is the robot on?") from None
         self._resync(st, resume_ticket)
-        self._tx_paused = False
+        self._tx_paused = self.protocol_fault is not None
         self._ready = True
         self._kick.set()
         self._notify()
@@ -250,6 +262,7 @@ class RobotLink:
         self._last_exec = exec_t
         self._next_ticket = max(self._next_ticket if self._history else 0, rx_t + 1)
         self._send_next = rx_t + 1
+        self._max_sent = max(rx_t, self._send_next - 1)
         self._window_end = rx_t + st.queue_free
         self._history = True
         self._set_status(st)
@@ -309,8 +322,10 @@ class RobotLink:
         """Queue a MOVJ / MOVL / WAIT / MARK frame; returns its ticket once the robot has room."""
         body_check = rlp.move_body(0, verb, *args)  # ValueError for a malformed move, before waiting
         del body_check
-        await self._wait(lambda: self._next_ticket <= self._window_end and not self._tx_paused, timeout,
-                         "window space")
+        await self._wait(lambda: (self._next_ticket <= self._window_end and not self._tx_paused)
+                         or self.protocol_fault is not None, timeout, "window space")
+        if self.protocol_fault is not None:
+            raise DeviceError(f"{self.name} at {self.url}: {self.fault}; reset() clears it")
         t = self._next_ticket
         self._next_ticket += 1
         self._frames[t] = rlp.encode_move(t, verb, *args)
@@ -355,16 +370,20 @@ class RobotLink:
         try:
             self._frames.clear()
             self._sent_at.clear()
-            st = await self._control("ABORT", lambda s: s.queue_free == self._capacity)
+            # the robot's answer to !ABORT: queue flushed, standing still (IDLE) or faulted; its
+            # free-slot count is then the whole queue (the old estimate of it may be wrong)
+            st = await self._control("ABORT", lambda s: s.state in ("IDLE", "FAULT"))
             rx_t = rlp.unwrap(st.last_rx, self._last_ack)
-            self._last_ack = rx_t
+            if st.state == "IDLE":
+                self._capacity = st.queue_free
+            self._last_ack = self._max_sent = rx_t
             self._next_ticket = self._send_next = rx_t + 1
             self._last_exec = rx_t - rlp.seq_diff(st.last_rx, st.last_exec)
             self._window_end = rx_t + st.queue_free
             self._aborted_below = self._next_ticket
             self._set_status(st)
         finally:
-            self._tx_paused = False
+            self._tx_paused = self.protocol_fault is not None
             self._notify()
         return self.last_status
 
@@ -375,12 +394,14 @@ class RobotLink:
             self._frames.clear()
             self._sent_at.clear()
             st = await self._control("RESET", lambda s: s.last_rx == 0 and s.last_exec == 0
-                                     and s.queue_free == self._capacity)
+                                     and s.state == "IDLE")
+            self._capacity = st.queue_free
             base = (self._next_ticket - 1) | 0xFFFF  # the next ticket whose low 16 bits are 0000
-            self._last_ack = self._last_exec = base + 1
+            self._last_ack = self._last_exec = self._max_sent = base + 1
             self._next_ticket = self._send_next = base + 2
             self._window_end = base + 1 + st.queue_free
             self.fault = None
+            self.protocol_fault = None
             self._aborted_below = self._next_ticket
             self.last_status = RobotStatus(st.state, 0, 0, st.queue_free, st.pos, base + 1, base + 1)
         finally:
@@ -459,6 +480,7 @@ class RobotLink:
                             self._retx.add(t)
                         self._sent_at[t] = time.monotonic()
                         self._send_next = t + 1
+                        self._max_sent = max(self._max_sent, t)
                     await port.write(data)  # waits for the line (pacing)
                     self._last_tx = time.monotonic()
                     if t is not None and t in self._frames:
@@ -474,12 +496,22 @@ class RobotLink:
         try:
             while True:
                 data = await port.read()
-                self._last_heard = time.monotonic()
                 self.stats.bytes_received += len(data)
-                for line in splitter.feed(data):
+                # bounded per read: the build's own frames first, a few heartbeats after
+                own, hb = split_lines(splitter.feed(data))
+                for line in own[:MAX_OWN_PER_READ]:
                     self._on_line(line)
+                self.stats.bad_frames += max(0, len(own) - MAX_OWN_PER_READ)
+                for line in hb[:MAX_HB_PER_READ]:
+                    self._on_line(line)
+                self.stats.heartbeats += len(hb)
+                self.stats.hb_skipped += max(0, len(hb) - MAX_HB_PER_READ)
+                if self._flood.add(len(hb)) and self.protocol_fault is None:
+                    self._protocol(f"heartbeat flood: {self._flood.rate} HB frames within 1 s (expected 1/s)")
                 self._notify()
                 self._kick.set()
+                if len(own) + len(hb) > MAX_HB_PER_READ:
+                    await asyncio.sleep(0)  # a busy line leaves the other tasks their turn
         except LinkLost as exc:
             if self._port is port:
                 await self._drop(getattr(exc, "reason", str(exc)))
@@ -488,8 +520,25 @@ class RobotLink:
         while self._connected:
             await asyncio.sleep(self.TICK_S)
             now = time.monotonic()
+            if (now - self._last_heard >= SUSPECT_S and not self._suspect_held
+                    and self._last_exec < self._next_ticket - 1):
+                # quiet for a second with moves outstanding: hold the robot now (it may still
+                # hear us and it must not go on depositing blind); lost at link_timeout_s
+                self._suspect_held = True
+                self.held_at = now
+                self._ctrl.appendleft(rlp.encode("!HOLD"))
+                self._kick.set()
             if now - self._last_heard >= self.link_timeout_s - self.TICK_S:  # lost within link_timeout_s
-                await self._drop(f"silent for {self.link_timeout_s:.1f} s")
+                # no valid frame for 3 s (silent, or only garbage / floods): hold the robot first,
+                # it may still hear us
+                port = self._port
+                if port is not None:
+                    try:
+                        await asyncio.wait_for(port.write(rlp.encode("!HOLD")), 0.1)
+                        await asyncio.sleep(0.05)  # on the line before the port closes
+                    except Exception:
+                        pass
+                await self._drop(f"no valid frame for {self.link_timeout_s:.1f} s")
                 return
             oldest = self._last_ack + 1
             sent = self._sent_at.get(oldest)
@@ -531,6 +580,22 @@ class RobotLink:
             self._send_next = a + 1
 
     def _on_line(self, line: bytes) -> None:
+        r = self._decode(line)
+        if r is None:
+            return
+        if r.kind != "HB":
+            if not self._plausible(r):
+                return
+            self._last_heard = time.monotonic()  # heard: a valid frame that fits what was sent
+            if self._suspect_held and self.protocol_fault is None:
+                self._suspect_held = False  # it speaks again: release the hold we wrote
+                self._ctrl.append(rlp.encode("!GO"))
+        handler = getattr(self, f"_on_{r.kind.lower()}", None)
+        if handler is not None:
+            handler(r)
+
+    def _decode(self, line: bytes) -> rlp.Reply | None:
+        """The reply in a line, or None (counted; a run of bad frames is a protocol fault)."""
         try:
             r = rlp.parse_reply(rlp.decode(line))
         except rlp.FrameError as exc:
@@ -538,46 +603,93 @@ class RobotLink:
                 self.stats.crc_errors += 1
             else:
                 self.stats.bad_frames += 1
-            return
+            self._bad_run += 1
+            if self._bad_run >= GARBLED_RUN and self.protocol_fault is None:
+                self._protocol(f"{self._bad_run} bad frames in a row (garbled replies)")
+            return None
+        self._bad_run = 0
         self.stats.frames_received += 1
-        k = r.kind
-        if k == "ACK":
+        return r
+
+    def _on_ack(self, r: rlp.Reply) -> None:
+        a = rlp.unwrap(r.seq, self._last_ack)
+        self._bad_at_ack = self.stats.crc_errors + self.stats.bad_frames
+        self._acked(a)
+        if a >= self._last_ack:
+            self._window_end = max(self._window_end, a + r.credits)
+
+    def _on_exe(self, r: rlp.Reply) -> None:
+        self._executed(rlp.unwrap(r.seq, self._last_exec))
+
+    def _on_nak(self, r: rlp.Reply) -> None:
+        self.stats.naks += 1
+        self.stats.naks_by_reason[r.reason] = self.stats.naks_by_reason.get(r.reason, 0) + 1
+        x = rlp.unwrap(r.seq, self._last_ack + 1)
+        self._acked(x - 1)  # the robot expects x: it has everything before
+        if r.reason == "FULL":
+            self._window_end = min(self._window_end, x - 1)
+        sent = self._sent_at.get(x)
+        # a NAK sooner than a round trip after x's last transmission is about an earlier one
+        fresh = sent is None or self._min_rtt is None or time.monotonic() - sent >= 0.7 * self._min_rtt
+        if x == self._last_ack + 1 and x < self._send_next and fresh:
+            self._send_next = x
+            self._kick.set()
+
+    def _on_sta(self, r: rlp.Reply) -> None:
+        self._sta_seen = r
+        rx_t = rlp.unwrap(r.last_rx, self._last_ack)
+        if not self._tx_paused:
+            self._acked(rx_t)
+            self._window_end = max(self._window_end, rx_t + r.queue_free)
+            d = rlp.seq_diff(r.last_rx, r.last_exec)
+            if d >= 0:
+                self._executed(rx_t - d)
+        self._emit("STA", value=r)
+
+    def _on_hb(self, r: rlp.Reply) -> None:
+        self._emit("HB", value=r.n)
+
+    def _on_mrk(self, r: rlp.Reply) -> None:
+        self._emit("MRK", value=r.n)
+
+    def _on_err(self, r: rlp.Reply) -> None:
+        self.fault = f"ERR {r.code} {r.text}"
+        self._emit("ERR", value=r.code, text=r.text)
+
+    def _plausible(self, r: rlp.Reply) -> bool:
+        """False (and a latched protocol fault) for an ACK / EXE the host cannot have caused."""
+        if r.kind == "ACK":
             a = rlp.unwrap(r.seq, self._last_ack)
-            self._acked(a)
-            if a >= self._last_ack:
-                self._window_end = max(self._window_end, a + r.credits)
-        elif k == "EXE":
-            self._executed(rlp.unwrap(r.seq, self._last_exec))
-        elif k == "NAK":
-            self.stats.naks += 1
-            self.stats.naks_by_reason[r.reason] = self.stats.naks_by_reason.get(r.reason, 0) + 1
-            x = rlp.unwrap(r.seq, self._last_ack + 1)
-            self._acked(x - 1)  # the robot expects x: it has everything before
-            if r.reason == "FULL":
-                self._window_end = min(self._window_end, x - 1)
-            sent = self._sent_at.get(x)
-            # a NAK sooner than a round trip after x's last transmission is about an earlier one
-            fresh = sent is None or self._min_rtt is None or time.monotonic() - sent >= 0.7 * self._min_rtt
-            if x == self._last_ack + 1 and x < self._send_next and fresh:
-                self._send_next = x
-                self._kick.set()
-        elif k == "STA":
-            self._sta_seen = r
-            rx_t = rlp.unwrap(r.last_rx, self._last_ack)
-            if not self._tx_paused:
-                self._acked(rx_t)
-                self._window_end = max(self._window_end, rx_t + r.queue_free)
-                d = rlp.seq_diff(r.last_rx, r.last_exec)
-                if d >= 0:
-                    self._executed(rx_t - d)
-            self._emit("STA", value=r)
-        elif k == "HB":
-            self._emit("HB", value=r.n)
-        elif k == "MRK":
-            self._emit("MRK", value=r.n)
-        elif k == "ERR":
-            self.fault = f"ERR {r.code} {r.text}"
-            self._emit("ERR", value=r.code, text=r.text)
+            if a > self._max_sent:
+                self._protocol(f"ACK {r.seq:04X} for ticket {a}, never sent (last sent {self._max_sent})")
+                return False
+        elif r.kind == "EXE":
+            e = rlp.unwrap(r.seq, self._last_exec)
+            if e > self._max_sent:
+                self._protocol(f"EXE {r.seq:04X} for ticket {e}, never sent (last sent {self._max_sent})")
+                return False
+            if e < self._last_exec and not self._tx_paused:
+                self._protocol(f"EXE {r.seq:04X} out of order (ticket {e} after {self._last_exec})")
+                return False
+            lost = self.stats.crc_errors + self.stats.bad_frames > self._bad_at_ack
+            if e > self._last_ack and not lost and not self._tx_paused:
+                self._protocol(f"EXE {r.seq:04X} (ticket {e}) beyond the last ACK ({self._last_ack})")
+                return False
+        return True
+
+    def _protocol(self, text: str) -> None:
+        """Latch a protocol fault: no more moves, `!HOLD` at once, tell the controller (ERR)."""
+        self.stats.protocol_faults += 1
+        if self.protocol_fault is not None:
+            return
+        self.protocol_fault = text
+        self.fault = f"protocol fault: {text}"
+        self._tx_paused = True
+        self.held_at = time.monotonic()
+        self._ctrl.appendleft(rlp.encode("!HOLD"))
+        self._kick.set()
+        self._notify()
+        self._emit("ERR", value="PROTOCOL", text=f"protocol fault: {text}")
 
     def _executed(self, e: int) -> None:
         if e <= self._last_exec or e >= self._next_ticket:

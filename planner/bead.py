@@ -27,9 +27,10 @@ from functools import lru_cache
 from typing import Any, ClassVar, Protocol
 
 import numpy as np
-from scipy.optimize import brentq, least_squares
 
-from planner.errors import InputError
+from core.errors import InputError
+from planner import fit_guards
+from planner.roots import brentq
 
 __all__ = [
     "Parabola",
@@ -331,6 +332,13 @@ class ProfileFit:
         }
 
 
+def least_squares(*args: Any, **kwargs: Any) -> Any:
+    """scipy's least squares, imported on first use: `cell plan` never fits a profile."""
+    from scipy.optimize import least_squares as ls
+
+    return ls(*args, **kwargs)
+
+
 def _r2(y: np.ndarray, pred: np.ndarray) -> float:
     ss_res = float(np.sum((y - pred) ** 2))
     ss_tot = float(np.sum((y - y.mean()) ** 2))
@@ -436,11 +444,17 @@ def fit_arc(x: Any, y: Any, *, min_height_mm: float | None = None) -> ProfileFit
 
 def fit_profiles(x: Any, y: Any, *, min_height_mm: float | None = None) -> dict[str, ProfileFit]:
     """All three fits of one measured profile: {"parabola": …, "cosine": …, "arc": …}."""
-    return {
-        "parabola": fit_parabola(x, y, min_height_mm=min_height_mm),
-        "cosine": fit_cosine(x, y, min_height_mm=min_height_mm),
-        "arc": fit_arc(x, y, min_height_mm=min_height_mm),
+    xa = fit_guards.finite_scaled(x, "profile x").reshape(-1)
+    ya = fit_guards.finite_scaled(y, "profile y").reshape(-1)
+    out = {
+        "parabola": fit_parabola(xa, ya, min_height_mm=min_height_mm),
+        "cosine": fit_cosine(xa, ya, min_height_mm=min_height_mm),
+        "arc": fit_arc(xa, ya, min_height_mm=min_height_mm),
     }
+    fit_guards.profile_not_flat(xa, ya)
+    for name, f in out.items():
+        fit_guards.plausible_profile(name, f.width_mm, f.height_mm, f.area_mm2, xa)
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -498,7 +512,7 @@ def tangent_f_paper(d: float, w: float, a: float) -> float:
 
 @lru_cache(maxsize=64)
 def _critical_ratio(profile: str, aspect: float) -> float:
-    grid = np.linspace(0.5 + 1e-6, 1.0 - 1e-6, 400)
+    grid = np.linspace(0.5 + 1e-6, 1.0 - 1e-6, 41)
     vals = [tangent_f(float(g), profile, aspect) for g in grid]
     for (g0, v0), (g1, v1) in zip(zip(grid, vals), zip(grid[1:], vals[1:])):
         if v0 < 0.0 <= v1:

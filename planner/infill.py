@@ -10,25 +10,37 @@ from planner.path2d import Path2D
 from planner.regions import polygons_of
 
 
-def scan_fill(region, step: float, width: float, angle_deg: float) -> list[Path2D]:
-    """Fill `region` (bead centres may go anywhere in it) with scan lines at `step`, linked zigzag."""
+def row_count(span: float, step: float, min_spacing: float, max_spacing: float) -> tuple[int, float]:
+    """Rows across `span` with the first and last on its edges, spaced as near `step` as the
+    stable band [min_spacing, max_spacing] allows (Ding 2015); (rows, spacing)."""
+    if span < min_spacing or span <= 0.25 * step:
+        return 1, step  # two rows this close would be unstable: one down the middle
+    k = max(1, int(round(span / step)))
+    if span / k < min_spacing and k > 1:
+        k -= 1  # too close is unstable: one row fewer, a little wider apart
+    if span / k > max_spacing:
+        k += 1  # too far leaves a groove: one row more
+    return k + 1, span / k
+
+
+def scan_fill(region, step: float, width: float, angle_deg: float, min_spacing: float | None = None) -> list[Path2D]:
+    """Fill `region` (bead centres may go anywhere in it) with scan lines near `step`, linked zigzag."""
     out: list[Path2D] = []
+    lo = step if min_spacing is None else min_spacing
     for piece in polygons_of(region):
         rot = affinity.rotate(piece, -angle_deg, origin=(0.0, 0.0))
         span = rot.bounds[3] - rot.bounds[1]
-        n = int(np.ceil(span / step - 1e-9)) + 1 if span > 0.25 * step else 1
-        spacing = span / (n - 1) if n > 1 else step
-        for chain in _zigzag(rot, step, spacing):
+        n, spacing = row_count(span, step, lo, 0.92 * width)
+        for chain in _zigzag(rot, step, spacing, n):
             pts = np.asarray(affinity.rotate(LineString(chain), angle_deg, origin=(0.0, 0.0)).coords)
             out.append(Path2D("infill", pts, width, closed=False, share_mm=spacing))
     return out
 
 
-def _rows(poly: Polygon, step: float) -> list[tuple[float, list[tuple[float, float]]]]:
+def _rows(poly: Polygon, n: int) -> list[tuple[float, list[tuple[float, float]]]]:
     minx, miny, maxx, maxy = poly.bounds
     span = maxy - miny
-    # First and last lines on the region's edges, spacing the largest that is <= the step-over.
-    n = int(np.ceil(span / step - 1e-9)) + 1 if span > 0.25 * step else 1
+    # First and last lines on the region's edges (d* from the last perimeter), `n` rows.
     ys = miny + (np.linspace(0.0, span, n) if n > 1 else np.array([0.5 * span]))
     # A line exactly through a vertex is nudged, as in Fang 2019, so crossings come in pairs.
     ys = np.clip(ys, miny + 1e-6, maxy - 1e-6)
@@ -47,14 +59,14 @@ def _rows(poly: Polygon, step: float) -> list[tuple[float, list[tuple[float, flo
     return rows
 
 
-def _zigzag(poly: Polygon, step: float, spacing: float) -> list[list[tuple[float, float]]]:
+def _zigzag(poly: Polygon, step: float, spacing: float, n: int) -> list[list[tuple[float, float]]]:
     """Link each row's segments to an overlapping segment of the next row at the same side."""
     corridor = poly.buffer(0.6 * step)
     shapely.prepare(corridor)
     chains: list[dict] = []
     active: list[dict] = []
     prev_y = None
-    for y, segs in _rows(poly, step):
+    for y, segs in _rows(poly, n):
         used = [False] * len(segs)
         nxt_active = []
         adjacent = prev_y is not None and abs(y - prev_y - spacing) < 1e-6 * max(1.0, step)

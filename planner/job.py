@@ -8,10 +8,11 @@ from typing import Any
 
 import numpy as np
 
-from planner.errors import InputError
+from core.errors import InputError
 
 SCHEMA = "cell-job/1"
 ROLES = ("perimeter", "infill", "gap")
+FRAMES = ("substrate", "cad")
 
 
 @dataclass(frozen=True)
@@ -40,6 +41,7 @@ class Pass:
     wfs_m_min: float
     points: np.ndarray  # (n, 3) mm
     normals: np.ndarray | None = None  # (n, 3) unit facet normals (perimeters), optional
+    axes: np.ndarray | None = None     # (n, 3) unit tool axes in the part frame (5-axis plans)
 
     @property
     def length_mm(self) -> float:
@@ -70,6 +72,7 @@ class Job:
     layers: tuple[Layer, ...]
     summary: dict[str, Any]
     schema: str = SCHEMA
+    frame: str = "substrate"  # substrate: lowest point on z = 0; cad: the CAD coordinates kept
 
 
 def _num(x: float, nd: int) -> float:
@@ -92,6 +95,8 @@ def job_to_dict(job: Job) -> dict[str, Any]:
                  "points": _arr(p.points, 3)}
             if p.normals is not None:
                 d["normals"] = _arr(p.normals, 4)
+            if p.axes is not None:
+                d["axes"] = _arr(p.axes, 5)
             passes.append(d)
         ld: dict[str, Any] = {"index": L.index, "z_mm": _num(L.z_mm, 4), "height_mm": _num(L.height_mm, 4),
                               "passes": passes}
@@ -104,7 +109,7 @@ def job_to_dict(job: Job) -> dict[str, Any]:
             "material": job.material,
             "bead": {"width_mm": _num(job.bead.width_mm, 4), "height_mm": _num(job.bead.height_mm, 4),
                      "step_over_mm": _num(job.bead.step_over_mm, 4), "model": job.bead.model},
-            "layers": layers, "summary": job.summary}
+            "layers": layers, "summary": job.summary, "frame": job.frame}
 
 
 def job_to_json(job: Job) -> bytes:
@@ -139,6 +144,17 @@ def _points(v: Any, where: str) -> np.ndarray:
     if a.ndim != 2 or a.shape[1] != 3 or not np.all(np.isfinite(a)):
         raise InputError(f"job file: {where} must be a list of [x, y, z] numbers")
     return a
+
+
+def _axes(p: dict, pw: str, n: int) -> np.ndarray | None:
+    if "axes" not in p:
+        return None
+    ax = _points(p["axes"], f"{pw}.axes")
+    if len(ax) != n:
+        raise InputError(f"job file: {pw}.axes has {len(ax)} rows for {n} points")
+    if not np.allclose(np.linalg.norm(ax, axis=1), 1.0, atol=1e-3):
+        raise InputError(f"job file: {pw}.axes must be unit vectors [i, j, k]")
+    return ax
 
 
 def load_job(d: Any) -> Job:
@@ -181,9 +197,10 @@ def load_job(d: Any) -> Job:
                 normals = _points(p["normals"], f"{pw}.normals")
                 if len(normals) != len(pts):
                     raise InputError(f"job file: {pw}.normals has {len(normals)} rows for {len(pts)} points")
+            axes = _axes(p, pw, len(pts))
             passes.append(Pass(role, _number(p, "width_mm", pw, True), _number(p, "current_a", pw, True),
                                _number(p, "speed_mm_min", pw, True), _number(p, "wfs_m_min", pw, True),
-                               pts, normals))
+                               pts, normals, axes))
         ip = None
         if "interpass" in L:
             ip = Interpass(_number(L["interpass"], "max_temperature_c", f"{w}.interpass"),
@@ -193,7 +210,10 @@ def load_job(d: Any) -> Job:
     summary = d.get("summary", {})
     if not isinstance(summary, dict):
         raise InputError("job file: summary must be an object")
-    return Job(source, material, bead, tuple(layers), summary)
+    frame = d.get("frame", "substrate")
+    if frame not in FRAMES:
+        raise InputError(f"job file: frame is {frame!r}, expected one of {', '.join(FRAMES)}")
+    return Job(source, material, bead, tuple(layers), summary, frame=frame)
 
 
 def loads_job(data: bytes | str) -> Job:

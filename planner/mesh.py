@@ -8,9 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.errors import InputError, MeshError
+from planner import limits
+from core.errors import InputError, MeshError
 
-UNITS_MM = {"mm": 1.0, "inch": 25.4}
+UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "inch": 25.4}
 FORMATS = ("stl", "obj", "3mf", "ply", "off")
 
 
@@ -33,6 +34,7 @@ class PreparedMesh:
     repairs: tuple[str, ...]
     watertight: bool
     source: MeshSource
+    z_shift_mm: float = 0.0  # how far the part was lowered to put it on z = 0 (`--frame cad` adds it back)
 
     @property
     def extents(self) -> np.ndarray:
@@ -43,7 +45,7 @@ def read_mesh(path: str | Path, units: str = "mm") -> PreparedMesh:
     """Read a mesh file (the only I/O of the planner) and prepare it; bad files raise MeshError."""
     p = Path(path)
     if units not in UNITS_MM:
-        raise InputError(f"--units: '{units}' is not a unit; use mm or inch")
+        raise InputError(f"--units: '{units}' is not a unit; use mm, cm, m or inch")
     try:
         data = p.read_bytes()
     except OSError as exc:
@@ -54,10 +56,12 @@ def read_mesh(path: str | Path, units: str = "mm") -> PreparedMesh:
     if len(data) == 0:
         raise MeshError(f"{p}: the file is empty (0 bytes); export the part again")
     source = MeshSource(file=p.name, sha256=hashlib.sha256(data).hexdigest(), units=units)
+    limits.check_file(p.name, len(data), _binary_count(data) if ext == "stl" else None)
     tri = _binary_stl(data) if ext == "stl" else None
     if tri is not None:
         if len(tri) == 0:
             raise MeshError(f"{p}: the mesh has no triangles; export the part again as a solid")
+        limits.check_vertices(p.name, tri.reshape(-1, 3) * UNITS_MM[units], len(tri))
         vertices, faces = _weld(tri)
         fast = _prepare_clean(vertices, faces, units, source)
         if fast is not None:
@@ -66,6 +70,13 @@ def read_mesh(path: str | Path, units: str = "mm") -> PreparedMesh:
 
         return prepare_mesh(trimesh.Trimesh(vertices, faces, process=False), units, source)
     return prepare_mesh(_parse(data, ext, p), units, source)
+
+
+def _binary_count(data: bytes) -> int | None:
+    """The triangle count of a binary STL whose size matches its header, else None."""
+    if len(data) >= 84 and len(data) == 84 + 50 * int.from_bytes(data[80:84], "little"):
+        return int.from_bytes(data[80:84], "little")
+    return None
 
 
 def _binary_stl(data: bytes) -> np.ndarray | None:
@@ -134,8 +145,9 @@ def _prepare_clean(vertices: np.ndarray, faces: np.ndarray, units: str, source: 
         normals = -normals
         repairs.append("inverted normals (the mesh was inside out)")
     vertices = vertices.copy()
-    vertices[:, 2] -= vertices[:, 2].min()
-    return PreparedMesh(vertices, np.ascontiguousarray(f, dtype=np.int64), normals, tuple(repairs), True, source)
+    z0 = float(vertices[:, 2].min())
+    vertices[:, 2] -= z0
+    return PreparedMesh(vertices, np.ascontiguousarray(f, dtype=np.int64), normals, tuple(repairs), True, source, z0)
 
 
 def _parse(data: bytes, ext: str, p: Path):
@@ -200,19 +212,20 @@ def prepare_mesh(mesh, units: str = "mm", source: MeshSource | None = None) -> P
             repairs.append("inverted normals (most faces pointed inward)")
         repairs.append("mesh is not closed after repair: layers are closed by the slicer's gap tolerance")
     vertices = np.array(mesh.vertices, dtype=np.float64)
-    vertices[:, 2] -= vertices[:, 2].min()
+    z0 = float(vertices[:, 2].min())
+    vertices[:, 2] -= z0
     faces = np.array(mesh.faces, dtype=np.int64)
     normals = np.array(mesh.face_normals, dtype=np.float64)
     if source is None:
         source = MeshSource(file="mesh", sha256=hashlib.sha256(vertices.tobytes() + faces.tobytes()).hexdigest(),
                             units=units)
-    return PreparedMesh(vertices, faces, normals, tuple(repairs), watertight, source)
+    return PreparedMesh(vertices, faces, normals, tuple(repairs), watertight, source, z0)
 
 
 def check_size(mesh: PreparedMesh, width_mm: float, layer_mm: float) -> None:
     """A part smaller than one bead (in plan or in height) cannot be deposited: MeshError."""
     ex = mesh.extents
-    hint = "; if the file is in inches, use --units inch" if mesh.source.units == "mm" else ""
+    hint = "; if the file is in other units, use --units cm, m or inch" if mesh.source.units == "mm" else ""
     if max(ex[0], ex[1]) < width_mm:
         raise MeshError(f"{mesh.source.file}: the part is {ex[0]:.3g} x {ex[1]:.3g} mm in plan, smaller than "
                         f"one bead ({width_mm:g} mm wide){hint}")

@@ -22,7 +22,7 @@ def seam_at(loop: Path2D, layer_index: int) -> Path2D:
 def _rotate(loop: Path2D, i: int) -> Path2D:
     pts = loop.points[:-1]
     p = np.roll(pts, -i, axis=0)
-    return Path2D(loop.role, np.vstack([p, p[:1]]), loop.width_mm, True, loop.share_mm)
+    return Path2D(loop.role, np.vstack([p, p[:1]]), loop.width_mm, True, loop.share_mm, loop.lone)
 
 
 def _split_at(loop: Path2D, q: np.ndarray) -> Path2D:
@@ -35,7 +35,7 @@ def _split_at(loop: Path2D, q: np.ndarray) -> Path2D:
     i = int(np.argmin(np.linalg.norm(proj - q, axis=1)))
     ring = np.vstack([proj[i], pts[i + 1:-1], pts[:i + 1], proj[i]])
     keep = np.r_[True, np.linalg.norm(np.diff(ring, axis=0), axis=1) > 1e-9]
-    return Path2D(loop.role, ring[keep], loop.width_mm, True, loop.share_mm)
+    return Path2D(loop.role, ring[keep], loop.width_mm, True, loop.share_mm, loop.lone)
 
 
 def _dist_to_loop(loop: Path2D, q: np.ndarray) -> float:
@@ -72,7 +72,7 @@ def link_into_loops(loops: list[Path2D], chains: list[Path2D], reach: float) -> 
         used[li] = True
         c = ch.reversed() if rev else ch
         lp = _split_at(loops[li], c.points[0])
-        merged.append(Path2D("perimeter", np.vstack([lp.points, c.points]), lp.width_mm, False, lp.share_mm))
+        merged.append(Path2D("perimeter", np.vstack([lp.points, c.points]), lp.width_mm, False, lp.share_mm, lp.lone))
     merged_loops = [lp for lp, u in zip(loops, used) if not u]
     return merged_loops + merged, rest
 

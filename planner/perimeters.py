@@ -25,19 +25,28 @@ def split_thin(poly: Polygon, width: float) -> tuple[list[Polygon], list[Polygon
 
 
 def perimeter_loops(poly: Polygon, width: float, step: float, count: int | None,
-                    quad_segs: int = 6) -> tuple[list[list[Path2D]], float]:
-    """Loops per offset level (outermost first) and the inset of the innermost bead centres.
+                    quad_segs: int = 6, min_spacing: float | None = None
+                    ) -> tuple[list[list[Path2D]], float, list[Polygon]]:
+    """Loops per offset level (outermost first), the inset of the innermost bead centres, and
+    the slivers where a loop would overlap itself (Fang 2019: removed, given a centre line).
 
     The first loop's centre is half a bead inside the contour (the bead's edge on the contour);
-    `count=None` offsets until the loops meet (Fang's composite path without infill).
+    `count=None` offsets until the loops meet (Fang's composite path).
     """
+    min_sp = 0.9 * step if min_spacing is None else min_spacing
     levels: list[list[Path2D]] = []
+    slivers: list[Polygon] = []
     k = 0
     inset = 0.5 * width
     while count is None or k < count:
         off = 0.5 * width + k * step
         geom = poly.buffer(-off, quad_segs=quad_segs)
         pieces = [orient(p, 1.0) for p in polygons_of(geom) if p.area > 0.02 * width * width]
+        # A piece narrower than the stable spacing: its loop's two sides would pile up on each other.
+        # (5 % slack: a loop pair exactly at the stable limit is kept.)
+        sliver = [p.buffer(-0.475 * min_sp).is_empty for p in pieces]
+        slivers += [p for p, s in zip(pieces, sliver) if s]
+        pieces = [p for p, s in zip(pieces, sliver) if not s]
         if not pieces:
             break
         loops = []
@@ -50,4 +59,4 @@ def perimeter_loops(poly: Polygon, width: float, step: float, count: int | None,
         levels.append(loops)
         inset = off
         k += 1
-    return levels, inset
+    return levels, inset, slivers

@@ -1,26 +1,30 @@
 """The planning pipeline: mesh → slices → islands → perimeters, infill, gap beads → ordered Job."""
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-import shapely
 
-from planner.bead import step_over
-from planner.errors import EnvelopeError, InputError, MeshError
-from planner.gapfill import centre_lines
-from planner.infill import scan_fill
+from planner import limits
+from core.errors import EnvelopeError, InputError, MeshError
+from core.material import Material
+from planner import five_axis
+from planner.balance import balance_error, balanced_speed
+from planner.bead import area_factor, step_over
+from planner.ding import close_share
+from planner.five_axis import FiveAxisOptions
 from planner.job import BeadInfo, Interpass, Job, Layer, Pass, Source
-from planner.material import Material
+from planner.layer import LayerCtx, plan_layer, reseamed
 from planner.mesh import PreparedMesh, check_size, prepare_mesh, read_mesh
-from planner.ordering import join_chains, link_into_loops, order_passes, seam_at
 from planner.path2d import Path2D
-from planner.perimeters import perimeter_loops, split_thin
 from planner.process import ProcessPoint, inverse
-from planner.regions import islands, polygons_of
+from planner.regions import islands
 from planner.slicer import LayerSlice, slice_levels, slice_mesh
 from planner.summary import ARC_START_S, TRAVEL_MM_MIN, LayerQuality, layer_quality, summarise
+from planner.thin import legal_widths
+from planner.verdict import Verdict
 
 Progress = Callable[[int, int], None]
 
@@ -33,6 +37,12 @@ class PlanOptions:
     units: str = "mm"
     allow_outside: bool = False  # accept welding points outside the material's envelope
     infill_angle_deg: float = 0.0  # scan direction of layer 0; +90° every layer
+    allow_underfill: bool = False  # features no legal bead fills, layers below min_coverage: warnings
+    allow_overhang: bool = False  # steps out beyond the overhang rule: warnings
+    min_coverage: float = 0.97  # every layer at least this share covered by beads
+    workspace_mm: tuple[float, float, float] | None = None  # the cell's room: a larger part is refused
+    five_axis: FiveAxisOptions | None = None  # tool axes per point (planner/five_axis.py)
+    frame: str = "substrate"  # substrate: lowest point on z = 0; cad: keep the CAD coordinates (repair)
 
     def __post_init__(self) -> None:
         if isinstance(self.perimeters, str):  # "all" or "3", as on the command line
@@ -45,6 +55,10 @@ class PlanOptions:
         if self.layer_height_mm is not None and not (0 < self.layer_height_mm < self.width_mm * 5):
             raise InputError(f"--layer-height: must be > 0 mm and sensible for a {self.width_mm} mm bead, "
                              f"got {self.layer_height_mm}")
+        if self.frame not in ("substrate", "cad"):
+            raise InputError(f"--frame: '{self.frame}' is not substrate or cad")
+        if not (0.0 <= self.min_coverage <= 1.0):
+            raise InputError(f"--min-coverage: must be between 0 and 1, got {self.min_coverage}")
         if self.perimeters is not None and not (0 <= self.perimeters <= 1000):
             raise InputError(f"--perimeters: must be 0..1000 or 'all', got {self.perimeters}")
 
@@ -81,50 +95,113 @@ def plan_part(mesh_or_path, options: PlanOptions,
               material: Material, progress: Progress | None = None) -> Job:
     """Plan a part (a path, a trimesh.Trimesh or a PreparedMesh) into a `cell-job/1` Job.
 
-    Deterministic: the same input gives the same job, byte for byte once serialised.
+    Deterministic: the same input gives the same job, byte for byte once serialised. What cannot
+    be planned (underfill, low coverage, overhangs) fails the plan naming the layers, unless allowed.
     """
     mesh = _mesh(mesh_or_path, options.units)
     w = options.width_mm
     nominal = inverse(material, w, options.layer_height_mm, allow_outside=options.allow_outside)
     height = options.layer_height_mm or nominal.height_mm
     check_size(mesh, w, height)
+    limits.check_before_slicing(mesh.source.file, mesh.vertices, mesh.faces, height, options.workspace_mm)
     step = step_over(w, overlap_model=material.bead.overlap_model, profile=material.bead.profile)
     proc = _Process(material, height, options.allow_outside, w)
+    ctx = LayerCtx(w, step, options.perimeters, options.infill_angle_deg,
+                   legal_widths(material, height, w, step / w, options.allow_outside),
+                   area_factor(material.bead.profile), material.min_bead_length_mm or 2.0 * w)
     levels = slice_levels(float(mesh.extents[2]), height)
     gap_tols = (1e-6, 0.01 * w, 0.1 * w, 0.5 * w)
     slices = slice_mesh(mesh.vertices, mesh.faces, mesh.face_normals, levels, gap_tols)
     _fail_on_open(slices, mesh.source.file, w)
+    verdict = Verdict(options, material, ctx)
     layers: list[Layer] = []
     qualities: list[LayerQuality] = []
     pos = np.zeros(2)
     time_s = 0.0
     n_passes = 0
     interpass = Interpass(material.interpass.max_temperature_c, material.interpass.dwell_s)
+    below = None
+    regions = []  # each layer's outline, for the 5-axis overhang rule
+    memo = _LayerMemo()
     for sl in slices:
-        region, paths, pos, travel, stats = _plan_layer(sl, w, step, options, pos)
-        paths = [_as_welded(p, proc) for p in paths]
-        q = layer_quality(region, paths, w, height)
+        polys = islands([c.points for c in sl.contours if c.closed], simplify_mm=0.005 * w)
+        hit = memo.get(polys, sl.index, pos, proc)
+        if hit is None:
+            lp = plan_layer(polys, sl.index, ctx, pos)
+            paths = [_as_welded(p, proc) for p in lp.paths]
+            q = layer_quality(lp.region, paths, w, height)
+            close = close_share(paths, material.bead.min_step_over_ratio, w)
+            memo.put(polys, sl.index, lp, (q, close))
+        else:
+            lp, paths, (q, close) = hit
+        verdict.ding(sl.index, close)
+        pos = lp.end
         qualities.append(q)
+        verdict.layer(sl.index, lp, q, below, height)
+        below = lp.region
+        regions.append(lp.region)
         z = float((sl.index + 1) * height)
-        passes = _passes(paths, sl, z, proc)
+        passes = _passes(paths, sl, z, proc, verdict)
         n_passes += len(passes)
-        time_s += travel / TRAVEL_MM_MIN * 60.0 + len(passes) * ARC_START_S
+        time_s += lp.travel_mm / TRAVEL_MM_MIN * 60.0 + len(passes) * ARC_START_S
         time_s += sum(p.length_mm / p.speed_mm_min * 60.0 for p in passes)
         if sl.index > 0:
             time_s += material.interpass.dwell_s
         layers.append(Layer(sl.index, z, height, tuple(passes), interpass,
                             {"area_mm2": round(q.area_mm2, 2), "coverage": round(q.coverage, 5),
-                             "perimeter_loops": stats["loops"], "fill_regions": stats["regions"]}))
+                             "perimeter_loops": lp.stats["loops"], "fill_regions": lp.stats["regions"]}))
         if progress is not None:
             progress(sl.index + 1, len(slices))
     summary = summarise(qualities, n_passes, time_s)
+    summary.update(verdict.finish(mesh.source.file, qualities))
     summary["repairs"] = list(mesh.repairs)
     summary["open_contours"] = []
     summary["closed_gaps"] = sum(1 for sl in slices for c in sl.contours if c.gap_mm > 1e-6)
     mat = material.model_dump(mode="json")
     bead = BeadInfo(w, height, step, f"{material.bead.profile}/{material.bead.overlap_model}")
     src = Source(mesh.source.file, mesh.source.sha256, mesh.source.units)
-    return Job(src, mat, bead, tuple(layers), summary)
+    job = Job(src, mat, bead, tuple(layers), summary)
+    if options.five_axis is not None:  # the tool tilts to bring the overhangs within the rule
+        fa = dataclasses.replace(options.five_axis, max_overhang_deg=material.max_overhang_deg)
+        job = five_axis.apply(job, fa, options.allow_overhang, regions)
+    return in_frame(job, options.frame, mesh.z_shift_mm)
+
+
+def in_frame(job: Job, frame: str, z_shift_mm: float) -> Job:
+    """The job in its frame: `cad` puts back the height the mesh intake took off (z = 0 → CAD z)."""
+    if frame != "cad":
+        return job
+    layers = tuple(dataclasses.replace(L, z_mm=L.z_mm + z_shift_mm, passes=tuple(
+        dataclasses.replace(p, points=p.points + [0.0, 0.0, z_shift_mm]) for p in L.passes)) for L in job.layers)
+    return dataclasses.replace(job, layers=layers, frame="cad")
+
+
+class _LayerMemo:
+    """A layer whose islands repeat those of a layer below with the same scan direction (a prism)
+    is planned the same; its seams move on and its beads are ordered from where the torch is."""
+
+    def __init__(self) -> None:
+        self.seen: dict[tuple, tuple] = {}
+
+    @staticmethod
+    def _key(polys: list, index: int) -> tuple:
+        import shapely
+
+        norm = shapely.normalize(shapely.set_precision(np.asarray(polys, dtype=object), 1e-6))
+        return (b"".join(shapely.to_wkb(norm).tolist()), index % 2)
+
+    def get(self, polys: list, index: int, pos: np.ndarray, proc: "_Process"):
+        hit = self.seen.get(self._key(polys, index))
+        if hit is None:
+            return None
+        lp, q = hit
+        lp = reseamed(lp, index, pos)
+        return lp, [_as_welded(p, proc) for p in lp.paths], q
+
+    def put(self, polys: list, index: int, lp, q) -> None:
+        if len(self.seen) >= 64:  # bounded: a prism repeats the layer just below
+            self.seen.clear()
+        self.seen[self._key(polys, index)] = (lp, q)
 
 
 def _mesh(m, units: str) -> PreparedMesh:
@@ -150,95 +227,42 @@ def _fail_on_open(slices: list[LayerSlice], name: str, w: float) -> None:
                     + "; ".join(lines) + more + "; close the mesh (e.g. in a mesh repair tool) and plan again")
 
 
-def _plan_layer(sl: LayerSlice, w: float, step: float, opt: PlanOptions, pos: np.ndarray):
-    """Islands of one layer → ordered Path2D beads; returns (layer region, paths, end, travel)."""
-    polys = islands([c.points for c in sl.contours if c.closed], simplify_mm=0.005 * w)
-    region = shapely.union_all(polys) if polys else shapely.Polygon()
-    angle = opt.infill_angle_deg + 90.0 * (sl.index % 2)
-    per_island = []
-    stats = {"loops": 0, "regions": 0}
-    for poly in polys:
-        thick, thin = split_thin(poly, w)
-        groups: list[list[Path2D]] = [[], [], []]
-        for t in thick:
-            if opt.perimeters == 0:
-                loops, inset = [], 0.5 * w - step  # infill centres from half a bead inside
-            else:
-                loops, inset = perimeter_loops(t, w, step, opt.perimeters)
-            stats["loops"] += sum(len(lv) for lv in loops)
-            if loops or opt.perimeters == 0:
-                infill_region = t.buffer(-(inset + 0.75 * step)) if opt.perimeters is not None else shapely.Polygon()
-                stats["regions"] += len(polygons_of(infill_region))
-                chains = scan_fill(infill_region, step, w, angle) if not infill_region.is_empty else []
-                filled = list(chains)
-                if len(chains) > 1:
-                    chains = join_chains(chains, 2.5 * step, t.buffer(-inset + 0.1 * step))
-                inner, chains = link_into_loops(loops[-1] if loops else [], chains, 2.0 * step)
-                outer = [lp for lv in loops[:-1] for lp in lv]
-                groups[0] += [seam_at(lp, sl.index) if lp.closed else lp for lp in outer + inner]
-                groups[1] += chains
-                # What neither the perimeters nor the scan lines reach gets centre-line gap beads.
-                rest = t.buffer(-(inset + 0.5 * w))
-                if filled and not rest.is_empty:
-                    reach = shapely.buffer(np.array([shapely.linestrings(c.points) for c in filled], dtype=object),
-                                           0.5 * w, quad_segs=4)
-                    rest = rest.difference(shapely.union_all(reach))
-            else:
-                rest = t
-            for piece in polygons_of(rest):
-                if piece.area > 0.3 * w * w:
-                    beads = centre_lines(piece, w, min_width=0.4 * w)
-                    stats["regions"] += bool(beads)
-                    groups[2] += beads
-        for t in thin:
-            beads = centre_lines(t, w)
-            stats["regions"] += bool(beads)
-            groups[2] += beads
-        per_island.append(groups)
-    ordered: list[Path2D] = []
-    travel = 0.0
-    todo = list(range(len(per_island)))
-    while todo:
-        # Next island: the one whose nearest bead end is closest to where the torch is.
-        def near(i: int) -> float:
-            ends = [p.points[k] for g in per_island[i] for p in g for k in (0, -1)]
-            return min((float(np.hypot(*(e - pos))) for e in ends), default=np.inf)
-        i = min(todo, key=near)
-        todo.remove(i)
-        seq, end = order_passes(per_island[i], pos)
-        for p in seq:
-            travel += float(np.hypot(*(p.points[0] - pos)))
-            pos = p.points[-1]
-        ordered += seq
-        pos = end
-    return region, ordered, pos, travel, stats
-
-
 def _as_welded(p: Path2D, proc: _Process) -> Path2D:
     """The bead as the process will weld it: a gap bead may come out wider than its pocket."""
     w = proc.point(p.width_mm).width_mm
     if abs(w - p.width_mm) < 1e-9:
         return p
-    return Path2D(p.role, p.points, w, p.closed, w if p.role == "gap" else p.share_mm)
+    share = p.share_mm * w / p.width_mm if p.lone else p.share_mm
+    return Path2D(p.role, p.points, w, p.closed, share, p.lone)
 
 
-def _passes(paths: list[Path2D], sl: LayerSlice, z: float, proc: _Process) -> list[Pass]:
+def _passes(paths: list[Path2D], sl: LayerSlice, z: float, proc: _Process, verdict: Verdict) -> list[Pass]:
     closed = [c for c in sl.contours if c.closed]
-    cpts = np.vstack([c.points for c in closed]) if closed else None
     nrm = np.vstack([c.normals for c in closed]) if closed else None
+    per = [p for p in paths if p.role == "perimeter"]
+    near = iter(())
+    if per and closed:  # one nearest-point query for every perimeter point of the layer
+        idx = _nearest(np.vstack([p.points for p in per]), np.vstack([c.points for c in closed]))
+        near = iter(np.split(idx, np.cumsum([len(p.points) for p in per])[:-1]))
     out = []
     for p in paths:
         pp = proc.point(p.width_mm)
         pts = np.column_stack([p.points, np.full(len(p.points), z)])
-        normals = None
-        if p.role == "perimeter" and cpts is not None:
-            normals = nrm[_nearest(p.points, cpts)]
-        out.append(Pass(p.role, pp.width_mm, pp.current_a, pp.speed_mm_min, pp.wfs_m_min, pts, normals))
+        normals = nrm[next(near)] if p.role == "perimeter" and closed else None
+        # Mass balance: the speed at which this pass lays the cross-section it fills.
+        filled = max(p.share_mm, 0.05 * p.width_mm) * proc.height
+        speed = round(balanced_speed(proc.material.wire_diameter_mm, pp.wfs_m_min, filled), 1)
+        verdict.balance(balance_error(proc.material.wire_diameter_mm, round(pp.wfs_m_min, 3), speed, filled))
+        out.append(Pass(p.role, pp.width_mm, pp.current_a, speed, pp.wfs_m_min, pts, normals))
     return out
 
 
 def _nearest(q: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Index of the nearest contour point for each query point."""
-    from scipy.spatial import cKDTree
+    """Index of the nearest contour point for each query point (shapely's STRtree: no scipy import)."""
+    import shapely
 
-    return cKDTree(pts).query(q)[1]
+    tree = shapely.STRtree(shapely.points(pts))
+    hit = tree.query_nearest(shapely.points(q), all_matches=False)
+    out = np.zeros(len(q), dtype=np.int64)
+    out[hit[0]] = hit[1]
+    return out

@@ -13,7 +13,7 @@ Inverse (eqs. 23-25), with ``a = K2·K6 − K3·K5``::
 The height defaults to ``RATIO · w``. The wire feed speed follows the power source's synergic
 straight line through ``(Imin, WFSmin)`` and ``(Imax, WFSmax)``. A point whose current lies
 outside ``[Imin, Imax]`` or whose wire feed speed lies outside ``[WFSmin, WFSmax]`` is outside the
-process envelope: an :class:`~planner.errors.EnvelopeError` naming the limit, unless the caller
+process envelope: an :class:`~core.errors.EnvelopeError` naming the limit, unless the caller
 explicitly allows it (then ``inside_envelope`` is False and the synergic line is extrapolated).
 
 Pure: no I/O, no clocks, no globals. Everything works in float64.
@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from planner.errors import EnvelopeError, InputError
-from planner.material import Material, RibeiroCoefficients
+from core.errors import EnvelopeError, InputError
+from core.material import Material, RibeiroCoefficients
 
 __all__ = [
     "ProcessPoint",

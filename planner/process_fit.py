@@ -17,7 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from planner.errors import InputError
+from core.errors import InputError
+from planner import fit_guards
 
 __all__ = ["ProcessFit", "fit_coefficients", "MIN_POINTS"]
 
@@ -54,7 +55,7 @@ def _r2(y: np.ndarray, pred: np.ndarray) -> float:
 
 
 def _column(name: str, values: Any) -> np.ndarray:
-    arr = np.asarray(values, dtype=np.float64).reshape(-1)
+    arr = fit_guards.finite_scaled(values, name, fit_guards.MAX_ABS_VALUE).reshape(-1)
     bad = ~np.isfinite(arr) | (arr <= 0.0)
     if np.any(bad):
         i = int(np.argmax(bad))
@@ -91,6 +92,8 @@ def fit_coefficients(current_a: Any, speed_mm_min: Any, width_mm: Any, height_mm
     bw = np.linalg.lstsq(X, lw, rcond=None)[0]
     bh = np.linalg.lstsq(X, lh, rcond=None)[0]
     pw, ph = X @ bw, X @ bh
+    fit_guards.finite_result("process fit", {"k1": float(np.exp(bw[0])), "k4": float(np.exp(bh[0])),
+                                             "k2": bw[1], "k3": bw[2], "k5": bh[1], "k6": bh[2]})
     return ProcessFit(
         k1=float(np.exp(bw[0])),
         k2=float(bw[1]),

@@ -17,7 +17,7 @@ class LayerQuality:
     area_mm2: float
     covered_mm2: float
     footprint_mm2: float
-    overfill_mm2: float  # footprint beyond half a bead outside the contour
+    overfill_mm2: float  # footprint outside the contour itself
     volume_mm3: float
     deposit_mm: float
     layer_volume_mm3: float = 0.0  # layer area x layer height, what the beads should fill
@@ -36,13 +36,11 @@ def layer_quality(region, paths: list[Path2D], width: float, height: float) -> L
     widths = np.array([p.width_mm for p in paths])
     fp = shapely.union_all(shapely.buffer(lines, widths / 2.0, quad_segs=4))
     covered = float(shapely.intersection(fp, region).area)
-    outside = float(shapely.difference(fp, region.buffer(0.5 * width, quad_segs=4)).area)
+    outside = float(shapely.difference(fp, region).area)
     lengths = shapely.length(lines)
-    # Each bead fills its own strip: its share of the width (the step-over between neighbours, or
-    # its whole width when alone), carried half a share past its ends, up to its neighbours' strips.
+    # The metal the passes lay (mass balance): each bead's share of the layer times its length.
     share = np.array([p.share_mm for p in paths])
-    strips = shapely.area(shapely.buffer(lines, share / 2.0, quad_segs=4, cap_style="square"))
-    return LayerQuality(area, covered, float(fp.area), outside, float(np.sum(strips) * height),
+    return LayerQuality(area, covered, float(fp.area), outside, float(np.sum(share * lengths) * height),
                         float(lengths.sum()), area * height)
 
 

@@ -17,9 +17,8 @@ import time
 from sims.clock import SimClock
 from sims.thermal import LumpedThermal
 from sims.world import World
+from wire.cellio_map import COILS, INPUTS, to_register
 
-INPUTS = ("door_closed", "estop_released", "gas_ok", "fume_ok")
-COILS = ("gas_valve", "beacon_green", "beacon_amber", "beacon_red", "door_lock")
 GAS_FLOW_L_MIN = 15.0
 TICK_S = 0.010
 
@@ -115,13 +114,13 @@ class CellIOSim:
     def read(self, fc: int, address: int, count: int) -> list | None:
         self.tick()
         self.reads += 1
+        vals: list[bool] | list[int]
         if fc == 2:
             vals = [self.inputs[k] for k in INPUTS]
         elif fc == 1:
             vals = [self.coils[k] for k in COILS]
         elif fc == 4:
-            vals = [max(0, min(0xFFFF, int(round(self.part_temperature_c * 10)))),
-                    int(round(self.gas_flow_l_min * 10))]
+            vals = [to_register(self.part_temperature_c), to_register(self.gas_flow_l_min)]
         else:
             return None
         if address < 0 or address + count > len(vals):
@@ -152,7 +151,7 @@ async def serve_modbus_tcp(sim: CellIOSim, host: str = "127.0.0.1", port: int = 
 
 async def serve(ctx) -> list:
     """`cell sim up`: the cell I/O coupler on cell.yaml's URL."""
-    from drivers.power_modbus import parse_tcp_url
+    from wire.urls import parse_tcp_url
     from sims.faults import parse_fault_spec
     from sims.up import Served
     cfg = ctx.cell.devices.cellio

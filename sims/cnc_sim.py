@@ -22,7 +22,7 @@ from typing import IO, Callable
 
 import numpy as np
 
-from drivers.grbl_protocol import GrblStatus, fmt, format_probe, format_status
+from wire.grbl_protocol import GrblStatus, fmt, format_probe, format_status
 from sims.clock import SimClock
 from sims.faults import parse_fault_spec
 from sims.transport import serve_serial
@@ -40,7 +40,7 @@ Pos5 = tuple[float, float, float, float, float]
 # (grbl-Mega-5X) number them ($1x3 = A, $1x4 = B). Rates mm/min (deg/min), accel mm/s².
 DEFAULT_SETTINGS: dict[int, float] = {
     0: 10, 1: 25, 2: 0, 3: 0, 4: 0, 5: 0, 6: 0, 10: 1, 11: 0.010, 12: 0.002, 13: 0,
-    20: 0, 21: 0, 22: 1, 23: 0, 24: 25.000, 25: 500.000, 26: 250, 27: 1.000, 30: 1000, 31: 0, 32: 1,
+    20: 0, 21: 0, 22: 0, 23: 0, 24: 25.000, 25: 500.000, 26: 250, 27: 1.000, 30: 1000, 31: 0, 32: 0,
     100: 250.000, 101: 250.000, 102: 250.000, 103: 100.000, 104: 100.000,
     110: 6000.000, 111: 6000.000, 112: 3000.000, 113: 7200.000, 114: 7200.000,
     120: 250.000, 121: 250.000, 122: 250.000, 123: 250.000, 124: 250.000,
@@ -49,7 +49,6 @@ DEFAULT_SETTINGS: dict[int, float] = {
 _INT_SETTINGS = {0, 1, 2, 3, 4, 5, 6, 10, 13, 20, 21, 22, 23, 26, 30, 31, 32}
 
 _NUM = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)")
-_AXES = "XYZAB"
 
 
 @dataclass
@@ -85,8 +84,9 @@ class CncSim:
     def __init__(self, *, clock: SimClock, world: object | None = None, workpiece: Workpiece | None = None,
                  log_path: str | Path | None = None, rx_buffer_bytes: int = 128,
                  planner_blocks: int = PLANNER_BLOCKS, homing_enabled: bool = True,
-                 home: Pos5 | None = None, tick_s: float = 0.002) -> None:
+                 home: Pos5 | None = None, tick_s: float = 0.002, letters: str = "XYZAB") -> None:
         self.clock = clock
+        self.letters = letters  # XYZAB or XYZAC: the rotary letters of the configured table
         self.world = world
         self.workpiece = workpiece
         self.tick_s = tick_s
@@ -153,6 +153,7 @@ class CncSim:
         self.inches = False
         self.feed_rate = 0.0
         self.s_word = 0.0
+        self.inverse_time = False  # G93
 
     # -- lifecycle --------------------------------------------------------------------------
     def start(self) -> None:
@@ -480,6 +481,7 @@ class CncSim:
 
         motion: str | None = None
         dwell = machine = False
+        inverse = self.inverse_time
         absolute, inches = self.absolute, self.inches
         for g in gs:
             code = round(g, 1)
@@ -495,10 +497,12 @@ class CncSim:
                 absolute = code == 90
             elif code in (20, 21):
                 inches = code == 20
-            elif code in (17, 40, 49, 54, 55, 56, 57, 58, 59, 61, 91.1, 94):
+            elif code in (93, 94):
+                inverse = code == 93
+            elif code in (17, 40, 49, 54, 55, 56, 57, 58, 59, 61, 91.1):
                 pass  # accepted; the simulator keeps G54 with zero offsets
             else:
-                raise GrblError(20)  # arcs, G10/G28/G30/G92, G38.4/5, inverse time: not simulated
+                raise GrblError(20)  # arcs, G10/G28/G30/G92, G38.4/5: not simulated
         spindle: bool | None = None
         for mc in ms:
             if mc in (3, 4):
@@ -510,7 +514,7 @@ class CncSim:
             else:
                 raise GrblError(20)
         for letter in words:
-            if letter not in _AXES + "FSPT":
+            if letter not in self.letters + "FSPT":
                 raise GrblError(20)
         if "F" in words and words["F"] < 0 or "S" in words and words["S"] < 0:
             raise GrblError(4)
@@ -521,14 +525,17 @@ class CncSim:
 
         # modal updates, in grbl's order of execution
         self.absolute, self.inches = absolute, inches
+        if inverse != self.inverse_time:
+            self.inverse_time = inverse
+            self.feed_rate = 0.0  # grbl: switching feed modes leaves the feed undefined
         unit = 25.4 if inches else 1.0
         if "F" in words:
-            self.feed_rate = words["F"] * unit
+            self.feed_rate = words["F"] * (1.0 if inverse else unit)
         if "S" in words:
             self.s_word = words["S"]
         if motion is not None:
             self.motion_mode = motion
-        axes = {k: v for k, v in words.items() if k in _AXES}
+        axes = {k: v for k, v in words.items() if k in self.letters}
         mode = self.motion_mode
         if spindle is not None:
             self._push(Block(seq, "M3" if spindle else "M5", line, s=self.s_word, spindle=spindle))
@@ -541,16 +548,18 @@ class CncSim:
                 raise GrblError(31)
             target = list(self._gc_pos)
             for k, v in axes.items():
-                j = _AXES.index(k)
+                j = self.letters.index(k)
                 v = v * unit if j < 3 else v
                 target[j] = v if (absolute or machine) else target[j] + v
             tgt = tuple(target)
             if mode.startswith("G38"):
                 return await self._probe(seq, mode, line, tgt)  # type: ignore[arg-type]
             if mode == "G1":
-                if self.feed_rate <= 0:
-                    raise GrblError(22)
+                if self.feed_rate <= 0 or (self.inverse_time and "F" not in words):
+                    raise GrblError(22)  # G93: every G1 carries its own F
                 feed = self.feed_rate
+                if self.inverse_time:  # F = 1/minutes for the move: the rate along the 5-D path
+                    feed = math.dist(tgt, self._gc_pos) * self.feed_rate
             else:
                 moving = [j for j in range(5) if abs(tgt[j] - self._gc_pos[j]) > 1e-9]
                 feed = min((float(self.settings[110 + j]) for j in moving), default=float(self.settings[110]))
@@ -680,7 +689,12 @@ class CncSim:
     def _moved(self, b: Block, p0: tuple, p1: tuple, t0: float, t1: float) -> None:
         self.pos = list(p1)
         if self.world is not None and p0 != p1:
-            self.world.torch_moved(DEVICE, b.seq, tuple(p0[:3]), tuple(p1[:3]), t0, t1)
+            part = None
+            if self.workpiece is not None:  # the segment on the part, from the sim's own true pose
+                q0, _ = self.workpiece.part_frame(p0)
+                q1, ax = self.workpiece.part_frame(p1)
+                part = (tuple(q0), tuple(q1), tuple(ax))
+            self.world.torch_moved(DEVICE, b.seq, tuple(p0[:3]), tuple(p1[:3]), t0, t1, part=part)
 
     async def _exec_loop(self) -> None:
         last = self.clock.now()
@@ -708,5 +722,19 @@ async def serve(ctx) -> list:
     wp = Workpiece.from_config(ctx.sim.cnc.workpiece, ctx.sim.cnc.probe_noise_mm, seed=spec.seed,
                                kinematics=ctx.cell.kinematics, base_dir=ctx.config_dir)
     sim = CncSim(clock=ctx.clock, world=ctx.world, workpiece=wp, rx_buffer_bytes=dev.rx_buffer_bytes,
+                 letters=wp.kin.letters,
                  log_path=(Path(ctx.log_dir) / "cnc.jsonl") if ctx.log_dir else None)
+    grow_workpiece(ctx.world, wp, ctx.sim.cnc.bead_width_mm, ctx.sim.cnc.bead_depth_mm)
     return await serve_serial(sim, DEVICE, dev, ctx, spec, {"protocol": "grbl 1.1"})
+
+
+def grow_workpiece(world, wp: Workpiece, width_mm: float, depth_mm: float) -> None:
+    """Metal the CNC deposits becomes part of the workpiece, so probing after a repair sees it."""
+    if world is None or not hasattr(world, "subscribe"):
+        return
+
+    def on_segment(seg: dict) -> None:
+        if seg.get("device") == DEVICE and "part" in seg:
+            wp.deposit(seg["part"]["from"], seg["part"]["to"], width_mm, depth_mm)
+
+    world.subscribe(on_segment)

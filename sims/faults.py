@@ -24,7 +24,7 @@ from typing import Callable
 
 import numpy as np
 
-from planner.errors import ConfigError
+from core.errors import ConfigError
 
 # key -> (kind, description). Kinds: int, prob (0..1), dur (ms / s), count (int >= 1),
 # event (only as `key@cond=value`). Every key may also appear as an event.
@@ -38,6 +38,15 @@ KEYS: dict[str, tuple[str, str]] = {
     "stall": ("dur", "length of each stall (bytes held, nothing moves); when: stall@t=..."),
     "unplug": ("dur", "how long the cable stays out (default 0: replug at once); when: unplug@t=..."),
     "baud": ("int", "throttle the simulated serial link to baud/10 bytes/s"),
+    # misbehaving robot (sims/robot_sim.py; issue 13): when given as `name@t=...` (wall seconds
+    # since the simulator started) or `name@move=N` (after N executed moves); a bare `name=0`
+    # starts at once
+    "flood": ("dur", "send valid HB frames as fast as the line carries them; when: flood@t=... / @move=N"),
+    "lie": ("dur", "ACK and EXE a sequence number never sent; when: lie@t=... / @move=N"),
+    "garble": ("dur", "every reply with a bad CRC from then on; when: garble@t=... / @move=N"),
+    "mute": ("dur", "no reply at all from then on; when: mute@t=... / @move=N"),
+    # a power source whose error stays latched across restarts (kept in its log/state dir)
+    "latched_error": ("int", "power source starts with this error number latched (e.g. 50, watchdog)"),
     # device faults (power source, cell I/O), read by their simulators
     "ignition_fail": ("prob", "probability that an arc ignition attempt fails"),
     "arc_loss": ("dur", "length of an arc loss; when: arc_loss@layer=N or @t=..."),

@@ -33,10 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.power_registers import (
+from wire.power_registers import (
     COMMAND_BITS, POWER_MAP, STATUS_BITS, decode_block, pack_bits, unpack_bits, to_raw,
 )
-from planner.material import Material
+from core.material import Material
 from sims.clock import SimClock
 from sims.world import World
 
@@ -87,7 +87,7 @@ class PowerSourceSim:
 
     def __init__(self, material: Material, *, clock: SimClock | None = None, world: World | None = None,
                  line: SynergicLine = SynergicLine(), times: ProcessTimes = ProcessTimes(),
-                 faults=None, seed: int = 0) -> None:
+                 faults=None, seed: int = 0, state_path: str | Path | None = None) -> None:
         self.material = material
         self.clock = clock or SimClock(1.0)
         self.world = world
@@ -118,6 +118,33 @@ class PowerSourceSim:
         self.cycles = 0
         self.history: deque = deque(maxlen=5000)   # (wall t, counter, bits) of every host cycle
         self._echo_frozen: int | None = None
+        # latched_error=N (issue 13): the error survives a restart of the source, kept in
+        # `state_path` (the log dir's power_source.state.json) until an error reset clears it
+        self._state_path = Path(state_path) if state_path is not None else None
+        if faults is not None and faults.value("latched_error", None) is not None:
+            self.error = self._persisted() or int(faults.value("latched_error"))
+            if self.error:
+                self._log("fault", error=self.error, text="latched at power-up (" +
+                          ERROR_TEXT.get(self.error, str(self.error)) + ")")
+            self._persist()
+        else:
+            self._state_path = None
+
+    def _persisted(self) -> int:
+        import json
+        if self._state_path is None or not self._state_path.exists():
+            return ERR_NONE
+        try:
+            return int(json.loads(self._state_path.read_text(encoding="utf-8")).get("error", 0))
+        except (ValueError, OSError):
+            return ERR_NONE
+
+    def _persist(self) -> None:
+        import json
+        if self._state_path is None:
+            return
+        self._state_path.parent.mkdir(parents=True, exist_ok=True)
+        self._state_path.write_text(json.dumps({"error": self.error}) + "\n", encoding="utf-8")
 
     # -- faults -----------------------------------------------------------------------------
     @staticmethod
@@ -173,6 +200,7 @@ class PowerSourceSim:
             self.flags[flag] = True
         if self.error == ERR_NONE:
             self.error = code
+            self._persist()
         self._log("fault", error=code, text=ERROR_TEXT.get(code, str(code)))
         if self.phase != "idle":
             self._set_phase("idle")
@@ -222,6 +250,8 @@ class PowerSourceSim:
         if self.error or any(self.flags.values()):
             self._log("error_reset", error=self.error)
         self.error = ERR_NONE
+        if self._state_path is not None and self._persisted():
+            self._persist()
         for k in self.flags:
             self.flags[k] = False
 
@@ -317,6 +347,7 @@ class PowerSourceSim:
                     self._stick_next_end = False
                     self.flags["wire_stick"] = True
                     self.error = self.error or ERR_WIRE_STICK
+                    self._persist()
                     self._log("fault", error=ERR_WIRE_STICK, text="wire stick")
                 self._set_phase("postflow")
         elif p == "postflow":
@@ -427,7 +458,7 @@ class CanNode:
     WELD_STATUS and WELD_ACTUALS (config/power_source.dbc)."""
 
     def __init__(self, sim: PowerSourceSim, bus, db, node: int = 1) -> None:
-        from drivers.power_can import CanCodec
+        from wire.can_codec import CanCodec
         self.sim = sim
         self.bus = bus
         self.codec = CanCodec(db, node)
@@ -476,13 +507,14 @@ async def serve_modbus_rtu(sim: PowerSourceSim, url: str = "socket://127.0.0.1:0
 
 
 async def serve_can(sim: PowerSourceSim, interface: str, channel: str, dbc: str | Path | None = None,
-                    node: int = 1, **bus_kwargs):
-    """Start the CAN node on a python-can bus; returns (description, close)."""
-    import can
+                    node: int = 1, allow_network: bool = False, **bus_kwargs):
+    """Start the CAN node on a python-can bus (kept on this host unless `allow_network`);
+    returns (description, close)."""
     import cantools
-    from drivers.power_can import DEFAULT_DBC
+    from wire.can_codec import DEFAULT_DBC
+    from wire.can_net import open_bus
     db = cantools.database.load_file(str(dbc or DEFAULT_DBC))
-    bus = can.Bus(interface=interface, channel=channel, **bus_kwargs)
+    bus = open_bus(interface, channel, allow_network=allow_network, device="power source simulator", **bus_kwargs)
     node_obj = CanNode(sim, bus, db, node)
     node_obj.start()
     ticker = asyncio.get_running_loop().create_task(sim.run())
@@ -495,30 +527,32 @@ async def serve_can(sim: PowerSourceSim, interface: str, channel: str, dbc: str 
 
 async def serve(ctx) -> list:
     """`cell sim up`: the power source on the transport and URL of cell.yaml."""
-    from controller.config import load_material
+    from core.config import load_material
     from sims.faults import parse_fault_spec
     from sims.up import Served
     cfg = ctx.cell.devices.power_source
     material = load_material(ctx.cell.cell.material)
     spec = parse_fault_spec(ctx.faults or ctx.sim.faults)
-    sim = PowerSourceSim(material, clock=ctx.clock, world=ctx.world, faults=spec)
+    sim = PowerSourceSim(material, clock=ctx.clock, world=ctx.world, faults=spec,
+                         state_path=(Path(ctx.log_dir) / "power_source.state.json") if ctx.log_dir else None)
     extra = {"transport": cfg.transport}
     if cfg.transport == "modbus_tcp":
-        from drivers.power_modbus import parse_tcp_url
+        from wire.urls import parse_tcp_url
         host, port = parse_tcp_url(cfg.url)
         url, close = await serve_modbus_tcp(sim, host, 0 if ctx.ephemeral else port, cfg.device_id)
     elif cfg.transport == "modbus_rtu":
         u = cfg.url
         if u.startswith("tcp://"):
-            from planner.errors import ConfigError
+            from core.errors import ConfigError
             raise ConfigError("devices.power_source.url: transport modbus_rtu needs a serial URL "
                               f"(socket://host:port, a port); got {u}")
         if ctx.ephemeral and u.startswith("socket://"):
             u = u.rsplit(":", 1)[0] + ":0"
         url, close = await serve_modbus_rtu(sim, u, cfg.device_id)
     else:
-        from drivers.power_can import dbc_path
+        from wire.can_codec import dbc_path
         dbc = dbc_path(cfg.can.dbc, ctx.config_dir)
-        url, close = await serve_can(sim, cfg.can.interface, cfg.can.channel, dbc, cfg.can.node)
+        url, close = await serve_can(sim, cfg.can.interface, cfg.can.channel, dbc, cfg.can.node,
+                                     allow_network=cfg.can.allow_network)
         extra.update({"interface": cfg.can.interface, "channel": cfg.can.channel, "node": cfg.can.node})
     return [Served("power_source", url, close, sim=sim, extra=extra)]

@@ -16,9 +16,10 @@ from collections import deque
 from pathlib import Path
 from typing import IO, Callable
 
-from drivers import rlp
+from wire import rlp
 from sims.clock import SimClock
-from sims.faults import parse_fault_spec
+from sims.faults import FaultSpec, parse_fault_spec
+from sims.robot_lies import Misbehaviour
 from sims.transport import serve_serial
 
 DEVICE = "robot"
@@ -35,7 +36,8 @@ class RobotSim:
                  link_timeout_s: float = 3.0,
                  workspace: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None,
                  home: tuple[float, float, float] = (0.0, 0.0, 0.0), tick_s: float = 0.002,
-                 record: bool = False) -> None:
+                 record: bool = False, faults: FaultSpec | None = None,
+                 fault_log: str | Path | None = None, line_rate: float | None = None) -> None:
         self.clock = clock
         self.world = world
         self.slots = queue_slots
@@ -69,11 +71,15 @@ class RobotSim:
             Path(log_path).parent.mkdir(parents=True, exist_ok=True)
             self._log = open(log_path, "a", encoding="utf-8")
         self._tasks: list[asyncio.Task] = []
+        # flood / lie / garble / mute (issue 13): the robot misbehaving on the wire
+        self.lies = Misbehaviour(self, faults, fault_log, line_rate)
 
     # -- lifecycle --------------------------------------------------------------------------------
     def start(self) -> None:
         loop = asyncio.get_running_loop()
         self._tasks = [loop.create_task(self._exec_loop()), loop.create_task(self._link_loop())]
+        if self.lies:
+            self._tasks.append(loop.create_task(self.lies.run()))
 
     async def close(self) -> None:
         for t in self._tasks:
@@ -122,7 +128,9 @@ class RobotSim:
     # -- receiving --------------------------------------------------------------------------------
     def _send(self, body: str) -> None:
         if self._write is not None:
-            self._write(rlp.encode(body))
+            data = self.lies.outgoing(body) if self.lies else rlp.encode(body)
+            if data:
+                self._write(data)
 
     def _nak(self, reason: str) -> None:
         self.naks += 1
@@ -205,8 +213,10 @@ class RobotSim:
         if self.executed is not None:
             self.executed.append(m.seq)
         if self._log is not None:
-            self._log.write(json.dumps({"seq": m.seq, "verb": m.verb, "target": [round(v, 3) for v in self.pos],
-                                        "t": round(t, 4)}) + "\n")
+            row = {"seq": m.seq, "verb": m.verb, "target": [round(v, 3) for v in self.pos], "t": round(t, 4)}
+            if m.axis is not None and tuple(m.axis) != (0.0, 0.0, 1.0):  # a tilted tool axis (5-axis)
+                row["axis"] = [round(v, 5) for v in m.axis]
+            self._log.write(json.dumps(row) + "\n")
             self._log_dirty = True
         self._exe_due = m.seq  # EXE is cumulative: one per executor tick keeps the return line free
         if not self.queue:
@@ -291,8 +301,11 @@ async def serve(ctx) -> list:
     """Start the robot simulator on cell.yaml's robot URL (or port 0 / a pty), per ctx."""
     dev = ctx.cell.devices.robot
     lim = ctx.cell.limits
+    spec = parse_fault_spec(ctx.faults)
     sim = RobotSim(clock=ctx.clock, world=ctx.world, queue_slots=dev.queue_slots,
                    log_path=(Path(ctx.log_dir) / "robot.jsonl") if ctx.log_dir else None,
                    heartbeat_s=dev.heartbeat_s, link_timeout_s=dev.link_timeout_s,
-                   workspace=(tuple(lim.workspace_min_mm), tuple(lim.workspace_max_mm)))
-    return await serve_serial(sim, DEVICE, dev, ctx, parse_fault_spec(ctx.faults), {"protocol": "RLP/1"})
+                   workspace=(tuple(lim.workspace_min_mm), tuple(lim.workspace_max_mm)),
+                   faults=spec, fault_log=(Path(ctx.log_dir) / "faults.jsonl") if ctx.log_dir else None,
+                   line_rate=dev.baud / 10.0)
+    return await serve_serial(sim, DEVICE, dev, ctx, spec, {"protocol": "RLP/1"})

@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import asyncio
 import threading
-from typing import Any, Awaitable, Callable
+from typing import Any, Callable, Coroutine
+
+from core.realtime import elevate
 
 
 class SimThread:
@@ -15,10 +17,16 @@ class SimThread:
 
     def __init__(self) -> None:
         self.loop = asyncio.new_event_loop()
-        self._thread = threading.Thread(target=self.loop.run_forever, name="sim loop", daemon=True)
+        self._thread = threading.Thread(target=self._serve, name="sim loop", daemon=True)
         self._thread.start()
 
-    def run(self, coro: Awaitable[Any], timeout: float = 10.0) -> Any:
+    def _serve(self) -> None:
+        # a device keeps its own time: real-time priority when allowed (as `cell sim up`), so that
+        # CPU load beside an in-process build (--sim, the TUI, tests) does not stall it
+        elevate("in-process simulators")
+        self.loop.run_forever()
+
+    def run(self, coro: Coroutine[Any, Any, Any], timeout: float = 10.0) -> Any:
         """Run a coroutine on the sim loop and return its result."""
         return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout)
 

@@ -16,7 +16,7 @@ import tty
 from typing import Callable, Protocol
 from urllib.parse import urlparse
 
-from planner.errors import ConfigError
+from core.errors import ConfigError
 from sims.faults import FaultPipe, FaultSpec, bytes_per_second
 
 
@@ -43,13 +43,16 @@ class SerialServer:
     """Serves one ByteSim. `url` is what a driver passes to serial_for_url once started."""
 
     def __init__(self, sim: ByteSim, *, name: str, spec: FaultSpec | None = None,
-                 baud: int | None = 115200) -> None:
+                 baud: int | None = 115200, time_scale: float = 1.0) -> None:
         self.sim = sim
         self.name = name
         self.spec = spec or FaultSpec()
         if self.spec.value("baud") is not None:
             baud = int(self.spec.value("baud"))
-        self.rate = bytes_per_second(baud) if baud else None
+        # The line keeps its rate in simulated time (DESIGN.md §6): at time scale k it carries k
+        # times the bytes per wall second, so a time scale never starves a bead that real
+        # hardware would not starve.
+        self.rate = bytes_per_second(baud) * time_scale if baud else None
         self.url = ""
         self.connections = 0
         self.pipes: tuple[FaultPipe, FaultPipe] | None = None  # (to the sim, from the sim)
@@ -193,7 +196,7 @@ async def serve_serial(sim, device: str, dev_cfg, ctx, spec: FaultSpec, extra: d
     from sims.up import Served  # sims.up imports the simulator modules
 
     sim.start()
-    server = SerialServer(sim, name=device, spec=spec, baud=dev_cfg.baud)
+    server = SerialServer(sim, name=device, spec=spec, baud=dev_cfg.baud, time_scale=ctx.clock.time_scale)
     sim.server = server  # tests pull the cable with sim.server.unplug()
     try:
         url = await server.start(dev_cfg.url, pty=ctx.pty, ephemeral=ctx.ephemeral)

@@ -9,11 +9,13 @@ from __future__ import annotations
 import asyncio
 import importlib
 import signal
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Awaitable, Callable
 
-from controller.config import CellConfig, SimConfig
+from core.config import CellConfig, SimConfig
+from core.realtime import elevate, quiet_gc
 from sims.clock import SimClock
 from sims.world import World
 
@@ -49,12 +51,7 @@ async def serve_all(ctx: SimContext, modules: list[str] | None = None) -> list[S
     served: list[Served] = []
     try:
         for name in modules or SIM_MODULES:
-            try:
-                mod = importlib.import_module(name)
-            except ModuleNotFoundError as exc:
-                if exc.name == name:
-                    continue
-                raise
+            mod = importlib.import_module(name)  # a missing simulator is an error naming it
             served.extend(await mod.serve(ctx))
     except BaseException:
         await close_all(served)  # e.g. a port in use: free what was already started
@@ -80,8 +77,13 @@ async def run_forever(ctx: SimContext, on_ready: Callable[[list[Served]], None])
         except (NotImplementedError, RuntimeError):  # not the main thread: Ctrl-C still cancels
             pass
     served: list[Served] = []
+    # Before the servers start, so that every thread they start inherits it.
+    rt = elevate("simulators")
+    if "cannot" in rt:  # the clear line the operator needs; nothing when it worked
+        sys.stderr.write(f"cell sim up: {rt}\n")
     try:
         served = await serve_all(ctx)
+        quiet_gc(collect=True)  # full collections of this heap stalled replies 58-84 ms
         on_ready(served)
         await stop.wait()
     finally:

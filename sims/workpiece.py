@@ -7,9 +7,8 @@ Frames (all mm, right-handed):
 - table frame: the part as clamped on the table, `pose = T(offset) · R_y(tilt_b) · R_x(tilt_a) ·
   R_z(rotation_c)`: spun about Z first, then tilted about X, then about Y, then shifted.
 - machine frame: the table frame turned by the machine's rotary axes A and B (or C) with the
-  cell's trunnion kinematics, `W = T(−P) · R_2(second) · R_A(a) · T(P)` (DESIGN.md §4), each a
-  right-handed rotation by the axis value about the configured axis direction. The probe tip
-  sits at the machine position X, Y, Z.
+  cell's trunnion kinematics (sims/table_kin.py, the convention of docs/kinematics.md: AB is
+  `R_B·R_A`, AC is `R_A·R_C`, about −P). The probe tip sits at the machine position X, Y, Z.
 
 Probe contact is a segment–mesh intersection (Möller–Trumbore, vectorised over triangles; no
 rtree needed) with Gaussian trigger noise of σ = `probe_noise_mm` along the travel direction
@@ -17,30 +16,15 @@ from a seeded generator, so a run is reproducible.
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 
+from sims.table_kin import TableKin, rot, trans
+
+__all__ = ["Workpiece", "rot", "trans"]
+
 _EPS = 1e-12
-
-
-def rot(axis: np.ndarray | tuple[float, float, float], deg: float) -> np.ndarray:
-    """4x4 right-handed rotation by `deg` about the unit vector `axis` (Rodrigues)."""
-    k = np.asarray(axis, dtype=float)
-    k = k / np.linalg.norm(k)
-    t = math.radians(deg)
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    r = np.eye(3) + math.sin(t) * kx + (1 - math.cos(t)) * (kx @ kx)
-    m = np.eye(4)
-    m[:3, :3] = r
-    return m
-
-
-def trans(v: tuple[float, float, float] | np.ndarray) -> np.ndarray:
-    m = np.eye(4)
-    m[:3, 3] = v
-    return m
 
 
 class Workpiece:
@@ -57,6 +41,8 @@ class Workpiece:
         axis_a: tuple[float, float, float] = (1.0, 0.0, 0.0),
         axis_second: tuple[float, float, float] = (0.0, 1.0, 0.0),
         trigger_mm: float | None = None,
+        table: str = "AB",
+        offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0),
     ) -> None:
         tri = np.asarray(triangles, dtype=float).reshape(-1, 3, 3)
         if len(tri) == 0:
@@ -64,12 +50,18 @@ class Workpiece:
         self._v0 = tri[:, 0]
         self._e1 = tri[:, 1] - tri[:, 0]
         self._e2 = tri[:, 2] - tri[:, 0]
+        self._n_base = len(tri)
         self.pose = np.asarray(pose, dtype=float)
         self.noise_mm = float(noise_mm)
         self.rng = np.random.default_rng(seed)
         self.pivot = np.asarray(pivot_mm, dtype=float)
         self.axis_a = axis_a
         self.axis_second = axis_second
+        # deposited metal: boxes (corner, inverse edge matrix), folded in lazily from _pending
+        self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._bead_lo = np.zeros((0, 3))
+        self._bead_inv = np.zeros((0, 3, 3))
+        self.kin = TableKin(table, tuple(self.pivot), tuple(axis_a), tuple(axis_second), tuple(offset_mm))
         # How close to the surface the stylus counts as deflected (a real probe trips within
         # microns); wide enough that a noisy trip point still reads as tripped.
         self.trigger_mm = trigger_mm if trigger_mm is not None else max(0.01, 5.0 * self.noise_mm)
@@ -78,7 +70,7 @@ class Workpiece:
     @classmethod
     def from_config(cls, wp, noise_mm: float, *, seed: int = 0, kinematics=None,
                     base_dir: Path | None = None) -> "Workpiece":
-        """From sim.yaml's `cnc.workpiece` (controller.config.Workpiece) and cell.yaml's kinematics."""
+        """From sim.yaml's `cnc.workpiece` (core.config.Workpiece) and cell.yaml's kinematics."""
         import trimesh
 
         if wp.mesh:
@@ -95,13 +87,14 @@ class Workpiece:
         kw = {}
         if kinematics is not None:
             kw = dict(pivot_mm=tuple(kinematics.pivot_mm), axis_a=tuple(kinematics.axis_a),
-                      axis_second=tuple(kinematics.axis_second))
+                      axis_second=tuple(kinematics.axis_second), table=str(kinematics.table),
+                      offset_mm=tuple(kinematics.offset_mm))
         return cls(np.asarray(mesh.triangles), pose, noise_mm=noise_mm, seed=seed, **kw)
 
     # -- frames -----------------------------------------------------------------------------
     def table_matrix(self, a_deg: float, second_deg: float) -> np.ndarray:
-        """Table frame → machine frame for rotary positions A and B/C (W = T(−P)·R2·RA·T(P))."""
-        return trans(-self.pivot) @ rot(self.axis_second, second_deg) @ rot(self.axis_a, a_deg) @ trans(self.pivot)
+        """Table frame → machine frame for rotary positions A and B/C (docs/kinematics.md)."""
+        return self.kin.matrix(a_deg, second_deg)
 
     def part_to_machine(self, a_deg: float = 0.0, second_deg: float = 0.0) -> np.ndarray:
         return self.table_matrix(a_deg, second_deg) @ self.pose
@@ -111,18 +104,72 @@ class Workpiece:
         pts = np.asarray(pts, dtype=float).reshape(-1, 3)
         return pts @ inv[:3, :3].T + inv[:3, 3]
 
+    # -- growth -----------------------------------------------------------------------------
+    def deposit(self, p0, p1, width_mm: float, depth_mm: float) -> None:
+        """Metal laid from p0 to p1 (workpiece frame): a box `width_mm` wide, its top on the segment."""
+        a, b = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
+        d = b - a
+        length = float(np.linalg.norm(d))
+        if length < 1e-6:
+            return
+        u = d / length
+        side = np.cross([0.0, 0.0, 1.0], u)
+        if np.linalg.norm(side) < 1e-9:
+            side = np.array([1.0, 0.0, 0.0])
+        side /= np.linalg.norm(side)
+        up = np.cross(u, side)
+        up = up if up[2] >= 0 else -up
+        half = width_mm / 2.0
+        lo = a - u * half - side * half - up * depth_mm  # round the ends: a bead is as long as its pool
+        ex = [u * (length + width_mm), side * width_mm, up * depth_mm]
+        corners = np.array([lo + i * ex[0] + j * ex[1] + k * ex[2] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+        faces = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                          [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+        self._pending.append((corners[faces], lo, np.array(ex)))
+
+    def _grow(self) -> None:
+        """Fold the beads deposited since the last query into the triangle and box arrays (cheap per bead)."""
+        if not self._pending:
+            return
+        tri = np.concatenate([t for t, _, _ in self._pending])
+        self._v0 = np.concatenate([self._v0, tri[:, 0]])
+        self._e1 = np.concatenate([self._e1, tri[:, 1] - tri[:, 0]])
+        self._e2 = np.concatenate([self._e2, tri[:, 2] - tri[:, 0]])
+        lo = np.array([b for _, b, _ in self._pending])
+        inv = np.linalg.inv(np.array([e.T for _, _, e in self._pending]))
+        self._bead_lo = np.concatenate([self._bead_lo, lo])
+        self._bead_inv = np.concatenate([self._bead_inv, inv])
+        self._pending = []
+
+    def _in_beads(self, q: np.ndarray) -> bool:
+        self._grow()
+        if not len(self._bead_lo):
+            return False
+        f = np.einsum("nij,nj->ni", self._bead_inv, q - self._bead_lo)
+        return bool(np.any(np.all((f >= 0) & (f <= 1), axis=1)))
+
+    def part_frame(self, pos5) -> tuple[np.ndarray, np.ndarray]:
+        """The tool tip (machine X Y Z at rotary A, B|C) and the tool axis, in the workpiece frame."""
+        inv = np.linalg.inv(self.part_to_machine(float(pos5[3]), float(pos5[4])))
+        q = inv[:3, :3] @ np.asarray(pos5[:3], dtype=float) + inv[:3, 3]
+        return q, inv[:3, :3] @ np.array([0.0, 0.0, 1.0])
+
     # -- geometry ---------------------------------------------------------------------------
-    def _ray_hits(self, origin: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    def _ray_hits(self, origin: np.ndarray, direction: np.ndarray, base_only: bool = False) -> np.ndarray:
         """Ray parameters t of every triangle the ray (origin + t·direction) crosses."""
-        pvec = np.cross(direction, self._e2)
-        det = np.einsum("ij,ij->i", self._e1, pvec)
+        if not base_only:
+            self._grow()
+        n = self._n_base if base_only else len(self._v0)
+        v0, e1, e2 = self._v0[:n], self._e1[:n], self._e2[:n]
+        pvec = np.cross(direction, e2)
+        det = np.einsum("ij,ij->i", e1, pvec)
         ok = np.abs(det) > _EPS
         inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-        tvec = origin - self._v0
+        tvec = origin - v0
         u = np.einsum("ij,ij->i", tvec, pvec) * inv
-        qvec = np.cross(tvec, self._e1)
+        qvec = np.cross(tvec, e1)
         v = (qvec @ direction) * inv
-        t = np.einsum("ij,ij->i", self._e2, qvec) * inv
+        t = np.einsum("ij,ij->i", e2, qvec) * inv
         hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1)
         return t[hit]
 
@@ -142,7 +189,9 @@ class Workpiece:
         """Is the machine-frame point inside the (watertight) part? Parity of ray crossings."""
         q = self._to_part(np.asarray(p, dtype=float)[:3], a_deg, second_deg)[0]
         d = np.array([0.2672612, 0.5345225, 0.8017837])  # skewed: avoids hitting edges exactly
-        t = self._ray_hits(q, d)
+        if (self._pending or len(self._bead_lo)) and self._in_beads(q):
+            return True
+        t = self._ray_hits(q, d, base_only=True)  # parity over the original (closed) mesh only
         return bool(np.count_nonzero(t > 1e-9) % 2)
 
     def probe(self, p0, p1, a_deg: float = 0.0, second_deg: float = 0.0) -> tuple[float, float, float] | None:

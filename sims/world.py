@@ -28,6 +28,7 @@ class _Open:
     t0: float
     t1: float
     currents: list[float] = field(default_factory=list)
+    part: tuple | None = None   # (from, to, axis) in the workpiece frame (CNC: from its true pose)
     voltages: list[float] = field(default_factory=list)
 
 
@@ -72,11 +73,13 @@ class World:
             return self.arc_efficiency * self.voltage_v * self.current_a if self.arc_stable else 0.0
 
     # -- motion side ------------------------------------------------------------------------
-    def torch_moved(self, device: str, move: object, p0: Vec3, p1: Vec3, t0: float, t1: float) -> None:
+    def torch_moved(self, device: str, move: object, p0: Vec3, p1: Vec3, t0: float, t1: float,
+                    part: tuple | None = None) -> None:
         """A motion simulator moved the torch from p0 (at t0) to p1 (at t1) within one move.
 
         `move` identifies the move being executed (e.g. its sequence number); a stretch of
         several calls for the same move while the arc stays stable becomes one segment.
+        `part`: (from, to, tool axis) of this stretch in the workpiece frame, when the simulator knows it.
         """
         with self._lock:
             self._integrate_heat(t1)
@@ -90,7 +93,11 @@ class World:
                 o = None
             if o is None:
                 self._open = o = _Open(device, move, p0, p1, t0, t1)
+                if part is not None:
+                    o.part = part
             o.end, o.t1 = p1, t1
+            if part is not None and o.part is not None:
+                o.part = (o.part[0], part[1], part[2])
             o.currents.append(self.current_a)
             o.voltages.append(self.voltage_v)
 
@@ -119,7 +126,10 @@ class World:
 
     def _flush(self) -> None:
         o, self._open = self._open, None
-        if o is None or _dist(o.start, o.end) < 1e-9:
+        if o is None:
+            return
+        # on a rotary table the tip may stand still in the machine while it moves along the part
+        if _dist(o.start, o.end) < 1e-9 and (o.part is None or _dist(o.part[0], o.part[1]) < 1e-9):
             return
         seg = {
             "from": [round(v, 4) for v in o.start],
@@ -130,6 +140,9 @@ class World:
             "voltage_v": round(sum(o.voltages) / len(o.voltages), 2),
             "device": o.device,
         }
+        if o.part is not None:
+            seg["part"] = {"from": [round(float(v), 4) for v in o.part[0]], "to": [round(float(v), 4) for v in o.part[1]]}
+            seg["axis"] = [round(float(v), 5) for v in o.part[2]]
         self.segments.append(seg)
         if self._fh is not None:
             self._fh.write(json.dumps(seg) + "\n")

@@ -4,7 +4,7 @@ from __future__ import annotations
 import uuid
 from contextlib import asynccontextmanager
 
-from controller.config import load_material
+from core.config import load_material
 from drivers.power import PowerSource
 from drivers.power_can import CanPowerSource
 from drivers.power_modbus import ModbusPowerSource

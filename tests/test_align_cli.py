@@ -91,7 +91,7 @@ def test_cli_entry_point_with_negative_pivot():
 
 
 def test_run_without_a_device_or_with_a_bad_job_is_one_error_line(capsys, tmp_path):
-    from controller.config import CONFIG_DIR
+    from core.config import CONFIG_DIR
 
     cell = tmp_path / "cell.yaml"
     cell.write_text((CONFIG_DIR / "cell.yaml").read_text().replace("socket://127.0.0.1:47602", "socket://127.0.0.1:1"))

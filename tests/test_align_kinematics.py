@@ -8,7 +8,7 @@ import trimesh
 from controller.align.kinematics import (Trunnion, apply_to_job, apply_to_mesh, apply_transform, paper_matrices,
                                          paper_transform, rotation_about_pivot, rotation_matrix, unit)
 from controller.align.leveling import face_angle, leveling_angles
-from planner.errors import InputError
+from core.errors import InputError
 
 TABLE1_PRE = np.array([[0, 0, 0], [0, 1, 0], [1, 1, 0], [1, 0, 0]], dtype=float)
 TABLE1_POST = np.array([[2.53553, 0.41421, -1.46447], [2.03553, 1.12132, -0.96447],
@@ -25,7 +25,7 @@ def test_paper_table1_reproduced():
 
 def _typo_transform(p, a_deg, b_deg, pivot):
     """The appendix verbatim: RB[2,2] = cos(phi)."""
-    phi, theta = np.radians(a_deg), np.radians(b_deg)
+    phi = np.radians(a_deg)
     ra, rb = paper_matrices(a_deg, b_deg)
     rb = rb.copy()
     rb[2, 2] = np.cos(phi)

@@ -12,7 +12,7 @@ from controller.align.leveling import face_angle, leveling_angles
 from controller.align.probe_cycle import ProbeCycleError, ProbeTarget, probe_point
 from controller.align.routine import _with_sim, cad_mesh, plan_for_mesh, run_with_sim
 from controller.cli.main import main
-from controller.config import load_cell, load_sim
+from core.config import load_cell, load_sim
 from drivers.grbl import CncLink
 from sims.workpiece import rot, trans
 

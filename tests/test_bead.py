@@ -16,7 +16,7 @@ from planner.bead import (
     fit_profiles, flat_top_ratio, profile_from_width_height, step_over, tangent_f, tangent_f_paper,
     wire_area_mm2,
 )
-from planner.errors import InputError
+from core.errors import InputError
 
 DATA = Path(__file__).parent / "data"
 

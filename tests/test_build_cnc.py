@@ -6,7 +6,7 @@ from pathlib import Path
 from bench._coverage import coverage, read_segments
 from controller.api import CellController
 from controller.cell import SimHarness, with_urls
-from controller.config import load_cell, load_sim
+from core.config import load_cell, load_sim
 from tests.test_build_robot import SIM_REPLY_TIMEOUT_MS, planned, small_job
 
 
@@ -28,7 +28,8 @@ async def test_cnc_build_deposits_every_planned_segment_once(tmp_path: Path) -> 
     finally:
         await ctl.close()
         harness.stop()
-    assert res.state == "complete" and res.passes_done == 4 and res.arc_starts == 4
+    assert res.state == "complete", res
+    assert res.passes_done == 4 and res.arc_starts == 4
     segs = [s for s in read_segments(tmp_path / "log" / "deposit.jsonl") if s["device"] == "cnc"]
     cov = coverage(planned(job), segs)
     assert cov.missing_mm < 0.05 and cov.excess_mm < 0.05, cov.as_dict()

@@ -11,7 +11,7 @@ import pytest
 from bench._coverage import coverage, exec_log_duplicates, read_segments
 from controller.api import CellController
 from controller.cell import SimHarness, with_urls
-from controller.config import load_cell, load_sim
+from core.config import load_cell, load_sim
 from controller.machine import State
 
 

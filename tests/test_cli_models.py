@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from controller.cli.main import main
-from controller.config import CONFIG_DIR, load_cell, load_material
+from core.config import CONFIG_DIR, load_cell, load_material
 
 DATA = Path(__file__).parent / "data"
 ROOT = Path(__file__).resolve().parent.parent

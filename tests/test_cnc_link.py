@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controller.config import Workpiece as WorkpieceConfig
-from controller.config import load_cell, load_sim
+from core.config import Workpiece as WorkpieceConfig
+from core.config import load_cell, load_sim
 from drivers.errors import LinkLost
 from drivers.grbl import CncLink, GrblAlarm, GrblError, GrblReset, ProbeError
 from sims.clock import SimClock
@@ -177,7 +177,7 @@ async def test_rx_buffer_is_really_bounded_without_character_counting(rig_factor
 
 async def test_lines_that_cannot_fit_grbls_buffer_are_refused_before_sending(rig_factory):
     r = await ready(rig_factory)
-    from planner.errors import InputError
+    from core.errors import InputError
     with pytest.raises(InputError, match="line 2"):
         await r.link.stream(["G0 X1", "G1 X" + "1" * 130])
     assert r.sim.lines_received == 0

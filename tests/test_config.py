@@ -6,9 +6,9 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from controller.config import CONFIG_DIR, load_cell, load_material, load_sim, parse_model
-from planner.errors import ConfigError
-from planner.material import Material
+from core.config import CONFIG_DIR, load_cell, load_material, load_sim, parse_model
+from core.errors import ConfigError
+from core.material import Material
 
 
 def test_shipped_configs_load():

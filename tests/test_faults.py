@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from planner.errors import ConfigError
+from core.errors import ConfigError
 from sims.faults import KEYS, FaultPipe, bytes_per_second, parse_fault_spec
 
 

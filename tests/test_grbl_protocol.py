@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from drivers.grbl_protocol import (
+from wire.grbl_protocol import (
     Alarm, Banner, Error, GrblStatus, Message, Ok, Other, Probe, Setting, alarm_meaning, clean_line,
     error_meaning, format_probe, format_status, parse_line, parse_probe, parse_status,
 )

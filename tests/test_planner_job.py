@@ -6,8 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from controller.config import load_material
-from planner.errors import InputError
+from core.config import load_material
+from core.errors import InputError
 from planner.job import job_to_dict, job_to_json, load_job, loads_job
 from planner.plan import PlanOptions, plan_part
 
@@ -111,6 +111,6 @@ def test_same_bytes_across_processes_and_hash_seeds(tmp_path):
 
 def test_progress_reports_every_layer():
     seen = []
-    job = plan_part(parts.overhang(), PlanOptions(width_mm=6.0), MAT, progress=lambda d, n: seen.append((d, n)))
+    job = plan_part(parts.overhang(), PlanOptions(width_mm=6.0, allow_overhang=True), MAT, progress=lambda d, n: seen.append((d, n)))
     n = len(job.layers)
     assert seen == [(i, n) for i in range(1, n + 1)]

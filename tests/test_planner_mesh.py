@@ -6,7 +6,7 @@ import pytest
 import trimesh
 from shapely.geometry import box
 
-from planner.errors import MeshError
+from core.errors import MeshError
 from planner.extrude import extrude
 from planner.mesh import check_size, prepare_mesh, read_mesh
 
@@ -76,5 +76,5 @@ def test_garbage_file_is_a_clear_error(tmp_path):
 
 def test_part_smaller_than_a_bead_suggests_inches(tmp_path):
     pm = read_mesh(_write(tmp_path, extrude(box(0, 0, 5, 2.4), 1.4)))
-    with pytest.raises(MeshError, match="smaller than one bead.*--units inch"):
+    with pytest.raises(MeshError, match="smaller than one bead.*--units .*inch"):
         check_size(pm, width_mm=6.0, layer_mm=0.66)

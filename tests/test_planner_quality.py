@@ -12,7 +12,7 @@ import pytest
 import shapely
 import trimesh
 
-from controller.config import load_material
+from core.config import load_material
 from planner.bead import step_over
 from planner.plan import PlanOptions, plan_part
 from planner.process import inverse
@@ -42,7 +42,8 @@ def _footprint(layer) -> shapely.Geometry:
 @pytest.fixture(scope="module", params=["plate_with_holes", "thin_wall", "islands", "overhang"])
 def planned(request):
     mesh = getattr(parts, request.param)()
-    job = plan_part(mesh, PlanOptions(width_mm=W), MAT)
+    # The cantilevered slab is beyond the overhang rule: planned only when allowed.
+    job = plan_part(mesh, PlanOptions(width_mm=W, allow_overhang=request.param == "overhang"), MAT)
     low = mesh.bounds[0, 2]
     return request.param, mesh, job, low
 
@@ -68,21 +69,35 @@ def test_arc_starts_at_most_one_per_loop_and_fill_region(planned):
 def test_planned_volume_matches_the_layers(planned):
     name, mesh, job, _ = planned
     s = job.summary
-    assert s["volume_mm3"] == pytest.approx(s["layer_volume_mm3"], rel=0.05), name
+    if name == "thin_wall":  # one lone bead per layer lays its profile area, not the wall's rectangle
+        lone = sum(p.length_mm * 2 / 3 * p.width_mm * L.height_mm for L in job.layers for p in L.passes)
+        assert s["volume_mm3"] == pytest.approx(lone, rel=0.03)
+    else:
+        assert s["volume_mm3"] == pytest.approx(s["layer_volume_mm3"], rel=0.03), name
     # ...and the layers really are the part: within a partial layer of the mesh volume.
     top_loss = mesh.volume / mesh.extents[2] * job.bead.height_mm
     assert abs(s["layer_volume_mm3"] - mesh.volume) <= top_loss
 
 
-def test_every_pass_carries_the_process_point(planned):
-    _, _, job, _ = planned
+def test_every_pass_carries_the_process_point_and_lays_the_metal_it_fills(planned):
+    name, _, job, _ = planned
     h = job.layers[0].height_mm
+    wire = np.pi * MAT.wire_diameter_mm ** 2 / 4
     for layer in job.layers:
+        laid = 0.0
         for p in layer.passes:
             pp = inverse(MAT, p.width_mm, h)
-            assert (p.current_a, p.speed_mm_min, p.wfs_m_min) == pytest.approx(
-                (pp.current_a, pp.speed_mm_min, pp.wfs_m_min), rel=1e-9)
+            # Current and wire feed are the process point's (the synergic line); the speed is solved.
+            assert (p.current_a, p.wfs_m_min) == pytest.approx((pp.current_a, pp.wfs_m_min), rel=1e-9)
             assert np.allclose(p.points[:, 2], layer.z_mm)
+            area = wire * p.wfs_m_min * 1000 / p.speed_mm_min
+            # A pocket's gap bead fills only the pocket: it lays less than a full bead.
+            low = 0.25 if p.role == "gap" else 0.5
+            assert low * p.width_mm * h <= area <= 1.3 * p.width_mm * h, (name, layer.index, p.role)
+            laid += area * p.length_mm
+        if name != "thin_wall":  # overlapped beads: the layer's metal is the layer's volume
+            assert laid == pytest.approx(layer.extra["area_mm2"] * h, rel=0.03), (name, layer.index)
+    assert job.summary["mass_balance_max_error"] <= 0.03
 
 
 def test_thin_wall_is_one_centre_line_bead_per_layer():
@@ -108,7 +123,7 @@ def test_island_inside_a_hole_is_planned():
 
 
 def test_infill_turns_and_seams_move_from_layer_to_layer():
-    job = plan_part(parts.overhang(), PlanOptions(width_mm=W), MAT)
+    job = plan_part(parts.overhang(), PlanOptions(width_mm=W, allow_overhang=True), MAT)
 
     def direction(layer):
         segs = np.concatenate([np.diff(p.points[:, :2], axis=0) for p in layer.passes if p.role != "gap"])
@@ -129,6 +144,7 @@ def test_all_perimeters_offset_until_they_meet():
     assert all(p.role in ("perimeter", "gap") for p in layer.passes)
     d = step_over(W)
     expected = int(np.floor((30 - W / 2) / d)) + 1  # offsets until the square's centre
-    assert layer.extra["perimeter_loops"] == expected
+    # The innermost offset is a sliver whose loop would lie on itself: a centre line instead (Fang).
+    assert expected - 1 <= layer.extra["perimeter_loops"] <= expected
     fp = _footprint(layer)
     assert fp.intersection(shapely.box(0, 0, 60, 60)).area / 3600 > 0.98

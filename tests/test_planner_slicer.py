@@ -7,8 +7,8 @@ import shapely
 import trimesh
 from shapely.geometry import Point, box
 
-from controller.config import load_material
-from planner.errors import MeshError
+from core.config import load_material
+from core.errors import MeshError
 from planner.extrude import extrude
 from planner.mesh import prepare_mesh
 from planner.plan import PlanOptions, plan_part

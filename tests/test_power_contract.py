@@ -9,8 +9,8 @@ import pytest
 from drivers.errors import DeviceError, LinkLost
 from drivers.power import CommandRangeError
 from drivers.power_modbus import ModbusPowerSource
-from drivers.power_registers import POWER_MAP, Register, RegisterMap
-from planner.errors import CellError
+from wire.power_registers import POWER_MAP, Register, RegisterMap
+from core.errors import CellError
 from power_fixtures import MATERIAL, TRANSPORTS, power_rig, wait_for
 
 
@@ -178,7 +178,7 @@ async def test_device_watchdog_drops_the_start_when_the_host_stops_cycling():
 def test_can_frames_follow_the_dbc():
     import cantools
     from drivers.power import PowerCommand
-    from drivers.power_can import DEFAULT_DBC, CanCodec
+    from wire.can_codec import DEFAULT_DBC, CanCodec
     codec = CanCodec(cantools.database.load_file(str(DEFAULT_DBC)), node=3)
     assert (codec.cmd_id, codec.sta_id, codec.act_id) == (0x203, 0x183, 0x283)
     data = codec.encode_command(PowerCommand(weld_start=True, job=7, wfs_m_min=6.25, arc_trim=-3.4), 42)

@@ -8,9 +8,10 @@ from contextlib import asynccontextmanager
 import pytest
 
 from controller.arc_handshake import ArcHandshake, ArcLost
-from controller.config import load_cell, load_material, load_sim
+from controller.defaults import SIM_REPLY_TIMEOUT_MS
+from core.config import load_cell, load_material, load_sim
 from drivers.cellio import open_cellio
-from drivers.power import open_power_source
+from drivers.power_open import open_power_source
 from sims.clock import SimClock
 from sims.up import SimContext, close_all, serve_all
 from sims.world import World
@@ -25,8 +26,10 @@ async def sim_up(tmp_path, faults: str = ""):
                      ephemeral=True, faults=faults)
     served = await serve_all(ctx, ["sims.power_sim", "sims.cellio_sim"])
     urls = {s.device: s for s in served}
-    ps = open_power_source(cell.devices.power_source, mat, url=urls["power_source"].url)
-    io = open_cellio(cell.devices.cellio, url=urls["cellio"].url)
+    # the simulators are served on this test's own loop: they share its GIL, as with `--sim`
+    ps_cfg = cell.devices.power_source.model_copy(update={"timeout_ms": SIM_REPLY_TIMEOUT_MS})
+    ps = open_power_source(ps_cfg, mat, url=urls["power_source"].url)
+    io = open_cellio(cell.devices.cellio, url=urls["cellio"].url, timeout_ms=SIM_REPLY_TIMEOUT_MS)
     await ps.connect()
     await io.connect()
     try:

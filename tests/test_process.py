@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings, strategies as st
 
-from controller.config import load_material
-from planner.errors import EnvelopeError, InputError
+from core.config import load_material
+from core.errors import EnvelopeError, InputError
 from planner.process import ProcessPoint, current_for_wfs, forward, inverse, wfs_for_current
 from planner.process_fit import fit_coefficients
 

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from drivers import rlp
+from wire import rlp
 
 
 def test_design_example_frame_bytes():

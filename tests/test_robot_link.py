@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from drivers import rlp
+from wire import rlp
 from drivers.errors import DeviceError, LinkLost
 from drivers.robot import RobotLink
 from sims.clock import SimClock

@@ -88,7 +88,7 @@ def stop(proc: subprocess.Popen, sig: int = signal.SIGINT) -> tuple[int, str]:
         _, err = proc.communicate(timeout=15)
     except subprocess.TimeoutExpired:
         proc.kill()
-        raise AssertionError("cell sim up did not stop within 15 s")
+        raise AssertionError("cell sim up did not stop within 15 s") from None
     return proc.returncode, err
 
 

@@ -13,7 +13,7 @@ import time
 import pytest
 
 from controller.cell import with_urls
-from controller.config import load_cell
+from core.config import load_cell
 from controller.tui.app import CellApp
 from controller.tui_adapter import CellSession
 
@@ -56,7 +56,7 @@ async def test_100_hz_telemetry_shows_the_latest_value_without_backlog(tmp_path)
                 k, t_next = 0, time.monotonic()
                 while not stop.is_set():
                     k += 1
-                    bus.update(current_a=float(k), voltage_v=18.0 + (k % 10) / 10)
+                    bus.update(current_a=float(k), voltage_v=18.0 + (k % 10) / 10, arc_on=True, state="running_depositing")
                     pushed[0] = k
                     t_next += 1.0 / RATE_HZ
                     time.sleep(max(0.0, t_next - time.monotonic()))

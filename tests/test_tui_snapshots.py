@@ -57,7 +57,7 @@ def recorded_view(**snap_changes: object) -> View:
     alarms = (Alarm(T0 + 95.0, "warning", "interpass: part at 162 °C, limit 150 °C", layer=1, pass_=0),)
     snap = Snapshot(t=T0 + 130.0, state="running_depositing", job_name="block-slot", run_dir=None, layers_total=3,
                     passes_total=12, layer=1, pass_=2, passes_in_layer=4, layers_done=1, passes_done=6, arc_starts=7,
-                    current_a=126.4, voltage_v=18.72, wfs_m_min=5.8, temperature_c=171.0, interpass_limit_c=150.0,
+                    current_a=126.4, arc_on=True, voltage_v=18.72, wfs_m_min=5.8, temperature_c=171.0, interpass_limit_c=150.0,
                     position=(31.5, 17.0, 2.4), links=links, alarms=alarms,
                     allowed_commands=("pause", "abort", "estop"), message="")
     snap = Snapshot(**{**snap.__dict__, **snap_changes})
@@ -112,3 +112,10 @@ def test_fault_state_snapshot(snap_compare) -> None:
     view = recorded_view(state="fault", allowed_commands=("reset", "estop"), current_a=0.0, voltage_v=0.0,
                          alarms=(Alarm(T0 + 131.0, "fault", "door opened during the build", layer=1, pass_=2),))
     assert snap_compare(_app(view), press=["f3", "_"], terminal_size=SIZE)
+
+
+@pytest.mark.parametrize("size", [(160, 48), (80, 24)])
+@pytest.mark.parametrize("tab", ["f1", "f2", "f3", "f4", "f5"])
+def test_screen_snapshot_at_operator_sizes(snap_compare, tab: str, size: tuple[int, int]) -> None:
+    """Each screen at a full terminal (160 x 48) and the smallest supported one (80 x 24)."""
+    assert snap_compare(_app(), press=[tab, "_"], terminal_size=size)

@@ -56,3 +56,28 @@ def test_what_the_view_allows() -> None:
     running = View(snap=Snapshot(state="running_depositing", allowed_commands=("pause", "abort", "estop")),
                    can_probe=True)
     assert running.allowed("pause") and not running.allowed("run_alignment") and not running.allowed("open")
+
+
+def test_apply_alignment_is_offered_once_per_job() -> None:
+    """DESIGN.md §3: once the aligned job is open, `y` is no longer offered (it would move the part twice)."""
+    from dataclasses import replace as _replace
+
+    from controller.events import Snapshot
+
+    snap = Snapshot(state="ready", allowed_commands=("open_job", "start", "estop"))
+    base = View(snap=snap, job=job_info({"layers": [], "material": "x"}), alignment={"transform": [[1, 0, 0, 0]]})
+    assert base.allowed("apply_alignment")
+    assert not _replace(base, alignment_applied=True).allowed("apply_alignment")
+
+
+def test_after_an_estop_no_weld_value_stays_on_screen_and_the_arc_lamp_is_off() -> None:
+    """Issue 19: the last bead's 152 A must not stay up after an E-stop; the lamp follows the arc-stable bit."""
+    from controller.events import Snapshot
+    from controller.tui.build import arc_lamp, arc_values
+
+    welding = Snapshot(state="running_deposit", current_a=152.3, voltage_v=21.9, wfs_m_min=6.9, arc_on=True)
+    assert arc_values(welding) == (152.3, 21.9, 6.9) and "ARC ON" in arc_lamp(welding)
+    stopped = Snapshot(state="estop", current_a=152.3, voltage_v=21.9, wfs_m_min=6.9, arc_on=True)
+    assert arc_values(stopped) == (None, None, None) and "ARC ON" not in arc_lamp(stopped)
+    idle_source = Snapshot(state="running_deposit", current_a=152.3, arc_on=False)
+    assert arc_values(idle_source) == (None, None, None) and "arc off" in arc_lamp(idle_source)

@@ -12,7 +12,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from controller.align.kinematics import rotation_matrix
-from planner.errors import InputError
+from core.errors import InputError
 
 F = NDArray[np.float64]
 
@@ -132,7 +132,7 @@ def icp(points: ArrayLike, mesh: Any, *, initial: ArrayLike | None = None, max_i
     prev = np.inf
     it = 0
     converged = False
-    for it in range(1, max_iterations + 1):
+    for it in range(1, max_iterations + 1):  # noqa: B007  (`it` is reported after the loop)
         local = p @ g[:3, :3].T + g[:3, 3]
         cp, nrm = surf.closest(local)
         rms = float(np.sqrt(np.mean(np.sum((cp - local) ** 2, axis=1))))

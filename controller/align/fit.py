@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import stats
 
-from planner.errors import InputError
+from core.errors import InputError
 
 F = NDArray[np.float64]
 
@@ -18,6 +18,7 @@ F = NDArray[np.float64]
 # Bonferroni's correction the chance of rejecting a good point anywhere in the set is ≤ ALPHA.
 ALPHA = 0.01
 CHI2_ALPHA = 0.001
+MAX_ABS_MM = 1.0e6   # 1 km: beyond any cell
 
 
 def _points(points: ArrayLike, what: str, minimum: int) -> F:
@@ -28,6 +29,9 @@ def _points(points: ArrayLike, what: str, minimum: int) -> F:
         raise InputError(f"{what}: needs at least {minimum} points, got {len(p)}")
     if not np.isfinite(p.sum()):  # one reduction instead of an (n, 3) boolean array
         raise InputError(f"{what}: points contain NaN or infinite values")
+    if float(np.abs(p).max()) > MAX_ABS_MM:  # 1e160 squared overflows and the SVD never converges
+        raise InputError(f"{what}: a coordinate of {float(np.abs(p).max()):.3g} mm is beyond ±{MAX_ABS_MM:g} mm "
+                         "(absurdly scaled: check the units)")
     return p
 
 

@@ -23,7 +23,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from planner.errors import InputError
+from core.errors import InputError
 
 F = NDArray[np.float64]
 _AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
@@ -167,7 +167,7 @@ class Trunnion:
 
     @classmethod
     def from_config(cls, kin: Any) -> "Trunnion":
-        """From controller.config.Kinematics (cell.yaml `kinematics:`)."""
+        """From core.config.Kinematics (cell.yaml `kinematics:`)."""
         return cls(table=kin.table, pivot=tuple(kin.pivot_mm), axis_a=tuple(kin.axis_a),
                    axis_second=tuple(kin.axis_second), offset=tuple(kin.offset_mm),
                    a_limits_deg=tuple(kin.a_limits_deg), second_limits_deg=tuple(kin.second_limits_deg))
@@ -237,14 +237,22 @@ class Trunnion:
 # --- applying an alignment -------------------------------------------------------------------------
 
 
-def apply_to_job(job: dict, matrix: ArrayLike) -> dict:
-    """A copy of a `cell-job/1` dict with every pass's points moved and normals rotated by `matrix`."""
+def apply_to_job(job: dict, matrix: ArrayLike, record: dict | None = None) -> dict:
+    """A copy of a `cell-job/1` dict moved by `matrix` (points, normals, axes), recording the alignment.
+
+    A job holds at most one alignment (DESIGN.md §3): a job that already carries one is refused.
+    """
     m = np.asarray(matrix, dtype=float)
     if m.shape != (4, 4):
         raise InputError(f"alignment transform must be 4×4, got shape {m.shape}")
     if not isinstance(job, dict) or "layers" not in job:
         raise InputError("not a cell-job/1 object: it has no 'layers'")
+    if job.get("alignment"):
+        raise InputError("the job already carries an alignment; a second one is refused: align the original "
+                         "(unaligned) job instead")
     out = copy.deepcopy(job)
+    out["alignment"] = dict(record) if record else {"transform": m.tolist()}
+    out["alignment"].setdefault("transform", m.tolist())
     for li, layer in enumerate(out["layers"]):
         for pi, ps in enumerate(layer.get("passes", [])):
             pts = np.asarray(ps.get("points", []), dtype=float)
@@ -255,6 +263,8 @@ def apply_to_job(job: dict, matrix: ArrayLike) -> dict:
             if ps.get("normals"):
                 nrm = rotate_vectors(m, np.asarray(ps["normals"], dtype=float))
                 ps["normals"] = nrm.tolist()
+            if ps.get("axes"):
+                ps["axes"] = rotate_vectors(m, np.asarray(ps["axes"], dtype=float)).tolist()
     return out
 
 

@@ -11,13 +11,14 @@ cycle commands G90 positions and reads machine positions.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
-from drivers.grbl_protocol import fmt
-from planner.errors import CellError
+from wire.grbl_protocol import fmt
+from controller.ports import ProbePort
+from core.errors import CellError
 
 F = NDArray[np.float64]
 
@@ -26,13 +27,7 @@ class ProbeCycleError(CellError):
     """A probe point failed: no contact, already tripped, not homed, spread above tolerance."""
 
 
-class CncLinkLike(Protocol):  # what the cycle needs of drivers.grbl.CncLink
-    @property
-    def homed(self) -> bool: ...
-    async def command(self, line: str) -> Any: ...
-    async def status(self) -> Any: ...
-    async def wait_idle(self) -> Any: ...
-    async def probe(self, target: Any, feed_mm_min: float, *, mode: str = "G38.2") -> Any: ...
+CncLinkLike = ProbePort  # what the cycle needs of drivers.grbl.CncLink (controller/ports.py)
 
 
 @dataclass(frozen=True)
@@ -66,7 +61,7 @@ class ProbeLog:
         self.lines.append(text)
 
 
-def _xyz(v: Sequence[float]) -> str:
+def _xyz(v: Sequence[float] | F) -> str:
     return f"X{fmt(v[0])} Y{fmt(v[1])} Z{fmt(v[2])}"
 
 
@@ -74,13 +69,13 @@ def _where(t: ProbeTarget) -> str:
     return f"{t.name} (start {fmt(t.start[0])}, {fmt(t.start[1])}, {fmt(t.start[2])}, toward {np.round(t.direction, 4).tolist()})"
 
 
-async def _rapid(link: CncLinkLike, p: Sequence[float]) -> None:
+async def _rapid(link: CncLinkLike, p: Sequence[float] | F) -> None:
     await link.command(f"G90 G0 {_xyz(p)}")
 
 
 async def _probe_once(link: CncLinkLike, t: ProbeTarget, frm: F, d: F, travel: float, feed: float, what: str) -> F:
     # Only the probe-specific driver errors are translated; link loss etc. pass through.
-    from drivers.grbl import ProbeError  # type: ignore[import-not-found]
+    from drivers.grbl import ProbeError
 
     target = frm + d * travel
     try:

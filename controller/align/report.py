@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.errors import InputError
+from core.errors import InputError
 
 
 def write_report(res: Any, out_dir: str | Path, *, stem: str = "align") -> dict[str, Path]:

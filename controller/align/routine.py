@@ -14,9 +14,6 @@ at the table origin. Everything returned is a frozen AlignResult.
 """
 from __future__ import annotations
 
-import argparse
-import asyncio
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -26,12 +23,11 @@ from numpy.typing import NDArray
 
 from controller.align.bestfit import icp
 from controller.align.fit import Datum, LineFit, PlaneFit, cad_transform_321, fit_line, fit_plane, grid_points
-from controller.align.kinematics import Trunnion, apply_to_job, apply_transform, homogeneous, rotation_matrix, unit
+from controller.align.kinematics import Trunnion, apply_transform, homogeneous, rotation_matrix, unit
 from controller.align.leveling import FaceAngle, Leveling, face_angle, leveling_angles
 from controller.align.probe_cycle import ProbedPoint, ProbeLog, ProbeTarget, probe_points
-from controller.jobfile import read_job
-from drivers.grbl_protocol import fmt
-from planner.errors import InputError
+from wire.grbl_protocol import fmt
+from core.errors import InputError
 
 F = NDArray[np.float64]
 Z = np.array([0.0, 0.0, 1.0])
@@ -327,14 +323,17 @@ async def _with_sim(cell: Any, sim_cfg: Any, config_dir: Path | None, body: Call
         ctx.world.close()
 
 
-async def run_on_url(url: str, cell: Any, plan: ProbePlan, *, settings: Any = None) -> AlignResult:
-    from drivers.grbl import CncLink  # type: ignore[import-not-found]
+async def run_on_url(url: str, cell: Any, plan: ProbePlan, *, settings: Any = None,
+                     on_point: Callable[[ProbedPoint], None] | None = None) -> AlignResult:
+    """Open the CNC link at `url`, align, close the link (also when cancelled)."""
+    from drivers.grbl import CncLink
 
     dev = cell.devices.cnc
-    link = CncLink(url, baud=dev.baud, rx_buffer_bytes=dev.rx_buffer_bytes, status_hz=dev.status_hz)
+    link = CncLink(url, baud=dev.baud, rx_buffer_bytes=dev.rx_buffer_bytes, status_hz=dev.status_hz,
+                   homing_timeout_s=dev.homing_timeout_s)
     await link.connect()
     try:
-        return await align(link, cell, plan, settings=settings)
+        return await align(link, cell, plan, settings=settings, on_point=on_point)
     finally:
         await link.close()
 
@@ -347,58 +346,11 @@ async def run_with_sim(cell: Any, sim_cfg: Any, plan: ProbePlan, *, config_dir: 
     return await _with_sim(cell, sim_cfg, config_dir, body)
 
 
-def _read_job(path: str) -> dict:
-    job = read_job(path)
-    if job.get("schema") != "cell-job/1":
-        raise InputError(f"{path}: not a cell-job/1 file (schema key missing or different)")
-    return job
+def alignment_record(res: "AlignResult") -> dict:
+    """The job's `alignment` (DESIGN.md §3): transform, table angles, when it was probed."""
+    import time
 
+    return {"transform": res.transform.tolist(), "level_a_deg": res.level_a_deg, "level_b_deg": res.level_b_deg,
+            "table_deg": {"a": res.level_a_deg, "b": res.level_b_deg}, "face_angle_deg": res.face_angle_deg,
+            "probed_at": getattr(res, "probed_at", None) or time.time()}
 
-def run_cli(args: argparse.Namespace) -> int:
-    from controller.cli.main import emit_json
-    from controller.config import load_cell, load_sim
-
-    cell = load_cell(args.cell_config)
-    job = _read_job(args.job) if getattr(args, "job", None) else None
-    sim_path = Path(args.sim_config) if args.sim_config else None
-    sim_cfg = load_sim(sim_path)
-    base = sim_path.parent if sim_path else None
-    mesh = cad_mesh(sim_cfg.cnc.workpiece, getattr(args, "cad", None), base)
-    plan = plan_for_mesh(mesh)
-    if args.sim:
-        res = asyncio.run(run_with_sim(cell, sim_cfg, plan, config_dir=base))
-    else:
-        res = asyncio.run(run_on_url(cell.devices.cnc.url, cell, plan))
-    out = res.to_json()
-    if args.report:
-        from controller.align.report import write_report
-
-        paths = write_report(res, args.report)
-        out["report"] = {k: str(v) for k, v in paths.items()}
-    if job is not None:
-        dest = Path(args.job_out) if args.job_out else Path(args.job).with_suffix(".aligned.json")
-        moved = apply_to_job(job, res.transform)
-        moved["alignment"] = {"transform": res.transform.tolist(), "level_a_deg": res.level_a_deg,
-                              "level_b_deg": res.level_b_deg, "face_angle_deg": res.face_angle_deg}
-        try:
-            dest.write_text(json.dumps(moved) + "\n", encoding="utf-8")
-        except OSError as exc:
-            raise InputError(f"{dest}: cannot write the aligned job ({exc.strerror or exc})") from None
-        out["job_out"] = str(dest)
-    if args.json:
-        emit_json(out)
-        return 0
-    print(f"top plane: {res.top.n_points} points, rms {res.top_table.rms_mm * 1000:.2f} µm, "
-          f"outliers {list(res.top_table.outliers)}, tilt {res.leveling.tilt_deg:.4f}°")
-    print(f"leveling:  A = {res.level_a_deg:.5f}°, B = {res.level_b_deg:.5f}°  (residual tilt {res.residual_tilt_deg:.5f}°)")
-    print(f"side face: {len(res.points['side'])} touches, rms {res.side.rms_mm * 1000:.2f} µm; "
-          f"face angle {res.face_angle_deg:.5f}° (eq. 1: {res.face_angle_eq1_deg:.5f}°); CAD rotated to match")
-    print("transform (CAD → machine at the leveled A/B):")
-    for row in res.transform:
-        print("  " + "  ".join(f"{v:12.6f}" for v in row))
-    print(f"check: RMS distance of the touches to the moved CAD surface {res.icp_rms_mm * 1000:.2f} µm")
-    if args.report:
-        print(f"report: {out['report']['png']}, {out['report']['json']}")
-    if job is not None:
-        print(f"aligned job: {out['job_out']}")
-    return 0

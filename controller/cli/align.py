@@ -2,13 +2,19 @@
 from __future__ import annotations
 
 import argparse
+import asyncio
 import csv
+import json
 import re
 from pathlib import Path
 
 import numpy as np
 
-from planner.errors import InputError
+from controller.align.kinematics import apply_to_job
+from controller.align.routine import alignment_record, cad_mesh, plan_for_mesh, run_on_url, run_with_sim
+from controller.jobfile import read_job
+from core.config import load_cell, load_sim
+from core.errors import InputError
 
 # argparse takes "-1,-1,-5" for an option; let the align parsers read such words as values
 # (so `--pivot -1,-1,-5` and a point `-1,2,3` work as users type them).
@@ -125,7 +131,7 @@ def _plane(args: argparse.Namespace) -> int:
     from controller.align.kinematics import Trunnion
     from controller.align.leveling import leveling_angles
     from controller.cli.main import emit_json
-    from controller.config import load_cell
+    from core.config import load_cell
 
     pts = read_points_csv(args.csv)
     if len(pts) < 3:
@@ -187,6 +193,62 @@ def _transform(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from controller.align.routine import run_cli
-
     return run_cli(args)
+
+
+def _read_job(path: str) -> dict:
+    job = read_job(path)
+    if job.get("schema") != "cell-job/1":
+        raise InputError(f"{path}: not a cell-job/1 file (schema key missing or different)")
+    return job
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """`cell align run`: probe and align on the CNC (or its simulator), print or emit JSON."""
+    from controller.cli.main import emit_json
+
+    cell = load_cell(args.cell_config)
+    job = _read_job(args.job) if getattr(args, "job", None) else None
+    if job is not None and job.get("alignment"):  # refused before any probing
+        raise InputError(f"{args.job}: the job already carries an alignment; a second one is refused: "
+                         "align the original (unaligned) job")
+    sim_path = Path(args.sim_config) if args.sim_config else None
+    sim_cfg = load_sim(sim_path)
+    base = sim_path.parent if sim_path else None
+    mesh = cad_mesh(sim_cfg.cnc.workpiece, getattr(args, "cad", None), base)
+    plan = plan_for_mesh(mesh)
+    if args.sim:
+        res = asyncio.run(run_with_sim(cell, sim_cfg, plan, config_dir=base))
+    else:
+        res = asyncio.run(run_on_url(cell.devices.cnc.url, cell, plan))
+    out = res.to_json()
+    if args.report:
+        from controller.align.report import write_report
+
+        paths = write_report(res, args.report)
+        out["report"] = {k: str(v) for k, v in paths.items()}
+    if job is not None:
+        dest = Path(args.job_out) if args.job_out else Path(args.job).with_suffix(".aligned.json")
+        moved = apply_to_job(job, res.transform, alignment_record(res))
+        try:
+            dest.write_text(json.dumps(moved) + "\n", encoding="utf-8")
+        except OSError as exc:
+            raise InputError(f"{dest}: cannot write the aligned job ({exc.strerror or exc})") from None
+        out["job_out"] = str(dest)
+    if args.json:
+        emit_json(out)
+        return 0
+    print(f"top plane: {res.top.n_points} points, rms {res.top_table.rms_mm * 1000:.2f} µm, "
+          f"outliers {list(res.top_table.outliers)}, tilt {res.leveling.tilt_deg:.4f}°")
+    print(f"leveling:  A = {res.level_a_deg:.5f}°, B = {res.level_b_deg:.5f}°  (residual tilt {res.residual_tilt_deg:.5f}°)")
+    print(f"side face: {len(res.points['side'])} touches, rms {res.side.rms_mm * 1000:.2f} µm; "
+          f"face angle {res.face_angle_deg:.5f}° (eq. 1: {res.face_angle_eq1_deg:.5f}°); CAD rotated to match")
+    print("transform (CAD → machine at the leveled A/B):")
+    for row in res.transform:
+        print("  " + "  ".join(f"{v:12.6f}" for v in row))
+    print(f"check: RMS distance of the touches to the moved CAD surface {res.icp_rms_mm * 1000:.2f} µm")
+    if args.report:
+        print(f"report: {out['report']['png']}, {out['report']['json']}")
+    if job is not None:
+        print(f"aligned job: {out['job_out']}")
+    return 0

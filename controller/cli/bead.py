@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _critical(args: argparse.Namespace) -> int:
     from controller.cli.main import emit_json
     from planner.bead import DING_ARC_ASPECT, critical_ratio, flat_top_ratio
-    from planner.errors import InputError
+    from core.errors import InputError
 
     if args.aspect is not None and args.model != "arc":
         raise InputError("--aspect applies to the arc profile only (the parabola's and cosine's d*/w do not depend on it)")
@@ -64,7 +64,7 @@ def _fit(args: argparse.Namespace) -> int:
     from controller.cli.main import emit_json
     from controller.cli.process import read_csv_columns
     from planner.bead import fit_profiles
-    from planner.errors import InputError
+    from core.errors import InputError
 
     cols = read_csv_columns(args.csv, PROFILE_COLUMNS)
     try:

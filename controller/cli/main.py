@@ -4,10 +4,13 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import logging
+import math
+import sqlite3
 import sys
 from typing import Any, NoReturn, Sequence
 
-from planner.errors import CellError
+from core.errors import CellError
 
 # Subcommand modules, imported lazily so that `cell process` does not pay for Textual or
 # pymodbus. Each module defines `register(subparsers)` which adds its parser(s) and sets
@@ -23,6 +26,11 @@ COMMANDS: dict[str, str] = {
     "demo": "controller.cli.run",
     "tui": "controller.cli.tui",
     "docs": "controller.cli.docs",
+    "export": "controller.cli.export",
+    "journal": "controller.cli.journal",
+    "repair": "controller.cli.repair",
+    "report": "controller.cli.report",
+    "runs": "controller.cli.report",
 }
 
 
@@ -36,8 +44,19 @@ class _Parser(argparse.ArgumentParser):
 
 def emit_json(obj: Any) -> None:
     """Print exactly one JSON object on stdout."""
-    sys.stdout.write(json.dumps(obj, sort_keys=False) + "\n")
+    sys.stdout.write(json.dumps(_finite(obj), sort_keys=False, allow_nan=False) + "\n")
     sys.stdout.flush()
+
+
+def _finite(obj: Any) -> Any:
+    """The object with every NaN/inf float as null: `--json` output is always valid JSON."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    return obj
 
 
 def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
@@ -50,7 +69,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
         if first in COMMANDS:
             wanted = COMMANDS[first]
     seen: set[str] = set()
-    for name, module in COMMANDS.items():
+    for module in COMMANDS.values():
         if module in seen:
             continue
         seen.add(module)
@@ -60,18 +79,16 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
                 if mod == module:
                     sub.add_parser(alias, add_help=False)
             continue
-        try:
-            mod = importlib.import_module(module)
-        except ModuleNotFoundError as exc:
-            if exc.name == module:
-                continue  # not built yet
-            raise
-        mod.register(sub)
+        command = importlib.import_module(module)  # a missing command module is an error, never skipped
+        command.register(sub)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    # trimesh logs its parsers' tracebacks while it tries the next format: the user gets the
+    # planner's one `error:` line instead
+    logging.getLogger("trimesh").setLevel(logging.CRITICAL)
     try:
         parser = build_parser(argv)
         args = parser.parse_args(argv)
@@ -79,11 +96,56 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CellError as exc:
         sys.stderr.write(f"error: {exc}\n")
         return 2
+    except UnicodeDecodeError as exc:
+        sys.stderr.write(f"error: {_named(exc)}: not UTF-8 text (byte {exc.start}: {exc.reason}); "
+                         "save the file as UTF-8\n")
+        return 2
+    except RecursionError:
+        sys.stderr.write("error: an input file is nested too deeply to read; give a flat file\n")
+        return 2
+    except sqlite3.DatabaseError as exc:
+        sys.stderr.write(f"error: a journal could not be read ({_short(exc)}); it was left untouched: "
+                         "`cell journal check RUN_DIR` says what is readable\n")
+        return 2
+    except MemoryError:
+        sys.stderr.write("error: an input is too large to process in memory; give a smaller one\n")
+        return 2
+    except OSError as exc:
+        if isinstance(exc, BrokenPipeError):
+            return 0
+        where = f"{exc.filename}: " if exc.filename else ""
+        sys.stderr.write(f"error: {where}{exc.strerror or exc}; check the path\n")
+        return 2
+    except SystemExit as exc:  # argparse's usage error (already one `error:` line) or --help
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
     except KeyboardInterrupt:
         sys.stderr.write("error: interrupted\n")
         return 130
-    except BrokenPipeError:
-        return 0
+    except (ValueError, TypeError, ArithmeticError, KeyError, IndexError) as exc:
+        # the last line of defence of the contract: bad input that slipped past a validator
+        # is still one `error:` line and exit 2, never a traceback
+        sys.stderr.write(f"error: bad input ({type(exc).__name__}: {_short(exc)})\n")
+        return 2
+
+
+def _short(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text[:300] + ("..." if len(text) > 300 else "")
+
+
+def _named(exc: UnicodeDecodeError) -> str:
+    """The file being read when the decode failed (from the traceback's frames), else 'input'."""
+    tb = exc.__traceback__
+    name = None
+    while tb is not None:
+        loc = tb.tb_frame.f_locals
+        for key in ("path", "p", "csv_path", "filename", "file"):
+            v = loc.get(key)
+            if isinstance(v, (str, bytes)) or hasattr(v, "__fspath__"):
+                name = str(v)
+                break
+        tb = tb.tb_next
+    return name or "input"
 
 
 if __name__ == "__main__":

@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from planner.errors import CellError, ConfigError, InputError
+from core.errors import CellError, ConfigError, InputError
 
 LONG_PLAN_FACES = 200_000  # above this a progress bar is shown even when stderr is not a terminal
 
@@ -34,6 +34,16 @@ def _positive(value: str) -> float:
     return x
 
 
+def _fraction(value: str) -> float:
+    try:
+        x = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{value}' is not a fraction between 0 and 1") from None
+    if not 0.0 <= x <= 1.0:
+        raise argparse.ArgumentTypeError(f"{value}: must be between 0 and 1")
+    return x
+
+
 def register(sub: Any) -> None:
     p = sub.add_parser("plan", help="slice a mesh into beads: the job file for the cell",
                        description="Plan a part (STL/OBJ/3MF) into layers of beads with their welding parameters.")
@@ -42,18 +52,44 @@ def register(sub: Any) -> None:
     p.add_argument("--layer-height", type=_positive, metavar="H", help="layer height, mm (default: bead height)")
     p.add_argument("--perimeters", type=_perimeters, default=2, metavar="N|all",
                    help="perimeters around every boundary (default 2), or 'all' to offset until they meet")
-    p.add_argument("--units", choices=("mm", "inch"), default="mm", help="unit of the mesh file (default mm)")
+    p.add_argument("--units", choices=("mm", "cm", "m", "inch"), default="mm", help="unit of the mesh file (default mm)")
     p.add_argument("--material", metavar="M", help="material name or YAML file (default: cell.yaml's)")
     p.add_argument("--out", metavar="JOB", help="job file to write (default: STEM.job.json here)")
     p.add_argument("--preview", metavar="DIR", help="write layers.png and overview.png into DIR")
     p.add_argument("--allow-outside", action="store_true",
                    help="accept welding points outside the material's envelope")
+    p.add_argument("--allow-underfill", action="store_true",
+                   help="plan features no legal bead fills and layers below --min-coverage, with warnings")
+    p.add_argument("--allow-overhang", action="store_true",
+                   help="plan layers stepping out beyond the overhang rule, with warnings")
+    p.add_argument("--min-coverage", type=_fraction, default=0.97, metavar="F",
+                   help="least share of every layer covered by beads (default 0.97)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    p.add_argument("--frame", choices=("substrate", "cad"), default="substrate",
+                   help="substrate: the part's lowest point on z = 0 (default); cad: keep the CAD coordinates")
+    p.add_argument("--five-axis", action="store_true",
+                   help="tool axis per point (down-hand, within kinematics.tilt_limit_deg); nozzle collision check")
     p.set_defaults(func=run)
 
 
+def _five_axis(enabled: bool):
+    """FiveAxisOptions from cell.yaml (tilt limit, nozzle cone), or None for a 3-axis plan."""
+    if not enabled:
+        return None
+    from core.config import load_cell
+    from planner.five_axis import FiveAxisOptions, Nozzle
+
+    try:
+        cell = load_cell()
+    except CellError:
+        return FiveAxisOptions()
+    nz = cell.nozzle
+    return FiveAxisOptions(tilt_limit_deg=cell.kinematics.tilt_limit_deg,
+                           nozzle=Nozzle(nz.half_angle_deg, nz.length_mm, nz.standoff_mm))
+
+
 def _material(name: str | None):
-    from controller.config import load_cell, load_material
+    from core.config import load_cell, load_material
 
     if name is None:
         try:
@@ -61,6 +97,17 @@ def _material(name: str | None):
         except CellError:
             name = "inconel718-1.0mm"
     return load_material(name)
+
+
+def _workspace() -> tuple[float, float, float] | None:
+    """The cell's workspace extent (config/cell.yaml): a part larger than it is refused before slicing."""
+    from core.config import load_cell
+
+    try:
+        lim = load_cell().limits
+    except CellError:
+        return None
+    return tuple(float(b - a) for a, b in zip(lim.workspace_min_mm, lim.workspace_max_mm))  # type: ignore[return-value]
 
 
 class _Bar:
@@ -93,7 +140,10 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     material = _material(args.material)
     options = PlanOptions(width_mm=args.width, layer_height_mm=args.layer_height, perimeters=args.perimeters,
-                          units=args.units, allow_outside=args.allow_outside)
+                          units=args.units, allow_outside=args.allow_outside,
+                          allow_underfill=args.allow_underfill, allow_overhang=args.allow_overhang,
+                          min_coverage=args.min_coverage, workspace_mm=_workspace(), frame=args.frame,
+                          five_axis=_five_axis(args.five_axis))
     mesh = read_mesh(args.mesh, args.units)
     bar = _Bar(sys.stderr.isatty() or len(mesh.faces) >= LONG_PLAN_FACES)
     try:
@@ -122,10 +172,13 @@ def run(args: argparse.Namespace) -> int:
         s = summary
         print(f"{job.source.file}: {s['layers']} layers, {s['passes']} beads ({s['arc_starts']} arc starts), "
               f"{s['deposit_length_mm'] / 1000:.2f} m of bead, {s['volume_mm3'] / 1000:.1f} cm3, "
-              f"coverage {100 * s['coverage']:.1f} % (min {100 * s['coverage_min']:.1f} %), "
-              f"overfill {100 * s['overfill']:.2f} %, about {s['est_time_s'] / 60:.0f} min")
+              f"coverage {100 * s['coverage']:.1f} % (min {100 * s['coverage_min']:.1f} % at layer "
+              f"{s['coverage_min_layer']}), overfill {100 * s['overfill']:.2f} %, mass balance within "
+              f"{100 * s['mass_balance_max_error']:.2f} %, about {s['est_time_s'] / 60:.0f} min")
         for r in s["repairs"]:
             print(f"  repaired: {r}")
+        for wmsg in s["warnings"]:
+            print(f"  warning: {wmsg}")
         print(f"  job file: {out}")
         for p in previews:
             print(f"  preview: {p}")

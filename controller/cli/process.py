@@ -14,7 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
-from planner.errors import InputError
+from core.errors import InputError
 
 FIT_COLUMNS = ("current_a", "speed_mm_min", "width_mm", "height_mm")
 
@@ -97,7 +97,7 @@ def _is_number(s: str) -> bool:
 
 
 def _material(name: str | None):
-    from controller.config import load_cell, load_material
+    from core.config import load_cell, load_material
 
     return load_material(name if name else load_cell().cell.material)
 

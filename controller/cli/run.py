@@ -8,12 +8,12 @@
   build it at the demo's time scale, write the report, print the summary.
 
 Exit status: 0 when the build completed, 1 when it stopped (fault, E-stop, abort), 2 on bad
-input or an unreachable device (one `error:` line).
+input or an unreachable device (one `error:` line), 3 when it completed with defects (beads the
+devices' measurements say were not deposited as planned: docs/controller.md).
 """
 from __future__ import annotations
 
 import argparse
-import os
 import asyncio
 import json
 import re
@@ -22,30 +22,15 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from controller.config import CONFIG_DIR, CellConfig, load_cell, load_sim
+from core.config import CellConfig, load_cell, load_sim
+from controller.cli import runargs
 from controller.jobfile import read_job
-from planner.errors import CellError, InputError
+from core.errors import CellError, InputError
 
-DEMO_PART = CONFIG_DIR / "parts" / "square-hole.stl"
-DEMO_WIDTH_MM = 7.0          # Inconel 718 bead; 39 layers of 0.77 mm for the 30 mm part
-DEMO_TIME_SCALE = 120.0      # ~70 min of arc in ~35 s of motion; the 10k weld frames at 115200 baud take ~50 s
-DEMO_MAX_STEP_MM = 6.0       # split only long demo segments (the planner's own points are 1.7 mm apart, median)
-SIM_REPLY_TIMEOUT_MS = 250.0  # in-process simulators share the GIL with the controller
+from controller.defaults import (  # noqa: F401  (the demo's figures live with the controller)
+    DEMO_MAX_STEP_MM, DEMO_PART, DEMO_TIME_SCALE, DEMO_WIDTH_MM, SIM_REPLY_TIMEOUT_MS, sim_reply_timeout_ms,
+)
 
-
-def sim_reply_timeout_ms() -> float:
-    """Bus reply timeout with in-process simulators; CELL_SIM_REPLY_TIMEOUT_MS overrides it
-    (a heavily loaded test machine, where the simulators and the UI share one interpreter)."""
-    raw = os.environ.get("CELL_SIM_REPLY_TIMEOUT_MS")
-    if raw is None:
-        return SIM_REPLY_TIMEOUT_MS
-    try:
-        value = float(raw)
-    except ValueError:
-        raise InputError(f"CELL_SIM_REPLY_TIMEOUT_MS={raw!r} is not a number of milliseconds") from None
-    if value <= 0:
-        raise InputError(f"CELL_SIM_REPLY_TIMEOUT_MS={raw!r} must be positive")
-    return value
 SCENARIO_FAULTS = ("arc_loss", "wire_stick")  # `name@layer=N` is driven by the controller's sim harness
 
 
@@ -53,8 +38,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="build a job on the cell (or on its simulators with --sim)")
     p.add_argument("job", metavar="JOB", help="job file (cell-job/1 JSON, from `cell plan`)")
     _common(p)
+    p.add_argument("--reset-errors", action="store_true",
+                   help="before motion, clear an error the power source still has latched (journaled)")
     p.add_argument("--fault", metavar="SPEC", default=None,
                    help="seeded fault spec for the simulators, e.g. 'seed=7,corrupt=0.01,arc_loss@layer=3' (--sim)")
+    p.add_argument("--new", action="store_true",
+                   help="build the job again in a new run directory even if the runs directory holds it complete")
     p.set_defaults(func=_run)
     r = sub.add_parser("resume", help="continue an interrupted build from its journal")
     r.add_argument("run_dir", metavar="RUN_DIR", nargs="?", default=None,
@@ -67,6 +56,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--layers", type=int, default=None, help=argparse.SUPPRESS)  # quick demo in tests
     d.add_argument("--runs", default=None, metavar="DIR", help="runs directory (default cell.yaml's runs_dir)")
     d.add_argument("--no-align", action="store_true", help="skip probing and aligning the substrate")
+    d.add_argument("--repair", action="store_true",
+                   help="hybrid repair instead: a block with a milled pocket, posed on the CNC table, "
+                        "repaired end to end (cell repair run --sim)")
     d.set_defaults(func=_demo)
 
 
@@ -76,7 +68,7 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cell-config", default=None, metavar="FILE", help="cell config (default config/cell.yaml)")
     p.add_argument("--sim-config", default=None, metavar="FILE", help="simulator config with --sim")
     p.add_argument("--runs", default=None, metavar="DIR", help="runs directory (default cell.yaml's runs_dir)")
-    p.add_argument("--max-step", type=float, default=2.0, metavar="MM",
+    p.add_argument("--max-step", type=runargs.max_step, default=2.0, metavar="MM",
                    help="split weld moves to at most this length (bounds the re-arc overlap; default 2)")
     p.add_argument("--sim-log", default=None, metavar="DIR",
                    help="with --sim: write the simulators' logs here (default RUN_DIR/sim)")
@@ -148,11 +140,15 @@ def _out(line: str) -> None:
 def _result_json(ctl: Any, res: Any, report: Path | None) -> dict:
     alarms = []
     if ctl.journal is not None:
-        for msg, st, la, pa, x, y, z in ctl.journal.query(
-                "SELECT message, state, layer, pass, x, y, z FROM events WHERE kind='alarm' ORDER BY id"):
-            alarms.append({"message": msg, "kind": st, "layer": la, "pass": pa,
-                           "position": [x, y, z] if x is not None else None})
+        for a in ctl.journal.alarm_rows():
+            alarms.append({"message": a["message"], "kind": a["state"], "layer": a["layer"], "pass": a["pass"],
+                           "position": a["position"]})
+    defects = []
+    if ctl.journal is not None:
+        defects = [{"layer": d["layer"], "pass": d["pass"], "reason": d["reason"], "measured_mm": d["measured_mm"],
+                    "position": d["position"]} for d in ctl.journal.defect_rows()]
     return {"state": res.state, "layers_done": res.layers_done, "passes_done": res.passes_done,
+            "complete_with_defects": res.state == "complete" and bool(defects), "defects": defects,
             "arc_starts": res.arc_starts, "alarms": alarms, "report": str(report) if report else None,
             "run_dir": str(ctl.run_dir) if ctl.run_dir else None}
 
@@ -190,10 +186,35 @@ def _run(args: argparse.Namespace) -> int:
     sim_faults, scen = split_faults(args.fault)
     if (args.fault and not args.sim):
         raise InputError("--fault needs --sim (for `cell sim up`, give it --fault there)")
-    runs = Path(args.runs or cfg.cell.runs_dir)
+    runs = runargs.dir_arg(args.runs or cfg.cell.runs_dir, "--runs")
+    if args.sim_log:
+        runargs.dir_arg(args.sim_log, "--sim-log")
+    # the whole job against the cell, before any simulator starts or device is touched
+    runargs.check_job_for_cell(job, cfg, str(args.job))
     run_dir = run_dir_for(job, runs)
+    if runargs.complete_in(run_dir, job) and not args.new:
+        return _already_complete(args, run_dir)
+    if args.new and (run_dir / "journal.sqlite").exists():
+        run_dir = runargs.new_run_dir(run_dir)
     log_dir = Path(args.sim_log) if args.sim_log else run_dir / "sim"
-    return _build(args, cfg, job, None, sim_faults, scen, log_dir, runs)
+    return _build(args, cfg, job, run_dir, sim_faults, scen, log_dir, runs)
+
+
+def _already_complete(args: argparse.Namespace, run_dir: Path) -> int:
+    """`cell run` of a job the runs directory holds complete: say so, build nothing, exit 0."""
+    msg = (f"{args.job}: already complete in {run_dir} (nothing built); "
+           "`cell run --new` builds it again in a new run directory")
+    if args.json:
+        from controller.cli.main import emit_json
+
+        report = run_dir / "report.json"
+        emit_json({"state": "complete", "already_complete": True, "layers_done": None, "passes_done": None,
+                   "arc_starts": 0, "alarms": [], "defects": [],
+                   "report": str(report) if report.exists() else None, "run_dir": str(run_dir),
+                   "message": msg})
+    else:
+        _out(msg)
+    return 0
 
 
 def _resume(args: argparse.Namespace) -> int:
@@ -201,21 +222,25 @@ def _resume(args: argparse.Namespace) -> int:
     from controller.resume import latest_run_dir
 
     cfg = load_cell(args.cell_config)
-    runs = Path(args.runs or cfg.cell.runs_dir)
-    run_dir = Path(args.run_dir) if args.run_dir else latest_run_dir(runs)
+    runs = runargs.dir_arg(args.runs or cfg.cell.runs_dir, "--runs", must_exist=not args.run_dir)
+    if args.sim_log:
+        runargs.dir_arg(args.sim_log, "--sim-log")
+    run_dir = runargs.dir_arg(args.run_dir, "RUN_DIR", must_exist=True) if args.run_dir else latest_run_dir(runs)
     jpath = run_dir / "journal.sqlite"
-    if not jpath.exists():
+    if not jpath.exists() and not jpath.with_name(jpath.name + "-wal").exists():
         raise CellError(f"{run_dir}: no journal.sqlite here; nothing to resume")
-    j = Journal(jpath)
+    j = Journal(jpath)  # refuses a damaged journal, untouched
     meta = j.job()
-    modes = j.query("SELECT message FROM events WHERE kind='mode' ORDER BY id DESC LIMIT 1")
+    mode = j.latest_mode()
     j.close()
-    if modes and json.loads(modes[0][0]).get("sim") and not args.sim:
+    if mode and json.loads(mode).get("sim") and not args.sim:
         # the interrupted build ran on in-process simulators: so does its resume
         args.sim = True
     if meta is None:
-        raise CellError(f"{jpath}: the journal holds no job; start the build with `cell run JOB`")
-    job = json.loads(meta["job_json"])
+        raise CellError(f"journal {jpath} holds no job, so it cannot be resumed (left untouched; "
+                        f"`cell journal check {run_dir}` says what is readable)")
+    job = runargs.stored_job(meta, jpath)
+    runargs.check_job_for_cell(job, cfg, str(jpath))
     log_dir = Path(args.sim_log) if args.sim_log else run_dir / "sim"
     return _build(args, cfg, job, run_dir, "", [], log_dir, runs, resume=True)
 
@@ -230,7 +255,8 @@ def _build(args: argparse.Namespace, cfg: CellConfig, job: dict, run_dir: Path |
     try:
         ctl = CellController(session.cfg, runs_dir=runs)
         o = ctl.options
-        ctl.options = BuildOptions(**{**o.__dict__, "max_step_mm": args.max_step})
+        ctl.options = BuildOptions(**{**o.__dict__, "max_step_mm": args.max_step,
+                                      "reset_errors": resume or bool(getattr(args, "reset_errors", False))})
         res, report = asyncio.run(_drive(ctl, job, run_dir, session, scen, say, resume))
     finally:
         session.close()
@@ -241,7 +267,17 @@ def _build(args: argparse.Namespace, cfg: CellConfig, job: dict, run_dir: Path |
         emit_json(out)
     else:
         _print_summary(out, say)
-    return 0 if res.state == "complete" else 1
+    return exit_code(out)
+
+
+EXIT_COMPLETE_WITH_DEFECTS = 3
+
+
+def exit_code(out: dict) -> int:
+    """0 complete, 3 complete with defects, 1 stopped (fault, E-stop, abort)."""
+    if out["state"] != "complete":
+        return 1
+    return EXIT_COMPLETE_WITH_DEFECTS if out.get("defects") else 0
 
 
 async def _drive(ctl: Any, job: dict, run_dir: Path | None, session: SimSession, scen: list,
@@ -251,9 +287,8 @@ async def _drive(ctl: Any, job: dict, run_dir: Path | None, session: SimSession,
         from controller.journal import Journal
 
         j = Journal(run_dir / "journal.sqlite")
-        row = j.query("SELECT max(ticket) FROM progress")[0][0]
+        resume_ticket = j.max_progress_ticket() or None
         j.close()
-        resume_ticket = int(row) if row else None
     await ctl.connect(resume_ticket=resume_ticket, reply_timeout_ms=session.reply_timeout_ms)
     try:
         ctl.open_job(job, run_dir)
@@ -277,7 +312,7 @@ async def _drive(ctl: Any, job: dict, run_dir: Path | None, session: SimSession,
         for t in tasks:
             t.cancel()
         await ctl.disconnect()
-        report = ctl.write_report()
+        report = ctl.last_report or ctl.write_report()
         ctl.result_json = _result_json(ctl, res, report)
         return res, report
     finally:
@@ -285,8 +320,15 @@ async def _drive(ctl: Any, job: dict, run_dir: Path | None, session: SimSession,
 
 
 def _print_summary(out: dict, say: Callable[[str], None]) -> None:
-    say(f"state {out['state']}: {out['layers_done']} layers, {out['passes_done']} passes done, "
+    defects = out.get("defects") or []
+    state = out["state"] + (f" with {len(defects)} defects" if defects and out["state"] == "complete" else "")
+    say(f"state {state}: {out['layers_done']} layers, {out['passes_done']} passes done, "
         f"{out['arc_starts']} arc starts")
+    for d in defects[:20]:
+        pos = f" at {tuple(round(v, 2) for v in d['position'])}" if d["position"] else ""
+        say(f"  defect: layer {d['layer']}, pass {d['pass']}{pos}: {d['reason']}")
+    if len(defects) > 20:
+        say(f"  ... and {len(defects) - 20} more defects (report.json)")
     for a in out["alarms"]:
         where = f" at layer {a['layer']}, pass {a['pass']} (job indices)" if a["layer"] is not None else ""
         pos = f", position {tuple(round(v, 2) for v in a['position'])}" if a["position"] else ""
@@ -301,10 +343,14 @@ def _demo(args: argparse.Namespace) -> int:
     from controller.api import CellController
     from controller.build import BuildOptions, run_dir_for
     from controller.cell import with_urls
-    from controller.config import load_material
+    from core.config import load_material
     from planner.job import job_to_dict
     from planner.plan import PlanOptions, plan_part
 
+    if getattr(args, "repair", False):
+        from controller.cli.repair import demo_repair
+
+        return demo_repair(args)
     say = _err if args.json else _out
     t0 = time.monotonic()
     cfg = load_cell()
@@ -315,6 +361,7 @@ def _demo(args: argparse.Namespace) -> int:
     job = json.loads(json.dumps(job))
     if args.layers:
         job["layers"] = job["layers"][: args.layers]
+    runargs.check_job_for_cell(job, cfg, f"demo job ({DEMO_PART.name})")
     s = job["summary"]
     say(f"  {len(job['layers'])} layers, {sum(len(la['passes']) for la in job['layers'])} beads, "
         f"{s.get('deposit_length_mm', 0) / 1000:.1f} m of bead, about {s.get('est_time_s', 0) / 60:.0f} min of arc")
@@ -343,7 +390,7 @@ def _demo(args: argparse.Namespace) -> int:
         _print_summary(out, say)
         say(f"run directory: {out['run_dir']} (journal.sqlite, report.json, layers.png, process.png, "
             f"temperature.png, defects.png); {out['wall_time_s']} s wall")
-    return 0 if res.state == "complete" else 1
+    return exit_code(out)
 
 
 async def _demo_drive(ctl: Any, job: dict, session: SimSession, say: Callable[[str], None],
@@ -360,12 +407,9 @@ async def _demo_drive(ctl: Any, job: dict, session: SimSession, say: Callable[[s
 
 
 async def _align(session: SimSession, say: Callable[[str], None]) -> dict | None:
-    """Probe and align the substrate over the CNC link, when the alignment routine is installed."""
-    try:
-        from controller.align.routine import cad_mesh, plan_for_mesh, run_on_url
-    except ImportError:
-        say("alignment: routine not installed, skipped")
-        return None
+    """Probe and align the substrate over the CNC link."""
+    from controller.align.routine import cad_mesh, plan_for_mesh, run_on_url
+
     cfg = session.cfg
     sim_cfg = session.harness.sim_cfg if session.harness is not None else load_sim()
     say("probing and aligning the substrate on the CNC (touch probe, G38.2)...")

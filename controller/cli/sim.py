@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from controller.config import load_cell, load_material, load_sim
+from core.config import load_cell, load_material, load_sim
 from sims.clock import SimClock
 from sims.up import SimContext, run_forever
 from sims.world import World

@@ -16,7 +16,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _tui(args: argparse.Namespace) -> int:
-    from controller.config import load_cell, load_sim
+    from core.config import load_cell, load_sim
     from controller.tui.app import CellApp
     from controller.tui_adapter import CellSession
 

@@ -110,6 +110,10 @@ class ConfirmQuit(ModalScreen[bool]):
             yield Button("Stop the build and quit", variant="error", id="quit-yes")
             yield Button("Stay", variant="primary", id="quit-no")
 
+    def on_mount(self) -> None:
+        # Enter must never mean E-stop by default: the focus starts on "Stay".
+        self.query_one("#quit-no", Button).focus()
+
     @on(Button.Pressed, "#quit-yes")
     def _yes(self) -> None:
         self.dismiss(True)
@@ -121,11 +125,38 @@ class ConfirmQuit(ModalScreen[bool]):
 
 def _demo_width_mm() -> float:
     """The demo's bead width (`cell demo`'s), offered in the open dialog."""
-    try:
-        from controller.cli.run import DEMO_WIDTH_MM
-    except ImportError:
-        return 7.0
+    from controller.defaults import DEMO_WIDTH_MM
     return float(DEMO_WIDTH_MM)
+
+
+class ConfirmAbort(ModalScreen[bool]):
+    """Abort ends the build for good (a resume needs a new run): asked once, default No."""
+
+    DEFAULT_CSS = """
+    ConfirmAbort { align: center middle; }
+    ConfirmAbort > Grid { grid-size: 2; grid-gutter: 1 2; grid-rows: auto 3; width: 64; height: auto;
+                          border: thick $warning; padding: 1 2; background: $surface; }
+    ConfirmAbort #abort-question { column-span: 2; }
+    """
+    BINDINGS = [Binding("escape", "keep", "Keep building")]
+
+    def compose(self) -> ComposeResult:
+        with Grid():
+            yield Label("Abort the build?\n\nThe arc goes off at the end of the move and the build ends "
+                        "(state aborted).", id="abort-question")
+            yield Button("Abort the build", variant="warning", id="abort-yes")
+            yield Button("Keep building", variant="primary", id="abort-no")
+
+    def on_mount(self) -> None:
+        self.query_one("#abort-no", Button).focus()
+
+    @on(Button.Pressed, "#abort-yes")
+    def _yes(self) -> None:
+        self.dismiss(True)
+
+    @on(Button.Pressed, "#abort-no")
+    def action_keep(self) -> None:
+        self.dismiss(False)
 
 
 class CellApp(App[int]):
@@ -140,12 +171,17 @@ class CellApp(App[int]):
     TabPane { height: 1fr; padding: 0 1; }
     """
     BINDINGS = [
-        *(Binding(k, f"cmd('{c}')", label) for k, (c, label) in COMMAND_KEYS.items()),
+        # E-STOP, Quit and Help first: a narrow footer (80 columns) cuts from the end, never these.
+        Binding("e", "cmd('estop')", "E-STOP"),
+        Binding("q", "quit_safe", "Quit"),
+        Binding("question_mark", "help", "Help"),
+        *(Binding(k, f"cmd('{c}')", label) for k, (c, label) in COMMAND_KEYS.items() if c != "estop"),
         # The software E-stop also from a text field or a dialog, where `e` is typed as a letter.
         Binding("ctrl+e", "cmd('estop')", "E-STOP", show=False, priority=True),
-        Binding("q", "quit_safe", "Quit"),
         Binding("ctrl+c", "quit_safe", "Quit", show=False, priority=True),
-        *(Binding(f"f{i + 1}", f"tab('{tid}')", title, show=False) for i, (tid, title) in enumerate(TABS)),
+        # Screen keys work from any widget (the log filter too): priority bindings.
+        *(Binding(f"f{i + 1}", f"tab('{tid}')", title, show=False, priority=True)
+          for i, (tid, title) in enumerate(TABS)),
         Binding("left_square_bracket", "layer(-1)", "Prev layer", show=False),
         Binding("right_square_bracket", "layer(1)", "Next layer", show=False),
     ]
@@ -161,6 +197,7 @@ class CellApp(App[int]):
         self.renders = 0             # UI refreshes done (the 100 Hz test counts them)
         self.last_message = ""
         self._allowed_key: tuple = ()
+        self._abort_confirmed = False
         self._quitting = False
         self.pending: set[concurrent.futures.Future] = set()
 
@@ -249,6 +286,13 @@ class CellApp(App[int]):
             event.stop()
             self.send(cmd[0])
 
+    def action_help(self) -> None:
+        from controller.tui.help import HelpScreen, help_text
+
+        s = self.view.snap
+        allowed = tuple(c for c, _ in COMMAND_KEYS.values() if self.view.allowed(c))
+        self.push_screen(HelpScreen(help_text(COMMAND_KEYS, s.state, allowed)))
+
     def action_cmd(self, name: str) -> None:
         self.send(name)
 
@@ -262,6 +306,10 @@ class CellApp(App[int]):
                      f"(allowed now: {allowed})", error=True)
             return
         try:
+            if name == "abort" and self.view.allowed("abort") and not self._abort_confirmed:
+                self.push_screen(ConfirmAbort(), self._abort_answer)
+                return
+            self._abort_confirmed = False
             if name == "open":
                 self.push_screen(OpenDialog(_display_path(self.default_part), self.default_width), self._opened)
                 return
@@ -278,6 +326,11 @@ class CellApp(App[int]):
             return
         self.say(f"{name}…")
         self._watch(fut, name)
+
+    def _abort_answer(self, yes: bool | None) -> None:
+        if yes:
+            self._abort_confirmed = True
+            self.send("abort")
 
     def _opened(self, result: tuple[str, float] | None) -> None:
         if result is None:

@@ -7,6 +7,7 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widgets import DataTable, Label, ProgressBar, Static
 
+from controller.events import Snapshot
 from controller.tui.widgets import LayerPreview, Trend
 from controller.tui_adapter import View
 
@@ -75,7 +76,7 @@ class BuildPane(Vertical):
             if s.pass_ is not None:
                 where += f", pass {s.pass_ + 1}/{s.passes_in_layer}"
         self.query_one("#build-state", Static).update(
-            f"[{state_style(s.state)}] {s.state.upper().replace('_', ' ')} [/]"
+            f"[{state_style(s.state)}] {s.state.upper().replace('_', ' ')} [/] {arc_lamp(s)}"
             f"  job {s.job_name or '—'}  arc starts {s.arc_starts}{where}{msg}")
         self._bar("passes", s.passes_done, s.passes_total)
         self._bar("layers", s.layers_done, s.layers_total)
@@ -84,9 +85,10 @@ class BuildPane(Vertical):
             in_layer = s.passes_in_layer
         self._bar("layer", in_layer, s.passes_in_layer)
         hist = v.history
-        self.query_one("#trend-current", Trend).show(s.current_a, [h.current_a for h in hist])
-        self.query_one("#trend-voltage", Trend).show(s.voltage_v, [h.voltage_v for h in hist])
-        self.query_one("#trend-wfs", Trend).show(s.wfs_m_min, [h.wfs_m_min for h in hist])
+        arc = arc_values(s)
+        self.query_one("#trend-current", Trend).show(arc[0], [h.current_a for h in hist])
+        self.query_one("#trend-voltage", Trend).show(arc[1], [h.voltage_v for h in hist])
+        self.query_one("#trend-wfs", Trend).show(arc[2], [h.wfs_m_min for h in hist])
         self.query_one("#trend-temp", Trend).show(s.temperature_c, [h.temperature_c for h in hist])
         self.query_one("#build-interpass", Static).update(interpass_text(v))
         links = tuple((d.device, d.connected, d.frames_tx, d.frames_rx, d.errors, d.queue_free) for d in v.devices)
@@ -108,6 +110,27 @@ class BuildPane(Vertical):
     def _bar(self, name: str, done: int, total: int) -> None:
         self.query_one(f"#{name}-text", Label).update(f"{done} / {total}")
         self.query_one(f"#{name}-bar", ProgressBar).update(total=max(total, 1), progress=min(done, max(total, 1)))
+
+
+# States in which the source's last reading is not a live weld reading: the display blanks it
+# rather than leave the last bead's figures on screen (they read as an arc that is still on).
+NOT_SAMPLED = ("estop", "fault", "disconnected", "aborted", "complete")
+
+
+def arc_lamp(s: Snapshot) -> str:
+    """ARC ON lamp from the source's arc-stable bit (never from the controller's own account)."""
+    if s.arc_on and s.state not in NOT_SAMPLED:
+        return "[bold black on bright_green] ARC ON [/]"
+    if s.arc_on is None:
+        return "[dim] arc ? [/]"
+    return "[dim] arc off [/]"
+
+
+def arc_values(s: Snapshot) -> tuple[float | None, float | None, float | None]:
+    """Current, voltage and wire feed to show: blank ('—') when the arc is off or not sampled."""
+    if not s.arc_on or s.state in NOT_SAMPLED:
+        return None, None, None
+    return s.current_a, s.voltage_v, s.wfs_m_min
 
 
 def interpass_text(v: View) -> str:

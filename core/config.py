@@ -5,17 +5,46 @@ from pathlib import Path
 from typing import Any, Literal, TypeVar
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
+from typing_extensions import Annotated
 
-from planner.errors import ConfigError
-from planner.material import Material
+from core.errors import ConfigError
+from core.material import Material
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
 M = TypeVar("M", bound=BaseModel)
 
 
+_NET_SCHEMES = ("socket", "tcp", "rfc2217", "udp")
+
+
+def _device_url(v: str) -> str:
+    """A device URL whose host and port parse (a port in 0..65535, 0: any free port), or a serial device path."""
+    from urllib.parse import urlsplit
+
+    if not v.strip():
+        raise ValueError("empty device URL")
+    if "://" not in v:
+        return v  # a serial device path (/dev/ttyUSB0, COM3)
+    try:
+        u = urlsplit(v)
+        port = u.port
+    except ValueError as exc:
+        raise ValueError(f"not a valid URL ({exc})") from None
+    if u.scheme in _NET_SCHEMES:
+        if not u.hostname:
+            raise ValueError(f"{u.scheme}:// URL without a host (expected {u.scheme}://HOST:PORT)")
+        if port is None:
+            raise ValueError(f"{u.scheme}:// URL needs a port (expected {u.scheme}://HOST:PORT)")
+    return v
+
+
+DeviceUrl = Annotated[str, AfterValidator(_device_url)]
+
+
 class _Frozen(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # allow_inf_nan=False: `.inf`/`.nan` in a YAML file is an error naming the key, never a limit
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 # --- cell.yaml -------------------------------------------------------------------------------
@@ -33,7 +62,7 @@ class CellInfo(_Frozen):
 
 
 class RobotDevice(_Frozen):
-    url: str
+    url: DeviceUrl
     baud: int = Field(default=115200, gt=0)
     heartbeat_s: float = Field(default=1.0, gt=0.0)
     link_timeout_s: float = Field(default=3.0, gt=0.0)
@@ -41,10 +70,11 @@ class RobotDevice(_Frozen):
 
 
 class CncDevice(_Frozen):
-    url: str
+    url: DeviceUrl
     baud: int = Field(default=115200, gt=0)
     rx_buffer_bytes: int = Field(default=128, ge=32, le=4096)
     status_hz: float = Field(default=5.0, gt=0.0, le=5.0)
+    homing_timeout_s: float = Field(default=120.0, gt=0.0)   # $H is silent until done
 
 
 class CanSettings(_Frozen):
@@ -52,14 +82,18 @@ class CanSettings(_Frozen):
     channel: str = "239.74.163.2"
     node: int = Field(default=1, ge=0, le=0x7F)
     dbc: str = "power_source.dbc"
+    # udp_multicast is kept on this host (TTL 0, loopback) unless this is true (wire/can_net.py)
+    allow_network: bool = False
 
 
 class PowerSourceDevice(_Frozen):
     transport: Literal["modbus_tcp", "modbus_rtu", "can"] = "modbus_tcp"
-    url: str = "tcp://127.0.0.1:5502"
+    url: DeviceUrl = "tcp://127.0.0.1:5502"
     device_id: int = Field(default=1, ge=1, le=247)
     cycle_ms: float = Field(default=10.0, gt=0.0, le=1000.0)
-    timeout_ms: float = Field(default=50.0, gt=0.0)
+    # link health (DESIGN.md §5): lost after this many consecutive cycles without a valid reply
+    lost_after_cycles: int = Field(default=3, ge=1, le=100)
+    timeout_ms: float | None = Field(default=None, gt=0.0)  # overrides it (a fixed reply timeout)
     can: CanSettings = CanSettings()
     # device properties a resume after a crash relies on (controller/arc_out.py): the start is
     # dropped after watchdog_ms (wall) without a new counter; the arc then burns on for
@@ -69,9 +103,10 @@ class PowerSourceDevice(_Frozen):
 
 
 class CellIODevice(_Frozen):
-    url: str = "tcp://127.0.0.1:5503"
+    url: DeviceUrl = "tcp://127.0.0.1:5503"
     device_id: int = Field(default=1, ge=1, le=247)
     cycle_ms: float = Field(default=10.0, gt=0.0, le=1000.0)
+    lost_after_cycles: int = Field(default=3, ge=1, le=100)
 
 
 class Devices(_Frozen):
@@ -88,6 +123,15 @@ class Limits(_Frozen):
     workspace_max_mm: tuple[float, float, float] = (500.0, 500.0, 500.0)
     clearance_mm: float = Field(default=10.0, ge=0.0, le=500.0)
     max_part_temperature_c: float = Field(default=400.0, gt=0.0, le=2000.0)
+    # the job check before motion (controller/jobcheck.py): interpass limits must lie above the
+    # ambient; a pass planned outside the material's envelope runs only where the cell allows it,
+    # and then inside the power source's range
+    ambient_c: float = Field(default=20.0, ge=-40.0, le=60.0)
+    # a weld slower than this is a standing torch, not a bead (the arc would burn through)
+    min_weld_speed_mm_min: float = Field(default=30.0, gt=0.0, le=6000.0)
+    allow_outside_envelope: bool = False
+    source_current_max_a: float = Field(default=500.0, gt=0.0, le=2000.0)
+    source_wfs_max_m_min: float = Field(default=25.0, gt=0.0, le=50.0)
 
 
 class Kinematics(_Frozen):
@@ -98,6 +142,16 @@ class Kinematics(_Frozen):
     offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     a_limits_deg: tuple[float, float] = (-120.0, 120.0)
     second_limits_deg: tuple[float, float] = (-360.0, 360.0)
+    tilt_limit_deg: float = Field(default=60.0, ge=0.0, le=120.0,
+                                  description="largest tool-axis tilt from the part's vertical a 5-axis plan uses")
+
+
+class Nozzle(_Frozen):
+    """The torch/nozzle as a cone around the tool axis, for the plan-time collision check."""
+
+    half_angle_deg: float = Field(default=15.0, gt=0.0, lt=80.0)
+    length_mm: float = Field(default=60.0, gt=0.0)
+    standoff_mm: float = Field(default=3.0, ge=0.0, description="cone tip above the bead centre line")
 
 
 class ProbeSettings(_Frozen):
@@ -112,12 +166,28 @@ class ProbeSettings(_Frozen):
     noise_mm: float = Field(default=0.002, ge=0.0, description="expected probe noise (1σ)")
 
 
+class OpcUaSettings(_Frozen):
+    """The factory interface (DESIGN.md §8); off by default, loopback unless secured."""
+
+    enabled: bool = False
+    endpoint: str = "opc.tcp://127.0.0.1:4840/cell"
+    allow_control: bool = False        # Pause/Resume/Abort methods exist only when true
+    certificate: str | None = None     # server certificate (DER or PEM) and its key: with users,
+    private_key: str | None = None     # the endpoint may leave the host and anonymous is refused
+    users: dict[str, str] = Field(default_factory=dict)  # name -> "sha256:<hex of the password>"
+    manufacturer: str = "cell-controller"
+    model: str = "WAAM / laser deposition cell"
+    serial_number: str = ""            # default: the cell's name
+
+
 class CellConfig(_Frozen):
     cell: CellInfo = CellInfo()
     devices: Devices
     limits: Limits = Limits()
     kinematics: Kinematics = Kinematics()
+    nozzle: Nozzle = Nozzle()
     probe: ProbeSettings = ProbeSettings()
+    opcua: OpcUaSettings = OpcUaSettings()
 
 
 # --- sim.yaml --------------------------------------------------------------------------------
@@ -135,10 +205,15 @@ class Workpiece(_Frozen):
 class CncSim(_Frozen):
     workpiece: Workpiece = Workpiece()
     probe_noise_mm: float = Field(default=0.002, ge=0.0, le=1.0)
+    # the workpiece grows where metal is deposited: a bead this wide, its top at the torch tip
+    bead_width_mm: float = Field(default=4.0, gt=0.0)
+    bead_depth_mm: float = Field(default=2.0, gt=0.0)
 
 
 class ThermalSim(_Frozen):
     ambient_c: float = Field(default=20.0, ge=-40.0, le=60.0)
+    # a weld slower than this is a standing torch, not a bead (the arc would burn through)
+    min_weld_speed_mm_min: float = Field(default=30.0, gt=0.0, le=6000.0)
     heat_capacity_j_k: float = Field(default=2000.0, gt=0.0)
     cooling_time_constant_s: float = Field(default=120.0, gt=0.0)
 
@@ -177,7 +252,8 @@ def _key_node(node: yaml.Node | None, loc: tuple[Any, ...]) -> yaml.Node | None:
     if isinstance(parent, yaml.MappingNode):
         for k, _ in parent.value:
             if k.value == str(loc[-1]):
-                return k
+                key: yaml.Node = k
+                return key
     return parent
 
 
@@ -186,6 +262,8 @@ def parse_model(text: str, model: type[M], source: str) -> M:
     try:
         root = yaml.compose(text)
         data = yaml.safe_load(text)
+    except RecursionError:
+        raise ConfigError(f"{source}: nested too deeply to read; give a flat YAML file") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f" line {mark.line + 1}" if mark is not None else ""
@@ -222,6 +300,8 @@ def load_model(path: str | Path, model: type[M]) -> M:
     p = Path(path)
     try:
         text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not UTF-8 text (byte {exc.start}); save it as UTF-8") from None
     except OSError as exc:
         raise ConfigError(f"{p}: cannot read ({exc.strerror or exc}); check the path") from None
     return parse_model(text, model, str(p))

@@ -7,7 +7,8 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
 class _Frozen(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # allow_inf_nan=False: `k1: .inf` is an error naming the key (issue 14)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class RibeiroCoefficients(_Frozen):
@@ -39,11 +40,33 @@ class RibeiroCoefficients(_Frozen):
 class BeadSettings(_Frozen):
     profile: Literal["parabola", "cosine", "arc"] = "parabola"
     overlap_model: Literal["tangent", "flat_top"] = "tangent"
+    # Ding 2015: centres closer than this share of the width over-build the overlap (unstable).
+    min_step_over_ratio: float = Field(default=2.0 / 3.0, gt=0.3, lt=1.0)
 
 
 class InterpassSettings(_Frozen):
     max_temperature_c: float = Field(gt=0.0, le=1500.0)
     dwell_s: float = Field(ge=0.0, le=3600.0)
+
+
+class ProcessTolerance(_Frozen):
+    """How far the measured process may stray from the plan while a bead is deposited (issue 13).
+
+    Current and wire feed: relative to the pass's planned values; voltage: an absolute window
+    (the plan carries no voltage, the synergic source chooses it). A bead outside any of them,
+    or whose arc was not stable all along, is a defect.
+    """
+
+    current_pct: float = Field(default=10.0, gt=0.0, le=100.0)
+    wfs_pct: float = Field(default=10.0, gt=0.0, le=100.0)
+    voltage_min_v: float = Field(default=10.0, ge=0.0, le=100.0)
+    voltage_max_v: float = Field(default=40.0, gt=0.0, le=200.0)
+
+    @model_validator(mode="after")
+    def _window(self) -> "ProcessTolerance":
+        if self.voltage_min_v >= self.voltage_max_v:
+            raise ValueError("voltage_min_v must be below voltage_max_v")
+        return self
 
 
 class Material(_Frozen):
@@ -56,3 +79,8 @@ class Material(_Frozen):
     ribeiro: RibeiroCoefficients
     bead: BeadSettings = BeadSettings()
     interpass: InterpassSettings
+    min_bead_length_mm: float | None = Field(default=None, gt=0.0, le=1000.0,
+                                             description="shortest pass; default 2 bead widths")
+    max_overhang_deg: float = Field(default=30.0, ge=0.0, lt=90.0,
+                                    description="wall lean from vertical a 3-axis path may build")
+    tolerance: ProcessTolerance = ProcessTolerance()

@@ -104,6 +104,7 @@ class GrblStatus:
     planner_free: int | None = None   # Bf: field (free planner blocks), when $10 asks for it
     rx_free: int | None = None        # Bf: field (free bytes in the serial RX buffer)
     wco: Pos5 | None = None
+    axes: int = 3                     # how many coordinates the position field carried
 
 
 @dataclass(frozen=True)
@@ -140,6 +141,7 @@ class Probe:
 @dataclass(frozen=True)
 class Banner:
     version: str  # e.g. "1.1h"
+    name: str = "Grbl"  # "Grbl" or "GrblHAL"
 
 
 @dataclass(frozen=True)
@@ -163,7 +165,7 @@ class Other:
 
 Reply = Ok | Error | Alarm | GrblStatus | Probe | Banner | Message | Setting | Other
 
-_BANNER = re.compile(r"^Grbl\s+(\S+)\s*\[.*\]")
+_BANNER = re.compile(r"^(Grbl(?:HAL)?)\s+(\S+)\s*\[.*\]")
 _SETTING = re.compile(r"^\$(\d+)=(\S*)")
 _FLOATS = re.compile(r"^-?\d+(?:\.\d*)?(?:,-?\d+(?:\.\d*)?)*$")
 
@@ -189,12 +191,15 @@ def parse_status(line: str, wco: Pos5 | None = None) -> GrblStatus:
     pins = ""
     bf_planner = bf_rx = None
     new_wco = None
+    axes = 3
     for f in fields[1:]:
         key, _, val = f.partition(":")
         if key == "MPos":
             mpos = _pos(val)
+            axes = val.count(",") + 1
         elif key == "WPos":
             wpos = _pos(val)
+            axes = val.count(",") + 1
         elif key == "FS":
             parts = val.split(",")
             feed = float(parts[0])
@@ -214,9 +219,11 @@ def parse_status(line: str, wco: Pos5 | None = None) -> GrblStatus:
             raise ValueError(f"status report without a position: {line!r}")
         off = use_wco or (0.0,) * 5
         mpos = tuple(w + o for w, o in zip(wpos, off))  # type: ignore[assignment]
+    assert mpos is not None  # set above, or raised
     return GrblStatus(
         state=state, mpos=mpos, feed=feed, spindle=spindle, probe_tripped="P" in pins,
         substate=substate, pins=pins, planner_free=bf_planner, rx_free=bf_rx, wco=new_wco,
+        axes=axes,
     )
 
 
@@ -259,7 +266,7 @@ def parse_line(line: str, wco: Pos5 | None = None) -> Reply:
         return Message(kind, text)
     m = _BANNER.match(s)
     if m:
-        return Banner(m.group(1))
+        return Banner(m.group(2), m.group(1))
     m = _SETTING.match(s)
     if m:
         return Setting(int(m.group(1)), m.group(2))

@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from planner.errors import CellError
+from core.errors import CellError
 
 # --- bits (shared by the Modbus map and the CAN frames) -----------------------------------
 

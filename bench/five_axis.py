@@ -1,0 +1,161 @@
+"""5-axis deposition on the CNC simulator: plan a part 5-axis, build it, read the deposit log back.
+
+`python -m bench.five_axis [--part tube|frustum] [--table AB|AC] [--scale S]` prints the figures of
+issue 18: per deposited segment the distance from the plan in the workpiece frame, the tool-axis
+error, the tool-tip speed error, and the largest rotary step against the planned axis change.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import re
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from controller.api import CellController
+from controller.build import weld_points
+from controller.cell import SimHarness, with_urls
+from core.config import load_cell, load_material, load_sim
+from controller.post5 import weld_axes
+from planner.five_axis import FiveAxisOptions
+from planner.job import job_to_dict
+from planner.plan import PlanOptions, plan_part
+
+SIM_REPLY_TIMEOUT_MS = 500.0
+
+
+def plan5(mesh, width: float = 3.0, five: bool = True) -> dict:
+    mat = load_material("inconel718-1.0mm")
+    job = plan_part(mesh, PlanOptions(width_mm=width, five_axis=FiveAxisOptions() if five else None), mat)
+    return job_to_dict(job)
+
+
+def kin_cfg(table: str):
+    cfg = load_cell()
+    if table == "AC":
+        kin = cfg.kinematics.model_copy(update={"table": "AC", "axis_second": (0.0, 0.0, 1.0),
+                                                "pivot_mm": (0.0, 0.0, 30.0), "offset_mm": (0.0, 0.0, 10.0)})
+    else:
+        kin = cfg.kinematics.model_copy(update={"pivot_mm": (2.0, -1.0, 40.0), "offset_mm": (0.0, 0.0, 15.0)})
+    return cfg.model_copy(update={"kinematics": kin, "cell": cfg.cell.model_copy(update={"platform": "cnc"})})
+
+
+def level_sim():
+    """The simulator's workpiece clamped square (the job's part frame is the workpiece frame)."""
+    sim = load_sim()
+    wp = sim.cnc.workpiece.model_copy(update={"tilt_a_deg": 0.0, "tilt_b_deg": 0.0, "rotation_c_deg": 0.0})
+    return sim.model_copy(update={"cnc": sim.cnc.model_copy(update={"workpiece": wp})})
+
+
+async def build(job: dict, tmp: Path, table: str = "AB", scale: float = 60.0) -> tuple[object, Path]:
+    cfg = with_urls(kin_cfg(table), {}, time_scale=scale)
+    log = tmp / "log"
+    harness = SimHarness(cfg, level_sim(), log_dir=log)
+    cfg = with_urls(cfg, harness.start())
+    ctl = CellController(cfg, runs_dir=tmp / "runs")
+    try:
+        await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
+        ctl.open_job(job)
+        res = await ctl.start()
+    finally:
+        await ctl.close()
+        harness.stop()
+    return res, log
+
+
+def _seg_dist(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance of each query point to the nearest of the segments a→b."""
+    ab = b - a
+    L2 = np.maximum((ab * ab).sum(axis=1), 1e-12)
+    out = np.empty(len(q))
+    for i, p in enumerate(q):
+        t = np.clip(((p - a) * ab).sum(axis=1) / L2, 0, 1)
+        out[i] = np.sqrt((((a + t[:, None] * ab) - p) ** 2).sum(axis=1)).min()
+    return out
+
+
+def figures(job: dict, log: Path, max_step_mm: float = 2.0) -> dict:
+    """Deposit log (workpiece frame) against the plan, and the executed rotary steps."""
+    segs = [json.loads(s) for s in (log / "deposit.jsonl").read_text().splitlines()]
+    segs = [s for s in segs if s.get("device") == "cnc"]
+    A, B, AX, SP, PAX = [], [], [], [], []
+    for la in job["layers"]:
+        for p in la["passes"]:
+            pts = np.asarray(weld_points(p["points"], max_step_mm))
+            axes = np.asarray(weld_axes(p["points"], p.get("axes"), max_step_mm))
+            A.append(pts[:-1])
+            B.append(pts[1:])
+            AX.append(axes)
+            PAX.append(pts)
+            SP.append(np.full(len(pts), float(p["speed_mm_min"])))
+    a, b = np.vstack(A), np.vstack(B)
+    allpts, allax, allsp = np.vstack(PAX), np.vstack(AX), np.concatenate(SP)
+    fr = np.array([s["part"]["from"] for s in segs])
+    to = np.array([s["part"]["to"] for s in segs])
+    mid = 0.5 * (fr + to)
+    dev = np.maximum.reduce([_seg_dist(fr, a, b), _seg_dist(to, a, b), _seg_dist(mid, a, b)])
+    near = np.argmin(((to[:, None, :] - allpts[None, :, :]) ** 2).sum(axis=2), axis=1)
+    ax_log = np.array([s["axis"] for s in segs])
+    ax_err = np.degrees(np.arccos(np.clip((ax_log * allax[near]).sum(axis=1), -1, 1)))
+    length = np.linalg.norm(to - fr, axis=1)
+    dt = np.array([s["t1"] - s["t0"] for s in segs])
+    ok = length >= 0.5  # the log rounds t to 0.1 ms: shorter stretches cannot show 2 %
+    speed = length[ok] / dt[ok] * 60.0
+    sp_err = np.abs(speed / allsp[near][ok] - 1.0)
+    steps = _rotary_steps(log)
+    return {"segments": len(segs), "deposited_mm": round(float(length.sum()), 2),
+            "planned_mm": round(float(np.linalg.norm(b - a, axis=1).sum()), 2),
+            "max_dev_mm": round(float(dev.max()), 4), "max_axis_err_deg": round(float(ax_err.max()), 3),
+            "speed_segments": int(ok.sum()), "max_speed_err": round(float(sp_err.max()), 4),
+            "max_rotary_step_deg": steps, "max_planned_axis_step_deg": round(_planned_axis_step(AX), 3)}
+
+
+def _planned_axis_step(axes_per_pass: list[np.ndarray]) -> float:
+    m = 0.0
+    for ax in axes_per_pass:
+        if len(ax) > 1:
+            c = np.clip((ax[1:] * ax[:-1]).sum(axis=1), -1, 1)
+            m = max(m, float(np.degrees(np.arccos(c)).max()))
+    return m
+
+
+def _rotary_steps(log: Path) -> float:
+    """Largest change of a rotary axis between consecutive G93 weld moves in cnc.jsonl."""
+    prev, worst = None, 0.0
+    for line in (log / "cnc.jsonl").read_text().splitlines():
+        g = json.loads(line).get("line", "").replace(" ", "")
+        if not g.startswith("G1") or "F" not in g or "A" not in g:
+            prev = None if g.startswith("G0") else prev  # a new pass starts after its approach
+            continue
+        ang = [float(v) for v in re.findall(r"[ABC](-?\d+\.\d+)", g)]
+        if prev is not None and len(ang) == len(prev):
+            worst = max(worst, max(abs(x - y) for x, y in zip(ang, prev)))
+        prev = ang
+    return round(worst, 3)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from tests.parts5 import cone_frustum, tilted_tube
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--part", choices=("tube", "frustum"), default="tube")
+    ap.add_argument("--table", choices=("AB", "AC"), default="AB")
+    ap.add_argument("--scale", type=float, default=60.0)
+    a = ap.parse_args(argv)
+    mesh = tilted_tube() if a.part == "tube" else cone_frustum()
+    job = plan5(mesh)
+    with tempfile.TemporaryDirectory() as tmp:
+        res, log = asyncio.run(build(job, Path(tmp), a.table, a.scale))
+        fig = figures(job, log)
+    fig.update({"part": a.part, "table": a.table, "state": getattr(res, "state", None),
+                "passes_done": getattr(res, "passes_done", None)})
+    print(json.dumps(fig))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,32 @@
+"""Was a bead deposited as planned? The devices' measurements decide (DESIGN.md §6, issue 13).
+
+A pass is done only when its last move was executed (the robot's EXE / grbl's sync point), the
+arc was stable all along, and the measured current, voltage and wire feed stayed within the
+material's tolerance (`tolerance:` of config/materials/*.yaml) of the plan. Anything else is a
+defect: journaled with its position and reported, never silently "done".
+"""
+from __future__ import annotations
+
+from typing import Any
+
+
+def judge(stats: dict[str, float | None], planned_i: float, planned_wfs: float, tol: Any,
+          arc_faltered: bool) -> str | None:
+    """None for a good bead, else the reason it is a defect (one line)."""
+    if arc_faltered:
+        return "arc not stable all along the bead"
+    if not stats:
+        return "no measurement while the arc burned"
+    out = []
+    i_lo, i_hi = planned_i * (1 - tol.current_pct / 100), planned_i * (1 + tol.current_pct / 100)
+    if stats["i_min"] < i_lo or stats["i_max"] > i_hi:
+        out.append(f"current {stats['i_min']:.1f}-{stats['i_max']:.1f} A outside "
+                   f"{planned_i:.1f} A ±{tol.current_pct:g} %")
+    w_lo, w_hi = planned_wfs * (1 - tol.wfs_pct / 100), planned_wfs * (1 + tol.wfs_pct / 100)
+    w_min, w_max = stats.get("wfs_min", stats["wfs_mean"]), stats.get("wfs_max", stats["wfs_mean"])
+    if w_min < w_lo or w_max > w_hi:
+        out.append(f"wire feed {w_min:.2f}-{w_max:.2f} m/min outside {planned_wfs:.2f} m/min ±{tol.wfs_pct:g} %")
+    if stats["u_min"] < tol.voltage_min_v or stats["u_max"] > tol.voltage_max_v:
+        out.append(f"voltage {stats['u_min']:.1f}-{stats['u_max']:.1f} V outside "
+                   f"[{tol.voltage_min_v:g}, {tol.voltage_max_v:g}] V")
+    return "; ".join(out) or None

@@ -1,0 +1,164 @@
+"""`cell repair plan CAD --stock STOCK --width W [--allowance MM]` (DESIGN.md §4 "Repair", issue 17)."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from core.errors import InputError
+
+
+def register(sub: Any) -> None:
+    from controller.cli.plan import _positive
+
+    p = sub.add_parser("repair", help="hybrid repair: plan the missing volume of a part, and run it",
+                       description="Plan a repair: nominal CAD minus the machined stock (+ allowance), "
+                                   "in the CAD frame.")
+    rs = p.add_subparsers(dest="repair_command", metavar="SUBCOMMAND")
+    rs.required = True
+    pl = rs.add_parser("plan", help="plan the repair volume (CAD − stock + allowance) in the CAD frame")
+    pl.add_argument("cad", metavar="CAD", help="nominal part (STL/OBJ/3MF), in its CAD frame")
+    pl.add_argument("--stock", required=True, metavar="STOCK", help="the machined part as a mesh, in the CAD frame")
+    pl.add_argument("--width", type=_positive, required=True, metavar="W", help="bead width, mm")
+    pl.add_argument("--allowance", type=float, default=0.0, metavar="MM",
+                    help="finishing allowance added on top of the repaired surfaces, mm (default 0)")
+    pl.add_argument("--material", metavar="M", help="material name or YAML file (default: cell.yaml's)")
+    pl.add_argument("--out", metavar="JOB", help="job file (default: STEM.repair.job.json here)")
+    pl.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    pl.set_defaults(func=run_plan)
+    rr = rs.add_parser("run", help="probe, level, align, deposit, probe again, report: the whole repair chain")
+    rr.add_argument("job", metavar="JOB", help="the repair job `cell repair plan` wrote (CAD frame, no alignment)")
+    rr.add_argument("--sim", action="store_true", help="run against the simulators in this process")
+    rr.add_argument("--sim-config", metavar="FILE", help="simulator config (default config/sim.yaml): the stock "
+                    "mesh and its pose on the table")
+    rr.add_argument("--cell-config", metavar="FILE", help="cell.yaml (default config/cell.yaml)")
+    rr.add_argument("--runs", metavar="DIR", help="runs directory (default: cell.yaml's runs_dir)")
+    rr.add_argument("--log", metavar="DIR", help="with --sim: the simulators' logs (deposit.jsonl, cnc.jsonl)")
+    rr.add_argument("--tolerance", type=float, default=0.1, metavar="MM",
+                    help="verify: height error beyond this is a defect (default 0.1 mm)")
+    rr.add_argument("--json", action="store_true", help="print the report as one JSON object")
+    rr.set_defaults(func=run_repair)
+
+
+def _load(path: str, what: str):
+    import trimesh
+
+    if not Path(path).is_file():
+        raise InputError(f"{what} {path}: no such file")
+    try:
+        return trimesh.load_mesh(path, force="mesh")
+    except Exception as exc:  # trimesh raises many kinds for a bad file
+        raise InputError(f"{what} {path}: cannot read the mesh ({exc})") from None
+
+
+def run_plan(args: argparse.Namespace) -> int:
+    from controller.cli.main import emit_json
+    from controller.cli.plan import _material
+    from controller.repair import repair_volume
+    from planner.job import job_to_dict
+    from planner.plan import PlanOptions, plan_part
+
+    cad, stock = _load(args.cad, "CAD"), _load(args.stock, "--stock")
+    rv = repair_volume(cad, stock, args.allowance, cad_name=args.cad, stock_name=args.stock)
+    job = plan_part(rv.mesh, PlanOptions(width_mm=args.width, frame="cad"), _material(args.material))
+    d = job_to_dict(job)
+    d["source"]["file"] = Path(args.cad).name
+    d["repair"] = {"cad": str(args.cad), "stock": str(args.stock), "allowance_mm": args.allowance,
+                   "volume_mm3": round(rv.volume_mm3, 3), "bounds_mm": rv.bounds.round(4).tolist()}
+    out = Path(args.out) if args.out else Path(Path(args.cad).stem + ".repair.job.json")
+    try:
+        out.write_text(json.dumps(d, sort_keys=True) + "\n", encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"--out {out}: cannot write the job file ({exc.strerror or exc})") from None
+    summary = {"job": str(out), "frame": "cad", "repair_volume_mm3": round(rv.volume_mm3, 3),
+               "bounds_mm": rv.bounds.round(3).tolist(), "layers": len(job.layers),
+               "passes": sum(len(L.passes) for L in job.layers)}
+    if args.json:
+        emit_json(summary)
+    else:
+        print(f"repair volume {summary['repair_volume_mm3']} mm³ between {summary['bounds_mm'][0]} and "
+              f"{summary['bounds_mm'][1]} mm (CAD frame): {summary['layers']} layers, {summary['passes']} passes")
+        print(f"job: {out}")
+    return 0
+
+
+def run_repair(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from controller.cli.main import emit_json
+    from controller.repair_run import repair_run
+    from core.config import load_cell, load_sim
+
+    path = Path(args.job)
+    try:
+        job = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the job ({exc.strerror or exc})") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    cell = load_cell(args.cell_config)
+    sim_cfg = load_sim(Path(args.sim_config) if args.sim_config else None) if args.sim else None
+    if sim_cfg is not None and args.sim_config:
+        wp = sim_cfg.cnc.workpiece
+        if wp.mesh and not Path(wp.mesh).is_absolute():  # a mesh named next to the sim config
+            mesh = Path(args.sim_config).parent / wp.mesh
+            sim_cfg = sim_cfg.model_copy(update={"cnc": sim_cfg.cnc.model_copy(update={
+                "workpiece": wp.model_copy(update={"mesh": str(mesh)})})})
+    runs = args.runs or cell.cell.runs_dir
+    rep = asyncio.run(repair_run(job, cell, job_path=path, sim_cfg=sim_cfg if args.sim else None, runs_dir=runs,
+                                 log_dir=args.log, tolerance_mm=args.tolerance))
+    if args.json:
+        emit_json(rep)
+        return 0
+    a, v = rep["alignment"], rep["verify"]
+    print(f"aligned: A {a['level_a_deg']}°, B {a['level_b_deg']}°, face angle {a['face_angle_deg']}°")
+    print(f"built: {rep['build']['state']}, {rep['build']['passes_done']} passes ({rep['build']['run_dir']})")
+    print(f"verify: {v['points']} touches, height error mean {v['height_error_mean_mm']} mm, max "
+          f"{v['height_error_max_mm']} mm, flatness {v['flatness_mm']} mm, vs CAD + allowance "
+          f"{v['vs_nominal_mean_mm']} mm; defects: {len(v['defects'])}")
+    return 1 if v["defects"] else 0
+
+
+def demo_repair(args: argparse.Namespace) -> int:
+    """`cell demo --repair`: a 100×100×20 block with a 20×20×4 pocket in one corner, mounted tilted
+    1.2°/−0.8°, turned 3° and shifted; planned, aligned, deposited and verified on the simulators."""
+    import asyncio
+    import time
+
+    from bench.repair import make_parts, posed_sim
+    from controller.cell import with_urls
+    from controller.cli.main import emit_json
+    from controller.repair import repair_volume
+    from controller.repair_run import repair_run
+    from core.config import load_cell, load_material
+    from planner.job import job_to_dict
+    from planner.plan import PlanOptions, plan_part
+
+    cell = load_cell()
+    runs = Path(args.runs or cell.cell.runs_dir)
+    work = runs / time.strftime("repair-demo-%Y%m%d-%H%M%S")
+    work.mkdir(parents=True, exist_ok=True)
+    cad, stock = make_parts(work)
+    rv = repair_volume(_load(str(cad), "CAD"), _load(str(stock), "--stock"), 0.3)
+    job = job_to_dict(plan_part(rv.mesh, PlanOptions(width_mm=4.0, frame="cad"), load_material(cell.cell.material)))
+    job = json.loads(json.dumps(job))
+    job["repair"] = {"cad": str(cad), "stock": str(stock), "allowance_mm": 0.3,
+                     "volume_mm3": round(rv.volume_mm3, 3), "bounds_mm": rv.bounds.round(4).tolist()}
+    (work / "repair.job.json").write_text(json.dumps(job) + "\n", encoding="utf-8")
+    # the power source's 100 ms watchdog on a loaded machine: the repair is short, no need to race
+    cell = with_urls(cell, {}, time_scale=min(float(args.time_scale), 40.0))
+    rep = asyncio.run(repair_run(job, cell, job_path=work / "repair.job.json",
+                                 sim_cfg=posed_sim(stock, 1.2, -0.8, 3.0, (2.0, -1.5, 0.5)),
+                                 runs_dir=work / "runs", log_dir=work / "sim"))
+    rep["work_dir"] = str(work)
+    if args.json:
+        emit_json(rep)
+    else:
+        a, v = rep["alignment"], rep["verify"]
+        print(f"repair demo in {work}: pocket {rv.volume_mm3:.0f} mm³ planned in the CAD frame")
+        print(f"aligned: A {a['level_a_deg']}°, B {a['level_b_deg']}°, face angle {a['face_angle_deg']}° "
+              "(the stock is mounted at 1.2°, -0.8°, 3°)")
+        print(f"built: {rep['build']['state']}; verify: height error mean {v['height_error_mean_mm']} mm, max "
+              f"{v['height_error_max_mm']} mm, flatness {v['flatness_mm']} mm; defects {len(v['defects'])}")
+    return 0 if rep["build"]["state"] == "complete" and not rep["verify"]["defects"] else 1

@@ -1,0 +1,97 @@
+"""`cell report RUN_DIR [--csv FILE]` and `cell runs`: the build record, from the journal alone."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from core.errors import InputError
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("report", help="write and print a run's build record (report.json, CSV, plots)")
+    p.add_argument("run_dir", metavar="RUN_DIR")
+    p.add_argument("--csv", metavar="FILE", help="also write one row per bead here (default RUN_DIR/beads.csv)")
+    p.add_argument("--operator", help="operator's name for the record")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNGs")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=_report)
+    r = sub.add_parser("runs", help="one row per run in the runs directory")
+    r.add_argument("--runs", metavar="DIR", help="runs directory (default: cell.yaml's runs_dir)")
+    r.add_argument("--cell-config", metavar="FILE")
+    r.add_argument("--json", action="store_true")
+    r.set_defaults(func=_runs)
+
+
+def _open(run_dir: Path) -> Any:
+    from controller.journal import Journal
+
+    path = run_dir / "journal.sqlite"
+    if not path.is_file():
+        raise InputError(f"{run_dir}: no journal.sqlite here; give a run directory (see `cell runs`)")
+    return Journal(path)
+
+
+def _report(args: argparse.Namespace) -> int:
+    from controller.cli.main import emit_json
+    from controller.report import write_report
+
+    run_dir = Path(args.run_dir)
+    j = _open(run_dir)
+    try:
+        meta = j.job() or {}
+        job = json.loads(meta["job_json"]) if meta.get("job_json") else None
+        path = write_report(j, run_dir, job, plots=not args.no_plots, operator=args.operator, csv_path=args.csv)
+    finally:
+        j.close()
+    rep = json.loads(path.read_text(encoding="utf-8"))
+    summary = {k: v for k, v in rep.items() if k not in ("beads", "layers", "per_layer")}
+    summary["report"] = str(path)
+    summary["beads"] = len(rep["beads"])
+    if args.json:
+        emit_json(summary)
+        return 0
+    a = rep["arc_time_figures"]
+    print(f"{rep['job']['name']}: {rep['state']}, layers {rep['layers_done']}/{rep['layers_total']}, "
+          f"passes {rep['passes_done']}/{rep['passes_total']}, {rep['started']} .. {rep['ended']}")
+    print(f"arc time: planned {a['planned_s']} s, beads {a['beads_s']} s, pass states {a['pass_states_s']} s"
+          f" ({'agree' if a['agree'] else 'DISAGREE'} within 2 %)")
+    print(f"report: {path}; csv: {rep['csv']} ({len(rep['beads'])} beads)")
+    return 0
+
+
+def run_rows(runs: Path) -> list[dict[str, Any]]:
+    """dir, job, state, started, layers_done of every run directory with a journal."""
+    from controller.report import summarize
+    from controller.report_record import iso
+
+    out = []
+    for d in sorted(p.parent for p in runs.glob("*/journal.sqlite")):
+        j = _open(d)
+        try:
+            meta = j.job() or {}
+            job = json.loads(meta["job_json"]) if meta.get("job_json") else None
+            s = summarize(j, job)
+            started, _ = j.wall_clock_span()
+        finally:
+            j.close()
+        out.append({"dir": str(d), "job": meta.get("name"), "state": s["state"], "started": iso(started),
+                    "layers_done": s["layers_done"], "layers_total": s["layers_total"]})
+    return out
+
+
+def _runs(args: argparse.Namespace) -> int:
+    from controller.cli.main import emit_json
+    from core.config import load_cell
+
+    runs = Path(args.runs) if args.runs else Path(load_cell(args.cell_config).cell.runs_dir)
+    rows = run_rows(runs) if runs.is_dir() else []
+    if args.json:
+        emit_json({"runs_dir": str(runs), "runs": rows})
+        return 0
+    for r in rows:
+        print(f"{r['dir']}  {r['job']}  {r['state']}  {r['started']}  layers {r['layers_done']}/{r['layers_total']}")
+    if not rows:
+        print(f"no runs in {runs}")
+    return 0

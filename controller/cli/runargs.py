@@ -1,0 +1,89 @@
+"""Argument checks of `cell run` / `cell resume`, done before any device is touched (issue 14)."""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+from core.errors import InputError
+
+MIN_STEP_MM = 0.1      # weld-move subdivision floor: 1 m of bead is at most 10 000 moves
+MAX_STEP_MM = 1000.0
+
+
+def max_step(text: str) -> float:
+    """argparse type of --max-step: a finite length in [MIN_STEP_MM, MAX_STEP_MM] mm."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of mm") from None
+    if not math.isfinite(v) or not MIN_STEP_MM <= v <= MAX_STEP_MM:
+        raise argparse.ArgumentTypeError(f"{text} must lie in [{MIN_STEP_MM:g}, {MAX_STEP_MM:g}] mm")
+    return v
+
+
+def dir_arg(path: str | Path, what: str, *, must_exist: bool = False) -> Path:
+    """A directory argument: a file there, or (with must_exist) nothing there, is an InputError."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{what} {p}: is a file, not a directory; give a directory")
+    if must_exist and not p.is_dir():
+        raise InputError(f"{what} {p}: no such directory; check the path")
+    for parent in p.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise InputError(f"{what} {p}: {parent} is a file, not a directory; give a directory")
+            break
+    return p
+
+
+def check_job_for_cell(job: dict, cfg: object, source: str) -> None:
+    """The job checked against the cell (controller/jobcheck.py); JobCheckError if it does not fit."""
+    from controller.jobcheck import check_job, job_material
+
+    check_job(job, cfg, job_material(job, cfg), source)  # type: ignore[arg-type]
+
+
+def stored_job(meta: dict, jpath: Path) -> dict:
+    """The job a journal holds, refused when it no longer matches the checksum stored beside it."""
+    from controller.build import job_hash
+
+    try:
+        job = json.loads(meta["job_json"])
+    except (ValueError, TypeError, RecursionError):
+        raise InputError(f"journal {jpath}: the job stored in it is not valid JSON (tampered or damaged); "
+                         "it was left untouched") from None
+    if not isinstance(job, dict) or job_hash(job) != meta["hash"]:
+        raise InputError(f"journal {jpath}: the job stored in it does not match its checksum "
+                         f"{str(meta['hash'])[:12]} (tampered); refusing to build it")
+    return job
+
+
+def complete_in(run_dir: Path, job: dict) -> bool:
+    """Whether the journal of `run_dir` says every pass of the job is done (read-only look)."""
+    import sqlite3
+
+    from controller.journal_check import inspect, uri
+
+    health = inspect(run_dir / "journal.sqlite")
+    if not health.exists or health.damage is not None:
+        return False
+    total = sum(len(la.get("passes", [])) for la in job.get("layers", []))
+    db = sqlite3.connect(uri(run_dir / "journal.sqlite", "ro"), uri=True)
+    try:
+        rows = db.execute("SELECT count(*) FROM (SELECT layer, pass FROM passes WHERE id IN "
+                          "(SELECT max(id) FROM passes GROUP BY layer, pass) AND state='done')").fetchone()
+    finally:
+        db.close()
+    return total > 0 and int(rows[0]) >= total
+
+
+def new_run_dir(run_dir: Path) -> Path:
+    """The first `<run_dir>-N` (N = 2, 3, ...) that does not exist yet: `cell run --new`."""
+    n = 2
+    while True:
+        cand = run_dir.with_name(f"{run_dir.name}-{n}")
+        if not cand.exists():
+            return cand
+        n += 1

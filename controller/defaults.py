@@ -1,0 +1,28 @@
+"""The demo's figures and the in-process simulators' reply timeout, shared by the CLI, the TUI and bench."""
+from __future__ import annotations
+
+import os
+
+from core.config import CONFIG_DIR
+from core.errors import InputError
+
+DEMO_PART = CONFIG_DIR / "parts" / "square-hole.stl"
+DEMO_WIDTH_MM = 7.0          # Inconel 718 bead; 39 layers of 0.77 mm for the 30 mm part
+DEMO_TIME_SCALE = 120.0      # ~70 min of arc in ~35 s of motion; the 10k weld frames at 115200 baud take ~50 s
+DEMO_MAX_STEP_MM = 6.0       # split only long demo segments (the planner's own points are 1.7 mm apart, median)
+SIM_REPLY_TIMEOUT_MS = 250.0  # in-process simulators share the GIL with the controller
+
+
+def sim_reply_timeout_ms() -> float:
+    """Bus reply timeout with in-process simulators; CELL_SIM_REPLY_TIMEOUT_MS overrides it
+    (a heavily loaded test machine, where the simulators and the UI share one interpreter)."""
+    raw = os.environ.get("CELL_SIM_REPLY_TIMEOUT_MS")
+    if raw is None:
+        return SIM_REPLY_TIMEOUT_MS
+    try:
+        value = float(raw)
+    except ValueError:
+        raise InputError(f"CELL_SIM_REPLY_TIMEOUT_MS={raw!r} is not a number of milliseconds") from None
+    if value <= 0:
+        raise InputError(f"CELL_SIM_REPLY_TIMEOUT_MS={raw!r} must be positive")
+    return value

@@ -1,0 +1,140 @@
+"""The CNC executor's 5-axis side: per pass machine axes X Y Z A B|C, approach and G93 weld lines.
+
+Kept apart from exec_cnc.py (its stop/process-off behaviour belongs to the grbl lane). All
+passes of a job are post-processed before the first motion (`post_job`), so a point outside the
+axis limits refuses the job, naming layer, pass and point, instead of stopping mid-build.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from controller.post5 import Post5, inverse_time, move_line, weld_axes
+from core.errors import InputError
+
+Point = tuple[float, float, float]
+
+
+def _weld_points(points: list, max_step_mm: float) -> list[Point]:
+    from controller.build import weld_points  # the build's own subdivision: indices must agree
+
+    return weld_points(points, max_step_mm)
+
+
+class Five:
+    """Machine axes for the job's 5-axis passes; `active` while the current pass is one."""
+
+    def __init__(self, trunnion: Any) -> None:
+        self.trunnion = trunnion
+        self.letters = "XYZA" + (trunnion.table[1] if trunnion is not None else "B")
+        self.passes: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self.cur: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.start: np.ndarray | None = None   # machine axes of the approached start point
+        self.start_part: np.ndarray | None = None
+        self.level: tuple[float, float] | None = None  # the job's A/B leveling (its alignment)
+
+    @property
+    def active(self) -> bool:
+        return self.cur is not None
+
+    def check_alignment(self, job: dict, reset_at: float) -> None:
+        """The job's alignment drives the table: its A/B leveling, refused when stale or missing."""
+        self.level = None
+        al = job.get("alignment")
+        if not al:
+            if job.get("frame") == "cad":
+                raise InputError("the job is in the CAD frame and carries no alignment: the part's pose on the "
+                                 "table is unknown; align it first (cell align run --job, or cell repair run)")
+            return
+        probed = al.get("probed_at")
+        if not isinstance(probed, (int, float)) or probed < reset_at:
+            raise InputError("the job's alignment was probed before the CNC's last homing, reset or power-up "
+                             "(the table may have moved): align again in this session (cell repair run does both)")
+        table = al.get("table_deg") or {}
+        a = table.get("a", al.get("level_a_deg"))
+        b = table.get("b", al.get("level_b_deg"))
+        if not all(isinstance(v, (int, float)) for v in (a, b)):
+            raise InputError("job alignment: table_deg a/b (the A/B leveling) missing")
+        if any("axes" in p for la in job.get("layers", []) for p in la.get("passes", [])):
+            raise InputError("an aligned 5-axis job is not supported yet: align a 3-axis job "
+                             "or plan without --five-axis")
+        self.level = (float(a), float(b))
+
+    def level_lines(self) -> list[str]:
+        """Before the first bead: the table to the job's A/B leveling (clear above, then turn)."""
+        if self.level is None:
+            return []
+        a, b = self.level
+        return ["G90 G94", f"G0 {self.letters[3]}{a:.4f} {self.letters[4]}{b:.4f}"]
+
+    def level_ok(self, mpos: Any) -> bool:
+        return self.level is None or (abs(float(mpos[3]) - self.level[0]) < 0.002
+                                      and abs(float(mpos[4]) - self.level[1]) < 0.002)
+
+    async def post_job(self, job: dict, max_step_mm: float) -> None:
+        """Every pass to machine axes; yields between passes so the links stay serviced."""
+        import asyncio
+
+        self.passes = {}
+        if not any("axes" in p for la in job.get("layers", []) for p in la.get("passes", [])):
+            return
+        if self.trunnion is None:
+            raise InputError("job has 5-axis passes (axes) but the CNC has no kinematics; "
+                             "set kinematics in cell.yaml")
+        post = Post5(self.trunnion)
+        for li, la in enumerate(job["layers"]):
+            for pi, p in enumerate(la["passes"]):
+                pts = np.asarray(_weld_points(p["points"], max_step_mm))
+                axes = np.asarray(weld_axes(p["points"], p.get("axes"), max_step_mm))
+                try:
+                    m = post.machine(pts, axes)
+                except InputError as exc:
+                    raise InputError(f"job layer {li} pass {pi} {exc}") from None
+                self.passes[(li, pi)] = (pts, axes, m)
+                await asyncio.sleep(0)
+
+    def use(self, layer: int, pass_: int) -> None:
+        self.cur = self.passes.get((layer, pass_))
+
+    def _machine_at(self, p: Point) -> tuple[int, np.ndarray]:
+        """Index of the segment start nearest to p and the machine axes at p (a resume may start mid-move)."""
+        pts, axes, m = self.cur  # type: ignore[misc]
+        q = np.asarray(p, dtype=float)
+        k = int(np.argmin(np.linalg.norm(pts - q, axis=1)))
+        if np.linalg.norm(pts[k] - q) < 1e-6:
+            return k, m[k]
+        k = max(0, min(k, len(pts) - 2))
+        ab = pts[k + 1] - pts[k]
+        f = float(np.clip((q - pts[k]) @ ab / max(ab @ ab, 1e-12), 0.0, 1.0))
+        ax = axes[k] + (axes[k + 1] - axes[k]) * f
+        mm = Post5(self.trunnion).machine(q[None, :], ax[None, :] / np.linalg.norm(ax), (m[k, 3], m[k, 4]))
+        return k, mm[0]
+
+    def approach_lines(self, p: Point, clearance: float, speed: float) -> list[str]:
+        """G94; up; table and XY at the start (rapid); down along the tool axis (machine -Z)."""
+        _, m = self._machine_at(p)
+        self.start, self.start_part = m, np.asarray(p, dtype=float)
+        up = m.copy()
+        up[2] += clearance
+        return ["G94", f"G0 Z{up[2]:.3f}", move_line(up, self.letters, verb="G0"),
+                f"G1 Z{m[2]:.3f} F{speed:.0f}"]
+
+    def weld_lines(self, i0: int, speed: float) -> list[str]:
+        """G93 inverse-time moves from the approached start to the end of the pass, then G94."""
+        pts, _, m = self.cur  # type: ignore[misc]
+        start_part = self.start_part if self.start_part is not None else pts[i0]
+        part = np.vstack([start_part, pts[i0 + 1:]])
+        feeds = inverse_time(part, speed)
+        lines = ["G93"] + [move_line(m[k], self.letters, float(feeds[k - i0 - 1])) for k in range(i0 + 1, len(m))]
+        return lines + ["G94"]
+
+    def machine_xyz(self) -> list[Point]:
+        return [tuple(float(v) for v in r[:3]) for r in self.cur[2]]  # type: ignore[index]
+
+    def part_point(self, mpos: Any) -> Point:
+        """Where the tool tip is on the part, from a status report's X Y Z A B|C."""
+        x, y, z, a, s = (float(v) for v in mpos[:5])
+        inv = np.linalg.inv(self.trunnion.matrix(a, s))
+        q = inv[:3, :3] @ np.array([x, y, z]) + inv[:3, 3]
+        return (float(q[0]), float(q[1]), float(q[2]))

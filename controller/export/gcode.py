@@ -1,0 +1,151 @@
+"""G-code for grbl 1.1 / grblHAL (DESIGN.md §5, CNC): the program the live CNC executor streams.
+
+Per layer an interpass dwell (`G4 P<s>`, grbl's P is seconds); per pass a travel above the start,
+down to it, `M3 S<power>` (process on), the `G1` weld moves at the pass's feed, `M5` (process off).
+Each pass is headed by a comment carrying its welding parameters, so the file round-trips.
+5-axis passes go through the same post-processor as the executor (controller.post5 when present).
+Lines stay within grbl's 80-character line buffer.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from controller.align.kinematics import Trunnion
+from controller.export.program import Program, ProgramPass
+from controller.post5 import Post5, inverse_time, move_line, weld_lines
+from core.errors import InputError
+
+MAX_LINE = 80  # grbl's LINE_BUFFER_SIZE: a longer line is refused (error:14)
+
+
+def _f(v: float) -> str:
+    s = f"{v:.3f}"
+    return "0.000" if s == "-0.000" else s
+
+
+def _pass_comment(p: ProgramPass) -> str:
+    return (f"(PASS L{p.layer} P{p.index} {p.role} W{p.width_mm:.3f} I{p.current_a:.2f} "
+            f"WFS{p.wfs_m_min:.3f})")
+
+
+def _five_axis_pass(prog: Program, p: ProgramPass, post: Post5, letters: str, prev: tuple[float, float] | None,
+                    clearance_mm: float, travel_mm_min: float, power_s: int) -> tuple[list[str], tuple[float, float]]:
+    """One pass through the executor's post-processor: X Y Z A B|C, inverse-time feed (G93)."""
+    m = post.machine(p.points, p.axes, prev)
+    up = m[0].copy()
+    up[2] += clearance_mm
+    lines = [_pass_comment(p), "G94", move_line(up, letters, verb="G0"), f"G1 Z{_f(m[0][2])} F{travel_mm_min:.0f}",
+             f"M3 S{power_s}"]
+    lines += weld_lines(m, inverse_time(p.points, p.speed_mm_min), letters)
+    lines += ["M5", f"G0 Z{_f(m[-1][2] + clearance_mm)}"]
+    return lines, (float(m[-1][3]), float(m[-1][4]))
+
+
+def write_gcode(prog: Program, *, clearance_mm: float, travel_mm_min: float, power_s: int,
+                trunnion: Trunnion | None = None) -> list[str]:
+    """The program as G-code lines (no line numbers; grbl answers each with ok).
+
+    A job with tool axes goes through the executor's 5-axis post-processor (controller/post5.py)
+    with the table of cell.yaml (`trunnion`); the alignment is then part of that transform."""
+    if prog.five_axis and trunnion is None:
+        raise InputError("this job has tool axes (a 5-axis plan): give the table kinematics (cell.yaml)")
+    post = Post5(trunnion, prog.transform if prog.aligned else None) if prog.five_axis and trunnion else None
+    letters = "XYZA" + ("B" if trunnion is not None and trunnion.table == "AB" else "C")
+    prev: tuple[float, float] | None = None
+    out = [f"(cell export: {prog.name})", f"(job sha256 {prog.sha256[:16]})",
+           "G21 G90 G94", "M5"]
+    if prog.aligned:
+        out.append("(alignment applied: points in the machine frame)")
+    last_layer: int | None = None
+    for p in prog.passes:
+        if p.layer != last_layer:
+            out.append(f"(LAYER {p.layer})")
+            dwell = prog.layer_dwell_s.get(p.layer, 0.0)
+            if last_layer is not None and dwell > 0:
+                out.append(f"G4 P{dwell:.1f}")
+            last_layer = p.layer
+        if post is not None:
+            lines, prev = _five_axis_pass(prog, p, post, letters, prev, clearance_mm, travel_mm_min, power_s)
+            out += lines
+            continue
+        pts, _ = prog.machine(p)
+        x0, y0, z0 = pts[0]
+        out += [_pass_comment(p), f"G0 Z{_f(z0 + clearance_mm)}", f"G0 X{_f(x0)} Y{_f(y0)}",
+                f"G1 Z{_f(z0)} F{travel_mm_min:.0f}", f"M3 S{power_s}"]
+        feed = f"{p.speed_mm_min:.1f}"
+        for i, (x, y, z) in enumerate(pts[1:]):
+            out.append(f"G1 X{_f(x)} Y{_f(y)} Z{_f(z)}" + (f" F{feed}" if i == 0 else ""))
+        out += ["M5", f"G0 Z{_f(pts[-1][2] + clearance_mm)}"]
+    out += ["M5", "M30"]
+    too_long = [ln for ln in out if len(ln) > MAX_LINE]
+    if too_long:
+        raise InputError(f"G-code line longer than grbl's {MAX_LINE} characters: {too_long[0]!r}")
+    return out
+
+
+# ---- reading it back --------------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class ParsedPass:
+    layer: int
+    index: int
+    role: str
+    width_mm: float
+    current_a: float
+    wfs_m_min: float
+    speed_mm_min: float
+    points: np.ndarray
+    rotary: np.ndarray | None = None   # (n, 2) A and B|C of a 5-axis pass, machine frame
+    feeds: np.ndarray | None = None    # F of each weld move (G93: 1/min)
+
+
+_WORD = re.compile(r"([A-Z])(-?\d+(?:\.\d*)?)")
+_PASS = re.compile(r"\(PASS L(\d+) P(\d+) (\w+) W([\d.]+) I([\d.]+) WFS([\d.]+)\)")
+
+
+def parse_gcode(lines: list[str]) -> list[ParsedPass]:
+    """The passes of an exported program: the points laid with the process on, their feed, and
+    (5-axis) the rotary axes; in inverse-time mode the feed is per move (see `feeds`)."""
+    pos = {k: 0.0 for k in "XYZABC"}
+    feed = 0.0
+    on = False
+    header: tuple | None = None
+    pts: list[dict[str, float]] = []
+    feeds: list[float] = []
+    seen: set[str] = set()
+    speed = 0.0
+    out: list[ParsedPass] = []
+    for raw in lines:
+        m = _PASS.fullmatch(raw.strip())
+        if m:
+            header = (int(m[1]), int(m[2]), m[3], float(m[4]), float(m[5]), float(m[6]))
+            continue
+        code = re.sub(r"\(.*?\)|;.*", "", raw).strip().upper()
+        if not code:
+            continue
+        words = dict(_WORD.findall(code.replace(" ", "")))
+        if "F" in words:
+            feed = float(words["F"])
+        if any(k in words for k in "XYZABC"):
+            pos = {k: float(words.get(k, v)) for k, v in pos.items()}
+            if on and words.get("G") in ("1", "01"):
+                seen |= {k for k in "ABC" if k in words}
+                pts.append(dict(pos))
+                feeds.append(feed)
+                speed = feed
+        if words.get("M") == "3":
+            on, pts, feeds, speed, seen = True, [dict(pos)], [], feed, set()
+        elif words.get("M") == "5" and on:
+            on = False
+            if header is None:
+                raise InputError("G-code: a process-on block has no (PASS …) header")
+            L, i, role, w, cur, wfs = header
+            rot = sorted(seen)
+            rotary = np.asarray([[q[k] for k in rot] for q in pts]) if rot else None
+            out.append(ParsedPass(L, i, role, w, cur, wfs, speed, np.asarray([[q["X"], q["Y"], q["Z"]] for q in pts]),
+                                  rotary, np.asarray(feeds)))
+            header = None
+    return out

@@ -1,0 +1,108 @@
+"""Readiness before motion (DESIGN.md §6, issue 13): every device is checked before the first move.
+
+After a fault, an abort or a crash the devices may still carry what happened: a power source
+with an error latched (its watchdog after a crash), a robot with moves queued or in FAULT, a
+CNC in alarm or with the process on. `ensure_ready` runs after the executor's `prepare()` (which
+flushes the motion queue with `!ABORT` / `!RESET` or grbl's unlock) and before anything moves:
+
+- power source: error number 0 and no process active. A latched error is cleared only by an
+  explicit error-reset step (`cell resume`, `cell run --reset-errors`, or the operator's reset),
+  which is journaled with the error it cleared; otherwise the run is refused with a message
+  saying how.
+- robot: state IDLE and the queue empty (queue_free equals the queue size).
+- CNC: not in alarm (after the executor's unlock); the process is switched off (`M5`).
+
+A refusal is a `NotReady` (a CellError): the build faults before any motion, and the alarm
+names the device and what to do.
+"""
+from __future__ import annotations
+
+import asyncio
+import time
+from typing import Any
+
+from core.errors import CellError
+
+POWER_SETTLE_S = 2.0   # wall seconds for the source to report idle after an error reset
+
+
+class NotReady(CellError):
+    """A device is not ready for motion; the message names it and says what to do."""
+
+
+async def _power_status(power: Any, timeout: float = 1.0) -> Any:
+    st = power.status
+    if st is None:
+        st = await asyncio.wait_for(power.next_status(), timeout)
+    return st
+
+
+async def check_power(power: Any, journal: Any, *, reset_errors: bool, arc: Any = None) -> None:
+    """No latched error (cleared by a journaled error reset when allowed) and no process active."""
+    st = await _power_status(power)
+    err = int(getattr(st, "error_number", 0) or 0)
+    if err:
+        where = getattr(power, "url", "power source")
+        if not reset_errors:
+            raise NotReady(f"power source at {where}: error {err} is latched from an earlier run; nothing "
+                           "moved. Check the source, then clear it with `cell run JOB --reset-errors` "
+                           "(or `cell resume`), which sends an error reset and journals it")
+        if journal is not None:
+            journal.event("info", f"readiness: error reset of the power source (error {err} latched)")
+        if arc is not None:
+            await arc.reset()
+        else:
+            power.drop_all()
+            await power.error_reset()
+        st = await _wait_power(power, lambda s: not s.error_number)
+        err = int(st.error_number or 0)
+        if err:
+            raise NotReady(f"power source at {where}: error {err} is still latched after an error reset; "
+                           "the source needs attention (see its display) before a build")
+        if journal is not None:
+            journal.event("info", "readiness: power source error cleared")
+    st = await _wait_power(power, lambda s: not s.process_active and not s.arc_stable)
+    if st.process_active or st.arc_stable:
+        raise NotReady(f"power source at {getattr(power, 'url', '?')}: process still active "
+                       f"{POWER_SETTLE_S:.0f} s after weld start was dropped; check the source")
+
+
+async def _wait_power(power: Any, ok: Any, timeout: float = POWER_SETTLE_S) -> Any:
+    st = await _power_status(power)
+    t0 = time.monotonic()
+    while not ok(st) and time.monotonic() - t0 < timeout:
+        st = await asyncio.wait_for(power.next_status(), 1.0)
+    return st
+
+
+async def check_robot(link: Any) -> None:
+    """State IDLE, queue empty, no latched protocol fault."""
+    if getattr(link, "protocol_fault", None):
+        raise NotReady(f"robot at {link.url}: {link.fault}; reset the cell to clear it")
+    st = await link.status()
+    cap = getattr(link, "_capacity", None)
+    if st.state != "IDLE" or (cap and st.queue_free != cap):
+        raise NotReady(f"robot at {link.url}: state {st.state} with {st.queue_free} free queue slots "
+                       f"after the flush (expected IDLE, empty queue); check the robot controller")
+
+
+async def check_cnc(link: Any) -> None:
+    """Not in alarm, the process off."""
+    st = await link.status()
+    state = str(getattr(st, "state", "Idle"))
+    if state.startswith("Alarm"):
+        raise NotReady(f"CNC at {getattr(link, 'url', '?')}: in {state} after the unlock; home or reset it")
+    # the process off whatever the CNC reports (grbl's FS speed is the programmed S, not the output)
+    await link.command("M5")
+
+
+async def ensure_ready(executor: Any, power: Any, journal: Any, *, reset_errors: bool, arc: Any = None) -> None:
+    """Every device ready for motion, or NotReady. Journaled when it passes."""
+    await check_power(power, journal, reset_errors=reset_errors, arc=arc)
+    link = getattr(executor, "link", None)
+    if getattr(executor, "platform", None) == "robot" and link is not None:
+        await check_robot(link)
+    elif link is not None and hasattr(link, "status"):
+        await check_cnc(link)
+    if journal is not None:
+        journal.event("info", "readiness: every device ready before motion")

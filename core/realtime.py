@@ -1,0 +1,70 @@
+"""Keeping a process's cyclic I/O on time: real-time priority and a collector that never stalls.
+
+Both the controller and the simulators' process (`cell sim up`) answer or drive 10 ms device
+cycles. Two things stalled them under ordinary load (measured with py-spy and gc callbacks,
+docs/false-trips.md): full garbage collections of a heap holding numpy, trimesh, pymodbus…
+(58–84 ms in the simulators' process) and time-shared scheduling beside CPU-bound processes
+on a 2-core machine. `quiet_gc()` and `elevate()` remove them.
+"""
+from __future__ import annotations
+
+import gc
+import os
+
+RT_PRIORITY = 20   # SCHED_FIFO priority asked for; below the kernel's own threads (50)
+
+
+_DEFAULT_THRESHOLDS = gc.get_threshold()
+NO_FULL_COLLECTIONS = 1_000_000_000   # gen-2 threshold while device cycles run
+
+
+def quiet_gc(collect: bool = False) -> None:
+    """Keep the collector from stalling the device cycles.
+
+    Everything alive now is frozen (never scanned again) and full (generation 2) collections
+    are put off: even over the objects a build allocates after the freeze one took 65 ms in the
+    controller, longer than a link's `lost_after_cycles` × 10 ms. Young generations are still
+    collected (a few ms). `collect` first frees what is garbage already: only where that pause is
+    harmless (before any device traffic). `relax()` restores the default thresholds.
+    """
+    if collect:
+        gc.collect()
+    gc.freeze()
+    t0, t1, _ = gc.get_threshold()
+    gc.set_threshold(t0, t1, NO_FULL_COLLECTIONS)
+
+
+def elevate(what: str) -> str:
+    """Ask for SCHED_FIFO for the calling thread (and the threads it starts, not its children).
+
+    Returns one line for the log: what was obtained, or why not and what to do about it.
+    """
+    if not hasattr(os, "sched_setscheduler"):
+        return f"{what}: no real-time scheduling on this OS; cycle timing may suffer under load"
+    try:
+        prio = min(RT_PRIORITY, os.sched_get_priority_max(os.SCHED_FIFO))
+        policy = os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0)
+        os.sched_setscheduler(0, policy, os.sched_param(prio))
+    except (PermissionError, OSError) as exc:
+        return (f"{what}: cannot get real-time priority ({exc.strerror or exc}); run as root or grant "
+                "CAP_SYS_NICE (e.g. `setcap cap_sys_nice+ep` on the interpreter) so that CPU load cannot "
+                "delay the 10 ms device cycles")
+    return f"{what}: SCHED_FIFO priority {prio}"
+
+
+def is_realtime() -> bool:
+    """Whether the calling thread runs under SCHED_FIFO."""
+    try:
+        return os.sched_getscheduler(0) & ~getattr(os, "SCHED_RESET_ON_FORK", 0) == os.SCHED_FIFO
+    except (AttributeError, OSError):
+        return False
+
+
+def relax() -> None:
+    """Back to time-shared scheduling and the default collector (after the devices are closed)."""
+    gc.set_threshold(*_DEFAULT_THRESHOLDS)
+    try:
+        if is_realtime():
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (AttributeError, OSError):
+        pass

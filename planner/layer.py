@@ -1,0 +1,184 @@
+"""One layer: islands → perimeters, scan-line infill, thin walls and gap beads → ordered Path2D beads."""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import shapely
+from shapely.geometry import Polygon
+
+from planner.gapfill import centre_lines, pocket_line
+from planner.infill import scan_fill
+from planner.ordering import join_chains, link_into_loops, order_passes, seam_at
+from planner.path2d import Path2D
+from planner.perimeters import perimeter_loops, split_thin
+from planner.regions import polygons_of
+from planner.stubs import no_stubs
+from planner.thin import Widths, layout, thin_beads, wall_width
+
+
+@dataclass(frozen=True)
+class LayerCtx:
+    """What every layer of a plan shares."""
+
+    width: float
+    step: float
+    perimeters: int | None
+    angle0_deg: float
+    widths: Widths
+    lone_share: float  # profile area / (w·h): what a lone bead fills
+    min_length: float
+
+
+@dataclass
+class LayerPlan:
+    region: object
+    paths: list[Path2D]
+    end: np.ndarray
+    travel_mm: float
+    stats: dict = field(default_factory=dict)
+    issues: list[str] = field(default_factory=list)  # underfill: for the plan's verdict
+    stubs: list[str] = field(default_factory=list)  # short beads dropped (no neighbour to merge into)
+    groups: list = field(default_factory=list)  # per island: [perimeters, infill, gaps], before ordering
+
+
+def plan_layer(polys: list[Polygon], index: int, ctx: LayerCtx, pos: np.ndarray) -> LayerPlan:
+    """Beads of one layer's islands, ordered island by island to keep the travel short."""
+    region = shapely.union_all(polys) if polys else Polygon()
+    angle = ctx.angle0_deg + 90.0 * (index % 2)
+    stats = {"loops": 0, "regions": 0}
+    issues: list[str] = []
+    stubs: list[str] = []
+    per_island = []
+    for poly in polys:
+        groups = _island(poly, index, angle, ctx, stats, issues)
+        groups = no_stubs(groups, ctx.min_length, poly, index, stubs, 1.5 * ctx.width)
+        if not any(groups) and poly.area > 0.05 * ctx.width ** 2:
+            c = poly.representative_point()
+            b = poly.bounds
+            issues.append(f"layer {index}: feature at ({c.x:.1f}, {c.y:.1f}), {b[2] - b[0]:.2f} x {b[3] - b[1]:.2f} mm, "
+                          f"gets no bead of at least {ctx.min_length:.1f} mm (min_bead_length_mm)")
+        _balance_island(groups, poly)
+        per_island.append(groups)
+    ordered, pos, travel = order_islands(per_island, pos)
+    return LayerPlan(region, ordered, pos, travel, stats, issues, stubs, per_island)
+
+
+def _island(poly: Polygon, index: int, angle: float, ctx: LayerCtx, stats: dict, issues: list[str]):
+    w = ctx.width
+    thick, thin = split_thin(poly, w)
+    # A piece narrower than two perimeters a side (w + 3 d*) gets the thin layout too: perimeters
+    # there would leave a groove or a sliver loop lying on itself between them.
+    narrow = [t.buffer(-0.5 * (w + 3 * ctx.step)).is_empty for t in thick]
+    thin += [t for t, n in zip(thick, narrow) if n]
+    groups: list[list[Path2D]] = [[], [], []]
+    for t, n in zip(thick, narrow):
+        if not n:
+            _thick(t, index, angle, ctx, groups, stats)
+    for t in thin:
+        W = wall_width(t, 0.02 * w)
+        lay = layout(W, ctx.widths)
+        c = t.representative_point()
+        if lay is None:
+            issues.append(f"layer {index}: feature at ({c.x:.1f}, {c.y:.1f}) is {W:.2f} mm wide, narrower than "
+                          f"the smallest legal bead ({ctx.widths.lo:.2f} mm)")
+            continue
+        beads, wide = thin_beads(t, lay, ctx.lone_share, ctx.widths, W)
+        if wide or (lay.n > 1 and lay.filled < 0.97 * W):
+            Wn = max(wide, default=W)
+            issues.append(f"layer {index}: wall at ({c.x:.1f}, {c.y:.1f}) is {Wn:.2f} mm wide: no count of legal "
+                          f"beads ({ctx.widths.lo:.2f}-{ctx.widths.hi:.2f} mm) fills it; {ctx.widths.hi:.2f} mm filled")
+        stats["regions"] += sum(1 for b in beads if not b.closed) or bool(beads)
+        stats["loops"] += sum(1 for b in beads if b.closed)
+        groups[0] += [seam_at(b, index) if b.closed else b for b in beads if b.role == "perimeter"]
+        groups[2] += [seam_at(b, index) if b.closed else b for b in beads if b.role != "perimeter"]
+    return groups
+
+
+def _thick(t: Polygon, index: int, angle: float, ctx: LayerCtx, groups: list[list[Path2D]], stats: dict) -> None:
+    w, step = ctx.width, ctx.step
+    min_sp = ctx.widths.r_lo * w
+    slivers: list[Polygon] = []
+    if ctx.perimeters == 0:
+        loops, inset = [], 0.5 * w - step  # infill centres from half a bead inside
+    else:
+        loops, inset, slivers = perimeter_loops(t, w, step, ctx.perimeters, min_spacing=min_sp)
+    stats["loops"] += sum(len(lv) for lv in loops)
+    gaps: list[Path2D] = []
+    for s in slivers:  # where loops meet (Fang): one centre line instead of a loop on itself
+        gaps += [Path2D("gap", b.points, w, b.closed, step) for b in centre_lines(s.buffer(0.25 * step), w)]
+    filled: list[Path2D] = []
+    if loops or ctx.perimeters == 0:
+        # Ding 2015: the first scan row d* from the last perimeter, the rows d* apart.
+        infill_region = t.buffer(-(inset + step))
+        stats["regions"] += len(polygons_of(infill_region))
+        chains = scan_fill(infill_region, step, w, angle, min_sp) if not infill_region.is_empty else []
+        filled = list(chains)
+        if len(chains) > 1:
+            chains = join_chains(chains, 2.5 * step, t.buffer(-inset + 0.1 * step))
+        inner, chains = link_into_loops(loops[-1] if loops else [], chains, 2.0 * step)
+        outer = [lp for lv in loops[:-1] for lp in lv]
+        groups[0] += [seam_at(lp, index) if lp.closed else lp for lp in outer + inner]
+        groups[1] += chains
+        rest = t.buffer(-(inset + 0.5 * w))
+    else:
+        rest = t
+    # What neither the perimeters nor the scan lines reach gets centre-line gap beads.
+    reach = filled + gaps
+    if reach and not rest.is_empty:
+        lines = np.array([shapely.linestrings(c.points) for c in reach], dtype=object)
+        rest = rest.difference(shapely.union_all(shapely.buffer(lines, 0.5 * w, quad_segs=4)))
+    for piece in polygons_of(rest):
+        if piece.area > 0.2 * w * w:
+            # A small pocket (a lune at a row's end) is nearly straight: no medial axis needed.
+            small = piece.area < 2.0 * w * w and len(piece.interiors) == 0
+            beads = pocket_line(piece, w, 0.2 * w) if small else centre_lines(piece, w, min_width=0.2 * w)
+            stats["regions"] += bool(beads)
+            gaps += beads
+    stats["regions"] += len(gaps) and 1
+    groups[2] += [seam_at(b, index) if b.closed else b for b in gaps]
+
+
+def _balance_island(groups: list[list[Path2D]], poly: Polygon) -> None:
+    """Scale the shares of overlapped beads so the island's metal fills its area (lone beads keep theirs)."""
+    beads = [b for g in groups for b in g]
+    if not beads or any(b.lone for b in beads):
+        return
+    planned = sum(b.share_mm * b.length for b in beads)
+    if planned <= 0:
+        return
+    # Round caps and joins make the strips a little approximate: the scale is bounded.
+    k = float(np.clip(poly.area / planned, 0.8, 1.25))
+    for g in groups:
+        g[:] = [Path2D(b.role, b.points, b.width_mm, b.closed, b.share_mm * k, b.lone) for b in g]
+
+
+def reseamed(lp: LayerPlan, index: int, pos: np.ndarray) -> LayerPlan:
+    """The same layer plan for another layer index: seams moved on, beads ordered from `pos`."""
+    groups = [[[seam_at(p, index) if p.closed else p for p in g] for g in isl] for isl in lp.groups]
+    ordered, end, travel = order_islands(groups, pos)
+    relayer = lambda m: re.sub(r"^layer \d+:", f"layer {index}:", m)  # noqa: E731
+    return replace(lp, paths=ordered, end=end, travel_mm=travel, groups=groups,
+                   issues=[relayer(m) for m in lp.issues], stubs=[relayer(m) for m in lp.stubs])
+
+
+def order_islands(per_island: list[list[list[Path2D]]], pos: np.ndarray) -> tuple[list[Path2D], np.ndarray, float]:
+    """Islands nearest first from `pos`, each ordered by `order_passes`; (beads, end, travel)."""
+    ordered: list[Path2D] = []
+    travel = 0.0
+    todo = list(range(len(per_island)))
+    while todo:
+        # Next island: the one whose nearest bead end is closest to where the torch is.
+        def near(i: int) -> float:
+            ends = [p.points[k] for g in per_island[i] for p in g for k in (0, -1)]
+            return min((float(np.hypot(*(e - pos))) for e in ends), default=np.inf)
+        i = min(todo, key=near)
+        todo.remove(i)
+        seq, end = order_passes(per_island[i], pos)
+        for p in seq:
+            travel += float(np.hypot(*(p.points[0] - pos)))
+            pos = p.points[-1]
+        ordered += seq
+        pos = end
+    return ordered, pos, travel

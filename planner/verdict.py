@@ -1,0 +1,78 @@
+"""The plan's verdict: what cannot be planned fails the plan naming the layers (or, when the user
+allows it, becomes a warning in the summary). Nothing is dropped silently (DESIGN.md §3.6)."""
+from __future__ import annotations
+
+from core.errors import MeshError
+from planner.overhang import check_overhang
+
+MAX_LISTED = 6
+
+
+class Verdict:
+    """Collects underfill, coverage, stub, overhang and mass-balance findings layer by layer."""
+
+    def __init__(self, options, material, ctx) -> None:
+        self.opt, self.mat, self.ctx = options, material, ctx
+        self.underfill: list[str] = []
+        self.coverage: list[str] = []
+        self.stubs: list[str] = []
+        self.overhang: list[str] = []
+        self.overhang_layers: list[int] = []
+        self.regions = 0
+        self.worst_balance = 0.0
+        self.close = (0.0, 0)  # Ding: worst share of bead length with a too-close neighbour, its layer
+
+    def layer(self, index: int, lp, q, below, height: float) -> None:
+        """Findings of one planned layer (`lp`: LayerPlan, `q`: LayerQuality, `below`: region or None)."""
+        self.regions += not lp.region.is_empty
+        self.underfill += lp.issues
+        self.stubs += lp.stubs
+        if q.area_mm2 > 0 and q.coverage < self.opt.min_coverage:
+            self.coverage.append(f"layer {index}: {100 * q.coverage:.1f} % covered (< {100 * self.opt.min_coverage:.0f} %)")
+        oh = check_overhang(below, lp.region, height, self.ctx.width, self.mat.max_overhang_deg)
+        if not oh.ok:
+            self.overhang_layers.append(index)
+            self.overhang.append(f"layer {index}: steps out {oh.step_out_mm:.2f} mm at ({oh.where[0]:.1f}, "
+                                 f"{oh.where[1]:.1f}), more than {oh.limit_mm:.2f} mm, {oh.unsupported_mm2:.0f} mm2 "
+                                 f"unsupported")
+
+    def ding(self, index: int, share: float) -> None:
+        if share > self.close[0]:
+            self.close = (share, index)
+
+    def balance(self, err: float) -> None:
+        self.worst_balance = max(self.worst_balance, err)
+
+    def finish(self, name: str, qualities) -> dict:
+        """Summary fields; raises MeshError for what the options do not allow."""
+        if self.regions == 0:
+            raise MeshError(f"{name}: no layer has a closed region (the mesh is not a solid: a triangle soup "
+                            f"or open surfaces); close the mesh and plan again")
+        fatal: list[str] = []
+        if not self.opt.allow_underfill:
+            fatal += _listed("feature(s) no legal bead fills", self.underfill, "--allow-underfill")
+            fatal += _listed("layer(s) below --min-coverage", self.coverage, "--allow-underfill")
+        if not self.opt.allow_overhang and getattr(self.opt, "five_axis", None) is None:  # 5-axis: five_axis.apply
+            fatal += _listed("layer(s) beyond the overhang rule (Kerschbaumer: step out <= dz*tan "
+                             f"{self.mat.max_overhang_deg:g} deg and <= w/2)", self.overhang,
+                             "--allow-overhang (or a 5-axis plan)")
+        if fatal:
+            raise MeshError(f"{name}: " + "; ".join(fatal))
+        worst = min(range(len(qualities)), key=lambda i: qualities[i].coverage) if qualities else 0
+        return {
+            "coverage_min_layer": worst,
+            "mass_balance_max_error": round(self.worst_balance, 5),
+            "close_neighbour_max": round(self.close[0], 4),  # below min_step_over_ratio x width
+            "close_neighbour_layer": self.close[1],
+            "overhang_layers": self.overhang_layers,
+            "underfill_features": len(self.underfill),
+            "stubs_dropped": len(self.stubs),
+            "warnings": (self.underfill + self.coverage + self.overhang + self.stubs)[:50],
+        }
+
+
+def _listed(what: str, items: list[str], flag: str) -> list[str]:
+    if not items:
+        return []
+    more = f"; and {len(items) - MAX_LISTED} more" if len(items) > MAX_LISTED else ""
+    return [f"{len(items)} {what}: " + "; ".join(items[:MAX_LISTED]) + more + f" ({flag} to plan anyway)"]

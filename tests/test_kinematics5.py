@@ -1,0 +1,94 @@
+"""One rotation-order convention (docs/kinematics.md): the math and the CNC simulator agree."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from controller.align.kinematics import Trunnion
+from controller.post5 import Post5, inverse_time, weld_axes
+from core.errors import InputError
+from sims.table_kin import TableKin
+
+TABLES = {
+    "AB": dict(table="AB", pivot=(5.0, -3.0, 40.0), axis_a=(1.0, 0.0, 0.0), axis_second=(0.0, 1.0, 0.0),
+               offset=(0.0, 0.0, 12.0)),
+    "AC": dict(table="AC", pivot=(-2.0, 4.0, 60.0), axis_a=(1.0, 0.0, 0.0), axis_second=(0.0, 0.0, 1.0),
+               offset=(0.0, 3.0, 25.0)),
+}
+
+
+def _sim_forward(kin: TableKin, m5: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The simulator's own forward kinematics: machine axes → (part point, tool axis in the part)."""
+    inv = np.linalg.inv(kin.matrix(m5[3], m5[4]))
+    return inv[:3, :3] @ m5[:3] + inv[:3, 3], inv[:3, :3] @ np.array([0.0, 0.0, 1.0])
+
+
+@pytest.mark.parametrize("table", ["AB", "AC"])
+def test_forward_of_inverse_is_identity_with_the_simulators_convention(table: str) -> None:
+    spec = TABLES[table]
+    tr = Trunnion(**spec, a_limits_deg=(-120, 120), second_limits_deg=(-360, 360))
+    kin = TableKin(spec["table"], spec["pivot"], spec["axis_a"], spec["axis_second"], spec["offset"])
+    rng = np.random.default_rng(18)
+    worst_p = worst_a = 0.0
+    for _ in range(300):
+        p = rng.uniform(-50, 50, 3)
+        v = rng.normal(size=3)
+        v[2] = abs(v[2]) + 0.2  # tool axes the tilt limits allow (upper hemisphere)
+        v /= np.linalg.norm(v)
+        m5 = tr.inverse(p, v)
+        q, ax = _sim_forward(kin, m5)
+        worst_p = max(worst_p, float(np.abs(q - p).max()))
+        worst_a = max(worst_a, float(np.abs(ax - v).max()))
+    assert worst_p < 1e-9 and worst_a < 1e-9, (worst_p, worst_a)
+
+
+def test_ac_order_is_c_inner_a_outer() -> None:
+    """A/C: the C plate rides on the A trunnion, so C turns the part first (R_A·R_C)."""
+    kin = TableKin("AC", (0, 0, 0), (1, 0, 0), (0, 0, 1), (0, 0, 0))
+    m = kin.matrix(90.0, 90.0)
+    # +x on the part: C turns it to +y, then A (about x) turns +y to +z
+    assert np.allclose(m[:3, :3] @ [1, 0, 0], [0, 0, 1], atol=1e-12)
+
+
+def test_post_processing_is_continuous_through_the_singularity() -> None:
+    """A/C table, tool axis sweeping across vertical: C never jumps 180°/360°; A stays small."""
+    tr = Trunnion(**TABLES["AC"])
+    t = np.linspace(-1, 1, 201)
+    axes = np.column_stack([0.3 * t, 0.02 + 0 * t, np.ones_like(t)])  # passes 1.1° from vertical
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    # a full turn around the vertical at 30° tilt: C runs through 360° without wrapping back
+    phi = np.radians(np.linspace(0, 360, 181))
+    ring = np.column_stack([0.5 * np.cos(phi), 0.5 * np.sin(phi), np.full_like(phi, np.sqrt(0.75))])
+    post = Post5(tr)
+    for ax in (axes, ring):
+        ang = post.angles(ax)
+        jumps = np.abs(np.diff(ang, axis=0)).max(axis=0)
+        planned = np.degrees(np.arccos(np.clip((ax[1:] * ax[:-1]).sum(axis=1), -1, 1))).max()
+        assert jumps[0] <= max(2 * planned, 1e-6) + 1e-6  # A changes with the tilt
+        assert jumps[1] < 120.0 if ax is axes else jumps[1] < 3.0  # C: never a flip
+    kin = TableKin("AC", TABLES["AC"]["pivot"], (1, 0, 0), (0, 0, 1), TABLES["AC"]["offset"])
+    m = post.machine(np.zeros((len(ring), 3)), ring)
+    for row, ax in zip(m, ring):
+        assert np.allclose(_sim_forward(kin, row)[1], ax, atol=1e-9)
+
+
+def test_points_outside_the_axis_limits_are_refused_naming_the_point() -> None:
+    tr = Trunnion(table="AB", a_limits_deg=(-30, 30), second_limits_deg=(-30, 30))
+    axes = np.array([[0, 0, 1.0], [0, np.sin(np.radians(20)), np.cos(np.radians(20))],
+                     [0, np.sin(np.radians(50)), np.cos(np.radians(50))]])
+    with pytest.raises(InputError, match="point 2"):
+        Post5(tr).angles(axes)
+
+
+def test_inverse_time_feed_gives_the_planned_tip_speed() -> None:
+    pts = np.array([[0, 0, 0], [2.0, 0, 0], [2.0, 0.5, 0]])
+    f = inverse_time(pts, 600.0)
+    assert np.allclose(1.0 / f * 60.0, [0.2, 0.05])  # seconds per move = length / speed
+
+
+def test_weld_axes_follow_the_build_subdivision() -> None:
+    from controller.build import weld_points
+
+    pts = [[0, 0, 0], [3.0, 0, 0], [3.0, 0, 0], [3.0, 2.5, 0]]
+    axes = [[0, 0, 1], [1, 0, 1], [1, 0, 1], [0, 1, 1]]
+    assert len(weld_axes(pts, axes, 1.0)) == len(weld_points(pts, 1.0))

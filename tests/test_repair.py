@@ -1,0 +1,94 @@
+"""Hybrid repair (issue 17): frames, one alignment, the repair volume, the alignment driving the machine."""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from controller.align.kinematics import apply_to_job
+from controller.cli.main import main
+from controller.exec_cnc5 import Five
+from controller.repair import _manifold, _trimesh
+from core.errors import InputError
+
+
+def block_with_pocket(tmp: Path) -> tuple[Path, Path]:
+    """A 60×40×20 block (top at z = 0) and the same block with a 20×15×6 pocket milled into a corner."""
+    cad = trimesh.creation.box(extents=(60, 40, 20))
+    cad.apply_translation((0, 0, -10))
+    pocket = trimesh.creation.box(extents=(20, 15, 6))
+    pocket.apply_translation((20, 12.5, -3))
+    stock = _trimesh(_manifold(cad, "cad") - _manifold(pocket, "pocket"))
+    cad.export(tmp / "cad.stl")
+    stock.export(tmp / "stock.stl")
+    return tmp / "cad.stl", tmp / "stock.stl"
+
+
+def test_repair_plan_fills_only_the_pocket_in_the_cad_frame(tmp_path, capsys):
+    cad, stock = block_with_pocket(tmp_path)
+    out = tmp_path / "r.json"
+    rc = main(["repair", "plan", str(cad), "--stock", str(stock), "--width", "4", "--allowance", "0.5",
+               "--out", str(out), "--json"])
+    summary = json.loads(capsys.readouterr().out)
+    assert rc == 0 and summary["frame"] == "cad"
+    assert abs(summary["repair_volume_mm3"] - 20 * 15 * 6.5) < 1.0  # the pocket plus the allowance above it
+    job = json.loads(out.read_text())
+    pts = np.vstack([p["points"] for L in job["layers"] for p in L["passes"]])
+    assert job["frame"] == "cad" and job["repair"]["allowance_mm"] == 0.5
+    assert pts[:, 0].min() >= 10 and pts[:, 0].max() <= 30 and pts[:, 1].min() >= 5 and pts[:, 1].max() <= 20
+    assert -6.0 < pts[:, 2].min() < -5.0 and 0.0 < pts[:, 2].max() <= 0.5 + 0.7  # from the pocket floor up
+
+
+def test_repair_plan_says_when_there_is_nothing_to_repair_or_the_stock_sticks_out(tmp_path, capsys):
+    cad, stock = block_with_pocket(tmp_path)
+    assert main(["repair", "plan", str(cad), "--stock", str(cad), "--width", "4"]) == 2
+    assert "nothing to repair" in capsys.readouterr().err
+    assert main(["repair", "plan", str(stock), "--stock", str(cad), "--width", "4"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and "sticks out of the CAD by 1800.0 mm³" in err
+
+
+def test_plan_frame_cad_keeps_the_cad_coordinates(tmp_path, capsys):
+    patch = trimesh.creation.box(extents=(20, 20, 4))
+    patch.apply_translation((0, 0, -10))  # a patch modelled from z = -12 to -8
+    stl = tmp_path / "patch.stl"
+    patch.export(stl)
+    for frame, lo in (("cad", -12.0), ("substrate", 0.0)):
+        out = tmp_path / f"{frame}.json"
+        assert main(["plan", str(stl), "--width", "4", "--frame", frame, "--out", str(out)]) == 0
+        job = json.loads(out.read_text())
+        z = np.vstack([p["points"] for L in job["layers"] for p in L["passes"]])[:, 2]
+        assert job["frame"] == frame and lo < z.min() < lo + 1.0 and z.max() <= lo + 4.0 + 1e-6
+
+
+def _job(frame: str = "cad") -> dict:
+    return {"schema": "cell-job/1", "frame": frame, "layers": [{"index": 0, "z_mm": 1, "height_mm": 1, "passes": [
+        {"role": "perimeter", "points": [[0, 0, 1], [10, 0, 1]], "normals": [[0, -1, 0], [0, -1, 0]]}]}]}
+
+
+def test_a_job_holds_at_most_one_alignment():
+    tf = np.eye(4)
+    tf[:3, 3] = (1, 2, 3)
+    once = apply_to_job(_job(), tf, {"level_a_deg": 0.5, "level_b_deg": -0.3, "probed_at": time.time()})
+    assert once["layers"][0]["passes"][0]["points"][0] == [1, 2, 4]
+    with pytest.raises(InputError, match="second one is refused"):
+        apply_to_job(once, tf)
+
+
+def test_the_cnc_refuses_an_unaligned_cad_job_and_a_stale_alignment():
+    from controller.align.kinematics import Trunnion
+
+    five = Five(Trunnion())
+    with pytest.raises(InputError, match="CAD frame and carries no alignment"):
+        five.check_alignment(_job("cad"), reset_at=0.0)
+    aligned = apply_to_job(_job(), np.eye(4), {"table_deg": {"a": 0.8, "b": -0.5}, "probed_at": 100.0})
+    with pytest.raises(InputError, match="before the CNC's last homing, reset or power-up"):
+        five.check_alignment(aligned, reset_at=200.0)
+    five.check_alignment(aligned, reset_at=50.0)
+    assert five.level_lines()[-1] == "G0 A0.8000 B-0.5000"
+    five.check_alignment(_job("substrate"), reset_at=0.0)  # a substrate job needs none
+    assert five.level_lines() == []
