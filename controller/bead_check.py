@@ -11,13 +11,21 @@ from typing import Any
 
 
 def judge(stats: dict[str, float | None], planned_i: float, planned_wfs: float, tol: Any,
-          arc_faltered: bool) -> str | None:
+          arc_faltered: bool, planned_speed: float | None = None) -> str | None:
     """None for a good bead, else the reason it is a defect (one line)."""
     if arc_faltered:
         return "arc not stable all along the bead"
-    if not stats:
+    if not stats or stats.get("i_mean") is None:
         return "no measurement while the arc burned"
     out = []
+    starved = stats.get("starved") or 0
+    if starved > 0:
+        # the robot's queue ran empty with the arc on: the torch stopped on the bead (a blob)
+        out.append(f"motion queue ran empty {starved:g} time(s) inside the bead")
+    v = stats.get("speed_mm_min")
+    speed_pct = getattr(tol, "speed_pct", None)
+    if v is not None and planned_speed and speed_pct is not None and abs(v / planned_speed - 1) * 100 > speed_pct:
+        out.append(f"travel speed {v:.0f} mm/min against {planned_speed:.0f} mm/min planned (±{speed_pct:g} %)")
     i_lo, i_hi = planned_i * (1 - tol.current_pct / 100), planned_i * (1 + tol.current_pct / 100)
     if stats["i_min"] < i_lo or stats["i_max"] > i_hi:
         out.append(f"current {stats['i_min']:.1f}-{stats['i_max']:.1f} A outside "

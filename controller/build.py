@@ -25,6 +25,7 @@ from typing import Any, Callable, Sequence
 from controller.arc_handshake import ArcHandshake
 from controller.arc_out import RunOn, arc_lengths, arc_out_lower_bound, point_at, project
 from controller.bead_check import judge
+from controller.bead_measure import BeadStats, Pace
 from controller.events import EventBus
 from controller.journal import Journal
 from controller.machine import CellMachine, State
@@ -91,40 +92,6 @@ class WorkItem:
 
 
 @dataclass
-class BeadStats:
-    """Current / voltage / WFS seen while the arc burned on one bead."""
-
-    arc_on: float = 0.0
-    arc_off: float = 0.0
-    n: int = 0
-    i_sum: float = 0.0
-    u_sum: float = 0.0
-    w_sum: float = 0.0
-    w_min: float = math.inf
-    w_max: float = -math.inf
-    i_min: float = math.inf
-    i_max: float = -math.inf
-    u_min: float = math.inf
-    u_max: float = -math.inf
-
-    def add(self, i: float, u: float, w: float) -> None:
-        self.n += 1
-        self.i_sum += i
-        self.u_sum += u
-        self.w_sum += w
-        self.i_min, self.i_max = min(self.i_min, i), max(self.i_max, i)
-        self.u_min, self.u_max = min(self.u_min, u), max(self.u_max, u)
-        self.w_min, self.w_max = min(self.w_min, w), max(self.w_max, w)
-
-    def as_dict(self) -> dict[str, float | None]:
-        if not self.n:
-            return {}
-        return {"i_mean": self.i_sum / self.n, "i_min": self.i_min, "i_max": self.i_max,
-                "u_mean": self.u_sum / self.n, "u_min": self.u_min, "u_max": self.u_max,
-                "wfs_mean": self.w_sum / self.n, "wfs_min": self.w_min, "wfs_max": self.w_max}
-
-
-@dataclass
 class BuildOptions:
     max_step_mm: float = 2.0            # weld moves are at most this long (re-arc overlap bound)
     clearance_mm: float = 5.0           # travel height above the start of a bead
@@ -174,6 +141,7 @@ class BuildRunner:
         self.current: WorkItem | None = None
         self.cur_idx: int | None = None       # last point index reached with the arc stable
         self._bead: BeadStats | None = None
+        self._pace: Pace | None = None        # the robot's EXE arrivals of the current bead
         self._arc_lit = False
         self._unstable_noted = False
         self._first_pass = True               # the first pass of a run may be the one a crash cut
@@ -402,6 +370,7 @@ class BuildRunner:
         self.bus.update(arc_starts=self.bus.latest.arc_starts + 1, travel_speed_mm_min=speed)
         self.m.send("arc_on")
         self._t_exe = time.monotonic()
+        self._pace = Pace(self._t_exe, start_mm, starved=-getattr(self.ex, "starved", 0))
         self.ex.release()
         await self.ex.weld_done(await tickets)
         self.m.send("arc_end")
@@ -410,7 +379,7 @@ class BuildRunner:
         self.bus.update(travel_speed_mm_min=None)
         stats = self._close_bead(la, pa, pts, start_idx, len(pts) - 1, speed, interrupted=False)
         why = judge(stats or {}, float(p["current_a"]), float(p["wfs_m_min"]), self._tolerance(),
-                    self._faltered)
+                    self._faltered, planned_speed=speed)
         if why is not None:
             self._defect(la, pa, why)
         self._pass_done(la, pa)
@@ -444,10 +413,15 @@ class BuildRunner:
         del i1
         length = self._measured_mm
         stats = b.as_dict()
+        pace, self._pace = self._pace, None
+        if pace is not None:
+            pace.starved += getattr(self.ex, "starved", 0)   # starvations inside this bead
+            stats.update(pace.figures(self.o.time_scale, length))
         hi = None
-        if stats:
-            # heat input per unit length: η·U·I / v (J/mm, v in mm/s)
-            hi = self.o.arc_efficiency * stats["u_mean"] * stats["i_mean"] / (speed / 60.0)  # type: ignore[operator]
+        if stats.get("i_mean") is not None and stats.get("u_mean") is not None:
+            # heat input per unit length: η·U·I / v (J/mm, v in mm/s), at the measured travel speed
+            v = stats.get("speed_mm_min") or speed
+            hi = self.o.arc_efficiency * stats["u_mean"] * stats["i_mean"] / (v / 60.0)  # type: ignore[operator]
         self.journal.bead(la, pa, arc_on=b.arc_on, arc_off=b.arc_off, length_mm=length, speed_mm_min=speed,
                           stats=stats, heat_input_j_mm=hi, interrupted=interrupted)
         return stats
@@ -467,6 +441,9 @@ class BuildRunner:
         if not faltered and self._pts and 0 < idx < len(self._pts):
             self._measured_mm += max(0.0, self._cum[idx] - max(self._cum[idx - 1], self._start_mm))
         self._t_exe = time.monotonic()
+        if self._pace is not None and not faltered and 0 <= idx < len(self._cum):
+            # when the robot's report arrived (the port's reader thread), else now
+            self._pace.reached(getattr(self.ex, "exe_t", 0.0) or self._t_exe, self._cum[idx])
         self.cur_idx = idx
         self.journal.progress(ticket, item.layer, item.pass_, idx)
 

@@ -155,7 +155,8 @@ class Devices:
                 from drivers.robot import RobotLink
 
                 r = cfg.devices.robot
-                d.robot = RobotLink(r.url, baud=r.baud, link_timeout_s=r.link_timeout_s)
+                d.robot = RobotLink(r.url, baud=r.baud, link_timeout_s=r.link_timeout_s,
+                                    line_scale=cfg.cell.time_scale)
                 await _connect("robot", r.url, d.robot.connect(resume_ticket=resume_ticket))
                 d.opened.append(d.robot)
             else:

@@ -8,6 +8,7 @@ handed to the runner with the point index it reached.
 from __future__ import annotations
 
 import asyncio
+import time
 from typing import Any, Callable
 
 from controller.ports import RobotLinkPort
@@ -28,6 +29,7 @@ class RobotExecutor:
         self._all_sent = False
         self.starved = 0                        # queue ran empty inside a bead
         self.exec_count = 0
+        self.exe_t = 0.0                        # arrival time of the latest EXE (monotonic)
         self.min_ahead: int | None = None       # fewest weld moves queued ahead at an EXE inside a bead
         self._lost_cbs: list[Callable[[Any], None]] = []
         self.stopped_at: Point | None = None    # where prepare() found the robot stopped (queue flushed)
@@ -69,6 +71,7 @@ class RobotExecutor:
 
     def _event(self, ev: Any) -> None:
         if ev.kind == "EXE":
+            self.exe_t = ev.t or time.monotonic()
             self._exe(int(ev.ticket))
         elif ev.kind == "link_lost":
             for cb in self._lost_cbs:

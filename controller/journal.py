@@ -45,6 +45,9 @@ CREATE TABLE IF NOT EXISTS beads (id INTEGER PRIMARY KEY, layer INTEGER NOT NULL
     run INTEGER NOT NULL, arc_on REAL NOT NULL, arc_off REAL NOT NULL, length_mm REAL NOT NULL,
     speed_mm_min REAL NOT NULL, i_mean REAL, i_min REAL, i_max REAL, u_mean REAL, u_min REAL, u_max REAL,
     wfs_mean REAL, heat_input_j_mm REAL, interrupted INTEGER NOT NULL DEFAULT 0);
+CREATE TABLE IF NOT EXISTS bead_measures (id INTEGER PRIMARY KEY, layer INTEGER NOT NULL, pass INTEGER NOT NULL,
+    run INTEGER NOT NULL, wfs_min REAL, wfs_max REAL, speed_mm_min REAL, motion_s REAL, moves INTEGER,
+    starved INTEGER);
 CREATE TABLE IF NOT EXISTS events (id INTEGER PRIMARY KEY, t REAL NOT NULL, kind TEXT NOT NULL,
     state TEXT, message TEXT NOT NULL, layer INTEGER, pass INTEGER, x REAL, y REAL, z REAL, run INTEGER);
 CREATE TABLE IF NOT EXISTS samples (t REAL NOT NULL, current_a REAL, voltage_v REAL, wfs_m_min REAL,
@@ -216,6 +219,14 @@ class Journal:
              stats.get("u_mean"), stats.get("u_min"), stats.get("u_max"),
              stats.get("wfs_mean"), heat_input_j_mm, int(interrupted)),
         )
+        # what the beads table has no column for (added after journals were in the field: a new
+        # table, so an older journal opens unchanged)
+        self._write(
+            "INSERT INTO bead_measures (layer, pass, run, wfs_min, wfs_max, speed_mm_min, motion_s, moves, starved)"
+            " VALUES (?,?,?,?,?,?,?,?,?)",
+            (layer, pass_, self.run, stats.get("wfs_min"), stats.get("wfs_max"), stats.get("speed_mm_min"),
+             stats.get("motion_s"), stats.get("moves"), stats.get("starved")),
+        )
 
     def defect(self, layer: int, pass_: int, reason: str, *, pos: Sequence[float] | None = None,
                measured_mm: float | None = None) -> None:
@@ -325,7 +336,14 @@ class Journal:
         cols = ("layer", "pass", "run", "arc_on", "arc_off", "length_mm", "speed_mm_min", "i_mean", "i_min",
                 "i_max", "u_mean", "u_min", "u_max", "wfs_mean", "heat_input_j_mm", "interrupted")
         rows = self.query(f"SELECT {', '.join(cols)} FROM beads ORDER BY id")
-        return [dict(zip(cols, r)) for r in rows]
+        out = [dict(zip(cols, r)) for r in rows]
+        extra = ("wfs_min", "wfs_max", "speed_actual_mm_min", "motion_s", "moves", "starved")
+        measured = {(la, pa, run): dict(zip(extra, rest)) for la, pa, run, *rest in self.query(
+            "SELECT layer, pass, run, wfs_min, wfs_max, speed_mm_min, motion_s, moves, starved FROM bead_measures"
+            " ORDER BY id")}
+        for b in out:
+            b.update(measured.get((b["layer"], b["pass"], b["run"]), dict.fromkeys(extra)))
+        return out
 
     def alarm_rows(self) -> list[dict[str, Any]]:
         """Alarms with their state, layer, pass, torch position and run."""

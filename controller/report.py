@@ -15,6 +15,7 @@ from controller.journal import Journal
 from controller.report_plots import plot_report
 from controller.report_record import (
     arc_time_figures,
+    travel_speed_summary,
     bead_records,
     iso,
     layer_records,
@@ -69,6 +70,7 @@ def summarize(journal: Journal, job: dict | None = None, state: str | None = Non
         "time_scale": scale,
         "arc_time_s": round(sum(d["arc_time_s"] for d in per_layer.values()), 3),
         "arc_time_figures": arc_time_figures(journal, job, scale, beads),
+        "travel_speed": travel_speed_summary(beads),
         "deposit_length_mm": round(sum(d["length_mm"] for d in per_layer.values()), 2),
         "outside_envelope": _outside(job),
         "per_layer": [

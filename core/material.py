@@ -59,6 +59,7 @@ class ProcessTolerance(_Frozen):
 
     current_pct: float = Field(default=10.0, gt=0.0, le=100.0)
     wfs_pct: float = Field(default=10.0, gt=0.0, le=100.0)
+    speed_pct: float = Field(default=10.0, gt=0.0, le=100.0)  # the robot's measured travel speed
     voltage_min_v: float = Field(default=10.0, ge=0.0, le=100.0)
     voltage_max_v: float = Field(default=40.0, gt=0.0, le=200.0)
 

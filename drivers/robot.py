@@ -103,9 +103,12 @@ class RobotLink:
     def __init__(self, url: str, *, baud: int = 115200, link_timeout_s: float = 3.0, name: str = "robot",
                  pace: bool = True, max_inflight: int | None = None, auto_reconnect: bool = True,
                  keepalive_s: float = 0.5, control_timeout_s: float = 0.25,
-                 rto_min_s: float = 0.1, rto_max_s: float = 1.0) -> None:
+                 rto_min_s: float = 0.1, rto_max_s: float = 1.0, line_scale: float = 1.0) -> None:
         self.url = url
         self.baud = baud
+        # a simulated line at time scale k carries k times the bytes per wall second (DESIGN.md §6):
+        # pace the writes at that rate, or the host, not the line, starves the bead
+        self.line_scale = line_scale
         self.name = name
         self.link_timeout_s = link_timeout_s
         self.pace = pace
@@ -117,6 +120,7 @@ class RobotLink:
         self.stats = LinkStats()
         self.last_status: RobotStatus | None = None
         self.fault: str | None = None
+        self._rx_t: float | None = None     # arrival time of the chunk being parsed
         self._port: SerialPort | None = None
         self._connected = False
         self._ready = False                # connected and resynchronised
@@ -197,7 +201,8 @@ class RobotLink:
     def _emit(self, kind: str, ticket: int | None = None, value: object = None, text: str = "") -> None:
         if not (self._callbacks or self._queues):
             return
-        ev = RobotEvent(kind, ticket, value, text, time.monotonic())
+        # a reply's event carries when its bytes arrived (the EXEs time the robot's pace)
+        ev = RobotEvent(kind, ticket, value, text, self._rx_t or time.monotonic())
         for fn in self._callbacks:
             fn(ev)
         for q in self._queues:
@@ -213,7 +218,7 @@ class RobotLink:
         self._closing = False
         if self._connected:
             await self._drop("reconnect requested", notify=False)
-        port = SerialPort(self.url, baud=self.baud, name=self.name, pace=self.pace)
+        port = SerialPort(self.url, baud=self.baud, name=self.name, pace=self.pace, pace_factor=0.98 * self.line_scale)
         await port.open()
         self._port = port
         self._connected = True
@@ -496,6 +501,7 @@ class RobotLink:
         try:
             while True:
                 data = await port.read()
+                self._rx_t = port.rx_t
                 self.stats.bytes_received += len(data)
                 # bounded per read: the build's own frames first, a few heartbeats after
                 own, hb = split_lines(splitter.feed(data))
@@ -508,6 +514,7 @@ class RobotLink:
                 self.stats.hb_skipped += max(0, len(hb) - MAX_HB_PER_READ)
                 if self._flood.add(len(hb)) and self.protocol_fault is None:
                     self._protocol(f"heartbeat flood: {self._flood.rate} HB frames within 1 s (expected 1/s)")
+                self._rx_t = None
                 self._notify()
                 self._kick.set()
                 if len(own) + len(hb) > MAX_HB_PER_READ:

@@ -31,6 +31,7 @@ class SerialPort:
         self.rate = baud / 10.0 * pace_factor if pace else None
         self.bytes_written = 0
         self.bytes_read = 0
+        self.rx_t = 0.0                  # monotonic arrival time of the chunk read() returned last
         self._ser: serial.SerialBase | None = None
         self._queue: asyncio.Queue = asyncio.Queue()
         self._thread: threading.Thread | None = None
@@ -83,14 +84,14 @@ class SerialPort:
                             eof = True
                             break
                         data += more
-                    loop.call_soon_threadsafe(self._queue.put_nowait, data)
+                    loop.call_soon_threadsafe(self._queue.put_nowait, (time.monotonic(), data))
                     if eof:
                         raise serial.SerialException("socket disconnected")
                     continue
                 n = ser.in_waiting
                 if n:
                     data += ser.read(n)
-                loop.call_soon_threadsafe(self._queue.put_nowait, data)
+                loop.call_soon_threadsafe(self._queue.put_nowait, (time.monotonic(), data))
         except Exception as exc:  # closed port or peer: report it once, to the reader
             if not self._stop.is_set():
                 try:
@@ -101,11 +102,14 @@ class SerialPort:
     async def read(self) -> bytes:
         """The next received chunk; LinkLost when the port closed or failed."""
         item = await self._queue.get()
-        if isinstance(item, tuple):
+        if item[0] is _EOF:
             self._error = item[1]
             raise self._lost(item[1])
-        self.bytes_read += len(item)
-        return item
+        # when the bytes came off the wire (the reader thread's clock): a busy event loop does
+        # not delay the time stamps of what the device reported
+        self.rx_t, data = item
+        self.bytes_read += len(data)
+        return data
 
     async def write(self, data: bytes) -> None:
         """Send `data`, waiting until the (simulated) line is free to carry it."""

@@ -118,6 +118,7 @@ def plan_part(mesh_or_path, options: PlanOptions,
     qualities: list[LayerQuality] = []
     pos = np.zeros(2)
     time_s = 0.0
+    arc_time_s = 0.0          # the beads alone, at their planned speed (the record compares it)
     n_passes = 0
     interpass = Interpass(material.interpass.max_temperature_c, material.interpass.dwell_s)
     below = None
@@ -144,7 +145,9 @@ def plan_part(mesh_or_path, options: PlanOptions,
         passes = _passes(paths, sl, z, proc, verdict)
         n_passes += len(passes)
         time_s += lp.travel_mm / TRAVEL_MM_MIN * 60.0 + len(passes) * ARC_START_S
-        time_s += sum(p.length_mm / p.speed_mm_min * 60.0 for p in passes)
+        arc_s = sum(p.length_mm / p.speed_mm_min * 60.0 for p in passes)
+        time_s += arc_s
+        arc_time_s += arc_s
         if sl.index > 0:
             time_s += material.interpass.dwell_s
         layers.append(Layer(sl.index, z, height, tuple(passes), interpass,
@@ -153,6 +156,7 @@ def plan_part(mesh_or_path, options: PlanOptions,
         if progress is not None:
             progress(sl.index + 1, len(slices))
     summary = summarise(qualities, n_passes, time_s)
+    summary["arc_time_s"] = round(arc_time_s, 1)
     summary.update(verdict.finish(mesh.source.file, qualities))
     summary["repairs"] = list(mesh.repairs)
     summary["open_contours"] = []

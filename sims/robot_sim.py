@@ -30,6 +30,7 @@ class RobotSim:
     """In-process robot controller. Drive it with attach/feed/detach (the ByteSim protocol)."""
 
     IDLE_TICK_S = 0.01  # wall seconds between executor ticks while nothing can move
+    MIN_TICK_S = 0.0002
 
     def __init__(self, *, clock: SimClock, world: object | None = None, queue_slots: int = 64,
                  log_path: str | Path | None = None, heartbeat_s: float = 1.0,
@@ -64,6 +65,7 @@ class RobotSim:
         self._splitter = rlp.LineSplitter()
         self._ack_due = False
         self._exe_due: int | None = None
+        self._next_finish: float | None = None   # process time the head move ends (while moving)
         self._last_heard = time.monotonic()
         self._log: IO[str] | None = None
         self._log_dirty = False
@@ -230,6 +232,7 @@ class RobotSim:
 
     def advance(self, t: float, now: float) -> None:
         """Execute queued moves over simulated time [t, now]."""
+        self._next_finish = None
         while t < now and self.queue and not (self.held or self.fault or self.waiting):
             m = self.queue[0]
             if m.verb == "WAIT":
@@ -259,6 +262,7 @@ class RobotSim:
                 self.world.torch_moved(DEVICE, m.seq, p0, p1, t, t1)
             self.pos, t = p1, t1
             if not done:
+                self._next_finish = now + dist * (1.0 - f) / v   # when this move's EXE is due
                 break
             self._stopped()
             self._finish(m, t)
@@ -270,8 +274,13 @@ class RobotSim:
         last = self.clock.now()
         was = False
         while True:
-            # tick fast while moving, slowly while idle (a move noticed at a tick starts then)
-            await asyncio.sleep(self.tick_s if was else self.IDLE_TICK_S)
+            # tick fast while moving, slowly while idle (a move noticed at a tick starts then);
+            # while moving, wake when the head move ends: its EXE leaves on time, as a real
+            # controller's does, not up to a tick late (the host measures travel speed from EXEs)
+            pause = self.tick_s if was else self.IDLE_TICK_S
+            if was and self._next_finish is not None:
+                pause = max(self.MIN_TICK_S, min(pause, self.clock.wall(self._next_finish - self.clock.now())))
+            await asyncio.sleep(pause)
             now = self.clock.now()
             if was:
                 self.advance(last, now)

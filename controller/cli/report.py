@@ -55,8 +55,12 @@ def _report(args: argparse.Namespace) -> int:
     a = rep["arc_time_figures"]
     print(f"{rep['job']['name']}: {rep['state']}, layers {rep['layers_done']}/{rep['layers_total']}, "
           f"passes {rep['passes_done']}/{rep['passes_total']}, {rep['started']} .. {rep['ended']}")
-    print(f"arc time: planned {a['planned_s']} s, beads {a['beads_s']} s, pass states {a['pass_states_s']} s"
-          f" ({'agree' if a['agree'] else 'DISAGREE'} within 2 %)")
+    ts = rep.get("travel_speed") or {}
+    print(f"arc time: plan {a['plan_s']} s, deposited at planned speed {a['planned_s']} s, at measured speed "
+          f"{a['measured_s']} s ({'agree' if a['agree'] else 'DISAGREE'} within 2 %); source arc-on {a['arc_on_s']} s")
+    if ts.get("beads_measured"):
+        print(f"travel speed: worst bead {100 * ts['worst_deviation']:+.1f} % from plan, "
+              f"{ts['starved_beads']} bead(s) with the motion queue run empty")
     print(f"report: {path}; csv: {rep['csv']} ({len(rep['beads'])} beads)")
     return 0
 

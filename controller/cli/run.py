@@ -364,7 +364,8 @@ def _demo(args: argparse.Namespace) -> int:
     runargs.check_job_for_cell(job, cfg, f"demo job ({DEMO_PART.name})")
     s = job["summary"]
     say(f"  {len(job['layers'])} layers, {sum(len(la['passes']) for la in job['layers'])} beads, "
-        f"{s.get('deposit_length_mm', 0) / 1000:.1f} m of bead, about {s.get('est_time_s', 0) / 60:.0f} min of arc")
+        f"{s.get('deposit_length_mm', 0) / 1000:.1f} m of bead, {s.get('arc_time_s', 0) / 60:.1f} min of arc, "
+        f"about {s.get('est_time_s', 0) / 60:.0f} min with travel and interpass waits")
     runs = Path(args.runs or cfg.cell.runs_dir)
     run_dir = run_dir_for(job, runs)
     if (run_dir / "journal.sqlite").exists():
