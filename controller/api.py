@@ -18,6 +18,7 @@ Commands (each refused with a CellError naming the state when not allowed):
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any, Callable
@@ -166,11 +167,13 @@ class CellController:
         if d.power is not None:
             ps = d.power.stats
             out.append(LinkStat("power_source", d.power.url, d.power.error is None, ps.cycles, ps.cycles,
-                                ps.late + ps.bad, late=ps.late, lost=ps.lost, bad=ps.bad))
+                                ps.late + ps.bad, late=ps.late, lost=ps.lost, bad=ps.bad,
+                                max_period_ms=round(ps.max_period_s * 1000, 1)))
         if d.cellio is not None:
             cs = d.cellio.stats
             out.append(LinkStat("cellio", d.cellio.url, d.cellio.error is None, cs.cycles, cs.cycles,
-                                cs.late + cs.bad, late=cs.late, lost=cs.lost, bad=cs.bad))
+                                cs.late + cs.bad, late=cs.late, lost=cs.lost, bad=cs.bad,
+                                max_period_ms=round(cs.max_period_s * 1000, 1)))
         return tuple(out)
 
     async def _stats_loop(self) -> None:
@@ -303,6 +306,8 @@ class CellController:
             if self.runner.closing is not None:  # an interrupted bead's measured length
                 await asyncio.wait([self.runner.closing], timeout=3.0)
             self._publish_state()
+            # the links' health over the run goes into the record (late / lost / bad)
+            self.journal.event("links", json.dumps([dataclasses.asdict(x) for x in self._links()]))
         # The build record is written at the end of every build, whoever started it (CLI or TUI),
         # on a worker thread: plotting takes seconds, and the device cycles (the power source's
         # watchdog counter) run on this loop while the cell stays connected.

@@ -35,6 +35,7 @@ class LinkStat:
     late: int = 0                   # valid replies after their cycle (robot: resends, timeouts)
     lost: int = 0                   # link losses
     bad: int = 0                    # invalid frames (CRC, NAK, garbage)
+    max_period_ms: float | None = None  # cyclic devices: the longest time between two cycles
 
 
 @dataclass(frozen=True)

@@ -316,6 +316,16 @@ class Journal:
         return (int(row[0]), int(row[1]), int(row[2]), str(row[3])) if row else None
 
     # -- read queries for the report, `cell runs`, the CLI and the TUI (the only SQL outside writes) --
+    def link_rows(self) -> list[dict[str, Any]]:
+        """Per run, the link statistics journaled at the end of its build (late / lost / bad)."""
+        out = []
+        for run, msg in self.query("SELECT run, message FROM events WHERE kind='links' ORDER BY id"):
+            try:
+                out.append({"run": run, "links": json.loads(msg)})
+            except ValueError:
+                continue
+        return out
+
     def latest_time_scale(self) -> float:
         """The time scale of the latest journaled run (1.0 when none was journaled)."""
         for (msg,) in self.query("SELECT message FROM events WHERE kind='run' ORDER BY id DESC LIMIT 1"):

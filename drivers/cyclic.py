@@ -30,6 +30,7 @@ class CycleStats:
     bad: int = 0                # replies the device sent but that were not valid
     lost: int = 0               # link losses: `lost_after_cycles` cycles without a valid reply
     periods: list[float] = field(default_factory=list)   # wall seconds between cycle starts
+    max_period_s: float = 0.0   # the longest wall time between two cycle starts
     keep: bool = False          # record periods (benchmark)
 
 
@@ -103,8 +104,11 @@ class CyclicDevice(ABC, Generic[S]):
         try:
             while not self._closing:
                 now = time.monotonic()
-                if last_start is not None and self.stats.keep:
-                    self.stats.periods.append(now - last_start)
+                if last_start is not None:
+                    if now - last_start > self.stats.max_period_s:
+                        self.stats.max_period_s = now - last_start
+                    if self.stats.keep:
+                        self.stats.periods.append(now - last_start)
                 last_start = now
                 try:
                     st = await self._one_cycle()

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import dataclasses
 import json
 import re
 import sys
@@ -150,7 +151,9 @@ def _result_json(ctl: Any, res: Any, report: Path | None) -> dict:
     return {"state": res.state, "layers_done": res.layers_done, "passes_done": res.passes_done,
             "complete_with_defects": res.state == "complete" and bool(defects), "defects": defects,
             "arc_starts": res.arc_starts, "alarms": alarms, "report": str(report) if report else None,
-            "run_dir": str(ctl.run_dir) if ctl.run_dir else None}
+            "run_dir": str(ctl.run_dir) if ctl.run_dir else None,
+            # link health over the run (DESIGN.md §5): late replies are counted, never a fault
+            "links": [dataclasses.asdict(x) for x in ctl.snapshot().links]}
 
 
 class SimSession:
