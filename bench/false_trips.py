@@ -18,7 +18,6 @@ import asyncio
 import json
 import multiprocessing as mp
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -97,17 +96,21 @@ def cell_yaml(work: Path) -> Path:
 
 
 def sim_up(cfg_path: Path, log_dir: Path) -> subprocess.Popen:
+    log_dir.mkdir(parents=True, exist_ok=True)
+    # stderr to a file and stdout drained: a pipe nobody reads fills up and blocks the simulators
+    err = (log_dir / "sim_up.stderr").open("w")
     proc = subprocess.Popen([sys.executable, "-m", "controller.cli.main", "sim", "up", "--cell-config", str(cfg_path),
-                             "--log", str(log_dir)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+                             "--log", str(log_dir)], cwd=ROOT, stdout=subprocess.PIPE, stderr=err, text=True)
     seen: set[str] = set()
     deadline = time.monotonic() + 90
     assert proc.stdout is not None
     while len(seen) < 4 and time.monotonic() < deadline:
         line = proc.stdout.readline()
         if not line:
-            raise RuntimeError(f"cell sim up exited: {proc.stderr.read() if proc.stderr else ''}")
+            raise RuntimeError(f"cell sim up exited: {(log_dir / 'sim_up.stderr').read_text()}")
         seen.add(json.loads(line)["device"])
+    out = proc.stdout
+    threading.Thread(target=lambda: [None for _ in out], daemon=True).start()
     return proc
 
 

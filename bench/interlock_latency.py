@@ -5,7 +5,7 @@ and measures from the cycle that read the input: the trip action (start dropped,
 written), the first power-source cycle carrying weld start 0, and the HOLD confirmed by the
 robot; then resets and continues the build, N times.
 
-    .venv/bin/python -m bench.interlock_latency [--trials 10] [--quick]
+    .venv/bin/python -m bench.interlock_latency [--trials 10] [--quick] [--hog]
 """
 from __future__ import annotations
 
@@ -83,8 +83,16 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--trials", type=int, default=10)
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--hog", action="store_true", help="two CPU-bound processes beside the cell")
     a = ap.parse_args(argv)
-    fig = asyncio.run(run(3 if a.quick else a.trials, a.seed))
+    if a.hog:
+        from bench.false_trips import CpuHogs
+
+        with CpuHogs(2):
+            fig = asyncio.run(run(3 if a.quick else a.trials, a.seed))
+        fig["cpu_hogs"] = 2
+    else:
+        fig = asyncio.run(run(3 if a.quick else a.trials, a.seed))
     print(json.dumps(fig))
     return 0 if fig["within_one_cycle"] and fig["robot_held"] == fig["trials"] else 1
 

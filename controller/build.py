@@ -149,6 +149,7 @@ class BuildRunner:
         self._cum: Sequence[float] = []
         self._start_mm = 0.0
         self._t_exe = 0.0                     # monotonic time of the last EXE with the arc stable
+        self._t_exe_rx = 0.0                  # ... as its bytes arrived (reader thread)
         self.closing: asyncio.Task | None = None  # an interrupted bead's close (awaits the held position)
         self._measured_mm = 0.0               # length executed with the arc stable (this bead)
         self._faltered = False                # the arc was not stable at some point of this bead
@@ -164,6 +165,10 @@ class BuildRunner:
         progress = journal.pass_progress()
         self.done = {k for k, v in progress.items() if v.state == "done"}
         self._journaled = set(progress)       # passes an earlier run started
+        # counted here, not read back: a journal read on this loop waits for every queued write
+        # to be committed (fsync), which would stall the device cycles at the end of the build
+        self._defects_before = journal.defect_count()
+        self._defects_new = 0
 
     # -- operator requests (honoured at the end of the current bead) -------------------------
     def request_pause(self) -> None:
@@ -245,7 +250,7 @@ class BuildRunner:
     def _result(self) -> BuildResult:
         return BuildResult(state=self.m.state.value, layers_done=self._layers_done(),
                            passes_done=len(self.done), arc_starts=self.arc_starts,
-                           defects=self.journal.defect_count())
+                           defects=self._defects_before + self._defects_new)
 
     def _layers_done(self) -> int:
         n = 0
@@ -395,6 +400,7 @@ class BuildRunner:
         """A bead that was not deposited as planned: journaled with its position (report, state line)."""
         pos = self._defect_at or (self._pts[self.cur_idx] if self._pts and self.cur_idx is not None else None)
         self.journal.defect(la, pa, why, pos=pos, measured_mm=round(self._measured_mm, 3))
+        self._defects_new += 1
         self.journal.event("defect", why, layer=la, pass_=pa, pos=pos)
 
     def _pass_done(self, la: int, pa: int) -> None:
@@ -441,9 +447,10 @@ class BuildRunner:
         if not faltered and self._pts and 0 < idx < len(self._pts):
             self._measured_mm += max(0.0, self._cum[idx] - max(self._cum[idx - 1], self._start_mm))
         self._t_exe = time.monotonic()
+        # when the robot's report arrived (the port's reader thread), else now
+        self._t_exe_rx = getattr(self.ex, "exe_t", 0.0) or self._t_exe
         if self._pace is not None and not faltered and 0 <= idx < len(self._cum):
-            # when the robot's report arrived (the port's reader thread), else now
-            self._pace.reached(getattr(self.ex, "exe_t", 0.0) or self._t_exe, self._cum[idx])
+            self._pace.reached(self._t_exe_rx, self._cum[idx])
         self.cur_idx = idx
         self.journal.progress(ticket, item.layer, item.pass_, idx)
 
@@ -504,7 +511,7 @@ class BuildRunner:
         """Close a bead a trip cut: the torch went on from the last executed move to where the
         robot held, with the arc still on until the start dropped (the sim's deposit log shows it)."""
         faltered, idx = self._unstable_since_exe, self.cur_idx
-        t_trip, t_exe = time.monotonic(), self._t_exe
+        t_trip, t_exe = time.monotonic(), (self._t_exe_rx or self._t_exe)
         try:
             pos = await asyncio.wait_for(self.ex.held_position(), 1.0)
         except Exception:
@@ -517,7 +524,11 @@ class BuildRunner:
         elif pos is None and not faltered and idx is not None and self._pts and len(self._pts) == len(pts):
             # the robot cannot say where it stopped (link lost / garbled): it went on at the
             # planned speed from the last EXE until the link's own !HOLD or the trip
-            held = getattr(getattr(self.ex, "link", None), "held_at", None)
+            # the robot stopped (and the deposit with it) when the first !HOLD after the last
+            # EXE reached it: timed from when those bytes left, else from the link's own hold
+            link = getattr(self.ex, "link", None)
+            holds = [t for t in getattr(link, "hold_tx", ()) if t > t_exe]
+            held = holds[0] if holds else getattr(link, "held_at", None)
             t_stop = min(t_trip, held) if held is not None and held > t_exe else t_trip
             from_s = max(self._cum[idx], self._start_mm)
             # never beyond the last weld move the robot was sent (it may have starved on the way)

@@ -30,6 +30,7 @@ from drivers.robot_guard import GARBLED_RUN, MAX_HB_PER_READ, MAX_OWN_PER_READ, 
 from drivers.errors import DeviceError, DeviceTimeout, LinkLost
 from drivers.serial_async import SerialPort
 
+_HOLD_FRAME = rlp.encode("!HOLD")
 
 @dataclass(frozen=True)
 class RobotStatus:
@@ -160,6 +161,8 @@ class RobotLink:
         self._bad_run = 0                  # consecutive bad frames (no valid one between)
         self._suspect_held = False         # we wrote !HOLD because the robot went quiet
         self.held_at: float | None = None  # monotonic time the link itself last wrote !HOLD
+        # when !HOLD frames actually went out on the line (a bead cut blind is timed to the first)
+        self.hold_tx: deque[float] = deque(maxlen=16)
 
     # -- public properties ---------------------------------------------------------------------
     @property
@@ -488,6 +491,8 @@ class RobotLink:
                         self._max_sent = max(self._max_sent, t)
                     await port.write(data)  # waits for the line (pacing)
                     self._last_tx = time.monotonic()
+                    if t is None and data == _HOLD_FRAME:
+                        self.hold_tx.append(self._last_tx)
                     if t is not None and t in self._frames:
                         self._sent_at[t] = self._last_tx  # on the wire now: the RTT starts here
                     self.stats.frames_sent += 1
