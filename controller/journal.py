@@ -465,3 +465,22 @@ def read_events_after(path: str | Path, after_id: int = 0, limit: int = 2000) ->
             db.close()
     except sqlite3.Error:
         return []
+
+
+def count_done_readonly(path: str | Path) -> int:
+    """How many passes the journal at `path` has `done`, on a read-only connection (0 if it
+    cannot be read). `cell run` asks it before deciding whether a job is already complete."""
+    p = Path(path)
+    health = inspect(p)
+    if not health.exists or health.damage is not None:
+        return 0
+    try:
+        db = sqlite3.connect(uri(p, "ro"), uri=True)
+        try:
+            row = db.execute("SELECT count(*) FROM (SELECT layer, pass FROM passes WHERE id IN "
+                             "(SELECT max(id) FROM passes GROUP BY layer, pass) AND state='done')").fetchone()
+        finally:
+            db.close()
+    except sqlite3.Error:
+        return 0
+    return int(row[0])

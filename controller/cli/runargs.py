@@ -62,21 +62,10 @@ def stored_job(meta: dict, jpath: Path) -> dict:
 
 def complete_in(run_dir: Path, job: dict) -> bool:
     """Whether the journal of `run_dir` says every pass of the job is done (read-only look)."""
-    import sqlite3
+    from controller.journal import count_done_readonly
 
-    from controller.journal_check import inspect, uri
-
-    health = inspect(run_dir / "journal.sqlite")
-    if not health.exists or health.damage is not None:
-        return False
     total = sum(len(la.get("passes", [])) for la in job.get("layers", []))
-    db = sqlite3.connect(uri(run_dir / "journal.sqlite", "ro"), uri=True)
-    try:
-        rows = db.execute("SELECT count(*) FROM (SELECT layer, pass FROM passes WHERE id IN "
-                          "(SELECT max(id) FROM passes GROUP BY layer, pass) AND state='done')").fetchone()
-    finally:
-        db.close()
-    return total > 0 and int(rows[0]) >= total
+    return total > 0 and count_done_readonly(run_dir / "journal.sqlite") >= total
 
 
 def new_run_dir(run_dir: Path) -> Path:
