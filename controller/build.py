@@ -218,23 +218,20 @@ class BuildRunner:
                 if last:
                     break
                 if self.abort_requested:
-                    self.m.send("abort", reason="operator")
-                    self.journal.event("transition", "aborted by the operator", state="aborted")
+                    # journaled once, by the controller's transition listener, with its cause
+                    self.m.send("abort", cause="by the operator")
                     return self._result()
                 if self.pause_requested:
-                    self.m.send("pause")
-                    self.journal.event("transition", "paused at the end of a bead", state="paused")
+                    self.m.send("pause", cause="at the end of a bead")
                     self._resume_evt.clear()
                     await self._resume_evt.wait()
                     if self.abort_requested:
-                        self.m.send("abort", reason="operator")
-                        self.journal.event("transition", "aborted by the operator", state="aborted")
+                        self.m.send("abort", cause="by the operator")
                         return self._result()
                     self.m.send("resume")
                     prev_layer = None if work[k + 1].layer != item.layer else prev_layer
             if self.m.can("complete"):
-                self.m.send("complete")
-                self.journal.event("transition", "build complete", state="complete")
+                self.m.send("complete", cause="every pass done")
             return self._result()
         except (Interrupted, asyncio.CancelledError):
             if self.tripped is None:
