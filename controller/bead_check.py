@@ -22,10 +22,10 @@ def judge(stats: dict[str, float | None], planned_i: float, planned_wfs: float, 
     if starved > 0:
         # the robot's queue ran empty with the arc on: the torch stopped on the bead (a blob)
         out.append(f"motion queue ran empty {starved:g} time(s) inside the bead")
-    v = stats.get("speed_mm_min")
-    speed_pct = getattr(tol, "speed_pct", None)
-    if v is not None and planned_speed and speed_pct is not None and abs(v / planned_speed - 1) * 100 > speed_pct:
-        out.append(f"travel speed {v:.0f} mm/min against {planned_speed:.0f} mm/min planned (±{speed_pct:g} %)")
+    # The measured travel speed is not judged here: it is timed from EXE arrivals, and at a high
+    # time scale on a loaded host their jitter (k x a few ms of process time) would make false
+    # defects. The record flags beads outside `tolerance.speed_pct` instead (travel_speed).
+    del planned_speed
     i_lo, i_hi = planned_i * (1 - tol.current_pct / 100), planned_i * (1 + tol.current_pct / 100)
     if stats["i_min"] < i_lo or stats["i_max"] > i_hi:
         out.append(f"current {stats['i_min']:.1f}-{stats['i_max']:.1f} A outside "

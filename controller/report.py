@@ -70,7 +70,7 @@ def summarize(journal: Journal, job: dict | None = None, state: str | None = Non
         "time_scale": scale,
         "arc_time_s": round(sum(d["arc_time_s"] for d in per_layer.values()), 3),
         "arc_time_figures": arc_time_figures(journal, job, scale, beads),
-        "travel_speed": travel_speed_summary(beads),
+        "travel_speed": travel_speed_summary(beads, job),
         "links": journal.link_rows(),
         "deposit_length_mm": round(sum(d["length_mm"] for d in per_layer.values()), 2),
         "outside_envelope": _outside(job),

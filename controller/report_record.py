@@ -159,13 +159,20 @@ def arc_time_figures(journal: Journal, job: dict | None, scale: float, beads: li
     return figs
 
 
-def travel_speed_summary(beads: list[dict[str, Any]]) -> dict[str, Any]:
-    """How far the robot's measured travel speed strayed from the plan, and the starved beads."""
-    devs = [b["actual_speed_mm_min"] / b["planned_speed_mm_min"] - 1.0 for b in beads
+def travel_speed_summary(beads: list[dict[str, Any]], job: dict | None = None) -> dict[str, Any]:
+    """How far the robot's measured travel speed strayed from the plan, the beads outside the
+    material's `tolerance.speed_pct` (flagged, not defects), and the starved beads."""
+    try:
+        pct = float(((job or {}).get("material") or {}).get("tolerance", {}).get("speed_pct", 10.0))
+    except (AttributeError, TypeError, ValueError):
+        pct = 10.0
+    devs = [(b["actual_speed_mm_min"] / b["planned_speed_mm_min"] - 1.0, b) for b in beads
             if b.get("actual_speed_mm_min") and b.get("planned_speed_mm_min")]
-    worst = max(devs, key=abs) if devs else None
+    worst = max((d for d, _ in devs), key=abs) if devs else None
     return {"beads_measured": len(devs), "worst_deviation": _r(worst, 4),
-            "within_2pct": bool(devs) and all(abs(d) <= 0.02 for d in devs),
+            "within_2pct": bool(devs) and all(abs(d) <= 0.02 for d, _ in devs),
+            "tolerance_pct": pct,
+            "off_speed_beads": [[b["layer"], b["pass"], round(d, 4)] for d, b in devs if abs(d) * 100 > pct],
             "starved_beads": sum(1 for b in beads if b.get("starved")),
             "starvations": sum(b.get("starved") or 0 for b in beads)}
 

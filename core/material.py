@@ -59,7 +59,8 @@ class ProcessTolerance(_Frozen):
 
     current_pct: float = Field(default=10.0, gt=0.0, le=100.0)
     wfs_pct: float = Field(default=10.0, gt=0.0, le=100.0)
-    speed_pct: float = Field(default=10.0, gt=0.0, le=100.0)  # the robot's measured travel speed
+    # the robot's measured travel speed: beads outside it are flagged in the record, not defects
+    speed_pct: float = Field(default=10.0, gt=0.0, le=100.0)
     voltage_min_v: float = Field(default=10.0, ge=0.0, le=100.0)
     voltage_max_v: float = Field(default=40.0, gt=0.0, le=200.0)
 
