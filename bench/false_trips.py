@@ -187,27 +187,27 @@ class Prober:
 
 
 def one_build(job: Path, work: Path, *, hog: bool, probe: Prober | None = None,
-              timeout_s: float = 600.0) -> dict[str, Any]:
+              timeout_s: float = 600.0, hogs: int = 2) -> dict[str, Any]:
     """One build against a fresh `cell sim up`; the result, alarms and the source's watchdog drops."""
     work.mkdir(parents=True, exist_ok=True)
     cfg_path = cell_yaml(work)
     cfg = yaml.safe_load(cfg_path.read_text())
     logs = work / "logs"
     sim = sim_up(cfg_path, logs)
-    hogs = CpuHogs(2) if hog else None
+    hog_procs = CpuHogs(hogs) if hog else None
     prober = Prober({"power_source": cfg["devices"]["power_source"]["url"],
                      "cellio": cfg["devices"]["cellio"]["url"]}) if probe is None else probe
     t0 = time.monotonic()
     try:
-        if hogs:
-            hogs.__enter__()
+        if hog_procs:
+            hog_procs.__enter__()
         with prober:
             r = subprocess.run([sys.executable, "-m", "controller.cli.main", "run", str(job), "--cell-config",
                                 str(cfg_path), "--runs", str(work / "runs"), "--json"],
                                cwd=ROOT, capture_output=True, text=True, timeout=timeout_s)
     finally:
-        if hogs:
-            hogs.__exit__()
+        if hog_procs:
+            hog_procs.__exit__()
         stop(sim)
     out = json.loads(r.stdout) if r.stdout.strip() else {"state": "error", "alarms": [], "error": r.stderr[-500:]}
     # the source latches error 50 when its watchdog drops the start; the controller reads it

@@ -1,9 +1,10 @@
 """No false trips (issue 12): builds against `cell sim up` in its own process, CPU hogs beside them.
 
 The separate-process topology is the one real hardware has. Three builds of the 80 x 50 x 8 mm
-block (6 mm beads, time scale 60), each against a fresh `cell sim up`, with two CPU-bound
-processes running on this 2-core machine: every build completes, no power-source watchdog drop.
-bench/false_trips.py runs the 100-build version and gives the reply-time figures.
+block (6 mm beads, time scale 60), each against a fresh `cell sim up`, with a CPU-bound process
+running beside them on this 2-core machine (one, not the benchmark's two: the other test worker
+shares the machine): every build completes, no power-source watchdog drop. bench/false_trips.py
+runs the 100-build version with two hogs and gives the reply-time figures.
 """
 from __future__ import annotations
 
@@ -12,9 +13,9 @@ from pathlib import Path
 from bench.false_trips import block_job, one_build, pct
 
 
-def test_three_builds_beside_cpu_hogs_complete_without_a_false_trip(tmp_path: Path) -> None:
+def test_three_builds_beside_a_cpu_hog_complete_without_a_false_trip(tmp_path: Path) -> None:
     job = block_job(tmp_path, 8.0)
-    results = [one_build(job, tmp_path / f"b{i}", hog=True, timeout_s=300) for i in range(3)]
+    results = [one_build(job, tmp_path / f"b{i}", hog=True, hogs=1, timeout_s=300) for i in range(3)]
     for r in results:
         assert r["state"] == "complete" and r["exit"] == 0, (r["state"], r["alarms"], r["error"])
         assert r["watchdog_drops"] == 0
