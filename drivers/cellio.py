@@ -86,7 +86,7 @@ class CellIO(CyclicDevice[CellInputs]):
         if not await client.connect():
             client.close()
             raise LinkLost(f"{self.where()}: cannot connect; is the coupler (or `cell sim up`) running?")
-        client.ctx.comm_params.timeout_connect = self.timeout_s
+        client.ctx.comm_params.timeout_connect = max(self.timeout_s, 1.0)  # backs up reply_within()
         self._client = client
         self._error = None
         self._written = None
@@ -152,7 +152,7 @@ class CellIO(CyclicDevice[CellInputs]):
     # -- the cycle ---------------------------------------------------------------------------
     async def _call(self, coro: Awaitable[Any]) -> Any:
         try:
-            rr = await asyncio.wait_for(coro, self.timeout_s)
+            rr = await self.reply_within(coro)
         except (asyncio.TimeoutError, ModbusException) as exc:
             raise LinkLost(f"{self.where()}: no reply within {self.timeout_s * 1000:g} ms ({str(exc) or 'timeout'}); "
                            "check the coupler and the URL") from None

@@ -12,12 +12,13 @@ import asyncio
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Callable, Generic, TypeVar
+from typing import Awaitable, Callable, Generic, TypeVar
 
 from drivers.errors import LinkLost
 from core.errors import CellError
 
 S = TypeVar("S")
+T = TypeVar("T")
 
 
 @dataclass
@@ -31,6 +32,7 @@ class CycleStats:
     lost: int = 0               # link losses: `lost_after_cycles` cycles without a valid reply
     periods: list[float] = field(default_factory=list)   # wall seconds between cycle starts
     max_period_s: float = 0.0   # the longest wall time between two cycle starts
+    host_stalls: int = 0        # reply timeouts that fired late: this process stalled, not the device
     keep: bool = False          # record periods (benchmark)
 
 
@@ -57,6 +59,32 @@ class CyclicDevice(ABC, Generic[S]):
 
     def where(self) -> str:
         return f"{self.device} at {self.url}"
+
+    async def reply_within(self, aw: Awaitable[T]) -> T:
+        """`aw`'s result within the link's reply timeout; asyncio.TimeoutError when the device
+        did not answer.
+
+        A timer that fires late means this process did not run (scheduling, a long GIL hold):
+        the reply may be sitting in the socket, and blaming the device for the host's own stall
+        is a false trip. Then one more timeout is granted, measured from when the loop ran again.
+        """
+        task = asyncio.ensure_future(aw)
+        t0 = time.monotonic()
+        try:
+            return await asyncio.wait_for(asyncio.shield(task), self.timeout_s)
+        except asyncio.TimeoutError:
+            late = time.monotonic() - t0 - self.timeout_s
+            if late > self.cycle_s:
+                self.stats.host_stalls += 1
+                try:
+                    return await asyncio.wait_for(asyncio.shield(task), self.timeout_s)
+                except asyncio.TimeoutError:
+                    pass
+            task.cancel()
+            raise
+        except BaseException:
+            task.cancel()
+            raise
 
     @abstractmethod
     async def _one_cycle(self) -> S:

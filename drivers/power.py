@@ -252,7 +252,7 @@ class PowerSource(CyclicDevice[PowerStatus]):
         self._counter = (self._counter + 1) % self.COUNTER_MOD
         cmd, counter = self._cmd, self._counter
         try:
-            rep = await asyncio.wait_for(self._exchange(cmd, counter), self.timeout_s)
+            rep = await self.reply_within(self._exchange(cmd, counter))
         except asyncio.TimeoutError:
             raise LinkLost(f"{self.where()}: no reply within {self.timeout_s * 1000:g} ms "
                            f"(cycle {self._cycle}); check the device is on and the URL/cable") from None

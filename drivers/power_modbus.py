@@ -7,6 +7,7 @@ link (LinkLost), never silently repeated.
 """
 from __future__ import annotations
 
+
 import logging
 from typing import Any
 
@@ -64,7 +65,9 @@ class ModbusPowerSource(PowerSource):
         if not ok:
             client.close()
             raise LinkLost(f"{self.where()}: cannot connect; is the device (or `cell sim up`) running?")
-        client.ctx.comm_params.timeout_connect = timeout  # per-request timeout once connected
+        # pymodbus's own per-request timeout only backs up reply_within() (which knows a late
+        # timer from a silent device)
+        client.ctx.comm_params.timeout_connect = max(timeout, 1.0)
         self._client = client
 
     async def _close(self) -> None:

@@ -45,6 +45,7 @@ ARC_HOLD_S = 0.016          # arc stable held this long before motion release (w
 MIN_PHASE_WALL_S = 0.020    # a scaled process phase never lasts less than 2 bus cycles
 TICK_S = 0.005              # model update period when no host cycle comes
 
+SELF_STALL_S = 0.030   # a tick this late (they come every 5 ms): the simulator itself stalled
 ERR_NONE, ERR_GAS, ERR_WIRE_OUT, ERR_WIRE_STICK, ERR_WATCHDOG, ERR_COLLISION = 0, 10, 20, 30, 50, 60
 ERROR_TEXT = {ERR_GAS: "gas fault", ERR_WIRE_OUT: "wire out", ERR_WIRE_STICK: "wire stick",
               ERR_WATCHDOG: "watchdog: no new counter for 100 ms", ERR_COLLISION: "torch collision"}
@@ -101,6 +102,8 @@ class PowerSourceSim:
         self.error = ERR_NONE
         self.flags = {"gas_fault": False, "wire_out": False, "wire_stick": False, "collision": False}
         self._counter_t = time.monotonic()
+        self._last_tick = self._counter_t
+        self.self_stalls = 0          # ticks that came late because this process did not run
         self._heartbeat = False
         self._arc_loss_until = 0.0
         self._silent_until = 0.0
@@ -307,6 +310,15 @@ class PowerSourceSim:
     def tick(self, now: float | None = None) -> None:
         """Advance the process to wall time `now` (monotonic)."""
         now = time.monotonic() if now is None else now
+        gap = now - self._last_tick
+        self._last_tick = max(self._last_tick, now)
+        if gap > SELF_STALL_S:
+            # the simulator itself did not run (its process was not scheduled): the host's
+            # counter frames may be waiting in the socket. Its watchdog only times what it could
+            # have heard; a real source does not stall, and a stall here is never the host's fault.
+            self._counter_t = max(self._counter_t, now - gap + SELF_STALL_S / 2)
+            self.self_stalls += 1
+            self._log("self_stall", gap_ms=round(gap * 1000, 1))
         self._poll_events()
         start = self._start_requested(now)
         p, dt = self.phase, now - self._phase_t

@@ -115,8 +115,12 @@ async def test_door_open_during_a_bead_holds_drops_start_and_resumes_without_gap
         # acted in the same cycle that read the input; the next power cycle carries weld start 0
         assert trip.t_acted - trip.t_detect < 0.010
         await asyncio.sleep(0.1)
+        # the reply of a cycle already on the wire at the trip may still echo the old command;
+        # the first cycle written after it carries weld start 0
         after = [w for w in weld_start if w[0] > trip.t_acted]
-        assert after and after[0][2] is False and after[0][0] - trip.t_detect < 0.05
+        first_off = next((w for w in after[:2] if w[2] is False), None)
+        assert first_off is not None and first_off[0] - trip.t_detect < 0.05, after[:3]
+        assert all(w[2] is False for w in after[after.index(first_off):])
         await asyncio.sleep(0.2)
         assert c.ctl.devices.robot.last_status.state == "HOLD"
         alarms = c.ctl.journal.query("SELECT message, layer, pass, x, y, z FROM events WHERE kind='alarm'")

@@ -170,6 +170,10 @@ class SimSession:
             self.cfg = with_urls(cfg, self.harness.start())
 
     @property
+    def simulated(self) -> bool:
+        return self.harness is not None
+
+    @property
     def reply_timeout_ms(self) -> float | None:
         return sim_reply_timeout_ms() if self.harness is not None else None
 
@@ -283,7 +287,7 @@ def exit_code(out: dict) -> int:
     return EXIT_COMPLETE_WITH_DEFECTS if out.get("defects") else 0
 
 
-async def _drive(ctl: Any, job: dict, run_dir: Path | None, session: SimSession, scen: list,
+async def _drive(ctl: Any, job: dict, run_dir: Path | None, session: Any, scen: list,
                  say: Callable[[str], None], resume: bool) -> tuple[Any, Path | None]:
     resume_ticket = None
     if resume and run_dir is not None:
@@ -295,7 +299,7 @@ async def _drive(ctl: Any, job: dict, run_dir: Path | None, session: SimSession,
     await ctl.connect(resume_ticket=resume_ticket, reply_timeout_ms=session.reply_timeout_ms)
     try:
         ctl.open_job(job, run_dir)
-        ctl.journal.event("mode", json.dumps({"sim": session.harness is not None}))
+        ctl.journal.event("mode", json.dumps({"sim": session.simulated}))
         ctl.subscribe(Progress(say))
         if resume:
             # `cell resume` is the operator's explicit reset: clear what the crash latched on the
@@ -336,7 +340,26 @@ def _print_summary(out: dict, say: Callable[[str], None]) -> None:
         where = f" at layer {a['layer']}, pass {a['pass']} (job indices)" if a["layer"] is not None else ""
         pos = f", position {tuple(round(v, 2) for v in a['position'])}" if a["position"] else ""
         say(f"  alarm: {a['message']}{where}{pos}")
+    _say_record(out.get("report"), say)
     say(f"report: {out['report']}")
+
+
+def _say_record(report: str | None, say: Callable[[str], None]) -> None:
+    """The record's cross-checks in two lines: arc times, travel speed, starvation."""
+    try:
+        rep = json.loads(Path(report).read_text(encoding="utf-8")) if report else None
+    except (OSError, ValueError):
+        return
+    if not rep:
+        return
+    a, ts = rep.get("arc_time_figures") or {}, rep.get("travel_speed") or {}
+    if a.get("plan_s"):
+        say(f"arc time: plan {a['plan_s'] / 60:.1f} min, deposited {a['measured_s'] / 60:.1f} min at the measured "
+            f"speed ({'agree' if a.get('agree') else 'DISAGREE'} within 2 %)")
+    if ts.get("beads_measured"):
+        flagged = len(ts.get("off_speed_beads") or [])
+        say(f"travel speed: worst bead {100 * ts['worst_deviation']:+.1f} % from plan, {flagged} bead(s) outside "
+            f"±{ts.get('tolerance_pct', 10):g} %, {ts.get('starved_beads', 0)} bead(s) with the motion queue run empty")
 
 
 # -- cell demo ------------------------------------------------------------------------------------
@@ -375,8 +398,12 @@ def _demo(args: argparse.Namespace) -> int:
         # a fresh demo each time: keep the old one beside it
         old = run_dir.with_name(run_dir.name + time.strftime("-%Y%m%d-%H%M%S"))
         run_dir.rename(old)
-    session = SimSession(cfg, True, None, run_dir / "sim")
-    say(f"simulators up at time scale {cfg.cell.time_scale:g} (process time {cfg.cell.time_scale:g}x wall time)")
+    # the simulators in a process of their own, as real devices are (`cell sim up`)
+    from controller.cli.sim_process import SimProcess
+
+    session = SimProcess(cfg, run_dir / "sim")
+    say(f"simulators up (`cell sim up`, pid {session.proc.pid}) at time scale {cfg.cell.time_scale:g} "
+        f"(process time {cfg.cell.time_scale:g}x wall time)")
     try:
         ctl = CellController(session.cfg, runs_dir=runs)
         ctl.options = BuildOptions(**{**ctl.options.__dict__, "max_step_mm": DEMO_MAX_STEP_MM})
@@ -397,7 +424,7 @@ def _demo(args: argparse.Namespace) -> int:
     return exit_code(out)
 
 
-async def _demo_drive(ctl: Any, job: dict, session: SimSession, say: Callable[[str], None],
+async def _demo_drive(ctl: Any, job: dict, session: Any, say: Callable[[str], None],
                       do_align: bool) -> tuple[Any, Path | None, dict | None]:
     align = None
     if do_align:
@@ -410,12 +437,12 @@ async def _demo_drive(ctl: Any, job: dict, session: SimSession, say: Callable[[s
     return res, report, align
 
 
-async def _align(session: SimSession, say: Callable[[str], None]) -> dict | None:
+async def _align(session: Any, say: Callable[[str], None]) -> dict | None:
     """Probe and align the substrate over the CNC link."""
     from controller.align.routine import cad_mesh, plan_for_mesh, run_on_url
 
     cfg = session.cfg
-    sim_cfg = session.harness.sim_cfg if session.harness is not None else load_sim()
+    sim_cfg = session.harness.sim_cfg if session.harness is not None else getattr(session, "sim_cfg", None) or load_sim()
     say("probing and aligning the substrate on the CNC (touch probe, G38.2)...")
     try:
         plan = plan_for_mesh(cad_mesh(sim_cfg.cnc.workpiece))
