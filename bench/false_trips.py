@@ -54,7 +54,8 @@ class CpuHogs:
 
     def __exit__(self, *exc: object) -> None:
         for p in self.procs:
-            p.kill()
+            if p.pid is not None:
+                p.kill()
         for p in self.procs:
             p.join(5)
 
@@ -206,9 +207,9 @@ def one_build(job: Path, work: Path, *, hog: bool, probe: Prober | None = None,
                                 str(cfg_path), "--runs", str(work / "runs"), "--json"],
                                cwd=ROOT, capture_output=True, text=True, timeout=timeout_s)
     finally:
+        stop(sim)  # first: a simulator left running (real-time priority) would load every later build
         if hog_procs:
             hog_procs.__exit__()
-        stop(sim)
     out = json.loads(r.stdout) if r.stdout.strip() else {"state": "error", "alarms": [], "error": r.stderr[-500:]}
     # the source latches error 50 when its watchdog drops the start; the controller reads it
     drops = sum(1 for a in out.get("alarms", []) if "error 50" in a.get("message", "")

@@ -18,12 +18,14 @@ Commands (each refused with a CellError naming the state when not allowed):
 from __future__ import annotations
 
 import asyncio
+import os
 import dataclasses
 import json
 from pathlib import Path
 from typing import Any, Callable
 
 from core.realtime import elevate, quiet_gc, relax
+from controller.report_worker import write_report_elsewhere
 from controller.arc_out import RunOn
 from controller.jobcheck import check_job, job_material
 from controller.build import BuildOptions, BuildResult, BuildRunner, canonical_json, job_hash, job_name, run_dir_for
@@ -39,6 +41,21 @@ from core.errors import CellError, InputError
 
 COMMANDS = ("open_job", "run_alignment", "start", "pause", "resume", "abort", "reset", "estop")
 
+
+
+# The modules a connected cell imports lazily during a build (executors, handshake, readiness,
+# 5-axis post): loaded before the device cycles start.
+_BUILD_MODULES = ("controller.arc_handshake", "controller.readiness", "controller.post5", "core.material")
+_PLATFORM_MODULES = {"robot": ("controller.exec_robot",),
+                     "cnc": ("controller.exec_cnc", "controller.align.kinematics")}
+
+
+def preload_build_modules(platform: str) -> None:
+    """Import the modules a build uses before any device cycle runs (no import stalls mid-build)."""
+    import importlib
+
+    for name in (*_BUILD_MODULES, *_PLATFORM_MODULES.get(platform, _PLATFORM_MODULES["cnc"])):
+        importlib.import_module(name)
 
 class CellController:
     """One cell: devices, state machine, interlocks, journal, build runner, event bus."""
@@ -116,9 +133,17 @@ class CellController:
 
     # -- connection -------------------------------------------------------------------------------
     async def connect(self, *, resume_ticket: int | None = None, reply_timeout_ms: float | None = None) -> None:
+        # Import now what the build needs later: an import while the 10 ms device cycles run
+        # holds the loop (and the GIL) for tens of milliseconds, a false "no reply" on the links.
+        preload_build_modules(self.cfg.cell.platform)
         # The device cycles run on this thread's loop: real-time priority while connected, so that
         # CPU-bound work beside the controller cannot delay them (docs/false-trips.md).
         self.realtime = elevate("controller device cycles")
+        slow_ms = os.environ.get("CELL_SLOW_CALLBACK_MS")  # diagnosis: log loop stalls longer than this
+        if slow_ms:
+            loop = asyncio.get_running_loop()
+            loop.set_debug(True)
+            loop.slow_callback_duration = float(slow_ms) / 1000.0
         self.bus.update(message=self.realtime)
         self.devices = await Devices.open(self.cfg, self.material, resume_ticket=resume_ticket,
                                           reply_timeout_ms=reply_timeout_ms)
@@ -147,7 +172,7 @@ class CellController:
         if self.cfg.opcua.enabled and self.opcua is None:
             from controller.opcua.attach import serve
 
-            self.opcua = serve(self)
+            self.opcua = await serve(self)
         quiet_gc()
 
     def _links(self) -> tuple[LinkStat, ...]:
@@ -207,7 +232,8 @@ class CellController:
         if self.interlocks is not None:
             self.interlocks.disarm()
         if self.opcua is not None:
-            self.opcua.stop()
+            # joining the server's thread takes a while: off the loop, the cycles run meanwhile
+            await asyncio.to_thread(self.opcua.stop)
             self.opcua = None
         relax()
         if self.devices is None:
@@ -309,9 +335,13 @@ class CellController:
             # the links' health over the run goes into the record (late / lost / bad)
             self.journal.event("links", json.dumps([dataclasses.asdict(x) for x in self._links()]))
         # The build record is written at the end of every build, whoever started it (CLI or TUI),
-        # on a worker thread: plotting takes seconds, and the device cycles (the power source's
-        # watchdog counter) run on this loop while the cell stays connected.
-        self.last_report = await asyncio.to_thread(self.write_report)
+        # in a worker process (controller/report_worker.py): plotting takes seconds and holds the
+        # interpreter lock, and the device cycles (the power source's watchdog counter) run on
+        # this loop while the cell stays connected.
+        await asyncio.to_thread(self.journal.flush)
+        assert self.run_dir is not None
+        state = self.last_result.state if self.last_result is not None else None
+        self.last_report = await write_report_elsewhere(self.run_dir, self.job, state=state)
         return self.last_result
 
     def write_report(self, plots: bool = True) -> Path:

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from core.config import CellConfig, SimConfig, load_material
+from core.realtime import SIM_RT_PRIORITY, elevate
 from drivers.errors import DeviceError
 from controller.ports import CellIOPort, CncLinkPort, PowerSourcePort, RobotLinkPort
 from core.material import Material
@@ -52,6 +53,10 @@ class SimHarness:
         self.clock: Any = None
 
     def _run(self) -> None:
+        # the simulated devices keep their own time: time-shared, this thread was preempted by
+        # any CPU-bound process while it held the interpreter lock, and the controller's
+        # real-time loop waited for it (the robot's heartbeat missed for 3 s under two CPU hogs)
+        elevate("in-process simulators", SIM_RT_PRIORITY)
         asyncio.set_event_loop(self.loop)
         self.loop.run_forever()
 

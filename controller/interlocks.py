@@ -124,6 +124,8 @@ class Interlocks:
         self.trips.append(rec)
         if runner is not None and item is not None:
             runner.interrupted(message)
+        elif runner is not None:  # tripped before the first bead (readiness, prepare): no bead to close
+            runner.tripped = message
         if self.build_task is not None and not self.build_task.done():
             self.build_task.cancel()
         if self._loop is not None:

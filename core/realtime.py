@@ -11,7 +11,8 @@ from __future__ import annotations
 import gc
 import os
 
-RT_PRIORITY = 20   # SCHED_FIFO priority asked for; below the kernel's own threads (50)
+RT_PRIORITY = 20       # SCHED_FIFO priority of the controller's device cycles; below the kernel's threads (50)
+SIM_RT_PRIORITY = 30   # the simulators stand for devices with CPUs of their own: they preempt the host
 
 
 _DEFAULT_THRESHOLDS = gc.get_threshold()
@@ -34,15 +35,18 @@ def quiet_gc(collect: bool = False) -> None:
     gc.set_threshold(t0, t1, NO_FULL_COLLECTIONS)
 
 
-def elevate(what: str) -> str:
-    """Ask for SCHED_FIFO for the calling thread (and the threads it starts, not its children).
+def elevate(what: str, priority: int = RT_PRIORITY) -> str:
+    """Ask for SCHED_FIFO for the calling thread only: with SCHED_RESET_ON_FORK neither the
+    threads it starts nor its child processes inherit it (an I/O thread elevates itself).
 
     Returns one line for the log: what was obtained, or why not and what to do about it.
+    Heavy work never runs at this priority: a FIFO thread is never time-sliced, so a busy one
+    would starve every other FIFO thread of its priority on that core.
     """
     if not hasattr(os, "sched_setscheduler"):
         return f"{what}: no real-time scheduling on this OS; cycle timing may suffer under load"
     try:
-        prio = min(RT_PRIORITY, os.sched_get_priority_max(os.SCHED_FIFO))
+        prio = min(priority, os.sched_get_priority_max(os.SCHED_FIFO))
         policy = os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0)
         os.sched_setscheduler(0, policy, os.sched_param(prio))
     except (PermissionError, OSError) as exc:

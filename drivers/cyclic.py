@@ -61,27 +61,42 @@ class CyclicDevice(ABC, Generic[S]):
         return f"{self.device} at {self.url}"
 
     async def reply_within(self, aw: Awaitable[T]) -> T:
-        """`aw`'s result within the link's reply timeout; asyncio.TimeoutError when the device
+        """`aw`'s result within the link's reply budget; asyncio.TimeoutError when the device
         did not answer.
 
-        A timer that fires late means this process did not run (scheduling, a long GIL hold):
-        the reply may be sitting in the socket, and blaming the device for the host's own stall
-        is a false trip. Then one more timeout is granted, measured from when the loop ran again.
+        The budget is counted in cycles this process really ran (DESIGN.md §5: lost after
+        `lost_after_cycles` cycles without a valid reply): the wait goes in steps of one cycle,
+        and a step whose timer fired more than half a cycle late (this process or its machine
+        did not run: scheduling, a long interpreter-lock hold, a virtual CPU taken away) is a
+        host stall, counted in the statistics and not against the device, which had no fair
+        chance to be heard. A hard limit of ten budgets (at least 1 s) still ends the wait on a
+        host that never runs on time.
         """
         task = asyncio.ensure_future(aw)
-        t0 = time.monotonic()
+        start = time.monotonic()
+        hard = start + max(1.0, 10 * self.timeout_s)
+        missed = 0.0
         try:
-            return await asyncio.wait_for(asyncio.shield(task), self.timeout_s)
-        except asyncio.TimeoutError:
-            late = time.monotonic() - t0 - self.timeout_s
-            if late > self.cycle_s:
-                self.stats.host_stalls += 1
-                try:
-                    return await asyncio.wait_for(asyncio.shield(task), self.timeout_s)
-                except asyncio.TimeoutError:
-                    pass
-            task.cancel()
-            raise
+            while True:
+                step = min(self.cycle_s, self.timeout_s - missed)
+                t0 = time.monotonic()
+                await asyncio.wait({task}, timeout=step)
+                if not task.done():
+                    # the reply may have been read in the very iteration whose timer fired (the
+                    # reader callback runs first, the waiting task only on the next iteration)
+                    for _ in range(3):
+                        await asyncio.sleep(0)
+                        if task.done():
+                            break
+                if task.done():
+                    return task.result()
+                now = time.monotonic()
+                if now - t0 - step > self.cycle_s / 2:
+                    self.stats.host_stalls += 1
+                else:
+                    missed += step
+                if missed >= self.timeout_s - 1e-9 or now >= hard:
+                    raise asyncio.TimeoutError()
         except BaseException:
             task.cancel()
             raise

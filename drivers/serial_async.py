@@ -15,6 +15,7 @@ import time
 
 import serial
 
+from core.realtime import elevate, is_realtime
 from drivers.errors import LinkLost
 
 _EOF = object()
@@ -39,6 +40,7 @@ class SerialPort:
         self._free_at = 0.0
         self._loop: asyncio.AbstractEventLoop | None = None
         self._error: str | None = None
+        self._rt = False
 
     @property
     def is_open(self) -> bool:
@@ -63,6 +65,9 @@ class SerialPort:
             except OSError:
                 pass
         self._stop.clear()
+        # the reader runs at the loop's priority: a time-shared reader was starved for seconds
+        # beside CPU-bound work (the robot's replies unread, the link lost while idle)
+        self._rt = is_realtime()
         self._thread = threading.Thread(target=self._reader, name=f"{self.name}-rx", daemon=True)
         self._thread.start()
 
@@ -71,6 +76,8 @@ class SerialPort:
         # pyserial's socket:// reports in_waiting as 0/1 and reads byte by byte: read what is
         # there straight from the socket, so the loop gets chunks, not thousands of 1-byte items
         sock = getattr(ser, "_socket", None)
+        if self._rt:
+            elevate(f"{self.name} reader")
         try:
             while not self._stop.is_set():
                 data = ser.read(1)

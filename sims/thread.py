@@ -9,7 +9,7 @@ import asyncio
 import threading
 from typing import Any, Callable, Coroutine
 
-from core.realtime import elevate
+from core.realtime import SIM_RT_PRIORITY, elevate
 
 
 class SimThread:
@@ -23,7 +23,7 @@ class SimThread:
     def _serve(self) -> None:
         # a device keeps its own time: real-time priority when allowed (as `cell sim up`), so that
         # CPU load beside an in-process build (--sim, the TUI, tests) does not stall it
-        elevate("in-process simulators")
+        elevate("in-process simulators", SIM_RT_PRIORITY)
         self.loop.run_forever()
 
     def run(self, coro: Coroutine[Any, Any, Any], timeout: float = 10.0) -> Any:

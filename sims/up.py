@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Awaitable, Callable
 
 from core.config import CellConfig, SimConfig
-from core.realtime import elevate, quiet_gc
+from core.realtime import SIM_RT_PRIORITY, elevate, quiet_gc
 from sims.clock import SimClock
 from sims.world import World
 
@@ -77,8 +77,8 @@ async def run_forever(ctx: SimContext, on_ready: Callable[[list[Served]], None])
         except (NotImplementedError, RuntimeError):  # not the main thread: Ctrl-C still cancels
             pass
     served: list[Served] = []
-    # Before the servers start, so that every thread they start inherits it.
-    rt = elevate("simulators")
+    # Before the servers start; every simulator runs on this thread's loop.
+    rt = elevate("simulators", SIM_RT_PRIORITY)
     if "cannot" in rt:  # the clear line the operator needs; nothing when it worked
         sys.stderr.write(f"cell sim up: {rt}\n")
     try:

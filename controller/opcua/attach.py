@@ -37,7 +37,7 @@ def software_revision() -> str:
         return "unknown"
 
 
-def serve(ctl: Any) -> FactoryServer | None:
+async def serve(ctl: Any) -> FactoryServer | None:
     """Start the OPC UA server of a connected controller when cell.yaml enables it (else None)."""
     o = ctl.cfg.opcua
     if not o.enabled:
@@ -45,5 +45,7 @@ def serve(ctl: Any) -> FactoryServer | None:
     ident = Identification(o.manufacturer, o.model, o.serial_number or ctl.cfg.cell.name, software_revision())
     server = FactoryServer(o, cell_name=ctl.cfg.cell.name, identification=ident, bus=ctl.bus,
                            control=LoopControl(ctl, asyncio.get_running_loop()))
-    server.start()
+    # the server starts on its own thread; waiting for it (seconds on a loaded machine) on the
+    # controller's loop held the device cycles: the robot link was lost while idle
+    await asyncio.to_thread(server.start)
     return server
