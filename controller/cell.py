@@ -168,7 +168,8 @@ class Devices:
                 from drivers.grbl import CncLink
 
                 c = cfg.devices.cnc
-                d.cnc = CncLink(c.url)
+                d.cnc = CncLink(c.url, baud=c.baud, rx_buffer_bytes=c.rx_buffer_bytes, status_hz=c.status_hz,
+                                homing_timeout_s=c.homing_timeout_s)
                 await _connect("cnc", c.url, d.cnc.connect())
                 d.opened.append(d.cnc)
             from drivers.power_open import open_power_source

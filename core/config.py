@@ -257,6 +257,24 @@ def _key_node(node: yaml.Node | None, loc: tuple[Any, ...]) -> yaml.Node | None:
     return parent
 
 
+def _duplicate_key(root: yaml.Node | None) -> yaml.ScalarNode | None:
+    """The second occurrence of a key repeated within one mapping, if any (iterative walk)."""
+    stack = [root] if root is not None else []
+    while stack:
+        node = stack.pop()
+        if isinstance(node, yaml.MappingNode):
+            seen: set[str] = set()
+            for k, v in node.value:
+                if isinstance(k, yaml.ScalarNode):
+                    if k.value in seen:
+                        return k
+                    seen.add(k.value)
+                stack.append(v)
+        elif isinstance(node, yaml.SequenceNode):
+            stack.extend(node.value)
+    return None
+
+
 def parse_model(text: str, model: type[M], source: str) -> M:
     """Validate YAML text against a model; errors name `source`, the key path and the line."""
     try:
@@ -272,6 +290,10 @@ def parse_model(text: str, model: type[M], source: str) -> M:
         data = {}
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: line 1: expected a mapping of keys at the top level")
+    dup = _duplicate_key(root)
+    if dup is not None:
+        raise ConfigError(f"{source}: line {dup.start_mark.line + 1}: key '{dup.value}' is given twice in the same "
+                          "mapping (the last one would silently win); keep one")
     try:
         return model.model_validate(data)
     except ValidationError as exc:

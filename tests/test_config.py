@@ -67,3 +67,15 @@ def test_any_single_corrupted_key_is_a_clear_error(idx, bad, rename):
         msg = str(exc)
         assert msg.startswith("mat.yaml: line ") and "key" in msg
     # Some corruptions are still valid values (e.g. a free-text name); those must load.
+
+
+def test_a_key_given_twice_is_an_error_naming_its_line(tmp_path: Path):
+    # YAML lets the last duplicate win silently: an operator's edit of the first would be ignored
+    text = (CONFIG_DIR / "cell.yaml").read_text()
+    text = text.replace("    cycle_ms: 10\n", "    cycle_ms: 10\n    cycle_ms: 20\n", 1)
+    bad = tmp_path / "cell.yaml"
+    bad.write_text(text)
+    line = text.splitlines().index("    cycle_ms: 20") + 1
+    with pytest.raises(ConfigError) as e:
+        load_cell(bad)
+    assert f"line {line}" in str(e.value) and "'cycle_ms' is given twice" in str(e.value)
