@@ -247,11 +247,10 @@ def test_five_axis_gcode_round_trips_through_the_tables_kinematics(tmp_path):
         np.testing.assert_allclose(g.feeds * seg, p["speed_mm_min"], rtol=1e-3)
 
 
-@pytest.mark.parametrize("kind,axes", [("grbl", False), ("grblhal", False)])
+@pytest.mark.parametrize("kind,axes", [("grbl", False), ("grblhal", False), ("grblhal", True)])
 async def test_exported_gcode_runs_on_real_firmware_every_line_ok(tmp_path, kind, axes):
     """The exported program on grbl 1.1h / grblHAL (../shared/peers, built by tests/peers):
-    every line answered ok, in order. (A 5-axis program on grblHAL is not yet accepted by the driver:
-    it reports its G93 lines unacknowledged; docs/export.md.)"""
+    every line answered ok, in order; the 5-axis program (X Y Z A B, G93) on grblHAL."""
     import asyncio
 
     from controller.align.kinematics import Trunnion
