@@ -76,7 +76,7 @@ def block_job(work: Path, height_mm: float = 8.0) -> Path:
     return job
 
 
-def cell_yaml(work: Path) -> Path:
+def cell_yaml(work: Path, opcua: bool = False) -> Path:
     """config/cell.yaml with free loopback ports (time scale as in the file: 60)."""
     import socket
 
@@ -91,6 +91,12 @@ def cell_yaml(work: Path) -> Path:
     cfg["devices"]["cnc"]["url"] = f"socket://127.0.0.1:{ports[1]}"
     cfg["devices"]["power_source"]["url"] = f"tcp://127.0.0.1:{ports[2]}"
     cfg["devices"]["cellio"]["url"] = f"tcp://127.0.0.1:{ports[3]}"
+    if opcua:  # the factory interface on: does it cost the cycle anything? (issue 20)
+        s = socket.socket()
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+        s.close()
+        cfg["opcua"] = {"enabled": True, "endpoint": f"opc.tcp://127.0.0.1:{port}/cell"}
     path = work / "cell.yaml"
     path.write_text(yaml.safe_dump(cfg))
     return path
@@ -188,10 +194,10 @@ class Prober:
 
 
 def one_build(job: Path, work: Path, *, hog: bool, probe: Prober | None = None,
-              timeout_s: float = 600.0, hogs: int = 2) -> dict[str, Any]:
+              timeout_s: float = 600.0, hogs: int = 2, opcua: bool = False) -> dict[str, Any]:
     """One build against a fresh `cell sim up`; the result, alarms and the source's watchdog drops."""
     work.mkdir(parents=True, exist_ok=True)
-    cfg_path = cell_yaml(work)
+    cfg_path = cell_yaml(work, opcua)
     cfg = yaml.safe_load(cfg_path.read_text())
     logs = work / "logs"
     sim = sim_up(cfg_path, logs)
@@ -214,7 +220,8 @@ def one_build(job: Path, work: Path, *, hog: bool, probe: Prober | None = None,
     # the source latches error 50 when its watchdog drops the start; the controller reads it
     drops = sum(1 for a in out.get("alarms", []) if "error 50" in a.get("message", "")
                 or "watchdog" in a.get("message", ""))
-    links = {x["device"]: {k: x.get(k) for k in ("late", "lost", "bad", "max_period_ms")} for x in out.get("links", [])}
+    links = {x["device"]: {k: x.get(k) for k in ("late", "lost", "bad", "max_period_ms", "p99_period_ms")}
+             for x in out.get("links", [])}
     return {"state": out.get("state"), "exit": r.returncode, "hog": hog, "wall_s": round(time.monotonic() - t0, 1),
             "links": links,
             "alarms": [a.get("message") for a in out.get("alarms", [])][:3], "watchdog_drops": drops,
@@ -234,13 +241,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--builds", type=int, default=100)
     ap.add_argument("--height", type=float, default=8.0, help="block height, mm (default 8)")
     ap.add_argument("--json", metavar="FILE")
+    ap.add_argument("--opcua", action="store_true", help="serve OPC UA during the builds (its cost on the cycle)")
     a = ap.parse_args(argv)
     results = []
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         job = block_job(work, a.height)
         for i in range(a.builds):
-            res = one_build(job, work / f"b{i}", hog=bool(i % 2))
+            res = one_build(job, work / f"b{i}", hog=bool(i % 2), opcua=a.opcua)
             results.append(res)
             print(f"build {i + 1}/{a.builds} hog={res['hog']}: {res['state']} in {res['wall_s']} s"
                   f"{' ' + str(res['alarms'][:1]) if res['state'] != 'complete' else ''}", flush=True)
@@ -253,13 +261,16 @@ def main(argv: list[str] | None = None) -> int:
         summary[f"{dev}_controller_side"] = {
             "late": sum(x.get("late") or 0 for x in ls), "lost": sum(x.get("lost") or 0 for x in ls),
             "bad": sum(x.get("bad") or 0 for x in ls),
-            "max_period_ms": max((x.get("max_period_ms") or 0 for x in ls), default=None)}
+            "max_period_ms": max((x.get("max_period_ms") or 0 for x in ls), default=None),
+            # the controller's cycle period: median over the builds of each build's p99
+            "p99_period_ms_median": pct([x["p99_period_ms"] for x in ls if x.get("p99_period_ms")], 50)}
     for dev in ("power_source", "cellio"):
         for label, sel in (("all", results), ("hog", [r for r in results if r["hog"]]),
                            ("idle", [r for r in results if not r["hog"]])):
             xs = [x for r in sel for x in r["reply_ms"][dev]]
             summary[f"{dev}_reply_ms_{label}"] = {"n": len(xs), "p50": round(pct(xs, 50), 2),
                                                   "p99": round(pct(xs, 99), 2), "max": round(max(xs), 2) if xs else None}
+    summary["opcua"] = a.opcua
     print(json.dumps(summary, indent=1))
     if a.json:
         Path(a.json).write_text(json.dumps({"summary": summary, "builds": [

@@ -193,12 +193,14 @@ class CellController:
             ps = d.power.stats
             out.append(LinkStat("power_source", d.power.url, d.power.error is None, ps.cycles, ps.cycles,
                                 ps.late + ps.bad, late=ps.late, lost=ps.lost, bad=ps.bad,
-                                max_period_ms=round(ps.max_period_s * 1000, 1)))
+                                max_period_ms=round(ps.max_period_s * 1000, 1),
+                                p99_period_ms=ps.period_percentile_ms(99)))
         if d.cellio is not None:
             cs = d.cellio.stats
             out.append(LinkStat("cellio", d.cellio.url, d.cellio.error is None, cs.cycles, cs.cycles,
                                 cs.late + cs.bad, late=cs.late, lost=cs.lost, bad=cs.bad,
-                                max_period_ms=round(cs.max_period_s * 1000, 1)))
+                                max_period_ms=round(cs.max_period_s * 1000, 1),
+                                p99_period_ms=cs.period_percentile_ms(99)))
         return tuple(out)
 
     async def _stats_loop(self) -> None:

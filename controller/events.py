@@ -36,6 +36,7 @@ class LinkStat:
     lost: int = 0                   # link losses
     bad: int = 0                    # invalid frames (CRC, NAK, garbage)
     max_period_ms: float | None = None  # cyclic devices: the longest time between two cycles
+    p99_period_ms: float | None = None  # cyclic devices: the 99th percentile of that time
 
 
 @dataclass(frozen=True)

@@ -34,6 +34,23 @@ class CycleStats:
     max_period_s: float = 0.0   # the longest wall time between two cycle starts
     host_stalls: int = 0        # reply timeouts that fired late: this process stalled, not the device
     keep: bool = False          # record periods (benchmark)
+    # every cycle period in 0.1 ms bins up to 1 s (the last bin: longer): percentiles, bounded memory
+    hist: list[int] = field(default_factory=lambda: [0] * 10_001)
+
+    def add_period(self, seconds: float) -> None:
+        self.hist[min(int(seconds * 10_000), 10_000)] += 1
+
+    def period_percentile_ms(self, q: float) -> float | None:
+        """The q-th percentile of the cycle periods, ms (None before two cycles)."""
+        n = sum(self.hist)
+        if n == 0:
+            return None
+        want, seen = q / 100.0 * n, 0
+        for i, c in enumerate(self.hist):
+            seen += c
+            if seen >= want:
+                return (i + 1) / 10.0
+        return 1000.0
 
 
 class CyclicDevice(ABC, Generic[S]):
@@ -150,6 +167,7 @@ class CyclicDevice(ABC, Generic[S]):
                 if last_start is not None:
                     if now - last_start > self.stats.max_period_s:
                         self.stats.max_period_s = now - last_start
+                    self.stats.add_period(now - last_start)
                     if self.stats.keep:
                         self.stats.periods.append(now - last_start)
                 last_start = now
