@@ -18,9 +18,9 @@ Commands (each refused with a CellError naming the state when not allowed):
 from __future__ import annotations
 
 import asyncio
-import os
 import dataclasses
 import json
+import os
 from pathlib import Path
 from typing import Any, Callable
 
@@ -42,7 +42,6 @@ from core.errors import CellError, InputError
 COMMANDS = ("open_job", "run_alignment", "start", "pause", "resume", "abort", "reset", "estop")
 
 
-
 # The modules a connected cell imports lazily during a build (executors, handshake, readiness,
 # 5-axis post): loaded before the device cycles start.
 _BUILD_MODULES = ("controller.arc_handshake", "controller.readiness", "controller.post5", "core.material")
@@ -56,6 +55,7 @@ def preload_build_modules(platform: str) -> None:
 
     for name in (*_BUILD_MODULES, *_PLATFORM_MODULES.get(platform, _PLATFORM_MODULES["cnc"])):
         importlib.import_module(name)
+
 
 class CellController:
     """One cell: devices, state machine, interlocks, journal, build runner, event bus."""

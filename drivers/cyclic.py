@@ -165,11 +165,11 @@ class CyclicDevice(ABC, Generic[S]):
             while not self._closing:
                 now = time.monotonic()
                 if last_start is not None:
-                    if now - last_start > self.stats.max_period_s:
-                        self.stats.max_period_s = now - last_start
-                    self.stats.add_period(now - last_start)
+                    gap = now - last_start
+                    self.stats.max_period_s = max(self.stats.max_period_s, gap)
+                    self.stats.add_period(gap)
                     if self.stats.keep:
-                        self.stats.periods.append(now - last_start)
+                        self.stats.periods.append(gap)
                 last_start = now
                 try:
                     st = await self._one_cycle()
