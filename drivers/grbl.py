@@ -133,7 +133,11 @@ class CncLink:
         self._jogging = False     # a `$J=` was sent and may still be running
         self._quiet_until = 0.0   # grbl answers nothing during $H: no link/ack watchdog until then
         self._last_ack = time.monotonic()
-        self._still_since: float | None = None   # since when grbl has reported Idle / Alarm
+        # receipt times of Idle / Alarm reports: the first one since our last line or 'ok', and
+        # the newest (a lost 'ok' is judged on what grbl said, never on the clock alone)
+        self._still_since: float | None = None
+        self._still_seen = 0.0
+        self._last_sent = 0.0
         self._pace = pace
         self._port = SerialPort(url, baud=baud, name="cnc", pace=pace)
         self.version: str | None = None
@@ -306,7 +310,10 @@ class CncLink:
                 self._wco = r.wco
             self.latest_status = r
             if r.state in ("Idle", "Alarm"):
-                self._still_since = self._still_since or time.monotonic()
+                now = time.monotonic()
+                self._still_seen = now
+                if self._still_since is None or self._still_since <= max(self._last_sent, self._last_ack):
+                    self._still_since = now   # the first such report since our last line / 'ok'
             else:
                 self._still_since = None
             waiters, self._status_waiters = self._status_waiters, []
@@ -410,6 +417,7 @@ class CncLink:
         data = line.encode("ascii") + b"\n"
         p = _Pending(line, len(data), asyncio.get_running_loop().create_future(), number)
         self._pending.append(p)
+        self._last_sent = p.sent_at
         self._set_in_flight(self._in_flight + p.nbytes)
         await self._write(data)
         return p
@@ -552,15 +560,18 @@ class CncLink:
 
     # -- status -------------------------------------------------------------------------------
     def _check_acks(self, now: float) -> None:
-        """Fail the pending lines when grbl has been Idle (or in Alarm) and silent on them for
-        longer than `ack_grace_s` plus any dwell they ask for: a standing grbl answers every line
-        in its buffer within milliseconds, so their `ok` was lost (grbl has no checksums)."""
+        """Fail the pending lines when grbl has kept reporting Idle (or Alarm) without answering
+        them for longer than `ack_grace_s` plus any dwell they ask for: a standing grbl answers
+        every line in its buffer within milliseconds, so their `ok` was lost (grbl has no
+        checksums). The span is between the receipt of the first Idle report after our last line
+        or 'ok' and the newest one: a firmware starved of CPU (silent, or its held reports
+        arriving in one burst) is left to the link timeout, not called a lost 'ok'."""
         if not self._pending or self._still_since is None or now < self._quiet_until:
             return
+        if self._still_since <= max(self._last_sent, self._last_ack):
+            return
         dwell = sum(_dwell_s(p.line) for p in self._pending)
-        quiet = min(now - self._still_since, now - self._last_ack,
-                    now - max(p.sent_at for p in self._pending))
-        if quiet > self.ack_grace_s + dwell:
+        if self._still_seen - self._still_since > self.ack_grace_s + dwell:
             n = len(self._pending)
             a = self._pending[0].alarm
             if a is not None:   # the alarm's own line was never answered (hard limit, abort)

@@ -17,7 +17,7 @@ import pytest
 from core.config import Workpiece as WorkpieceConfig
 from core.config import load_cell, load_sim
 from drivers.errors import LinkLost
-from drivers.grbl import CncLink, GrblAlarm, GrblError, GrblReset, ProbeError
+from drivers.grbl import CncLink, GrblAckLost, GrblAlarm, GrblError, GrblReset, ProbeError
 from sims.clock import SimClock
 from sims.cnc_sim import CncSim
 from sims.faults import parse_fault_spec
@@ -339,6 +339,35 @@ async def test_silent_port_is_link_lost(rig_factory):
             await r.link.status()
     with pytest.raises(LinkLost):
         await r.link.command("G0 X1")
+
+
+async def test_firmware_starved_while_idle_is_not_a_lost_ok(rig_factory):
+    # A firmware that reported Idle and then gets no CPU for 3.5 s (longer than the 2 s ack grace,
+    # shorter than the link timeout) answers late, not never: the line must complete, not fail
+    # as a lost 'ok' (CI saw this on grblHAL's simulator beside another test worker).
+    r = await ready(rig_factory, link_timeout_s=8.0)
+    assert (await r.link.status()).state == "Idle"
+    r.server.stall(3.5)
+    t0 = asyncio.get_running_loop().time()
+    await r.link.command("G90")
+    assert asyncio.get_running_loop().time() - t0 > 3.0
+    assert (await r.link.status()).state == "Idle"
+
+
+async def test_lost_ok_with_grbl_idle_is_named(rig_factory):
+    # grbl has no checksums: an 'ok' lost on the line leaves the driver waiting while grbl keeps
+    # reporting Idle. The driver names it (GrblAckLost) instead of waiting for ever.
+    r = await ready(rig_factory, link_timeout_s=8.0)
+    assert (await r.link.status()).state == "Idle"
+    outbound = r.server.pipes[1]
+    outbound.drop = 1.0                       # everything grbl says is lost for 0.3 s: the 'ok' too
+    task = asyncio.ensure_future(r.link.command("G90"))
+    await asyncio.sleep(0.3)
+    outbound.drop = 0.0
+    t0 = asyncio.get_running_loop().time()
+    with pytest.raises(GrblAckLost, match="never acknowledged"):
+        await asyncio.wait_for(task, 6.0)
+    assert asyncio.get_running_loop().time() - t0 < r.link.ack_grace_s + 1.0
 
 
 async def test_unplugged_cable_is_link_lost(rig_factory):
