@@ -193,6 +193,65 @@ class Prober:
                 c.close()
 
 
+class OpcClient:
+    """A factory client during the build: subscribes to the process values and the state at a
+    20 ms publishing interval (as an MES dashboard would) and counts the notifications."""
+
+    NODES = (("State",), ("Monitoring", "Process", "Current"), ("Monitoring", "Process", "Voltage"),
+             ("Monitoring", "Process", "ArcOn"), ("JobManagement", "PassesDone"))
+
+    def __init__(self, endpoint: str) -> None:
+        self.endpoint = endpoint
+        self.changes = 0
+        self.connected = False
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=lambda: asyncio.run(self._run()), daemon=True)
+
+    def __enter__(self) -> "OpcClient":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(10)
+
+    def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+        self.changes += 1
+
+    async def _run(self) -> None:
+        import logging
+
+        from asyncua import Client
+
+        # the server goes away with `cell run` at the end of each build: the client's reconnect
+        # chatter is not a finding
+        logging.getLogger("asyncua").setLevel(logging.CRITICAL)
+        while not self._stop.is_set():   # the server starts when `cell run` has connected
+            client = Client(self.endpoint, timeout=2.0)
+            try:
+                await client.connect()
+            except Exception:
+                await asyncio.sleep(0.2)
+                continue
+            try:
+                ns = await client.get_namespace_index("urn:cell-controller:machines")
+                machines = await client.nodes.objects.get_child([f"{ns}:Machines"])
+                machine = (await machines.get_children())[0]
+                nodes = [await machine.get_child([f"{ns}:{p}" for p in path]) for path in self.NODES]
+                sub = await client.create_subscription(20, self)
+                await sub.subscribe_data_change(nodes)
+                self.connected = True
+                while not self._stop.is_set():
+                    await asyncio.sleep(0.1)
+            except Exception:
+                await asyncio.sleep(0.2)   # the build ended and the server with it
+            finally:
+                try:
+                    await client.disconnect()
+                except Exception:
+                    pass
+
+
 def one_build(job: Path, work: Path, *, hog: bool, probe: Prober | None = None,
               timeout_s: float = 600.0, hogs: int = 2, opcua: bool = False) -> dict[str, Any]:
     """One build against a fresh `cell sim up`; the result, alarms and the source's watchdog drops."""
@@ -204,16 +263,21 @@ def one_build(job: Path, work: Path, *, hog: bool, probe: Prober | None = None,
     hog_procs = CpuHogs(hogs) if hog else None
     prober = Prober({"power_source": cfg["devices"]["power_source"]["url"],
                      "cellio": cfg["devices"]["cellio"]["url"]}) if probe is None else probe
+    client = OpcClient(cfg["opcua"]["endpoint"]) if opcua else None
     t0 = time.monotonic()
     try:
         if hog_procs:
             hog_procs.__enter__()
+        if client:
+            client.__enter__()
         with prober:
             r = subprocess.run([sys.executable, "-m", "controller.cli.main", "run", str(job), "--cell-config",
                                 str(cfg_path), "--runs", str(work / "runs"), "--json"],
                                cwd=ROOT, capture_output=True, text=True, timeout=timeout_s)
     finally:
         stop(sim)  # first: a simulator left running (real-time priority) would load every later build
+        if client:
+            client.__exit__()
         if hog_procs:
             hog_procs.__exit__()
     out = json.loads(r.stdout) if r.stdout.strip() else {"state": "error", "alarms": [], "error": r.stderr[-500:]}
@@ -226,7 +290,8 @@ def one_build(job: Path, work: Path, *, hog: bool, probe: Prober | None = None,
             "links": links,
             "alarms": [a.get("message") for a in out.get("alarms", [])][:3], "watchdog_drops": drops,
             "error": out.get("error"), "reply_ms": {k: list(v) for k, v in prober.times.items()},
-            "probe_errors": dict(prober.errors)}
+            "probe_errors": dict(prober.errors),
+            "opcua_changes": client.changes if client else None}
 
 
 def pct(xs: list[float], q: float) -> float:
@@ -271,6 +336,8 @@ def main(argv: list[str] | None = None) -> int:
             summary[f"{dev}_reply_ms_{label}"] = {"n": len(xs), "p50": round(pct(xs, 50), 2),
                                                   "p99": round(pct(xs, 99), 2), "max": round(max(xs), 2) if xs else None}
     summary["opcua"] = a.opcua
+    if a.opcua:   # the client saw the build: data changes it was notified of, per build
+        summary["opcua_changes_per_build"] = sorted(r["opcua_changes"] or 0 for r in results)
     print(json.dumps(summary, indent=1))
     if a.json:
         Path(a.json).write_text(json.dumps({"summary": summary, "builds": [

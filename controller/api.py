@@ -86,7 +86,7 @@ class CellController:
         self.last_report: Path | None = None
         self._stats_task: asyncio.Task | None = None
         self.realtime = ""      # what elevate() obtained for the device cycles (a log line)
-        self.opcua: Any = None   # controller.opcua.server.FactoryServer when cell.yaml enables it
+        self.opcua: Any = None   # controller.opcua.attach.OpcuaProcess when cell.yaml enables it
         self.machine.subscribe(self._on_transition)
         self._publish_state()
 

@@ -16,7 +16,8 @@ from asyncua import Client, ua
 
 from controller.api import CellController
 from core.config import OpcUaSettings, load_cell, load_sim
-from controller.opcua.server import FactoryServer, Identification
+from controller.opcua.endpoint import Identification
+from controller.opcua.server import FactoryServer
 from controller.events import EventBus
 from core.errors import ConfigError
 from tests.test_build_robot import SIM_REPLY_TIMEOUT_MS, SimHarness, small_job, with_urls
@@ -160,3 +161,16 @@ def test_an_endpoint_off_the_host_needs_certificates_and_users() -> None:
     with pytest.raises(ConfigError, match="leaves the host"):
         FactoryServer(cfg, cell_name="c", identification=Identification("m", "m", "s", "r"),
                       bus=EventBus(), control=None)
+
+
+def test_the_controller_process_never_imports_asyncua() -> None:
+    """asyncua lives in the server's own process: imported by the controller (300 ms on the loop,
+    and its objects in every garbage collection) it stalled the device cycles once per build."""
+    import subprocess
+    import sys
+
+    code = ("import sys, controller.api, controller.opcua.attach, controller.cli.run; "
+            "print('asyncua' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                         cwd=Path(__file__).resolve().parent.parent)
+    assert out.stdout.strip() == "False", out.stderr[-2000:]

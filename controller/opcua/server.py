@@ -1,9 +1,10 @@
 """OPC UA server of one cell, fed by the controller's event bus (DESIGN.md §8).
 
-Runs asyncua on a thread and loop of its own, so a slow client never delays the controller's
-loop or its 10 ms device cycles. It reads only the bus's snapshots (the same events the TUI and
-the progress lines render) and calls the controller's commands through a `ControlPort` whose
-methods are safe to call from another thread.
+Runs asyncua on a thread and loop of its own; the controller runs it in a process of its own
+(controller.opcua.child, fed over a pipe) so it never shares the controller's interpreter lock.
+It reads only the bus's snapshots (the same events the TUI and the progress lines render) and
+calls the controller's commands through a `ControlPort` whose methods are safe to call from
+another thread.
 
 Node tree (modelled on OPC 40540 and OPC UA for Machinery), under Objects/Machines/<cell name>/:
 Identification (Manufacturer, Model, SerialNumber, SoftwareRevision), Monitoring/Process
@@ -17,17 +18,16 @@ from __future__ import annotations
 import asyncio
 import logging
 import threading
-from dataclasses import dataclass
 from typing import Any, Callable, Protocol
 
 from asyncua import Server, ua
 
 from controller.events import Alarm, EventBus, Snapshot
-from controller.opcua.security import PasswordUsers, endpoint_host, is_loopback
-from core.errors import CellError, ConfigError
+from controller.opcua.endpoint import PUBLISH_PERIOD_S, Identification, check_endpoint
+from controller.opcua.security import PasswordUsers
+from core.errors import CellError
 
 NAMESPACE = "urn:cell-controller:machines"
-PUBLISH_PERIOD_S = 0.05   # process values at 20 Hz at least; any snapshot change wakes it sooner
 log = logging.getLogger(__name__)
 
 
@@ -37,14 +37,6 @@ class ControlPort(Protocol):
     def pause(self) -> None: ...
     def resume(self) -> None: ...
     def abort(self) -> None: ...
-
-
-@dataclass(frozen=True)
-class Identification:
-    manufacturer: str
-    model: str
-    serial_number: str
-    software_revision: str
 
 
 PROCESS = {  # node name → (snapshot field, OPC UA type)
@@ -93,11 +85,7 @@ class FactoryServer:
         self.bus = bus
         self.control = control if opcua.allow_control else None
         self.endpoint = opcua.endpoint
-        self._secured = bool(opcua.certificate and opcua.private_key and opcua.users)
-        host, _port = endpoint_host(opcua.endpoint)
-        if not self._secured and not is_loopback(host):
-            raise ConfigError(f"opcua.endpoint {opcua.endpoint!r} leaves the host: serve it on 127.0.0.1, "
-                              "or configure opcua.certificate, opcua.private_key and opcua.users")
+        self._secured = check_endpoint(opcua)
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
         self._error: BaseException | None = None
