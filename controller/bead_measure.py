@@ -1,10 +1,15 @@
 """What the devices measured over one bead: the source's current / voltage / wire feed, and the
 robot's pace from its EXE reports (DESIGN.md §6: "done" and "deposited" come from the devices).
 
-The travel speed is the least-squares slope of the length reached against the arrival time of
-each EXE, over the moves executed with the arc stable. A slope over all the EXEs, rather than
-first to last, averages out the jitter of the arrival times: at time scale 120 a 1 ms delay is
-0.12 s of process time, a few per cent of a short bead.
+The travel speed is the slope of the lower envelope of the length reached against the arrival
+time of each EXE, over the moves executed with the arc stable. An EXE can only arrive late, never
+early (the robot's loop, the line and the host's reader all add delay), so the line that bounds
+the points from below is the robot's pace and the points above it are delays; a least-squares
+slope through all of them was pulled by any stretch of late arrivals (a host stall mid-bead:
+up to 12 % off on the demo at time scale 120, where a 1 ms delay is 0.12 s of process time).
+The envelope's edge over the middle of the bead is the optimum of the one-sided fit (minimise
+the summed delays, all delays >= 0). An EXE is cumulative: the moves it covers share one arrival
+time, and only the farthest of them is known to have just finished.
 """
 from __future__ import annotations
 
@@ -56,20 +61,18 @@ class Pace:
     starved: int = 0                      # times the robot's queue ran empty inside the bead
 
     def reached(self, t: float, s: float) -> None:
+        if self.points and t == self.points[-1][0]:   # the same (cumulative) EXE: its farthest move
+            self.points[-1] = (t, max(s, self.points[-1][1]))
+            return
         self.points.append((t, s))
 
     def speed_mm_s(self) -> float | None:
         """Wall mm/s: the slope over the EXEs (two or more), else from the release to the one EXE."""
         pts = self.points
         if len(pts) >= 2:
-            n = len(pts)
-            t_mean = sum(t for t, _ in pts) / n
-            s_mean = sum(s for _, s in pts) / n
-            var = sum((t - t_mean) ** 2 for t, _ in pts)
-            if var > 0:
-                slope = sum((t - t_mean) * (s - s_mean) for t, s in pts) / var
-                if slope > 0:
-                    return slope
+            v = envelope_speed(pts)
+            if v is not None:
+                return v
             t0, s0 = pts[0]
             t1, s1 = pts[-1]
             return (s1 - s0) / (t1 - t0) if t1 > t0 and s1 > s0 else None
@@ -88,3 +91,23 @@ class Pace:
         v_process = v / time_scale                # wall mm/s -> process mm/s
         return {"speed_mm_min": v_process * 60.0, "motion_s": length_mm / v_process if length_mm > 0 else 0.0,
                 "moves": len(self.points), "starved": self.starved}
+
+
+def envelope_speed(points: list[tuple[float, float]]) -> float | None:
+    """Slope ds/dt of the lower envelope of (arrival time, length) points, taken over the mean
+    length: the pace that minimises the summed (one-sided) delays. None when it is undefined."""
+    pts = sorted((s, t) for t, s in points)          # by length; t as a function of s
+    hull: list[tuple[float, float]] = []
+    for p in pts:
+        while len(hull) >= 2:
+            (s1, t1), (s2, t2) = hull[-2], hull[-1]
+            if (t2 - t1) * (p[0] - s1) >= (p[1] - t1) * (s2 - s1):   # hull[-1] lies on or above
+                hull.pop()
+            else:
+                break
+        hull.append(p)
+    s_mean = sum(s for s, _ in pts) / len(pts)
+    for (s1, t1), (s2, t2) in zip(hull, hull[1:]):
+        if s1 <= s_mean <= s2 and s2 > s1 and t2 > t1:
+            return (s2 - s1) / (t2 - t1)
+    return None
