@@ -61,7 +61,7 @@ _LATENCY_REQUEST = None   # the open /dev/cpu_dma_latency while this process hol
 
 
 def keep_cpus_awake() -> str:
-    """Ask the kernel (PM QoS) for a CPU wake-up latency of 0 for as long as this process lives.
+    """Ask the kernel (PM QoS) for a CPU wake-up latency of 0 until `relax()` (or the process ends).
 
     An idle CPU halts; waking it (on a virtual machine, the host scheduling the virtual CPU again)
     took 40-80 ms now and then on this machine, while a busy one answered within 11 ms: the
@@ -91,8 +91,13 @@ def is_realtime() -> bool:
 
 
 def relax() -> None:
-    """Back to time-shared scheduling and the default collector (after the devices are closed)."""
+    """Back to time-shared scheduling, the default collector and sleeping idle CPUs (after the
+    devices are closed)."""
+    global _LATENCY_REQUEST
     gc.set_threshold(*_DEFAULT_THRESHOLDS)
+    if _LATENCY_REQUEST is not None:   # closing the file withdraws the PM QoS request
+        _LATENCY_REQUEST.close()
+        _LATENCY_REQUEST = None
     try:
         if is_realtime():
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
