@@ -104,6 +104,17 @@ class EventBus:
         with self._lock:
             self._snap = self._snap.with_(**changes)
             snap, subs = self._snap, list(self._subs)
+        return self._notify(snap, subs)
+
+    def publish(self, snap: Snapshot) -> Snapshot:
+        """Replace the snapshot whole (a copy of another process's bus) and notify."""
+        with self._lock:
+            self._snap = snap
+            subs = list(self._subs)
+        return self._notify(snap, subs)
+
+    @staticmethod
+    def _notify(snap: Snapshot, subs: list[Subscriber]) -> Snapshot:
         for fn in subs:
             try:
                 fn(snap)

@@ -16,42 +16,11 @@ from __future__ import annotations
 
 import itertools
 import threading
-from typing import Any, Callable
+from typing import Any
 
-from controller.events import Snapshot
+from controller.events import EventBus, Snapshot
 
 CALL_TIMEOUT_S = 10.0
-
-
-class PipeBus:
-    """The child's view of the controller's EventBus: `latest` and `subscribe`, fed from a pipe."""
-
-    def __init__(self, initial: Snapshot) -> None:
-        self._snap = initial
-        self._subs: list[Callable[[Snapshot], None]] = []
-        self._lock = threading.Lock()
-
-    @property
-    def latest(self) -> Snapshot:
-        return self._snap
-
-    def update(self, snap: Snapshot) -> None:
-        with self._lock:
-            self._snap, subs = snap, list(self._subs)
-        for fn in subs:
-            fn(snap)
-
-    def subscribe(self, fn: Callable[[Snapshot], None]) -> Callable[[], None]:
-        with self._lock:
-            self._subs.append(fn)
-        fn(self._snap)
-
-        def unsubscribe() -> None:
-            with self._lock:
-                if fn in self._subs:
-                    self._subs.remove(fn)
-
-        return unsubscribe
 
 
 class PipeControl:
@@ -107,11 +76,10 @@ def run(snaps: Any, control: Any, opcua: Any, cell_name: str, ident: Any, initia
         os.nice(5)   # below the simulators and the controller when they share a CPU
     except OSError:
         pass
-    bus = PipeBus(initial)
+    bus = EventBus(initial)   # a copy of the controller's, replaced whole by every snapshot it sends
     ctl = PipeControl(control)
     try:
-        server = FactoryServer(opcua, cell_name=cell_name, identification=ident, bus=bus,  # type: ignore[arg-type]
-                               control=ctl)
+        server = FactoryServer(opcua, cell_name=cell_name, identification=ident, bus=bus, control=ctl)
         endpoint = server.start()
     except Exception as exc:  # told to the controller, which raises it in its own words
         ctl.send(("error", str(exc)))
@@ -133,7 +101,7 @@ def run(snaps: Any, control: Any, opcua: Any, cell_name: str, ident: Any, initia
             msg = snaps.recv()
             if msg[0] == "stop":
                 break
-            bus.update(msg[1])
+            bus.publish(msg[1])
     except (EOFError, OSError):
         pass   # the controller went away: stop serving
     finally:
