@@ -19,6 +19,7 @@ import threading
 from typing import Any
 
 from controller.events import EventBus, Snapshot
+from core.errors import CellError
 
 CALL_TIMEOUT_S = 10.0
 
@@ -30,27 +31,25 @@ class PipeControl:
         self._conn = conn
         self._ids = itertools.count(1)
         self._send_lock = threading.Lock()
-        self._waiting: dict[int, tuple[threading.Event, list[str | None]]] = {}
+        self._waiting: dict[int, threading.Event] = {}
+        self._refusals: dict[int, str | None] = {}
 
     def _call(self, command: str) -> None:
-        from core.errors import CellError
-
         n = next(self._ids)
-        done, box = threading.Event(), []   # type: ignore[var-annotated]
-        self._waiting[n] = (done, box)
-        with self._send_lock:
-            self._conn.send(("call", n, command))
+        done = self._waiting[n] = threading.Event()
+        self.send(("call", n, command))
         if not done.wait(CALL_TIMEOUT_S):
             self._waiting.pop(n, None)
             raise CellError(f"the controller did not answer {command} within {CALL_TIMEOUT_S:.0f} s")
-        if box and box[0] is not None:
-            raise CellError(box[0])
+        refusal = self._refusals.pop(n, None)
+        if refusal is not None:
+            raise CellError(refusal)
 
     def answered(self, n: int, error: str | None) -> None:
-        entry = self._waiting.pop(n, None)
-        if entry is not None:
-            entry[1].append(error)
-            entry[0].set()
+        done = self._waiting.pop(n, None)
+        if done is not None:
+            self._refusals[n] = error
+            done.set()
 
     def send(self, msg: tuple[Any, ...]) -> None:
         with self._send_lock:
