@@ -4,6 +4,10 @@
     .venv/bin/python -m bench.false_trips --builds 10     # a shorter run
     .venv/bin/python -m bench.false_trips --height 3      # a thinner block
 
+A host witness (controller/host_witness.py: one SCHED_FIFO 99 process pinned to each CPU, as the
+controller runs too) tells each reply over 20 ms apart: a CPU stopped running the guest meanwhile
+(the machine), or not (ours).
+
 Each build: a fresh `cell sim up` (cell.yaml at time scale 60, free ports), then `cell run` of a
 planned 80 x 50 x 8 mm block (6 mm beads) in another process, as a new user would. With `--hog`
 (every other build) two CPU-bound processes run beside them on this 2-core machine. Meanwhile an
@@ -27,6 +31,8 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+
+from bench._host_witness import WitnessRecord
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -132,6 +138,9 @@ def stop(proc: subprocess.Popen) -> None:
         proc.communicate()
 
 
+SLOW_MS = 20.0   # the issue's maximum reply time
+
+
 class Prober:
     """An independent Modbus client: reads the power source's and the cell I/O's status blocks
     every 10 ms on its own thread and keeps the reply times (ms)."""
@@ -140,6 +149,7 @@ class Prober:
         self.urls = urls
         self.times: dict[str, list[float]] = {k: [] for k in urls}
         self.errors: dict[str, int] = {k: 0 for k in urls}
+        self.slow: list[tuple[str, float, float]] = []   # (device, monotonic start, ms) of replies > SLOW_MS
         self._stop = threading.Event()
         self._thread = threading.Thread(target=lambda: asyncio.run(self._run()), daemon=True)
 
@@ -186,7 +196,10 @@ class Prober:
                     except Exception:
                         self.errors[name] += 1
                         continue
-                    self.times[name].append((time.perf_counter() - t0) * 1000.0)
+                    ms = (time.perf_counter() - t0) * 1000.0
+                    self.times[name].append(ms)
+                    if ms > SLOW_MS:
+                        self.slow.append((name, time.monotonic() - ms / 1000.0, ms))
                 await asyncio.sleep(0.01)
         finally:
             for c in clients.values():
@@ -264,13 +277,14 @@ def one_build(job: Path, work: Path, *, hog: bool, probe: Prober | None = None,
     prober = Prober({"power_source": cfg["devices"]["power_source"]["url"],
                      "cellio": cfg["devices"]["cellio"]["url"]}) if probe is None else probe
     client = OpcClient(cfg["opcua"]["endpoint"]) if opcua else None
+    witness = WitnessRecord()
     t0 = time.monotonic()
     try:
         if hog_procs:
             hog_procs.__enter__()
         if client:
             client.__enter__()
-        with prober:
+        with witness, prober:
             r = subprocess.run([sys.executable, "-m", "controller.cli.main", "run", str(job), "--cell-config",
                                 str(cfg_path), "--runs", str(work / "runs"), "--json"],
                                cwd=ROOT, capture_output=True, text=True, timeout=timeout_s)
@@ -284,13 +298,20 @@ def one_build(job: Path, work: Path, *, hog: bool, probe: Prober | None = None,
     # the source latches error 50 when its watchdog drops the start; the controller reads it
     drops = sum(1 for a in out.get("alarms", []) if "error 50" in a.get("message", "")
                 or "watchdog" in a.get("message", ""))
+    # each reply over SLOW_MS: did a CPU stop running the guest meanwhile (the witness's gap)?
+    slow = [{"device": d, "ms": round(ms, 1),
+             "t": round(t, 3),
+             "witness": [(cpu, round(g, 1)) for cpu, g in witness.overlapping(t, ms / 1000.0)]}
+            for d, t, ms in prober.slow]
     links = {x["device"]: {k: x.get(k) for k in ("late", "lost", "bad", "max_period_ms", "p99_period_ms")}
              for x in out.get("links", [])}
     return {"state": out.get("state"), "exit": r.returncode, "hog": hog, "wall_s": round(time.monotonic() - t0, 1),
             "links": links,
             "alarms": [a.get("message") for a in out.get("alarms", [])][:3], "watchdog_drops": drops,
             "error": out.get("error"), "reply_ms": {k: list(v) for k, v in prober.times.items()},
-            "probe_errors": dict(prober.errors),
+            "probe_errors": dict(prober.errors), "slow_replies": slow,
+            "defects": [str(d)[:200] for d in (out.get("defects") or [])][:5],
+            "witness_max_gap_ms": witness.longest_ms(),
             "opcua_changes": client.changes if client else None}
 
 
@@ -306,11 +327,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--builds", type=int, default=100)
     ap.add_argument("--height", type=float, default=8.0, help="block height, mm (default 8)")
     ap.add_argument("--json", metavar="FILE")
+    ap.add_argument("--work", metavar="DIR", help="keep every build's config and logs here (default: a temporary directory)")
     ap.add_argument("--opcua", action="store_true", help="serve OPC UA during the builds (its cost on the cycle)")
     a = ap.parse_args(argv)
     results = []
     with tempfile.TemporaryDirectory() as tmp:
-        work = Path(tmp)
+        work = Path(a.work or tmp)
+        work.mkdir(parents=True, exist_ok=True)
         job = block_job(work, a.height)
         for i in range(a.builds):
             res = one_build(job, work / f"b{i}", hog=bool(i % 2), opcua=a.opcua)
@@ -335,6 +358,13 @@ def main(argv: list[str] | None = None) -> int:
             xs = [x for r in sel for x in r["reply_ms"][dev]]
             summary[f"{dev}_reply_ms_{label}"] = {"n": len(xs), "p50": round(pct(xs, 50), 2),
                                                   "p99": round(pct(xs, 99), 2), "max": round(max(xs), 2) if xs else None}
+    # replies over SLOW_MS, told apart by the host witness: a CPU stalled meanwhile (the machine),
+    # or both CPUs ran the witness on time (the cell's own software)
+    slow = [x for r in results for x in r["slow_replies"]]
+    summary["slow_replies"] = {
+        "n": len(slow), "with_cpu_stalled": sum(1 for x in slow if x["witness"]),
+        "cpus_ran": sorted((x["device"], x["ms"]) for x in slow if not x["witness"])[-10:],
+        "longest_witness_gap_ms": max((g for r in results for g in r["witness_max_gap_ms"].values()), default=0.0)}
     summary["opcua"] = a.opcua
     if a.opcua:   # the client saw the build: data changes it was notified of, per build
         summary["opcua_changes_per_build"] = sorted(r["opcua_changes"] or 0 for r in results)

@@ -24,12 +24,14 @@ import os
 from pathlib import Path
 from typing import Any, Callable
 
-from core.realtime import elevate, quiet_gc, relax
+from core.realtime import elevate, is_realtime, quiet_gc, relax
 from controller.report_worker import write_report_elsewhere
 from controller.arc_out import RunOn
 from controller.jobcheck import check_job, job_material
 from controller.build import BuildOptions, BuildResult, BuildRunner, canonical_json, job_hash, job_name, run_dir_for
 from controller.cell import Devices
+from controller.host_witness import HostWitness
+from drivers.cyclic import CyclicDevice
 from core.config import CellConfig, load_material
 from controller.events import EventBus, LinkStat, Snapshot
 from controller.interlocks import Interlocks
@@ -86,6 +88,7 @@ class CellController:
         self.last_report: Path | None = None
         self._stats_task: asyncio.Task | None = None
         self.realtime = ""      # what elevate() obtained for the device cycles (a log line)
+        self.witness: HostWitness | None = None   # watches this host's CPUs while connected
         self.opcua: Any = None   # controller.opcua.attach.OpcuaProcess when cell.yaml enables it
         self.machine.subscribe(self._on_transition)
         self._publish_state()
@@ -145,8 +148,16 @@ class CellController:
             loop.set_debug(True)
             loop.slow_callback_duration = float(slow_ms) / 1000.0
         self.bus.update(message=self.realtime)
+        if is_realtime() and self.witness is None:
+            # a CPU of this host that stops running must not be taken for a silent device
+            self.witness = HostWitness()
+            self.bus.update(message=self.witness.start())
         self.devices = await Devices.open(self.cfg, self.material, resume_ticket=resume_ticket,
                                           reply_timeout_ms=reply_timeout_ms)
+        if self.witness is not None and self.witness.running:
+            for dev in (self.devices.power, self.devices.cellio):
+                if isinstance(dev, CyclicDevice):
+                    dev.host_stalled_s = self.witness.stalled_s
         if self.cfg.cell.platform == "robot":
             from controller.exec_robot import RobotExecutor
 
@@ -239,13 +250,20 @@ class CellController:
             self.opcua = None
         relax()
         if self.devices is None:
+            self._close_witness()
             return False
         try:
             self.devices.power_source().drop_all()
         except Exception:
             pass
         await self.devices.close()
+        self._close_witness()
         return True
+
+    def _close_witness(self) -> None:
+        if self.witness is not None:
+            self.witness.close()
+            self.witness = None
 
     # -- commands ---------------------------------------------------------------------------------
     def open_job(self, job: dict | str | Path, run_dir: str | Path | None = None) -> Path:

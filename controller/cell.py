@@ -18,6 +18,7 @@ from typing import Any
 from core.config import CellConfig, SimConfig, load_material
 from core.realtime import SIM_RT_PRIORITY, elevate
 from drivers.errors import DeviceError
+from sims.loop import precise_loop
 from controller.ports import CellIOPort, CncLinkPort, PowerSourcePort, RobotLinkPort
 from core.material import Material
 
@@ -46,7 +47,7 @@ class SimHarness:
         self.log_dir = Path(log_dir) if log_dir else None
         self.faults = faults
         self.modules = modules
-        self.loop = asyncio.new_event_loop()
+        self.loop = precise_loop()   # the simulators' timers on time (sims/loop.py)
         self.thread = threading.Thread(target=self._run, name="sims", daemon=True)
         self.served: dict[str, Any] = {}
         self.world: Any = None

@@ -73,6 +73,9 @@ class CyclicDevice(ABC, Generic[S]):
         self._waiters: list[asyncio.Future] = []
         self._closing = False
         self.stats = CycleStats()
+        # how long (s) some CPU of this host did not run between two monotonic times: set by the
+        # controller when it watches its CPUs (controller/host_witness.py), else never
+        self.host_stalled_s: Callable[[float, float], float] | None = None
 
     def where(self) -> str:
         return f"{self.device} at {self.url}"
@@ -86,8 +89,9 @@ class CyclicDevice(ABC, Generic[S]):
         and a step whose timer fired more than half a cycle late (this process or its machine
         did not run: scheduling, a long interpreter-lock hold, a virtual CPU taken away) is a
         host stall, counted in the statistics and not against the device, which had no fair
-        chance to be heard. A hard limit of ten budgets (at least 1 s) still ends the wait on a
-        host that never runs on time.
+        chance to be heard. So is the time another CPU of this host did not run meanwhile (the
+        `host_stalled_s` witness): the reply may have waited on it. A hard limit of ten budgets
+        (at least 1 s) still ends the wait on a host that never runs on time.
         """
         task = asyncio.ensure_future(aw)
         start = time.monotonic()
@@ -111,7 +115,10 @@ class CyclicDevice(ABC, Generic[S]):
                 if now - t0 - step > self.cycle_s / 2:
                     self.stats.host_stalls += 1
                 else:
-                    missed += step
+                    lost = self.host_stalled_s(t0, now) if self.host_stalled_s is not None else 0.0
+                    if lost > 0.0:
+                        self.stats.host_stalls += 1
+                    missed += max(0.0, step - lost)
                 if missed >= self.timeout_s - 1e-9 or now >= hard:
                     raise asyncio.TimeoutError()
         except BaseException:

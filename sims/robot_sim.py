@@ -31,7 +31,6 @@ class RobotSim:
 
     IDLE_TICK_S = 0.01  # wall seconds between executor ticks while nothing can move
     MIN_TICK_S = 0.0002
-    FINE_S = 0.0012     # the last stretch before a move's end, waited for by yielding
 
     def __init__(self, *, clock: SimClock, world: object | None = None, queue_slots: int = 64,
                  log_path: str | Path | None = None, heartbeat_s: float = 1.0,
@@ -279,23 +278,12 @@ class RobotSim:
             # while moving, wake when the head move ends: its EXE leaves on time, as a real
             # controller's does, not up to a tick late (the host measures travel speed from EXEs)
             pause = self.tick_s if was else self.IDLE_TICK_S
-            due: float | None = None
             if was and self._next_finish is not None:
                 to_end = self.clock.wall(self._next_finish - self.clock.now())
-                if to_end <= pause:
-                    due = time.monotonic() + max(0.0, to_end)
                 pause = max(self.MIN_TICK_S, min(pause, to_end))
-            if due is None:
-                await asyncio.sleep(pause)
-            else:
-                # the loop's timers wake up to 1 ms late (epoll's millisecond timeout, rounded
-                # up): at time scale 120 that is 0.12 s of process time on every EXE, which the
-                # host reads as travel-speed error. Wake a little early, then yield to the loop
-                # until the move's end (the other simulators' requests are served meanwhile; a
-                # blocking sleep here delayed their replies to 6 ms at p99)
-                await asyncio.sleep(max(0.0, pause - self.FINE_S))
-                while time.monotonic() < due:
-                    await asyncio.sleep(0)
+            # on the simulators' loop (sims/loop.py) a timer fires within microseconds of its
+            # time: the EXE leaves at the move's end (the host measures travel speed from EXEs)
+            await asyncio.sleep(pause)
             now = self.clock.now()
             if was:
                 self.advance(last, now)

@@ -10,13 +10,14 @@ import threading
 from typing import Any, Callable, Coroutine
 
 from core.realtime import SIM_RT_PRIORITY, elevate
+from sims.loop import precise_loop
 
 
 class SimThread:
     """An event loop in a daemon thread; `run(coro)` / `call(fn)` execute on it and wait."""
 
     def __init__(self) -> None:
-        self.loop = asyncio.new_event_loop()
+        self.loop = precise_loop()
         self._thread = threading.Thread(target=self._serve, name="sim loop", daemon=True)
         self._thread.start()
 

@@ -24,7 +24,7 @@ def test_three_builds_beside_a_cpu_hog_complete_without_a_false_trip(tmp_path: P
     job = block_job(tmp_path, 8.0)
     results = [one_build(job, tmp_path / f"b{i}", hog=True, hogs=1, timeout_s=300) for i in range(3)]
     for r in results:
-        assert r["state"] == "complete" and r["exit"] == 0, (r["state"], r["alarms"], r["error"])
+        assert r["state"] == "complete" and r["exit"] == 0, (r["state"], r["exit"], r["alarms"], r["defects"], r["error"])
         assert r["watchdog_drops"] == 0
     # the independent client was answered all along (figures: bench/false_trips.py)
     for dev in ("power_source", "cellio"):

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from core.config import load_cell, load_material, load_sim
 from sims.clock import SimClock
+from sims.loop import precise_loop
 from sims.up import SimContext, run_forever
 from sims.world import World
 
@@ -43,7 +44,8 @@ def _up(args: argparse.Namespace) -> int:
         sys.stdout.flush()
 
     try:
-        asyncio.run(run_forever(ctx, ready))
+        with asyncio.Runner(loop_factory=precise_loop) as runner:   # timers on time (sims/loop.py)
+            runner.run(run_forever(ctx, ready))
     except KeyboardInterrupt:
         pass
     return 0
