@@ -3,29 +3,30 @@
 The separate-process topology is the one real hardware has. Three builds of the 80 x 50 x 8 mm
 block (6 mm beads, time scale 60), each against a fresh `cell sim up`, with a CPU-bound process
 running beside them on this 2-core machine (one, not the benchmark's two: the other test worker
-shares the machine): every build completes, no power-source watchdog drop. bench/false_trips.py
+shares the machine): every build completes, no power-source watchdog drop, unless the host
+witness saw a CPU of this machine stop longer than the limit that tripped. bench/false_trips.py
 runs the 100-build version with two hogs and gives the reply-time figures.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
-import pytest
-
-from bench.false_trips import block_job, one_build, pct
+from bench.false_trips import block_job, host_explained, one_build, pct
 
 
-# Issue 12 is still open: about one separate-process build in 5 to 40 still faults on this
-# virtual machine (a 50 ms gap in the simulators' replies with the controller on time;
-# docs/false-trips.md). The guard runs in every `make test` and reports XPASS / XFAIL; it must
-# become strict again once that gap is found.
-@pytest.mark.xfail(reason="issue 12 open: a rare 50 ms gap in the simulators' replies on this VM", strict=False)
 def test_three_builds_beside_a_cpu_hog_complete_without_a_false_trip(tmp_path: Path) -> None:
     job = block_job(tmp_path, 8.0)
     results = [one_build(job, tmp_path / f"b{i}", hog=True, hogs=1, timeout_s=300) for i in range(3)]
     for r in results:
-        assert r["state"] == "complete" and r["exit"] == 0, (r["state"], r["exit"], r["alarms"], r["defects"], r["error"])
+        # a fault is only excused when the host witness saw a CPU of this machine stop for longer
+        # than the limit that tripped (100 ms watchdog, 50 ms link budget): the device then did
+        # what a real one does (bench/false_trips.host_explained; docs/false-trips.md)
+        if host_explained(r):
+            continue
+        assert r["state"] == "complete" and r["exit"] == 0, (r["state"], r["exit"], r["alarms"], r["defects"],
+                                                             r["error"], r["witness_max_gap_ms"])
         assert r["watchdog_drops"] == 0
+    assert sum(r["state"] == "complete" for r in results) >= 2, [r["witness_max_gap_ms"] for r in results]
     # the independent client was answered all along (figures: bench/false_trips.py)
     for dev in ("power_source", "cellio"):
         times = [x for r in results for x in r["reply_ms"][dev]]
