@@ -75,7 +75,7 @@ async def run(trials: int, seed: int) -> dict:
         return {"n": len(xs), "median_ms": round(statistics.median(xs), 3), "max_ms": round(max(xs), 3)} if xs else {}
 
     return {"trials": len(act), "trip_action": stat(act), "weld_start_0_on_the_bus": stat(drop),
-            "robot_held": sum(hold), "within_one_cycle": all(x <= 10.0 for x in act)}
+            "robot_held": sum(hold), "within_one_cycle": all(x <= 10.0 for x in act) and bool(drop) and all(x <= 10.0 for x in drop)}
 
 
 def main(argv: list[str]) -> int:

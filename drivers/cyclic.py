@@ -76,6 +76,8 @@ class CyclicDevice(ABC, Generic[S]):
         # how long (s) some CPU of this host did not run between two monotonic times: set by the
         # controller when it watches its CPUs (controller/host_witness.py), else never
         self.host_stalled_s: Callable[[float, float], float] | None = None
+        self._kicked = False                       # cycle_now() asked for an exchange at once
+        self._wake: asyncio.Future[bool] | None = None
 
     def where(self) -> str:
         return f"{self.device} at {self.url}"
@@ -204,15 +206,36 @@ class CyclicDevice(ABC, Generic[S]):
                 now = time.monotonic()
                 if now - deadline > period:
                     deadline = now
-                await self._sleep_until(deadline)
+                if await self._sleep_until(deadline):
+                    deadline -= period   # an extra exchange: the scheduled one still comes on time
         except asyncio.CancelledError:
             raise
         except Exception as exc:  # an unexpected transport error is still a lost link
             self._fail(LinkLost(f"{self.where()}: cycle stopped ({exc!r})"))
 
-    async def _sleep_until(self, deadline: float) -> None:
-        """Sleep to `deadline` (time.monotonic())."""
-        await asyncio.sleep(max(0.0, deadline - time.monotonic()))
+    def cycle_now(self) -> None:
+        """Exchange at once instead of at the next cycle (an interlock's drop goes out now); the
+        cycle's schedule is kept. During an exchange: the next one follows it at once."""
+        self._kicked = True
+        if self._wake is not None and not self._wake.done():
+            self._wake.set_result(True)
+
+    async def _sleep_until(self, deadline: float) -> bool:
+        """Sleep to `deadline` (time.monotonic()); True when cycle_now() cut the sleep short."""
+        if self._kicked:
+            self._kicked = False
+            return True
+        loop = asyncio.get_running_loop()
+        self._wake = fut = loop.create_future()
+        timer = loop.call_later(max(0.0, deadline - time.monotonic()),
+                                lambda: fut.done() or fut.set_result(False))
+        try:
+            kicked = await fut
+        finally:
+            timer.cancel()
+            self._wake = None
+        self._kicked = False
+        return kicked
 
     def _fail(self, exc: CellError) -> None:
         self._error = exc

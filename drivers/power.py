@@ -224,8 +224,10 @@ class PowerSource(CyclicDevice[PowerStatus]):
         self._cmd = replace(self._cmd, wire_retract=bool(on), wire_inch=False if on else self._cmd.wire_inch)
 
     def drop_all(self) -> None:
-        """Clear every start bit (weld start, gas test, inch, retract): the interlock action."""
+        """Clear every start bit (weld start, gas test, inch, retract): the interlock action. The
+        cleared bits go out at once, not at the next cycle."""
         self._cmd = replace(self._cmd, weld_start=False, gas_test=False, wire_inch=False, wire_retract=False)
+        self.cycle_now()
 
     async def error_reset(self) -> PowerStatus:
         """Give a rising edge on the error-reset bit (held 2 cycles, then cleared); latest status."""

@@ -34,10 +34,12 @@ def test_demo_plans_aligns_builds_and_reports(tmp_path: Path) -> None:
     assert "layer 2/2" in r.stderr  # progress lines while it runs (on stderr with --json)
     # the robot's queue never ran empty inside a bead (the line is paced at the simulated rate)
     assert rep["travel_speed"]["starved_beads"] == 0 and rep["travel_speed"]["beads_measured"] == 8
+    # the travel speed timed from the robot's EXEs: the 2 % on every bead is the demo's
+    # figure on a quiet machine (docs/build-record.md: worst 0.8-1.0 %); here, beside the other
+    # test worker, a looser bound still catches a robot that does not keep pace (was 27 % off)
+    assert abs(rep["travel_speed"]["worst_deviation"]) < 0.05, rep["travel_speed"]
     # every bead deposited its planned length: the plan's arc time and the deposited length at
-    # planned speed agree. (The measured-speed figure is timed from EXE arrivals: on a test
-    # machine where every worker runs real-time cell processes it is not asserted; the demo's
-    # figures on a quiet machine are in docs/build-record.md.)
+    # planned speed agree
     a = rep["arc_time_figures"]
     assert abs(a["planned_s"] / a["plan_s"] - 1) < 0.01, a
     assert a["measured_s"] > 0
