@@ -70,6 +70,10 @@ class GrblAckLost(DeviceError):
     """grbl sits idle while lines are still unacknowledged: their `ok` was lost on the line."""
 
 
+class GrblStuck(DeviceError):
+    """grbl keeps reporting Idle but does not read the lines waiting in its RX buffer."""
+
+
 class GrblReset(DeviceError):
     """The controller was reset (0x18 or power cycle) while lines were still unacknowledged."""
 
@@ -116,7 +120,8 @@ class CncLink:
 
     def __init__(self, url: str, *, baud: int = 115200, rx_buffer_bytes: int = 128, status_hz: float = 5.0,
                  link_timeout_s: float = 3.0, connect_timeout_s: float = 5.0, alarm_grace_s: float = 3.0,
-                 ack_grace_s: float = 2.0, pace: bool = True, homing_timeout_s: float = 120.0) -> None:
+                 ack_grace_s: float = 2.0, pace: bool = True, homing_timeout_s: float = 120.0,
+                 stuck_after_s: float = 30.0) -> None:
         if not 0 < status_hz <= 5.0:
             raise ValueError("status_hz must be in (0, 5]: grbl recommends at most 5 status reports a second")
         if rx_buffer_bytes < 16:
@@ -129,6 +134,8 @@ class CncLink:
         self.connect_timeout_s = connect_timeout_s
         self.alarm_grace_s = alarm_grace_s
         self.ack_grace_s = ack_grace_s
+        # grbl Idle with our bytes unread this long: stuck (grblHAL's spindle delays go up to 20 s)
+        self.stuck_after_s = stuck_after_s
         self.homing_timeout_s = homing_timeout_s
         self._jogging = False     # a `$J=` was sent and may still be running
         self._quiet_until = 0.0   # grbl answers nothing during $H: no link/ack watchdog until then
@@ -137,6 +144,9 @@ class CncLink:
         # the newest (a lost 'ok' is judged on what grbl said, never on the clock alone)
         self._still_since: float | None = None
         self._still_seen = 0.0
+        self._rx_free_max = 0             # the largest Bf: RX free seen: grbl's empty RX buffer
+        self._held_since: float | None = None   # as _still_since, for reports with bytes still unread
+        self._held_seen = 0.0
         self._last_sent = 0.0
         self._pace = pace
         self._port = SerialPort(url, baud=baud, name="cnc", pace=pace)
@@ -309,7 +319,19 @@ class CncLink:
             if r.wco is not None:
                 self._wco = r.wco
             self.latest_status = r
-            if r.state in ("Idle", "Alarm"):
+            if r.rx_free is not None:   # Bf: (grblHAL by default): the most free is the empty buffer
+                self._rx_free_max = max(self._rx_free_max, r.rx_free)
+            # bytes still in grbl's RX buffer: it has not read all our lines yet (a spindle or
+            # coolant change waits in a sync loop that keeps reporting Idle), so nothing is lost
+            holding = r.rx_free is not None and r.rx_free < self._rx_free_max
+            if r.state in ("Idle", "Alarm") and holding:
+                now = time.monotonic()
+                self._held_seen = now
+                if self._held_since is None or self._held_since <= max(self._last_sent, self._last_ack):
+                    self._held_since = now
+            else:
+                self._held_since = None
+            if r.state in ("Idle", "Alarm") and not holding:
                 now = time.monotonic()
                 self._still_seen = now
                 if self._still_since is None or self._still_since <= max(self._last_sent, self._last_ack):
@@ -565,8 +587,22 @@ class CncLink:
         every line in its buffer within milliseconds, so their `ok` was lost (grbl has no
         checksums). The span is between the receipt of the first Idle report after our last line
         or 'ok' and the newest one: a firmware starved of CPU (silent, or its held reports
-        arriving in one burst) is left to the link timeout, not called a lost 'ok'."""
-        if not self._pending or self._still_since is None or now < self._quiet_until:
+        arriving in one burst) is left to the link timeout, not called a lost 'ok'. Where grbl
+        reports its buffers (Bf:, grblHAL's default) a report with bytes still in its RX buffer is
+        not a standing grbl: it has lines of ours to read, and the span starts again."""
+        if not self._pending or now < self._quiet_until:
+            return
+        held = self._held_since
+        if held is not None and held > max(self._last_sent, self._last_ack) and \
+                self._held_seen - held > self.stuck_after_s + sum(_dwell_s(p.line) for p in self._pending):
+            st = self.latest_status
+            self._fail_pending(GrblStuck(
+                f"cnc at {self.url}: grbl has reported Idle for {self._held_seen - held:.0f} s with "
+                f"{self._rx_free_max - (st.rx_free or 0) if st else '?'} byte(s) of ours unread in its RX buffer "
+                f"and {len(self._pending)} line(s) from {self._pending[0].line!r} on unanswered: the firmware "
+                "stopped reading its input; soft reset it (or power-cycle the controller)"))
+            return
+        if self._still_since is None:
             return
         if self._still_since <= max(self._last_sent, self._last_ack):
             return
@@ -578,9 +614,15 @@ class CncLink:
                 self._fail_pending((ProbeError if a.code in (4, 5) else GrblAlarm)(a.code, self._pending[0].line, self.url))
                 return
             self._fail_pending(GrblAckLost(
-                f"cnc at {self.url}: grbl is {self.latest_status.state if self.latest_status else '?'} but "
+                f"cnc at {self.url}: grbl is {self.latest_status.state if self.latest_status else '?'}{self._rx_note()} but "
                 f"{n} line(s) from {self._pending[0].line!r} on were never acknowledged (an 'ok' was lost "
                 "on the line); check the cable, then re-sync with a soft reset"))
+
+    def _rx_note(self) -> str:
+        st = self.latest_status
+        if st is None or st.rx_free is None:
+            return ""
+        return f" with its RX buffer empty (Bf: {st.rx_free} bytes free)"
 
     async def _poll_loop(self) -> None:
         while True:

@@ -113,6 +113,7 @@ class CncSim:
         self.executed_count = 0
         self.starved = 0          # times the planner ran empty while lines were still arriving
         self._rx = bytearray()
+        self.hung = False    # a firmware whose main loop stopped reading its input (tests set it)
         self._line: list[str] = []
         self._overflow = False
         self._comment = 0
@@ -335,6 +336,9 @@ class CncSim:
     # -- protocol: lines out of the RX ring -------------------------------------------------
     async def _protocol_loop(self) -> None:
         while True:
+            if self.hung:   # the main loop stuck: nothing read, real-time '?' still answered
+                await asyncio.sleep(0.05)
+                continue
             if not self._rx:
                 self._rx_event.clear()
                 await self._rx_event.wait()

@@ -17,7 +17,7 @@ import pytest
 from core.config import Workpiece as WorkpieceConfig
 from core.config import load_cell, load_sim
 from drivers.errors import LinkLost
-from drivers.grbl import CncLink, GrblAckLost, GrblAlarm, GrblError, GrblReset, ProbeError
+from drivers.grbl import CncLink, GrblAckLost, GrblAlarm, GrblError, GrblReset, GrblStuck, ProbeError
 from sims.clock import SimClock
 from sims.cnc_sim import CncSim
 from sims.faults import parse_fault_spec
@@ -368,6 +368,22 @@ async def test_lost_ok_with_grbl_idle_is_named(rig_factory):
     with pytest.raises(GrblAckLost, match="never acknowledged"):
         await asyncio.wait_for(task, 6.0)
     assert asyncio.get_running_loop().time() - t0 < r.link.ack_grace_s + 1.0
+
+
+async def test_firmware_that_stops_reading_is_named_not_waited_for(rig_factory):
+    # grbl keeps answering '?' (its serial interrupt) while its main loop reads nothing more: with
+    # Bf: in the reports the driver sees its line still in grbl's RX buffer. That is not a lost
+    # 'ok' (nothing was answered yet), and it is not waited for for ever either: GrblStuck.
+    r = await ready(rig_factory, link_timeout_s=10.0)
+    await r.link.command("$10=3")             # status reports with Bf: (grblHAL's default)
+    r.link.stuck_after_s = 3.0                # longer than the lost-'ok' grace (2 s): that must not fire
+    st = await r.link.status()
+    assert st.rx_free is not None
+    r.sim.hung = True
+    t0 = asyncio.get_running_loop().time()
+    with pytest.raises(GrblStuck, match=r"4 byte\(s\) of ours unread .* from 'G90' on unanswered"):
+        await asyncio.wait_for(r.link.command("G90"), 8.0)
+    assert asyncio.get_running_loop().time() - t0 < r.link.stuck_after_s + 1.5
 
 
 async def test_unplugged_cable_is_link_lost(rig_factory):

@@ -254,7 +254,6 @@ async def test_exported_gcode_runs_on_real_firmware_every_line_ok(tmp_path, kind
     import asyncio
 
     from controller.align.kinematics import Trunnion
-    from drivers.grbl import CncLink
     from tests.peers import firmware
 
     try:
@@ -265,14 +264,5 @@ async def test_exported_gcode_runs_on_real_firmware_every_line_ok(tmp_path, kind
                      travel_mm_min=3000.0, trunnion=Trunnion())
     lines = list(res.files.values())[0]
     code = [ln for ln in lines if not ln.startswith("(")]
-    with firmware.serve(kind) as pty:
-        link = CncLink(pty, connect_timeout_s=10.0, link_timeout_s=10.0)
-        await link.connect()
-        try:
-            st = await link.status()
-            if st.state.startswith("Alarm"):
-                await link.unlock()
-            out = await link.stream(lines)   # raises GrblError naming the first refused line
-        finally:
-            await link.close()
+    out, _axes = await firmware.stream_program(kind, lines)   # GrblError names the first refused line
     assert out.acked == out.lines >= len(code)
