@@ -45,8 +45,10 @@ def test_one_exe_for_several_moves_counts_its_farthest_move_only():
 @settings(max_examples=60, deadline=None)
 @given(st.floats(5.0, 5000.0), st.integers(4, 80), st.integers(0, 2**31 - 1))
 def test_random_late_arrivals_leave_the_speed_within_a_few_per_cent(v, n, seed):
-    # delays of 0.5 % of the bead on average, at random: the estimate stays within 3 %; an
-    # arrival stream with no delay gives the speed exactly
+    # delays of 0.5 % of the bead on average, at random: the envelope's slope joins two arrivals
+    # at least one move apart, so its time is off by at most the largest delay over one move's
+    # time (a few per cent with these delays on a bead of many moves; with 4 moves hypothesis
+    # found 3.1 %); an arrival stream with no delay gives the speed exactly
     rng = np.random.default_rng(seed)
     bead_s = n * 5.85 / v
     exact = _arrivals(v, n, np.zeros(n)).speed_mm_s()
@@ -54,4 +56,6 @@ def test_random_late_arrivals_leave_the_speed_within_a_few_per_cent(v, n, seed):
     delays = rng.exponential(0.005 * bead_s, n)
     delays[rng.integers(0, n, 2)] = 0.0    # at least some EXEs arrive on time
     got = _arrivals(v, n, delays).speed_mm_s()
-    assert got is not None and abs(got / v - 1.0) < 0.03
+    assert got is not None and abs(v / got - 1.0) <= delays.max() / (bead_s / n) + 1e-9
+    if n >= 40:   # many moves: within the 3 % the tolerance asks of the demo
+        assert abs(got / v - 1.0) < 0.03
