@@ -143,7 +143,27 @@ def stop(proc: subprocess.Popen) -> None:
 SLOW_MS = 20.0   # the issue's maximum reply time
 
 
-class Prober:
+class _LoopThread:
+    """An asyncio loop on a thread of its own running `_run()` for as long as the context lasts;
+    `_run()` ends when `_stop` is set."""
+
+    def __init__(self) -> None:
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=lambda: asyncio.run(self._run()), daemon=True)
+
+    def __enter__(self) -> "_LoopThread":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(10)
+
+    async def _run(self) -> None:
+        raise NotImplementedError
+
+
+class Prober(_LoopThread):
     """An independent Modbus client: reads the power source's and the cell I/O's status blocks
     every 10 ms on its own thread and keeps the reply times (ms)."""
 
@@ -152,16 +172,7 @@ class Prober:
         self.times: dict[str, list[float]] = {k: [] for k in urls}
         self.errors: dict[str, int] = {k: 0 for k in urls}
         self.slow: list[tuple[str, float, float]] = []   # (device, monotonic start, ms) of replies > SLOW_MS
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=lambda: asyncio.run(self._run()), daemon=True)
-
-    def __enter__(self) -> "Prober":
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join(10)
+        super().__init__()
 
     async def _run(self) -> None:
         from pymodbus.client import AsyncModbusTcpClient
@@ -208,7 +219,7 @@ class Prober:
                 c.close()
 
 
-class OpcClient:
+class OpcClient(_LoopThread):
     """A factory client during the build: subscribes to the process values and the state at a
     20 ms publishing interval (as an MES dashboard would) and counts the notifications."""
 
@@ -219,16 +230,7 @@ class OpcClient:
         self.endpoint = endpoint
         self.changes = 0
         self.connected = False
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=lambda: asyncio.run(self._run()), daemon=True)
-
-    def __enter__(self) -> "OpcClient":
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join(10)
+        super().__init__()
 
     def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
         self.changes += 1

@@ -70,6 +70,30 @@ class GrblAckLost(DeviceError):
     """grbl sits idle while lines are still unacknowledged: their `ok` was lost on the line."""
 
 
+class _ReportSpan:
+    """Receipt times of one kind of status report: the first since our last line or 'ok'
+    (`since`), and the newest (`seen`). Its length is judged on what grbl said, never on the
+    clock alone."""
+
+    def __init__(self) -> None:
+        self.since: float | None = None
+        self.seen = 0.0
+
+    def see(self, now: float, last_activity: float) -> None:
+        self.seen = now
+        if self.since is None or self.since <= last_activity:
+            self.since = now
+
+    def clear(self) -> None:
+        self.since = None
+
+    def length(self, last_activity: float) -> float | None:
+        """Seconds between the first and the newest report since `last_activity`; None if none."""
+        if self.since is None or self.since <= last_activity:
+            return None
+        return self.seen - self.since
+
+
 class GrblStuck(DeviceError):
     """grbl keeps reporting Idle but does not read the lines waiting in its RX buffer."""
 
@@ -140,13 +164,9 @@ class CncLink:
         self._jogging = False     # a `$J=` was sent and may still be running
         self._quiet_until = 0.0   # grbl answers nothing during $H: no link/ack watchdog until then
         self._last_ack = time.monotonic()
-        # receipt times of Idle / Alarm reports: the first one since our last line or 'ok', and
-        # the newest (a lost 'ok' is judged on what grbl said, never on the clock alone)
-        self._still_since: float | None = None
-        self._still_seen = 0.0
-        self._rx_free_max = 0             # the largest Bf: RX free seen: grbl's empty RX buffer
-        self._held_since: float | None = None   # as _still_since, for reports with bytes still unread
-        self._held_seen = 0.0
+        self._still = _ReportSpan()   # Idle / Alarm reports with grbl's RX buffer empty (or not reported)
+        self._held = _ReportSpan()    # Idle / Alarm reports with bytes of ours still unread (Bf:)
+        self._rx_free_max = 0         # the largest Bf: RX free seen: grbl's empty RX buffer
         self._last_sent = 0.0
         self._pace = pace
         self._port = SerialPort(url, baud=baud, name="cnc", pace=pace)
@@ -324,20 +344,12 @@ class CncLink:
             # bytes still in grbl's RX buffer: it has not read all our lines yet (a spindle or
             # coolant change waits in a sync loop that keeps reporting Idle), so nothing is lost
             holding = r.rx_free is not None and r.rx_free < self._rx_free_max
-            if r.state in ("Idle", "Alarm") and holding:
-                now = time.monotonic()
-                self._held_seen = now
-                if self._held_since is None or self._held_since <= max(self._last_sent, self._last_ack):
-                    self._held_since = now
-            else:
-                self._held_since = None
-            if r.state in ("Idle", "Alarm") and not holding:
-                now = time.monotonic()
-                self._still_seen = now
-                if self._still_since is None or self._still_since <= max(self._last_sent, self._last_ack):
-                    self._still_since = now   # the first such report since our last line / 'ok'
-            else:
-                self._still_since = None
+            idle, now, activity = r.state in ("Idle", "Alarm"), time.monotonic(), self._last_activity()
+            for span, on in ((self._held, idle and holding), (self._still, idle and not holding)):
+                if on:
+                    span.see(now, activity)
+                else:
+                    span.clear()
             waiters, self._status_waiters = self._status_waiters, []
             for f in waiters:
                 if not f.done():
@@ -592,22 +604,19 @@ class CncLink:
         not a standing grbl: it has lines of ours to read, and the span starts again."""
         if not self._pending or now < self._quiet_until:
             return
-        held = self._held_since
-        if held is not None and held > max(self._last_sent, self._last_ack) and \
-                self._held_seen - held > self.stuck_after_s + sum(_dwell_s(p.line) for p in self._pending):
+        activity = self._last_activity()
+        dwell = sum(_dwell_s(p.line) for p in self._pending)
+        held = self._held.length(activity)
+        if held is not None and held > self.stuck_after_s + dwell:
             st = self.latest_status
             self._fail_pending(GrblStuck(
-                f"cnc at {self.url}: grbl has reported Idle for {self._held_seen - held:.0f} s with "
+                f"cnc at {self.url}: grbl has reported Idle for {held:.0f} s with "
                 f"{self._rx_free_max - (st.rx_free or 0) if st else '?'} byte(s) of ours unread in its RX buffer "
                 f"and {len(self._pending)} line(s) from {self._pending[0].line!r} on unanswered: the firmware "
                 "stopped reading its input; soft reset it (or power-cycle the controller)"))
             return
-        if self._still_since is None:
-            return
-        if self._still_since <= max(self._last_sent, self._last_ack):
-            return
-        dwell = sum(_dwell_s(p.line) for p in self._pending)
-        if self._still_seen - self._still_since > self.ack_grace_s + dwell:
+        still = self._still.length(activity)
+        if still is not None and still > self.ack_grace_s + dwell:
             n = len(self._pending)
             a = self._pending[0].alarm
             if a is not None:   # the alarm's own line was never answered (hard limit, abort)
@@ -617,6 +626,10 @@ class CncLink:
                 f"cnc at {self.url}: grbl is {self.latest_status.state if self.latest_status else '?'}{self._rx_note()} but "
                 f"{n} line(s) from {self._pending[0].line!r} on were never acknowledged (an 'ok' was lost "
                 "on the line); check the cable, then re-sync with a soft reset"))
+
+    def _last_activity(self) -> float:
+        """When we last sent a line or grbl last answered one."""
+        return max(self._last_sent, self._last_ack)
 
     def _rx_note(self) -> str:
         st = self.latest_status
