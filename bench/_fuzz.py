@@ -49,12 +49,12 @@ def _mesh(kind: str) -> bytes:
 
 def seeds(tmp: Path) -> dict[str, bytes]:
     """One valid file of each kind the CLI reads."""
-    from controller.build import canonical_json, job_hash
+    from controller.runtime.build import canonical_json, job_hash
 
     job = _job()
     j = tmp / "seed-journal.sqlite"
     db = sqlite3.connect(j)
-    db.executescript(__import__("controller.journal", fromlist=["SCHEMA"]).SCHEMA)
+    db.executescript(__import__("controller.journal.store", fromlist=["SCHEMA"]).SCHEMA)
     db.execute("INSERT INTO job (hash, name, platform, created, job_json) VALUES (?,?,?,?,?)",
                (job_hash(job), "square", "robot", 0.0, canonical_json(job)))
     db.execute("INSERT INTO passes (layer, pass, state, run, t) VALUES (0, 0, 'started', 1, 0)")

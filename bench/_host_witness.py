@@ -1,6 +1,6 @@
 """The host witness for a benchmark: every gap of every CPU over a whole run (issue 12).
 
-controller/host_witness.py keeps the last gaps of each CPU in shared memory; this records them
+controller/runtime/host_witness.py keeps the last gaps of each CPU in shared memory; this records them
 all (read every 50 ms) so that each late device reply can be told apart: a CPU stopped running
 the guest meanwhile (the machine's stall), or both CPUs ran their witness on time (ours).
 
@@ -12,7 +12,7 @@ import sys
 import threading
 import time
 
-from controller.host_witness import HostWitness
+from controller.runtime.host_witness import HostWitness
 
 
 class WitnessRecord:

@@ -20,7 +20,7 @@ import numpy as np
 
 from controller.align.fit import fit_line, fit_plane
 from controller.align.probe_cycle import ProbeTarget, probe_points
-from controller.align.routine import _with_sim
+from controller.harness.align_sim import _with_sim
 from core.config import load_cell, load_sim
 from sims.workpiece import rot
 

@@ -74,7 +74,7 @@ def robot_starvation(log: Path) -> tuple[int, int, float]:
 
 async def one(cfgp: Path, scale: float, length: float, runs: Path) -> dict:
     from controller.api import CellController
-    from controller.build import BuildOptions
+    from controller.runtime.build import BuildOptions
     from core.config import load_cell
 
     cfg = load_cell(cfgp)

@@ -4,7 +4,7 @@
     .venv/bin/python -m bench.false_trips --builds 10     # a shorter run
     .venv/bin/python -m bench.false_trips --height 3      # a thinner block
 
-A host witness (controller/host_witness.py: one SCHED_FIFO 99 process pinned to each CPU, as the
+A host witness (controller/runtime/host_witness.py: one SCHED_FIFO 99 process pinned to each CPU, as the
 controller runs too) tells each reply over 20 ms apart: a CPU stopped running the guest meanwhile
 (the machine), or not (ours).
 

@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from controller.api import CellController
-from controller.build import weld_points
-from controller.cell import SimHarness, with_urls
+from controller.runtime.build import weld_points
+from controller.harness.sim import SimHarness, with_urls
 from core.config import load_cell, load_material, load_sim
-from controller.post5 import weld_axes
+from controller.motion.post5 import weld_axes
 from planner.five_axis import FiveAxisOptions
 from planner.job import job_to_dict
 from planner.plan import PlanOptions, plan_part
@@ -139,7 +139,7 @@ def _rotary_steps(log: Path) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from tests.parts5 import cone_frustum, tilted_tube
+    from bench.parts5 import cone_frustum, tilted_tube
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--part", choices=("tube", "frustum"), default="tube")

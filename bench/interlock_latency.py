@@ -27,7 +27,7 @@ from bench.kill_resume import soak_job  # noqa: E402
 
 async def run(trials: int, seed: int) -> dict:
     from controller.api import CellController
-    from controller.cell import SimHarness, with_urls
+    from controller.harness.sim import SimHarness, with_urls
     from controller.defaults import SIM_REPLY_TIMEOUT_MS
     from core.config import load_cell, load_sim
 

@@ -80,7 +80,7 @@ def _started(log: Path, mode: str) -> float | None:
 
 async def _build(tmp: Path, spec: str, scale: float, reset_errors: bool = False) -> dict[str, Any]:
     from controller.api import CellController
-    from controller.cell import SimHarness, with_urls
+    from controller.harness.sim import SimHarness, with_urls
     from core.config import load_cell, load_sim
 
     cfg = with_urls(load_cell(), {}, time_scale=scale)

@@ -17,7 +17,7 @@ import statistics
 import time
 import uuid
 
-from controller.arc_handshake import ArcFault, ArcHandshake, drop_start_on_unsafe
+from controller.runtime.arc_handshake import ArcFault, ArcHandshake, drop_start_on_unsafe
 from core.config import load_material
 from drivers.cellio import CellIO
 from drivers.power import PowerSource

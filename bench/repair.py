@@ -16,33 +16,14 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
 from bench.five_axis import _seg_dist
-from controller.build import weld_points
-from controller.cell import with_urls
+from controller.runtime.build import weld_points
+from controller.runtime.devices import with_urls
 from controller.cli.main import main as cell_main
-from controller.repair import _manifold, _trimesh
-from controller.repair_run import repair_run
-from core.config import load_cell, load_sim
-
-
-def make_parts(tmp: Path) -> tuple[Path, Path]:
-    cad = trimesh.creation.box(extents=(100, 100, 20))
-    cad.apply_translation((0, 0, -10))
-    pocket = trimesh.creation.box(extents=(20, 20, 4))
-    pocket.apply_translation((40, 40, -2))
-    stock = _trimesh(_manifold(cad, "cad") - _manifold(pocket, "pocket"))
-    cad.export(tmp / "cad.stl")
-    stock.export(tmp / "stock.stl")
-    return tmp / "cad.stl", tmp / "stock.stl"
-
-
-def posed_sim(stock: Path, a: float, b: float, c: float, off: tuple[float, float, float]):
-    sim = load_sim()
-    wp = sim.cnc.workpiece.model_copy(update={"mesh": str(stock), "tilt_a_deg": a, "tilt_b_deg": b,
-                                              "rotation_c_deg": c, "offset_mm": off})
-    return sim.model_copy(update={"cnc": sim.cnc.model_copy(update={"workpiece": wp})})
+from controller.harness.repair_parts import make_parts, posed_sim  # noqa: F401  (bench API)
+from controller.harness.repair import repair_run_sim
+from core.config import load_cell
 
 
 def deposit_vs_plan(job: dict, log: Path) -> dict:
@@ -73,8 +54,8 @@ async def one(tmp: Path, pose: tuple, scale: float = 60.0) -> dict:
                       "--out", str(tmp / "job.json")]) == 0
     job = json.loads((tmp / "job.json").read_text())
     cell = with_urls(load_cell(), {}, time_scale=scale)
-    rep = await repair_run(job, cell, job_path=tmp / "job.json", sim_cfg=posed_sim(stock, *pose),
-                           runs_dir=tmp / "runs", log_dir=tmp / "log")
+    rep = await repair_run_sim(job, cell, posed_sim(stock, *pose), job_path=tmp / "job.json",
+                               runs_dir=tmp / "runs", log_dir=tmp / "log")
     return {"pose": pose, "alignment": rep["alignment"], "verify": rep["verify"], **deposit_vs_plan(job, tmp / "log")}
 
 

@@ -1,7 +1,7 @@
 """The controller's facade for operator views (TUI, CLI): commands, allowed commands, snapshots.
 
 Everything runs on one asyncio loop (the caller's): `await ctl.connect()`, then the command
-methods. A view subscribes to immutable `Snapshot`s (controller/events.py) and asks
+methods. A view subscribes to immutable `Snapshot`s (controller/runtime/events.py) and asks
 `allowed_commands()` to grey out what is not allowed now.
 
 Commands (each refused with a CellError naming the state when not allowed):
@@ -25,20 +25,20 @@ from pathlib import Path
 from typing import Any, Callable
 
 from core.realtime import elevate, is_realtime, quiet_gc, relax
-from controller.report_worker import write_report_elsewhere
-from controller.arc_out import RunOn
-from controller.jobcheck import check_job, job_material
-from controller.build import BuildOptions, BuildResult, BuildRunner, canonical_json, job_hash, job_name, run_dir_for
-from controller.cell import Devices
-from controller.host_witness import HostWitness
+from controller.report.worker import write_report_elsewhere
+from controller.runtime.arc_out import RunOn
+from controller.job.check import check_job, job_material
+from controller.runtime.build import BuildOptions, BuildResult, BuildRunner, canonical_json, job_hash, job_name, run_dir_for
+from controller.runtime.devices import Devices
+from controller.runtime.host_witness import HostWitness
 from drivers.cyclic import CyclicDevice
 from core.config import CellConfig, load_material
-from controller.events import EventBus, LinkStat, Snapshot
-from controller.interlocks import Interlocks
-from controller.jobfile import read_job
-from controller.journal import Journal
-from controller.machine import CellMachine, State, TransitionRefused
-from controller.resume import remaining_work
+from controller.runtime.events import EventBus, LinkStat, Snapshot
+from controller.runtime.interlocks import Interlocks
+from controller.job.read import read_job
+from controller.journal.store import Journal
+from controller.runtime.machine import CellMachine, State, TransitionRefused
+from controller.runtime.resume import remaining_work
 from core.errors import CellError, InputError
 
 COMMANDS = ("open_job", "run_alignment", "start", "pause", "resume", "abort", "reset", "estop")
@@ -46,9 +46,9 @@ COMMANDS = ("open_job", "run_alignment", "start", "pause", "resume", "abort", "r
 
 # The modules a connected cell imports lazily during a build (executors, handshake, readiness,
 # 5-axis post): loaded before the device cycles start.
-_BUILD_MODULES = ("controller.arc_handshake", "controller.readiness", "controller.post5", "core.material")
-_PLATFORM_MODULES = {"robot": ("controller.exec_robot",),
-                     "cnc": ("controller.exec_cnc", "controller.align.kinematics")}
+_BUILD_MODULES = ("controller.runtime.arc_handshake", "controller.runtime.readiness", "controller.motion.post5", "core.material")
+_PLATFORM_MODULES = {"robot": ("controller.motion.robot",),
+                     "cnc": ("controller.motion.cnc", "controller.motion.kinematics")}
 
 
 def preload_build_modules(platform: str) -> None:
@@ -159,12 +159,12 @@ class CellController:
                 if isinstance(dev, CyclicDevice):
                     dev.host_stalled_s = self.witness.stalled_s
         if self.cfg.cell.platform == "robot":
-            from controller.exec_robot import RobotExecutor
+            from controller.motion.robot import RobotExecutor
 
             self.executor = RobotExecutor(self.devices.robot_link())
         else:
-            from controller.align.kinematics import Trunnion
-            from controller.exec_cnc import CncExecutor
+            from controller.motion.kinematics import Trunnion
+            from controller.motion.cnc import CncExecutor
 
             self.executor = CncExecutor(self.devices.cnc_link(), self.devices.power_source(),
                                         trunnion=Trunnion.from_config(self.cfg.kinematics))
@@ -172,7 +172,7 @@ class CellController:
                                      power=self.devices.power_source(), executor=self.executor,
                                      cellio=self.devices.cellio)
         self.interlocks.arm()
-        from controller.arc_handshake import ArcHandshake
+        from controller.runtime.arc_handshake import ArcHandshake
 
         ilk = self.interlocks
         self.arc = ArcHandshake(self.devices.power_source(), on_fault=lambda exc: ilk.fault(str(exc)))
@@ -355,7 +355,7 @@ class CellController:
             # the links' health over the run goes into the record (late / lost / bad)
             self.journal.event("links", json.dumps([dataclasses.asdict(x) for x in self._links()]))
         # The build record is written at the end of every build, whoever started it (CLI or TUI),
-        # in a worker process (controller/report_worker.py): plotting takes seconds and holds the
+        # in a worker process (controller/report/worker.py): plotting takes seconds and holds the
         # interpreter lock, and the device cycles (the power source's watchdog counter) run on
         # this loop while the cell stays connected.
         await asyncio.to_thread(self.journal.flush)
@@ -366,7 +366,7 @@ class CellController:
 
     def write_report(self, plots: bool = True) -> Path:
         """report.json (+ PNGs) in the run directory, from the journal."""
-        from controller.report import write_report
+        from controller.report.summary import write_report
 
         if self.journal is None or self.run_dir is None:
             raise CellError("no job is open: nothing to report")

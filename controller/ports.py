@@ -4,7 +4,7 @@ The build runner, the interlocks and the API hold devices through these types, n
 driver that renames a method or a field the safety path reads fails the type check (`make lint`),
 not a build. The drivers satisfy them structurally (no inheritance): drivers.robot.RobotLink,
 drivers.grbl.CncLink, drivers.power.PowerSource, drivers.cellio.CellIO; the executors are
-controller.exec_robot.RobotExecutor and controller.exec_cnc.CncExecutor.
+controller.motion.robot.RobotExecutor and controller.motion.cnc.CncExecutor.
 """
 from __future__ import annotations
 
@@ -122,7 +122,7 @@ class CncLinkPort(ProbePort, Protocol):
 
 
 class MotionExecutor(Protocol):
-    """Runs the build's motion on one platform (controller.exec_robot / controller.exec_cnc)."""
+    """Runs the build's motion on one platform (controller.motion.robot / controller.motion.cnc)."""
 
     def on_link_lost(self, fn: Callable[[CellError], None]) -> None: ...
     async def prepare(self) -> None: ...
@@ -139,7 +139,7 @@ class MotionExecutor(Protocol):
 
 
 class ArcControl(Protocol):
-    """Arc start and end against the power source (controller.arc_handshake.ArcHandshake)."""
+    """Arc start and end against the power source (controller.runtime.arc_handshake.ArcHandshake)."""
 
     async def start(self) -> None: ...
     async def stop(self) -> None: ...

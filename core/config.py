@@ -95,7 +95,7 @@ class PowerSourceDevice(_Frozen):
     lost_after_cycles: int = Field(default=3, ge=1, le=100)
     timeout_ms: float | None = Field(default=None, gt=0.0)  # overrides it (a fixed reply timeout)
     can: CanSettings = CanSettings()
-    # device properties a resume after a crash relies on (controller/arc_out.py): the start is
+    # device properties a resume after a crash relies on (controller/runtime/arc_out.py): the start is
     # dropped after watchdog_ms (wall) without a new counter; the arc then burns on for
     # watchdog_burnback_s (process time; 0: the source goes idle at once, as the simulator does)
     watchdog_ms: float = Field(default=100.0, gt=0.0, le=10000.0)
@@ -123,7 +123,7 @@ class Limits(_Frozen):
     workspace_max_mm: tuple[float, float, float] = (500.0, 500.0, 500.0)
     clearance_mm: float = Field(default=10.0, ge=0.0, le=500.0)
     max_part_temperature_c: float = Field(default=400.0, gt=0.0, le=2000.0)
-    # the job check before motion (controller/jobcheck.py): interpass limits must lie above the
+    # the job check before motion (controller/job/check.py): interpass limits must lie above the
     # ambient; a pass planned outside the material's envelope runs only where the cell allows it,
     # and then inside the power source's range
     ambient_c: float = Field(default=20.0, ge=-40.0, le=60.0)

@@ -74,7 +74,7 @@ class CyclicDevice(ABC, Generic[S]):
         self._closing = False
         self.stats = CycleStats()
         # how long (s) some CPU of this host did not run between two monotonic times: set by the
-        # controller when it watches its CPUs (controller/host_witness.py), else never
+        # controller when it watches its CPUs (controller/runtime/host_witness.py), else never
         self.host_stalled_s: Callable[[float, float], float] | None = None
         self._kicked = False                       # cycle_now() asked for an exchange at once
         self._wake: asyncio.Future[bool] | None = None

@@ -1,6 +1,6 @@
 """The CNC simulator's own trunnion-table forward kinematics (docs/kinematics.md).
 
-Written independently of controller/align/kinematics.py (the simulator must not trust the
+Written independently of controller/motion/kinematics.py (the simulator must not trust the
 controller's math): inner axis applied first, outer carries it; AB: A inner, B outer; AC: C
 inner, A outer; outer axis through −P, inner axis through −P + offset.
 """

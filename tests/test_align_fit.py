@@ -9,7 +9,7 @@ import trimesh
 
 from controller.align.bestfit import icp, kabsch
 from controller.align.fit import fit_line, fit_plane, fit_point, frame_321
-from controller.align.kinematics import apply_transform, homogeneous, rotation_matrix, unit
+from controller.motion.kinematics import apply_transform, homogeneous, rotation_matrix, unit
 from core.errors import InputError
 
 GRID = np.array([[x, y] for x in (-50.0, 0.0, 50.0) for y in (-50.0, 0.0, 50.0)])

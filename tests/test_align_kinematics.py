@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from controller.align.kinematics import (Trunnion, apply_to_job, apply_to_mesh, apply_transform, paper_matrices,
+from controller.motion.kinematics import (Trunnion, apply_to_job, apply_to_mesh, apply_transform, paper_matrices,
                                          paper_transform, rotation_about_pivot, rotation_matrix, unit)
 from controller.align.leveling import face_angle, leveling_angles
 from core.errors import InputError

@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 import yaml
 
-from controller.align.kinematics import Trunnion
+from controller.motion.kinematics import Trunnion
 from controller.align.leveling import face_angle, leveling_angles
 from controller.align.probe_cycle import ProbeCycleError, ProbeTarget, probe_point
-from controller.align.routine import _with_sim, cad_mesh, plan_for_mesh, run_with_sim
+from controller.align.routine import cad_mesh, plan_for_mesh
+from controller.harness.align_sim import _with_sim, run_with_sim
 from controller.cli.main import main
 from core.config import load_cell, load_sim
 from drivers.grbl import CncLink

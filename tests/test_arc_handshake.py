@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from controller.arc_handshake import (
+from controller.runtime.arc_handshake import (
     ArcHandshake, ArcLost, Collision, FaultLatched, GasFault, IgnitionFailed, PowerLinkLost,
     WatchdogMissed, WireOut, WireStick,
 )

@@ -1,4 +1,4 @@
-"""Where a crashed bead's arc went out (controller/arc_out.py) and what the journal keeps for it."""
+"""Where a crashed bead's arc went out (controller/runtime/arc_out.py) and what the journal keeps for it."""
 from __future__ import annotations
 
 import json
@@ -8,9 +8,9 @@ from pathlib import Path
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from controller.arc_out import RunOn, arc_lengths, arc_out_lower_bound, point_at, project
-from controller.build import weld_points
-from controller.journal import Journal
+from controller.runtime.arc_out import RunOn, arc_lengths, arc_out_lower_bound, point_at, project
+from controller.runtime.build import weld_points
+from controller.journal.store import Journal
 
 SQUARE = [(0.0, 0.0, 1.0), (30.0, 0.0, 1.0), (30.0, 30.0, 1.0), (0.0, 30.0, 1.0), (0.0, 0.5, 1.0)]
 

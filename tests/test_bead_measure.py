@@ -1,11 +1,11 @@
-"""The travel speed from the robot's EXE arrivals (controller/bead_measure.py)."""
+"""The travel speed from the robot's EXE arrivals (controller/runtime/bead_measure.py)."""
 from __future__ import annotations
 
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from controller.bead_measure import Pace
+from controller.runtime.bead_measure import Pace
 
 
 def _arrivals(v_mm_s: float, n: int, delays: np.ndarray, every: int = 1) -> Pace:

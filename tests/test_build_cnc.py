@@ -5,7 +5,7 @@ from pathlib import Path
 
 from bench._coverage import coverage, read_segments
 from controller.api import CellController
-from controller.cell import SimHarness, with_urls
+from controller.harness.sim import SimHarness, with_urls
 from core.config import load_cell, load_sim
 from tests.test_build_robot import SIM_REPLY_TIMEOUT_MS, planned, small_job
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from bench._coverage import coverage, read_segments
-from controller.machine import TransitionRefused
+from controller.runtime.machine import TransitionRefused
 from tests.test_build_robot import Cell, planned, small_job
 
 

@@ -10,9 +10,9 @@ import pytest
 
 from bench._coverage import coverage, exec_log_duplicates, read_segments
 from controller.api import CellController
-from controller.cell import SimHarness, with_urls
+from controller.harness.sim import SimHarness, with_urls
 from core.config import load_cell, load_sim
-from controller.machine import State
+from controller.runtime.machine import State
 
 
 def small_job(n_layers: int = 3, side: float = 20.0, h: float = 1.0) -> dict:

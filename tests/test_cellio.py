@@ -8,7 +8,7 @@ from contextlib import asynccontextmanager
 
 import pytest
 
-from controller.arc_handshake import ArcHandshake, drop_start_on_unsafe
+from controller.runtime.arc_handshake import ArcHandshake, drop_start_on_unsafe
 from drivers.cellio import CellIO
 from drivers.errors import LinkLost
 from sims.cellio_sim import CellIOSim, serve_modbus_tcp

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controller.align.kinematics import homogeneous, rotation_matrix
+from controller.motion.kinematics import homogeneous, rotation_matrix
 from controller.export import export_job
 from controller.export.gcode import parse_gcode
 from controller.export.krl import parse_krl
@@ -229,7 +229,7 @@ def _tiny_job(axes: bool) -> dict:
 def test_five_axis_gcode_round_trips_through_the_tables_kinematics(tmp_path):
     """G93 X Y Z A B: forward kinematics of what the program commands gives the planned part points
     and tool axes back, and each inverse-time F makes the tool tip move at the planned speed."""
-    from controller.align.kinematics import Trunnion
+    from controller.motion.kinematics import Trunnion
 
     table = Trunnion()
     job = _job(axes=True)
@@ -253,7 +253,7 @@ async def test_exported_gcode_runs_on_real_firmware_every_line_ok(tmp_path, kind
     every line answered ok, in order; the 5-axis program (X Y Z A B, G93) on grblHAL."""
     import asyncio
 
-    from controller.align.kinematics import Trunnion
+    from controller.motion.kinematics import Trunnion
     from tests.peers import firmware
 
     try:

@@ -11,7 +11,7 @@ from bench.five_axis import build, figures, plan5
 from controller.cli.main import main
 from planner.five_axis import FiveAxisOptions, Nozzle, collisions, overhangs, tool_axes
 from planner.job import BeadInfo, Job, Layer, Pass, Source, load_job
-from tests.parts5 import cone_frustum, tilted_tube
+from bench.parts5 import cone_frustum, tilted_tube
 
 
 @pytest.mark.parametrize("part", ["tube", "frustum"])

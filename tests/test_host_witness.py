@@ -1,4 +1,4 @@
-"""The host witness (controller/host_witness.py): a CPU of this host that stops running is seen,
+"""The host witness (controller/runtime/host_witness.py): a CPU of this host that stops running is seen,
 and a device whose answers wait while it was stopped is not a lost link; a device silent on a
 host that runs is lost after `lost_after_cycles` cycles as before.
 
@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from controller.host_witness import HostWitness
+from controller.runtime.host_witness import HostWitness
 from drivers.cellio import CellIO
 from drivers.errors import LinkLost
 from sims.cellio_sim import CellIOSim, serve_modbus_tcp

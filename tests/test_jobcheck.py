@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from controller.cli.main import main
-from controller.jobcheck import JobCheckError, check_job, violations
+from controller.job.check import JobCheckError, check_job, violations
 from core.config import load_cell, load_material
 from tests.test_build_robot import small_job
 
@@ -109,7 +109,7 @@ def test_cell_run_refuses_before_any_device_and_the_simulators_log_nothing(tmp_p
 
 
 def test_too_many_points_are_refused(tmp_path: Path) -> None:
-    from controller import jobcheck
+    from controller.job import check as jobcheck
 
     job = small_job(1)
     job["layers"][0]["passes"][0]["points"] = [[1.0, 1.0, 1.0]] * (jobcheck.MAX_POINTS_PER_PASS + 1)

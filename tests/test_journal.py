@@ -10,13 +10,13 @@ from pathlib import Path
 
 import pytest
 
-from controller.journal import Journal, JournalError
+from controller.journal.store import Journal, JournalError
 
 ROOT = Path(__file__).resolve().parent.parent
 
 WRITER = r"""
 import sys
-from controller.journal import Journal
+from controller.journal.store import Journal
 j = Journal(sys.argv[1])
 j.start_job("abc123", "demo", "robot", "{}")
 i = 0

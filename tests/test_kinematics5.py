@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller.align.kinematics import Trunnion
-from controller.post5 import Post5, inverse_time, weld_axes
+from controller.motion.kinematics import Trunnion
+from controller.motion.post5 import Post5, inverse_time, weld_axes
 from core.errors import InputError
 from sims.table_kin import TableKin
 
@@ -87,7 +87,7 @@ def test_inverse_time_feed_gives_the_planned_tip_speed() -> None:
 
 
 def test_weld_axes_follow_the_build_subdivision() -> None:
-    from controller.build import weld_points
+    from controller.runtime.build import weld_points
 
     pts = [[0, 0, 0], [3.0, 0, 0], [3.0, 0, 0], [3.0, 2.5, 0]]
     axes = [[0, 0, 1], [1, 0, 1], [1, 0, 1], [0, 1, 1]]

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from controller.machine import CellMachine, State, TransitionRefused, state_machine_doc
+from controller.runtime.machine import CellMachine, State, TransitionRefused, state_machine_doc
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "state-machine.md"
 

@@ -18,7 +18,7 @@ from controller.api import CellController
 from core.config import OpcUaSettings, load_cell, load_sim
 from controller.opcua.endpoint import Identification
 from controller.opcua.server import FactoryServer
-from controller.events import EventBus
+from controller.runtime.events import EventBus
 from core.errors import ConfigError
 from tests.test_build_robot import SIM_REPLY_TIMEOUT_MS, SimHarness, small_job, with_urls
 

@@ -7,7 +7,7 @@ from contextlib import asynccontextmanager
 
 import pytest
 
-from controller.arc_handshake import ArcHandshake, ArcLost
+from controller.runtime.arc_handshake import ArcHandshake, ArcLost
 from controller.defaults import SIM_REPLY_TIMEOUT_MS
 from core.config import load_cell, load_material, load_sim
 from drivers.cellio import open_cellio
@@ -84,7 +84,7 @@ async def test_fault_spec_arc_loss_at_a_time(tmp_path):
 
 
 async def test_fault_spec_ignition_failure_probability_one_exhausts_the_retries(tmp_path):
-    from controller.arc_handshake import IgnitionFailed
+    from controller.runtime.arc_handshake import IgnitionFailed
     async with sim_up(tmp_path, faults="seed=3,ignition_fail=1.0") as (ctx, urls, ps, io):
         ps.set_wire_feed(6.0)
         arc = ArcHandshake(ps, ignition_timeout_s=0.2, ignition_retries=1)

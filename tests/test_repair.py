@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from controller.align.kinematics import apply_to_job
+from controller.motion.kinematics import apply_to_job
 from controller.cli.main import main
-from controller.exec_cnc5 import Five
-from controller.repair import _manifold, _trimesh
+from controller.motion.cnc5 import Five
+from controller.job.repair_volume import _manifold, _trimesh
 from core.errors import InputError
 
 
@@ -80,7 +80,7 @@ def test_a_job_holds_at_most_one_alignment():
 
 
 def test_the_cnc_refuses_an_unaligned_cad_job_and_a_stale_alignment():
-    from controller.align.kinematics import Trunnion
+    from controller.motion.kinematics import Trunnion
 
     five = Five(Trunnion())
     with pytest.raises(InputError, match="CAD frame and carries no alignment"):

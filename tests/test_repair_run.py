@@ -31,7 +31,7 @@ def test_repair_run_cli_reports_and_refuses_an_aligned_job(tmp_path: Path, capsy
 
 async def test_the_repair_job_built_without_its_alignment_is_refused_before_motion(tmp_path: Path):
     from controller.api import CellController
-    from controller.cell import SimHarness, with_urls
+    from controller.harness.sim import SimHarness, with_urls
     from core.config import load_cell
 
     cad, stock = make_parts(tmp_path)

@@ -17,7 +17,7 @@ from textual.events import Key
 from textual.widgets import Button, Input
 
 from controller.tui.app import CellApp, ConfirmQuit, OpenDialog
-from controller.tui_adapter import CellSession
+from controller.tui.session import CellSession
 
 pytestmark = pytest.mark.timeout(180)
 SIZE = (120, 36)

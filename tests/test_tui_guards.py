@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from controller.tui.app import CellApp, ConfirmAbort, ConfirmQuit
-from controller.tui_replay import ReplaySession
+from controller.tui.replay import ReplaySession
 from tests.test_tui_snapshots import recorded_view
 
 

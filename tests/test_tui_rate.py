@@ -12,10 +12,10 @@ import time
 
 import pytest
 
-from controller.cell import with_urls
+from controller.runtime.devices import with_urls
 from core.config import load_cell
 from controller.tui.app import CellApp
-from controller.tui_adapter import CellSession
+from controller.tui.session import CellSession
 
 pytestmark = pytest.mark.timeout(120)
 RATE_HZ = 100.0

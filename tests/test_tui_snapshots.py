@@ -10,9 +10,9 @@ import math
 
 import pytest
 
-from controller.events import Alarm, LinkStat, Snapshot
+from controller.runtime.events import Alarm, LinkStat, Snapshot
 from controller.tui.app import CellApp
-from controller.tui_adapter import LogRow, PlanStatus, ReplaySession, Sample, View, job_info
+from controller.tui.session import LogRow, PlanStatus, ReplaySession, Sample, View, job_info
 
 T0 = 1_767_225_600.0   # 2026-01-01 00:00:00 UTC: every time on screen derives from it
 SIZE = (120, 36)
@@ -80,7 +80,7 @@ def recorded_view(**snap_changes: object) -> View:
 
 
 def _dev(ls: LinkStat):  # type: ignore[no-untyped-def]
-    from controller.tui_adapter import DeviceInfo
+    from controller.tui.session import DeviceInfo
 
     err = "power source (Modbus TCP) at tcp://127.0.0.1:47603: no reply within 50 ms" if ls.errors else None
     return DeviceInfo(ls.device, ls.url, ls.connected, ls.frames_tx, ls.frames_rx, ls.errors, ls.queue_free, err)

@@ -1,10 +1,10 @@
 """The UI's pure parts: the braille layer preview, the job summary per role, the log filter, what is allowed."""
 from __future__ import annotations
 
-from controller.events import Snapshot
+from controller.runtime.events import Snapshot
 from controller.tui.log import matches
 from controller.tui.widgets import braille, bounds_of
-from controller.tui_adapter import LogRow, PlanStatus, View, job_info
+from controller.tui.session import LogRow, PlanStatus, View, job_info
 
 from test_tui_snapshots import recorded_job
 
@@ -62,7 +62,7 @@ def test_apply_alignment_is_offered_once_per_job() -> None:
     """DESIGN.md §3: once the aligned job is open, `y` is no longer offered (it would move the part twice)."""
     from dataclasses import replace as _replace
 
-    from controller.events import Snapshot
+    from controller.runtime.events import Snapshot
 
     snap = Snapshot(state="ready", allowed_commands=("open_job", "start", "estop"))
     base = View(snap=snap, job=job_info({"layers": [], "material": "x"}), alignment={"transform": [[1, 0, 0, 0]]})
@@ -72,7 +72,7 @@ def test_apply_alignment_is_offered_once_per_job() -> None:
 
 def test_after_an_estop_no_weld_value_stays_on_screen_and_the_arc_lamp_is_off() -> None:
     """Issue 19: the last bead's 152 A must not stay up after an E-stop; the lamp follows the arc-stable bit."""
-    from controller.events import Snapshot
+    from controller.runtime.events import Snapshot
     from controller.tui.build import arc_lamp, arc_values
 
     welding = Snapshot(state="running_deposit", current_a=152.3, voltage_v=21.9, wfs_m_min=6.9, arc_on=True)

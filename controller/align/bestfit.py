@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-from controller.align.kinematics import rotation_matrix
+from controller.motion.kinematics import rotation_matrix
 from core.errors import InputError
 
 F = NDArray[np.float64]

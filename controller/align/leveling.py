@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from controller.align.kinematics import Trunnion, homogeneous, rotation_matrix, unit
+from controller.motion.kinematics import Trunnion, homogeneous, rotation_matrix, unit
 
 F = NDArray[np.float64]
 Z = np.array([0.0, 0.0, 1.0])

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from controller.align.bestfit import icp
 from controller.align.fit import Datum, LineFit, PlaneFit, cad_transform_321, fit_line, fit_plane, grid_points
-from controller.align.kinematics import Trunnion, apply_transform, homogeneous, rotation_matrix, unit
+from controller.motion.kinematics import Trunnion, apply_transform, homogeneous, rotation_matrix, unit
 from controller.align.leveling import FaceAngle, Leveling, face_angle, leveling_angles
 from controller.align.probe_cycle import ProbedPoint, ProbeLog, ProbeTarget, probe_points
 from wire.grbl_protocol import fmt
@@ -305,24 +305,6 @@ async def align(link: Any, cell: Any, plan: ProbePlan, *, settings: Any = None, 
 # --- CLI glue ------------------------------------------------------------------------------------------
 
 
-async def _with_sim(cell: Any, sim_cfg: Any, config_dir: Path | None, body: Callable[[str, Any], Any]) -> Any:
-    """Serve the CNC simulator in this loop on an ephemeral loopback port and run body(url, sim)."""
-    from sims import cnc_sim
-    from sims.clock import SimClock
-    from sims.up import SimContext
-    from sims.world import World
-
-    ctx = SimContext(cell=cell, sim=sim_cfg, world=World(None), clock=SimClock(cell.cell.time_scale),
-                     ephemeral=True, faults=sim_cfg.faults, config_dir=config_dir)
-    served = await cnc_sim.serve(ctx)
-    try:
-        return await body(served[0].url, served[0].sim)
-    finally:
-        for sv in served:
-            await sv.close()
-        ctx.world.close()
-
-
 async def run_on_url(url: str, cell: Any, plan: ProbePlan, *, settings: Any = None,
                      on_point: Callable[[ProbedPoint], None] | None = None) -> AlignResult:
     """Open the CNC link at `url`, align, close the link (also when cancelled)."""
@@ -336,14 +318,6 @@ async def run_on_url(url: str, cell: Any, plan: ProbePlan, *, settings: Any = No
         return await align(link, cell, plan, settings=settings, on_point=on_point)
     finally:
         await link.close()
-
-
-async def run_with_sim(cell: Any, sim_cfg: Any, plan: ProbePlan, *, config_dir: Path | None = None,
-                       settings: Any = None) -> AlignResult:
-    async def body(url: str, _sim: Any) -> AlignResult:
-        return await run_on_url(url, cell, plan, settings=settings)
-
-    return await _with_sim(cell, sim_cfg, config_dir, body)
 
 
 def alignment_record(res: "AlignResult") -> dict:

@@ -10,9 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.align.kinematics import apply_to_job
-from controller.align.routine import alignment_record, cad_mesh, plan_for_mesh, run_on_url, run_with_sim
-from controller.jobfile import read_job
+from controller.motion.kinematics import apply_to_job
+from controller.align.routine import alignment_record, cad_mesh, plan_for_mesh, run_on_url
+from controller.harness.align_sim import run_with_sim
+from controller.job.read import read_job
 from core.config import load_cell, load_sim
 from core.errors import InputError
 
@@ -128,7 +129,7 @@ def _fmt(v: np.ndarray, nd: int = 6) -> str:
 
 def _plane(args: argparse.Namespace) -> int:
     from controller.align.fit import fit_plane
-    from controller.align.kinematics import Trunnion
+    from controller.motion.kinematics import Trunnion
     from controller.align.leveling import leveling_angles
     from controller.cli.main import emit_json
     from core.config import load_cell
@@ -168,7 +169,7 @@ def _plane(args: argparse.Namespace) -> int:
 
 
 def _transform(args: argparse.Namespace) -> int:
-    from controller.align.kinematics import apply_transform, parse_rotations, rotation_about_pivot
+    from controller.motion.kinematics import apply_transform, parse_rotations, rotation_about_pivot
     from controller.cli.main import emit_json
 
     rots = parse_rotations(args.rotate)

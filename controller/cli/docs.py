@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from controller.machine import state_machine_doc
+from controller.runtime.machine import state_machine_doc
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 

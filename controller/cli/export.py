@@ -23,13 +23,13 @@ def run(args: argparse.Namespace) -> int:
     from controller.cli.main import emit_json
     from core.config import load_cell
     from controller.export import SUFFIX, export_job
-    from controller.jobfile import read_job
+    from controller.job.read import read_job
 
     job = read_job(args.job)
     cfg = load_cell(args.cell_config) if args.cell_config else load_cell()
     stem = Path(args.job).name.removesuffix(".json").removesuffix(".job")
     out = Path(args.out) if args.out else Path(stem + SUFFIX[args.format])
-    from controller.align.kinematics import Trunnion
+    from controller.motion.kinematics import Trunnion
 
     res = export_job(job, args.format, name=stem, out=out, clearance_mm=cfg.limits.clearance_mm,
                      travel_mm_min=cfg.limits.travel_speed_mm_min, trunnion=Trunnion.from_config(cfg.kinematics))

@@ -41,7 +41,7 @@ def _journal_path(arg: str) -> Path:
 
 def _check(args: argparse.Namespace) -> int:
     from controller.cli.main import emit_json
-    from controller.journal_check import inspect
+    from controller.journal.check import inspect
 
     h = inspect(_journal_path(args.run_dir))
     out = {
@@ -74,8 +74,8 @@ def _check(args: argparse.Namespace) -> int:
 
 def _recover(args: argparse.Namespace) -> int:
     from controller.cli.main import emit_json
-    from controller.jobfile import read_job
-    from controller.journal_recover import recover
+    from controller.job.read import read_job
+    from controller.journal.recover import recover
 
     src = _journal_path(args.run_dir)
     run_dir = src.parent

@@ -158,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--out {out}: cannot write the job file ({exc.strerror or exc})") from exc
     previews: list[str] = []
     if args.preview:
-        from controller.preview import write_previews
+        from controller.job.preview import write_previews
 
         try:
             previews = [str(p) for p in write_previews(job, args.preview)]

@@ -55,7 +55,7 @@ def _load(path: str, what: str):
 def run_plan(args: argparse.Namespace) -> int:
     from controller.cli.main import emit_json
     from controller.cli.plan import _material
-    from controller.repair import repair_volume
+    from controller.job.repair_volume import repair_volume
     from planner.job import job_to_dict
     from planner.plan import PlanOptions, plan_part
 
@@ -87,7 +87,8 @@ def run_repair(args: argparse.Namespace) -> int:
     import asyncio
 
     from controller.cli.main import emit_json
-    from controller.repair_run import repair_run
+    from controller.harness.repair import repair_run_sim
+    from controller.runtime.repair_run import repair_run
     from core.config import load_cell, load_sim
 
     path = Path(args.job)
@@ -106,8 +107,11 @@ def run_repair(args: argparse.Namespace) -> int:
             sim_cfg = sim_cfg.model_copy(update={"cnc": sim_cfg.cnc.model_copy(update={
                 "workpiece": wp.model_copy(update={"mesh": str(mesh)})})})
     runs = args.runs or cell.cell.runs_dir
-    rep = asyncio.run(repair_run(job, cell, job_path=path, sim_cfg=sim_cfg if args.sim else None, runs_dir=runs,
-                                 log_dir=args.log, tolerance_mm=args.tolerance))
+    if sim_cfg is not None:
+        rep = asyncio.run(repair_run_sim(job, cell, sim_cfg, job_path=path, runs_dir=runs, log_dir=args.log,
+                                         tolerance_mm=args.tolerance))
+    else:
+        rep = asyncio.run(repair_run(job, cell, job_path=path, runs_dir=runs, tolerance_mm=args.tolerance))
     if args.json:
         emit_json(rep)
         return 0
@@ -126,11 +130,11 @@ def demo_repair(args: argparse.Namespace) -> int:
     import asyncio
     import time
 
-    from bench.repair import make_parts, posed_sim
-    from controller.cell import with_urls
+    from controller.harness.repair import repair_run_sim
+    from controller.harness.repair_parts import make_parts, posed_sim
+    from controller.runtime.devices import with_urls
     from controller.cli.main import emit_json
-    from controller.repair import repair_volume
-    from controller.repair_run import repair_run
+    from controller.job.repair_volume import repair_volume
     from core.config import load_cell, load_material
     from planner.job import job_to_dict
     from planner.plan import PlanOptions, plan_part
@@ -148,9 +152,8 @@ def demo_repair(args: argparse.Namespace) -> int:
     (work / "repair.job.json").write_text(json.dumps(job) + "\n", encoding="utf-8")
     # the power source's 100 ms watchdog on a loaded machine: the repair is short, no need to race
     cell = with_urls(cell, {}, time_scale=min(float(args.time_scale), 40.0))
-    rep = asyncio.run(repair_run(job, cell, job_path=work / "repair.job.json",
-                                 sim_cfg=posed_sim(stock, 1.2, -0.8, 3.0, (2.0, -1.5, 0.5)),
-                                 runs_dir=work / "runs", log_dir=work / "sim"))
+    rep = asyncio.run(repair_run_sim(job, cell, posed_sim(stock, 1.2, -0.8, 3.0, (2.0, -1.5, 0.5)),
+                                     job_path=work / "repair.job.json", runs_dir=work / "runs", log_dir=work / "sim"))
     rep["work_dir"] = str(work)
     if args.json:
         emit_json(rep)

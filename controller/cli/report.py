@@ -25,7 +25,7 @@ def register(sub: Any) -> None:
 
 
 def _open(run_dir: Path) -> Any:
-    from controller.journal import Journal
+    from controller.journal.store import Journal
 
     path = run_dir / "journal.sqlite"
     if not path.is_file():
@@ -35,7 +35,7 @@ def _open(run_dir: Path) -> Any:
 
 def _report(args: argparse.Namespace) -> int:
     from controller.cli.main import emit_json
-    from controller.report import write_report
+    from controller.report.summary import write_report
 
     run_dir = Path(args.run_dir)
     j = _open(run_dir)
@@ -67,8 +67,8 @@ def _report(args: argparse.Namespace) -> int:
 
 def run_rows(runs: Path) -> list[dict[str, Any]]:
     """dir, job, state, started, layers_done of every run directory with a journal."""
-    from controller.report import summarize
-    from controller.report_record import iso
+    from controller.report.summary import summarize
+    from controller.report.record import iso
 
     out = []
     for d in sorted(p.parent for p in runs.glob("*/journal.sqlite")):

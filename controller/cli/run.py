@@ -25,7 +25,7 @@ from typing import Any, Callable
 
 from core.config import CellConfig, load_cell, load_sim
 from controller.cli import runargs
-from controller.jobfile import read_job
+from controller.job.read import read_job
 from core.errors import CellError, InputError
 
 from controller.defaults import (  # noqa: F401  (the demo's figures live with the controller)
@@ -92,9 +92,10 @@ def split_faults(spec: str | None) -> tuple[str, list[tuple[str, int, float | No
             scen.append((m.group(1), int(m.group(2)), dur))
         elif part:
             keep.append(part)
-    from sims.faults import parse_fault_spec
+    # lazy: the simulators' modules load only for a build that asks for faults
+    from controller.harness.sim import check_fault_spec
 
-    parse_fault_spec(",".join(keep))  # a bad key or value: ConfigError naming it
+    check_fault_spec(",".join(keep))  # a bad key or value: ConfigError naming it
     return ",".join(keep), scen
 
 
@@ -119,7 +120,7 @@ class Progress:
     """Progress lines on stderr (stdout stays for --json)."""
 
     def __init__(self, out: Callable[[str], None]) -> None:
-        from controller.events import ProgressPrinter
+        from controller.runtime.events import ProgressPrinter
 
         self.t0 = time.monotonic()
         self.printer = ProgressPrinter(lambda line: out(f"[{time.monotonic() - self.t0:6.1f} s] {line}"))
@@ -164,7 +165,7 @@ class SimSession:
         self.harness = None
         self.cfg = cfg
         if use_sim:
-            from controller.cell import SimHarness, with_urls
+            from controller.harness.sim import SimHarness, with_urls
 
             self.harness = SimHarness(cfg, load_sim(sim_config), log_dir=log_dir, faults=faults)
             self.cfg = with_urls(cfg, self.harness.start())
@@ -186,7 +187,7 @@ class SimSession:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from controller.build import run_dir_for
+    from controller.runtime.build import run_dir_for
 
     cfg = load_cell(args.cell_config)
     job = read_job(args.job)
@@ -225,8 +226,8 @@ def _already_complete(args: argparse.Namespace, run_dir: Path) -> int:
 
 
 def _resume(args: argparse.Namespace) -> int:
-    from controller.journal import Journal
-    from controller.resume import latest_run_dir
+    from controller.journal.store import Journal
+    from controller.runtime.resume import latest_run_dir
 
     cfg = load_cell(args.cell_config)
     runs = runargs.dir_arg(args.runs or cfg.cell.runs_dir, "--runs", must_exist=not args.run_dir)
@@ -255,7 +256,7 @@ def _resume(args: argparse.Namespace) -> int:
 def _build(args: argparse.Namespace, cfg: CellConfig, job: dict, run_dir: Path | None, faults: str,
            scen: list, log_dir: Path, runs: Path, resume: bool = False) -> int:
     from controller.api import CellController
-    from controller.build import BuildOptions
+    from controller.runtime.build import BuildOptions
 
     session = SimSession(cfg, args.sim, args.sim_config, log_dir if args.sim else None, faults)
     say = _err if args.json else _out
@@ -291,7 +292,7 @@ async def _drive(ctl: Any, job: dict, run_dir: Path | None, session: Any, scen: 
                  say: Callable[[str], None], resume: bool) -> tuple[Any, Path | None]:
     resume_ticket = None
     if resume and run_dir is not None:
-        from controller.journal import Journal
+        from controller.journal.store import Journal
 
         j = Journal(run_dir / "journal.sqlite")
         resume_ticket = j.max_progress_ticket() or None
@@ -367,8 +368,8 @@ def _say_record(report: str | None, say: Callable[[str], None]) -> None:
 
 def _demo(args: argparse.Namespace) -> int:
     from controller.api import CellController
-    from controller.build import BuildOptions, run_dir_for
-    from controller.cell import with_urls
+    from controller.runtime.build import BuildOptions, run_dir_for
+    from controller.runtime.devices import with_urls
     from core.config import load_material
     from planner.job import job_to_dict
     from planner.plan import PlanOptions, plan_part

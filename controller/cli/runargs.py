@@ -39,15 +39,15 @@ def dir_arg(path: str | Path, what: str, *, must_exist: bool = False) -> Path:
 
 
 def check_job_for_cell(job: dict, cfg: object, source: str) -> None:
-    """The job checked against the cell (controller/jobcheck.py); JobCheckError if it does not fit."""
-    from controller.jobcheck import check_job, job_material
+    """The job checked against the cell (controller/job/check.py); JobCheckError if it does not fit."""
+    from controller.job.check import check_job, job_material
 
     check_job(job, cfg, job_material(job, cfg), source)  # type: ignore[arg-type]
 
 
 def stored_job(meta: dict, jpath: Path) -> dict:
     """The job a journal holds, refused when it no longer matches the checksum stored beside it."""
-    from controller.build import job_hash
+    from controller.runtime.build import job_hash
 
     try:
         job = json.loads(meta["job_json"])
@@ -62,7 +62,7 @@ def stored_job(meta: dict, jpath: Path) -> dict:
 
 def complete_in(run_dir: Path, job: dict) -> bool:
     """Whether the journal of `run_dir` says every pass of the job is done (read-only look)."""
-    from controller.journal import count_done_readonly
+    from controller.journal.store import count_done_readonly
 
     total = sum(len(la.get("passes", [])) for la in job.get("layers", []))
     return total > 0 and count_done_readonly(run_dir / "journal.sqlite") >= total

@@ -2,16 +2,10 @@
 from __future__ import annotations
 
 import argparse
-import asyncio
-import json
-import sys
 from pathlib import Path
 
-from core.config import load_cell, load_material, load_sim
-from sims.clock import SimClock
-from sims.loop import precise_loop
-from sims.up import SimContext, run_forever
-from sims.world import World
+from controller.harness.sim_up import serve_until_interrupted
+from core.config import load_cell, load_sim
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -30,22 +24,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _up(args: argparse.Namespace) -> int:
     cell = load_cell(args.cell_config)
     sim = load_sim(args.config)
-    mat = load_material(cell.cell.material)
-    log_dir = Path(args.log) if args.log else None
-    ctx = SimContext(
-        cell=cell, sim=sim, world=World(log_dir, arc_efficiency=mat.arc_efficiency),
-        clock=SimClock(cell.cell.time_scale), log_dir=log_dir, pty=args.pty,
-        faults=args.fault if args.fault is not None else sim.faults,
-    )
-
-    def ready(served: list) -> None:
-        for s in served:
-            sys.stdout.write(json.dumps(s.describe()) + "\n")
-        sys.stdout.flush()
-
-    try:
-        with asyncio.Runner(loop_factory=precise_loop) as runner:   # timers on time (sims/loop.py)
-            runner.run(run_forever(ctx, ready))
-    except KeyboardInterrupt:
-        pass
+    serve_until_interrupted(cell, sim, Path(args.log) if args.log else None, pty=args.pty,
+                            faults=args.fault if args.fault is not None else sim.faults)
     return 0

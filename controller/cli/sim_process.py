@@ -19,7 +19,7 @@ from pathlib import Path
 
 import yaml
 
-from controller.cell import with_urls
+from controller.runtime.devices import with_urls
 from core.config import CellConfig, SimConfig, load_sim
 from core.errors import CellError
 

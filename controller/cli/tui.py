@@ -18,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _tui(args: argparse.Namespace) -> int:
     from core.config import load_cell, load_sim
     from controller.tui.app import CellApp
-    from controller.tui_adapter import CellSession
+    from controller.tui.session import CellSession
 
     cfg = load_cell(args.config)
     sim_cfg = load_sim(args.sim_config) if args.sim else None

@@ -4,7 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from controller.align.kinematics import Trunnion
+from controller.motion.kinematics import Trunnion
 from controller.export.gcode import write_gcode
 from controller.export.krl import program_name, write_krl
 from controller.export.program import build_program

@@ -3,7 +3,7 @@
 Per layer an interpass dwell (`G4 P<s>`, grbl's P is seconds); per pass a travel above the start,
 down to it, `M3 S<power>` (process on), the `G1` weld moves at the pass's feed, `M5` (process off).
 Each pass is headed by a comment carrying its welding parameters, so the file round-trips.
-5-axis passes go through the same post-processor as the executor (controller.post5 when present).
+5-axis passes go through the same post-processor as the executor (controller.motion.post5 when present).
 Lines stay within grbl's 80-character line buffer.
 """
 from __future__ import annotations
@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.align.kinematics import Trunnion
+from controller.motion.kinematics import Trunnion
 from controller.export.program import Program, ProgramPass
-from controller.post5 import Post5, inverse_time, move_line, weld_lines
+from controller.motion.post5 import Post5, inverse_time, move_line, weld_lines
 from core.errors import InputError
 
 MAX_LINE = 80  # grbl's LINE_BUFFER_SIZE: a longer line is refused (error:14)
@@ -48,7 +48,7 @@ def write_gcode(prog: Program, *, clearance_mm: float, travel_mm_min: float, pow
                 trunnion: Trunnion | None = None) -> list[str]:
     """The program as G-code lines (no line numbers; grbl answers each with ok).
 
-    A job with tool axes goes through the executor's 5-axis post-processor (controller/post5.py)
+    A job with tool axes goes through the executor's 5-axis post-processor (controller/motion/post5.py)
     with the table of cell.yaml (`trunnion`); the alignment is then part of that transform."""
     if prog.five_axis and trunnion is None:
         raise InputError("this job has tool axes (a 5-axis plan): give the table kinematics (cell.yaml)")

@@ -18,7 +18,7 @@ import itertools
 import threading
 from typing import Any
 
-from controller.events import EventBus, Snapshot
+from controller.runtime.events import EventBus, Snapshot
 from core.errors import CellError
 
 CALL_TIMEOUT_S = 10.0

@@ -22,7 +22,7 @@ from typing import Any, Callable, Protocol
 
 from asyncua import Server, ua
 
-from controller.events import Alarm, EventBus, Snapshot
+from controller.runtime.events import Alarm, EventBus, Snapshot
 from controller.opcua.endpoint import PUBLISH_PERIOD_S, Identification, check_endpoint
 from controller.opcua.security import PasswordUsers
 from core.errors import CellError

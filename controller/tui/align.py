@@ -6,7 +6,7 @@ from textual.containers import Vertical
 from textual.widgets import DataTable, Static
 
 from controller.tui.widgets import fmt
-from controller.tui_adapter import View
+from controller.tui.session import View
 
 
 class AlignPane(Vertical):

@@ -1,7 +1,7 @@
 """The operator's terminal UI: five screens over one session, commands in the footer.
 
 The app never reaches into the controller: it reads `View`s from its session
-(controller/tui_adapter.py) at a fixed rate (10 Hz by default: the latest snapshot wins, so
+(controller/tui/session.py) at a fixed rate (10 Hz by default: the latest snapshot wins, so
 100 Hz telemetry never queues up) and sends commands, whose refusals it shows with the
 controller's own message.
 """
@@ -26,7 +26,8 @@ from controller.tui.build import BuildPane, state_style
 from controller.tui.devices import DevicesPane
 from controller.tui.job import JobPane
 from controller.tui.log import LogPane
-from controller.tui_adapter import DEMO_PART, View, freeze_heap
+from controller.defaults import DEMO_PART
+from controller.tui.session import View, freeze_heap
 
 TABS = (("job", "Job"), ("align", "Align"), ("build", "Build"), ("log", "Log"), ("devices", "Devices"))
 # key -> (command, footer label). Commands of the controller and the UI's own steps.

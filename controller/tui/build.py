@@ -7,9 +7,9 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widgets import DataTable, Label, ProgressBar, Static
 
-from controller.events import Snapshot
+from controller.runtime.events import Snapshot
 from controller.tui.widgets import LayerPreview, Trend
-from controller.tui_adapter import View
+from controller.tui.session import View
 
 STATE_STYLE = {"running": "bold black on green", "paused": "bold black on yellow", "fault": "bold white on red",
                "estop": "bold white on red", "complete": "bold black on bright_cyan",

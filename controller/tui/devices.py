@@ -5,7 +5,7 @@ from textual.app import ComposeResult
 from textual.containers import Vertical
 from textual.widgets import DataTable, Static
 
-from controller.tui_adapter import View
+from controller.tui.session import View
 
 
 class DevicesPane(Vertical):

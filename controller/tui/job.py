@@ -6,7 +6,7 @@ from textual.containers import Horizontal, Vertical
 from textual.widgets import DataTable, ProgressBar, Static
 
 from controller.tui.widgets import LayerPreview, fmt
-from controller.tui_adapter import View
+from controller.tui.session import View
 
 SUMMARY_KEYS = (("layers", "layers", ""), ("passes", "passes", ""), ("arc_starts", "arc starts", ""),
                 ("deposit_length_mm", "deposit length", " mm"), ("volume_mm3", "volume", " mm³"),

@@ -7,7 +7,7 @@ from textual.app import ComposeResult
 from textual.containers import Vertical
 from textual.widgets import DataTable, Input
 
-from controller.tui_adapter import LogRow
+from controller.tui.session import LogRow
 
 KIND_STYLE = {"alarm": "red", "transition": "cyan", "info": "", "ui": "dim"}
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 import concurrent.futures
 from pathlib import Path
 
-from controller.tui_view import LogRow, View
+from controller.tui.view import LogRow, View
 from core.errors import CellError
 
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from controller.journal_check import inspect, uri
+from controller.journal.check import inspect, uri
 from core.errors import CellError
 
 SCHEMA = """

@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from controller.journal import Journal
+from controller.journal.store import Journal
 
 GAP_FACTOR = 20.0  # a sample interval this many times the median breaks the line
 

@@ -15,7 +15,7 @@ import math
 from typing import Any, Callable
 
 from controller.ports import CncLinkPort, PowerSourcePort
-from controller.exec_cnc5 import Five
+from controller.motion.cnc5 import Five
 from drivers.errors import DeviceError
 
 Point = tuple[float, float, float]
@@ -31,7 +31,7 @@ class CncExecutor:
     def __init__(self, link: CncLinkPort, power: PowerSourcePort | None = None, spindle_s: int = 1000,
                  trunnion: Any = None) -> None:
         self.link = link
-        self.five = Five(trunnion)  # 5-axis passes (controller/exec_cnc5.py); inactive for 3-axis jobs
+        self.five = Five(trunnion)  # 5-axis passes (controller/motion/cnc5.py); inactive for 3-axis jobs
         self.power = power
         self.spindle_s = spindle_s
         self._release = asyncio.Event()

@@ -8,15 +8,15 @@ point where the latest run re-arced (`start_mm` of its `started` row), whichever
 When the controller died with the arc on (the pass's latest row is `arc_on`: no hold, no arc end
 was journaled), the deposit went on after that point: the robot keeps executing its queue and the
 power source keeps the arc until its watchdog drops the start and the burn-back ends. The build
-runner re-arcs such a bead at a lower bound of where the arc went out (controller/arc_out.py),
+runner re-arcs such a bead at a lower bound of where the arc went out (controller/runtime/arc_out.py),
 computed once the robot has reported where it stopped.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
-from controller.build import WorkItem
-from controller.journal import Journal
+from controller.runtime.build import WorkItem
+from controller.journal.store import Journal
 from core.errors import CellError
 
 

@@ -24,7 +24,7 @@ def _pool() -> ProcessPoolExecutor:
     global _POOL
     if _POOL is None:
         ctx = multiprocessing.get_context("forkserver")
-        ctx.set_forkserver_preload(["controller.report", "controller.journal"])
+        ctx.set_forkserver_preload(["controller.report.summary", "controller.journal.store"])
         _POOL = ProcessPoolExecutor(max_workers=1, mp_context=ctx)
         atexit.register(_POOL.shutdown, wait=False, cancel_futures=True)
     return _POOL
@@ -32,8 +32,8 @@ def _pool() -> ProcessPoolExecutor:
 
 def _write(run_dir: str, job: dict[str, Any] | None, plots: bool, state: str | None) -> str:
     """In the worker: open the run's journal and write the record; the path of report.json."""
-    from controller.journal import Journal
-    from controller.report import write_report
+    from controller.journal.store import Journal
+    from controller.report.summary import write_report
 
     journal = Journal(Path(run_dir) / "journal.sqlite")
     try:

@@ -11,9 +11,9 @@ import os
 from pathlib import Path
 from typing import Any
 
-from controller.journal import Journal
-from controller.report_plots import plot_report
-from controller.report_record import (
+from controller.journal.store import Journal
+from controller.report.plots import plot_report
+from controller.report.record import (
     arc_time_figures,
     travel_speed_summary,
     bead_records,
@@ -50,7 +50,7 @@ def summarize(journal: Journal, job: dict | None = None, state: str | None = Non
         d["heat_j"] += (b["heat_input_j_mm"] or 0.0) * b["length_mm"]
     alarms = journal.alarm_rows()
     defects = [a for a in alarms if a["position"] is not None]
-    # beads the measurements say were not deposited as planned (controller/bead_check.py)
+    # beads the measurements say were not deposited as planned (controller/runtime/bead_check.py)
     defects += [{"t": d["t"], "message": f"defect: {d['reason']}", "state": "defect", "layer": d["layer"],
                  "pass": d["pass"], "position": d["position"], "run": d["run"], "measured_mm": d["measured_mm"]}
                 for d in journal.defect_rows()]

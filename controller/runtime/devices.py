@@ -8,17 +8,11 @@ device that does not answer is a `DeviceUnreachable` naming it and its URL (exit
 from __future__ import annotations
 
 import asyncio
-import gc
-import sys
-import threading
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
-from core.config import CellConfig, SimConfig, load_material
-from core.realtime import SIM_RT_PRIORITY, elevate
+from core.config import CellConfig, load_material
 from drivers.errors import DeviceError
-from sims.loop import precise_loop
 from controller.ports import CellIOPort, CncLinkPort, PowerSourcePort, RobotLinkPort
 from core.material import Material
 
@@ -36,77 +30,6 @@ def with_urls(cfg: CellConfig, urls: dict[str, str], time_scale: float | None = 
     if time_scale is not None:
         out = out.model_copy(update={"cell": out.cell.model_copy(update={"time_scale": float(time_scale)})})
     return out
-
-
-class SimHarness:
-    """Every simulator in this process, on a background thread and loop of its own."""
-
-    def __init__(self, cfg: CellConfig, sim: SimConfig, log_dir: str | Path | None = None,
-                 faults: str = "", modules: list[str] | None = None) -> None:
-        self.cfg, self.sim_cfg = cfg, sim
-        self.log_dir = Path(log_dir) if log_dir else None
-        self.faults = faults
-        self.modules = modules
-        self.loop = precise_loop()   # the simulators' timers on time (sims/loop.py)
-        self.thread = threading.Thread(target=self._run, name="sims", daemon=True)
-        self.served: dict[str, Any] = {}
-        self.world: Any = None
-        self.clock: Any = None
-
-    def _run(self) -> None:
-        # the simulated devices keep their own time: time-shared, this thread was preempted by
-        # any CPU-bound process while it held the interpreter lock, and the controller's
-        # real-time loop waited for it (the robot's heartbeat missed for 3 s under two CPU hogs)
-        elevate("in-process simulators", SIM_RT_PRIORITY)
-        asyncio.set_event_loop(self.loop)
-        self.loop.run_forever()
-
-    def start(self, timeout: float = 20.0) -> dict[str, str]:
-        """Start the simulators; returns device -> URL."""
-        from sims.clock import SimClock
-        from sims.up import SimContext, serve_all
-        from sims.world import World
-
-        # The simulated devices share this process (and its GIL) with the controller: switch
-        # threads more often than the default 5 ms so a 10 ms bus cycle is answered in time.
-        sys.setswitchinterval(0.0005)
-        mat = load_material(self.cfg.cell.material)
-        self.world = World(self.log_dir, arc_efficiency=mat.arc_efficiency)
-        self.clock = SimClock(self.cfg.cell.time_scale)
-        ctx = SimContext(cell=self.cfg, sim=self.sim_cfg, world=self.world, clock=self.clock,
-                         log_dir=self.log_dir, ephemeral=True, faults=self.faults)
-        self.thread.start()
-        fut = asyncio.run_coroutine_threadsafe(serve_all(ctx, self.modules), self.loop)
-        served = fut.result(timeout)
-        self.served = {s.device: s for s in served}
-        gc.freeze()  # full collections of the heap would stall the simulated devices (~100 ms)
-        return {s.device: s.url for s in served}
-
-    def sim(self, device: str) -> Any:
-        """The simulator object of a device (tests open the door, inject faults...)."""
-        return self.served[device].sim
-
-    def call(self, fn: Any, *args: Any, **kwargs: Any) -> Any:
-        """Run `fn(*args, **kwargs)` on the simulators' loop and return its result (thread-safe)."""
-        async def _do() -> Any:
-            res = fn(*args, **kwargs)
-            if asyncio.iscoroutine(res):
-                res = await res
-            return res
-        return asyncio.run_coroutine_threadsafe(_do(), self.loop).result(10)
-
-    def stop(self) -> None:
-        from sims.up import close_all
-
-        if self.thread.is_alive():
-            try:
-                asyncio.run_coroutine_threadsafe(close_all(list(self.served.values())), self.loop).result(10)
-            except Exception:
-                pass
-            self.loop.call_soon_threadsafe(self.loop.stop)
-            self.thread.join(5)
-        if self.world is not None:
-            self.world.close()
 
 
 @dataclass

@@ -11,7 +11,7 @@ import datetime as _dt
 from pathlib import Path
 from typing import Any
 
-from controller.journal import Journal
+from controller.journal.store import Journal
 
 CSV_COLUMNS = (
     "layer", "pass", "run", "role", "interrupted", "arc_time_s", "length_mm",
@@ -53,7 +53,7 @@ def bead_records(journal: Journal, job: dict | None, scale: float, defects: list
 
     `arc_time_s` is the source's arc-on span (arc stable seen, to arc stable gone), known to one
     bus cycle; `motion_time_s` and `actual_speed_mm_min` come from the robot's EXE reports while
-    the arc was stable (controller/bead_measure.py)."""
+    the arc was stable (controller/runtime/bead_measure.py)."""
     samples = journal.sample_rows()
     out = []
     for b in journal.bead_rows():

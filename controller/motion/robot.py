@@ -41,8 +41,8 @@ class RobotExecutor:
 
     def post_job(self, job: dict, max_step_mm: float) -> None:
         """The planned tool axis per weld point of every 5-axis pass (`axes`), before any motion."""
-        from controller.build import weld_points
-        from controller.post5 import weld_axes
+        from controller.runtime.build import weld_points
+        from controller.motion.post5 import weld_axes
 
         if job.get("frame") == "cad" and not job.get("alignment"):
             from core.errors import InputError

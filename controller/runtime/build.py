@@ -22,13 +22,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from controller.arc_handshake import ArcHandshake
-from controller.arc_out import RunOn, arc_lengths, arc_out_lower_bound, point_at, project
-from controller.bead_check import judge
-from controller.bead_measure import BeadStats, Pace
-from controller.events import EventBus
-from controller.journal import Journal
-from controller.machine import CellMachine, State
+from controller.runtime.arc_handshake import ArcHandshake
+from controller.runtime.arc_out import RunOn, arc_lengths, arc_out_lower_bound, point_at, project
+from controller.runtime.bead_check import judge
+from controller.runtime.bead_measure import BeadStats, Pace
+from controller.runtime.events import EventBus
+from controller.journal.store import Journal
+from controller.runtime.machine import CellMachine, State
 from controller.ports import ArcControl, CellIOPort, MotionExecutor, PowerSourcePort
 from core.errors import CellError
 
@@ -192,7 +192,7 @@ class BuildRunner:
                 await done
         await self._arc_out()
         await self.ex.prepare()
-        from controller.readiness import ensure_ready
+        from controller.runtime.readiness import ensure_ready
 
         await ensure_ready(self.ex, self.power, self.journal, reset_errors=self.o.reset_errors, arc=self.arc)
 
@@ -308,7 +308,7 @@ class BuildRunner:
 
         From the journal: the last point reached with the arc stable, or the latest re-arc point,
         whichever lies further; when the controller died with the arc on, further still, to a
-        lower bound of where the arc went out (controller/arc_out.py).
+        lower bound of where the arc went out (controller/runtime/arc_out.py).
         """
         first, self._first_pass = self._first_pass, False
         start_idx = min(item.start_idx, len(pts) - 1)
@@ -461,7 +461,7 @@ class BuildRunner:
             self._faltered = True
         if self._arc_lit and not st.arc_stable and not self._unstable_noted and self.current is not None:
             # the deposit may have stopped here while the torch moves on: a resume after a crash
-            # must not assume the arc ran on (controller/arc_out.py)
+            # must not assume the arc ran on (controller/runtime/arc_out.py)
             self._unstable_noted = True
             self.journal.event("arc", "arc unstable while depositing", layer=self.current.layer,
                                pass_=self.current.pass_)

@@ -118,14 +118,14 @@ async def verify(link: Any, cell: Any, job: dict, transform: np.ndarray, grid: i
     return VerifyResult(pts, top, nominal, tolerance_mm)
 
 
-async def repair_run(job: dict, cell: Any, *, job_path: Path | None = None, sim_cfg: Any = None,
-                     runs_dir: str | Path = "runs", log_dir: str | Path | None = None,
-                     apply_alignment: bool = True, tolerance_mm: float = 0.1) -> dict:
-    """The whole chain on a CNC cell (or the simulators when sim_cfg is given); returns the report."""
-    from controller.align.kinematics import apply_to_job
+async def repair_run(job: dict, cell: Any, *, job_path: Path | None = None, runs_dir: str | Path = "runs",
+                     reply_timeout_ms: float | None = None, apply_alignment: bool = True,
+                     tolerance_mm: float = 0.1) -> dict:
+    """The whole chain on the CNC cell of `cell` (its device URLs: hardware, `cell sim up` or the
+    in-process simulators of controller.harness); returns the report."""
+    from controller.motion.kinematics import apply_to_job
     from controller.align.routine import alignment_record
     from controller.api import CellController
-    from controller.cell import SimHarness, with_urls
 
     if cell.cell.platform != "cnc":
         cell = cell.model_copy(update={"cell": cell.cell.model_copy(update={"platform": "cnc"})})
@@ -133,13 +133,9 @@ async def repair_run(job: dict, cell: Any, *, job_path: Path | None = None, sim_
         raise InputError("the repair job already carries an alignment; give the job `cell repair plan` wrote")
     cad = load_cad(job, job_path)
     plan = probe_plan(cad, job)
-    harness = None
-    if sim_cfg is not None:
-        harness = SimHarness(cell, sim_cfg, log_dir=log_dir)
-        cell = with_urls(cell, harness.start())
     ctl = CellController(cell, runs_dir=runs_dir)
     try:
-        await ctl.connect(reply_timeout_ms=500.0 if harness is not None else None)
+        await ctl.connect(reply_timeout_ms=reply_timeout_ms)
         res = await ctl.run_alignment(plan)
         built = apply_to_job(job, res.transform, alignment_record(res)) if apply_alignment else job
         ctl.open_job(built)
@@ -149,8 +145,6 @@ async def repair_run(job: dict, cell: Any, *, job_path: Path | None = None, sim_
         ver = await verify(ctl.devices.cnc, cell, job, res.transform, tolerance_mm=tolerance_mm)
     finally:
         await ctl.close()
-        if harness is not None:
-            harness.stop()
     return {"alignment": {"level_a_deg": round(res.level_a_deg, 5), "level_b_deg": round(res.level_b_deg, 5),
                           "face_angle_deg": round(res.face_angle_deg, 5)},
             "build": {"state": result.state, "passes_done": result.passes_done, "run_dir": str(ctl.run_dir)},

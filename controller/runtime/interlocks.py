@@ -19,10 +19,10 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
-from controller.build import BuildRunner
-from controller.events import EventBus
-from controller.journal import Journal
-from controller.machine import CellMachine
+from controller.runtime.build import BuildRunner
+from controller.runtime.events import EventBus
+from controller.journal.store import Journal
+from controller.runtime.machine import CellMachine
 from controller.ports import CellIOPort, MotionExecutor, PowerSourcePort
 from drivers.cellio import CellInputs
 from drivers.power import PowerStatus

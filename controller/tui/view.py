@@ -6,9 +6,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from controller.events import Snapshot
+from controller.runtime.events import Snapshot
 
-DEMO_PART = Path(__file__).resolve().parent.parent / "config" / "parts" / "square-hole.stl"
 HISTORY_LEN = 300          # samples kept for the live plots (30 s at 10 Hz)
 SAMPLE_PERIOD_S = 0.1      # history sampling period (wall seconds)
 ROLES = ("perimeter", "infill", "gap")

@@ -29,14 +29,14 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
-from controller.events import Snapshot
-from controller.jobfile import read_job
+from controller.runtime.events import Snapshot
+from controller.job.read import read_job
 from core.errors import CellError, InputError
 
-from controller.tui_plan import _plan_main, probe_plan  # noqa: F401  (re-exported)
-from controller.tui_replay import ReplaySession  # noqa: F401  (re-exported)
-from controller.tui_view import *  # noqa: F401,F403  (the view types, re-exported for the screens)
-from controller.tui_view import (DEVICE_WORDS, HISTORY_LEN, PROBE_STATES, SAMPLE_PERIOD_S,
+from controller.tui.planning import _plan_main, probe_plan  # noqa: F401  (re-exported)
+from controller.tui.replay import ReplaySession  # noqa: F401  (re-exported)
+from controller.tui.view import *  # noqa: F401,F403  (the view types, re-exported for the screens)
+from controller.tui.view import (DEVICE_WORDS, HISTORY_LEN, PROBE_STATES, SAMPLE_PERIOD_S,
                                  DeviceInfo, JobInfo, LogRow, PlanStatus, Sample, View,
                                  alignment_dict, job_info)
 
@@ -68,7 +68,7 @@ class CellSession:
 
         self.cfg = cfg if cfg is not None else load_cell()
         if time_scale is not None:
-            from controller.cell import with_urls
+            from controller.runtime.devices import with_urls
 
             self.cfg = with_urls(self.cfg, {}, time_scale=time_scale)
         self.sim = sim
@@ -143,7 +143,7 @@ class CellSession:
                     if self._unsub:
                         self._unsub()
                 if self.sim and self.harness is None:
-                    from controller.cell import SimHarness, with_urls
+                    from controller.harness.sim import SimHarness, with_urls
 
                     self.harness = SimHarness(self.cfg, self.sim_cfg, log_dir=self.sim_log_dir, faults=self.faults)
                     urls = await asyncio.get_running_loop().run_in_executor(None, self.harness.start)
@@ -232,7 +232,7 @@ class CellSession:
         rd = self._snap.run_dir
         if not rd:
             return []
-        from controller.journal import read_events_after
+        from controller.journal.store import read_events_after
 
         rows = read_events_after(Path(rd) / "journal.sqlite", after_id, limit)
         return [LogRow(*r) for r in rows]
@@ -298,7 +298,7 @@ class CellSession:
 
             with tempfile.TemporaryDirectory(prefix="cell-plan-") as tmp:
                 out = Path(tmp) / "job.json"
-                proc = subprocess.Popen([sys.executable, "-m", "controller.tui_plan", "plan", str(st.file),
+                proc = subprocess.Popen([sys.executable, "-m", "controller.tui.planning", "plan", str(st.file),
                                          str(width), material, str(out)],
                                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
                 error = None
@@ -426,7 +426,7 @@ class CellSession:
     def apply_alignment(self) -> concurrent.futures.Future:
         """Re-open the job moved by the alignment transform (the CAD model moves, not the part)."""
         async def _do() -> None:
-            from controller.align.kinematics import apply_to_job
+            from controller.motion.kinematics import apply_to_job
 
             if self._alignment is None or self._job_dict is None:
                 raise CellError("nothing to apply: run the alignment and open a job first")

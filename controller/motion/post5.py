@@ -1,7 +1,7 @@
 """5-axis post-processing at the executor (Kerschbaumer's "calculation mode 1"): (point, axis) → X Y Z A B|C.
 
 Pure: numpy in, arrays and G-code text out. The convention is docs/kinematics.md (the Trunnion of
-controller/align/kinematics.py). Continuity: of every inverse-kinematics candidate inside the
+controller/motion/kinematics.py). Continuity: of every inverse-kinematics candidate inside the
 axis limits (each angle also ±360°) the one closest to the previous point's angles is taken, so a
 pass never flips 180°/360°; where the inner axis is free (tool axis along it: the singularity) the
 previous inner angle is kept. Feed: inverse time (G93), F = planned speed / part-frame length of
@@ -15,7 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
-from controller.align.kinematics import Trunnion, _signed_angle, apply_transform, rotation_matrix, unit
+from controller.motion.kinematics import Trunnion, _signed_angle, apply_transform, rotation_matrix, unit
 from core.errors import InputError
 
 Z = np.array([0.0, 0.0, 1.0])

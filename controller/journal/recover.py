@@ -75,8 +75,8 @@ def _read_copy(src: Path) -> tuple[dict[str, list[tuple]], dict[str, int], set[s
 
 def recover(run_dir: Path, out_dir: Path, job: dict | None) -> Recovered:
     """Copy what the journal of `run_dir` proves into a new journal under `out_dir`."""
-    from controller.build import canonical_json, job_hash
-    from controller.journal import SCHEMA
+    from controller.runtime.build import canonical_json, job_hash
+    from controller.journal.store import SCHEMA
 
     src = run_dir / "journal.sqlite"
     if out_dir.exists():

@@ -1,0 +1,32 @@
+"""`cell align run --sim`: the alignment routine against a CNC simulator served in this loop."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable
+
+from controller.align.routine import AlignResult, ProbePlan, run_on_url
+from sims import cnc_sim
+from sims.clock import SimClock
+from sims.up import SimContext
+from sims.world import World
+
+
+async def _with_sim(cell: Any, sim_cfg: Any, config_dir: Path | None, body: Callable[[str, Any], Any]) -> Any:
+    """Serve the CNC simulator in this loop on an ephemeral loopback port and run body(url, sim)."""
+    ctx = SimContext(cell=cell, sim=sim_cfg, world=World(None), clock=SimClock(cell.cell.time_scale),
+                     ephemeral=True, faults=sim_cfg.faults, config_dir=config_dir)
+    served = await cnc_sim.serve(ctx)
+    try:
+        return await body(served[0].url, served[0].sim)
+    finally:
+        for sv in served:
+            await sv.close()
+        ctx.world.close()
+
+
+async def run_with_sim(cell: Any, sim_cfg: Any, plan: ProbePlan, *, config_dir: Path | None = None,
+                       settings: Any = None) -> AlignResult:
+    async def body(url: str, _sim: Any) -> AlignResult:
+        return await run_on_url(url, cell, plan, settings=settings)
+
+    return await _with_sim(cell, sim_cfg, config_dir, body)

@@ -1,0 +1,18 @@
+"""`cell repair run --sim` and `cell demo --repair`: the repair chain against in-process simulators."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from controller.harness.sim import SIM_REPLY_TIMEOUT_MS, simulated
+from controller.runtime.repair_run import repair_run
+from core.config import CellConfig, SimConfig
+
+
+async def repair_run_sim(job: dict[str, Any], cell: CellConfig, sim_cfg: SimConfig, *, job_path: Path | None = None,
+                         runs_dir: str | Path = "runs", log_dir: str | Path | None = None,
+                         tolerance_mm: float = 0.1) -> dict[str, Any]:
+    """repair_run against the simulators (the stock posed by `sim_cfg`), logs in `log_dir`."""
+    with simulated(cell, sim_cfg, log_dir=log_dir) as (cfg, _harness):
+        return await repair_run(job, cfg, job_path=job_path, runs_dir=runs_dir,
+                                reply_timeout_ms=SIM_REPLY_TIMEOUT_MS, tolerance_mm=tolerance_mm)
