@@ -49,7 +49,7 @@ def _mesh(kind: str) -> bytes:
 
 def seeds(tmp: Path) -> dict[str, bytes]:
     """One valid file of each kind the CLI reads."""
-    from controller.runtime.build import canonical_json, job_hash
+    from controller.job.identity import canonical_json, job_hash
 
     job = _job()
     j = tmp / "seed-journal.sqlite"

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.five_axis import _seg_dist
-from controller.runtime.build import weld_points
+from controller.motion.weld_path import weld_points
 from controller.runtime.devices import with_urls
 from controller.cli.main import main as cell_main
 from controller.harness.repair_parts import make_parts, posed_sim  # noqa: F401  (bench API)

@@ -28,7 +28,8 @@ from core.realtime import elevate, is_realtime, quiet_gc, relax
 from controller.report.worker import write_report_elsewhere
 from controller.runtime.arc_out import RunOn
 from controller.job.check import check_job, job_material
-from controller.runtime.build import BuildOptions, BuildResult, BuildRunner, canonical_json, job_hash, job_name, run_dir_for
+from controller.runtime.build import BuildOptions, BuildResult, BuildRunner
+from controller.job.identity import canonical_json, job_hash, job_name, run_dir_for
 from controller.runtime.devices import Devices
 from controller.runtime.host_witness import HostWitness
 from drivers.cyclic import CyclicDevice

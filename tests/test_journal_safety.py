@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from controller.runtime.build import canonical_json, job_hash, run_dir_for
+from controller.job.identity import canonical_json, job_hash, run_dir_for
 from controller.cli.main import main
 from controller.journal.store import Journal
 from tests.test_build_robot import small_job

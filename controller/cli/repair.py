@@ -88,7 +88,7 @@ def run_repair(args: argparse.Namespace) -> int:
 
     from controller.cli.main import emit_json
     from controller.harness.repair import repair_run_sim
-    from controller.runtime.repair_run import repair_run
+    from controller.repair import repair_run
     from core.config import load_cell, load_sim
 
     path = Path(args.job)

@@ -187,7 +187,7 @@ class SimSession:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from controller.runtime.build import run_dir_for
+    from controller.job.identity import run_dir_for
 
     cfg = load_cell(args.cell_config)
     job = read_job(args.job)
@@ -368,7 +368,8 @@ def _say_record(report: str | None, say: Callable[[str], None]) -> None:
 
 def _demo(args: argparse.Namespace) -> int:
     from controller.api import CellController
-    from controller.runtime.build import BuildOptions, run_dir_for
+    from controller.runtime.build import BuildOptions
+    from controller.job.identity import run_dir_for
     from controller.runtime.devices import with_urls
     from core.config import load_material
     from planner.job import job_to_dict

@@ -47,7 +47,7 @@ def check_job_for_cell(job: dict, cfg: object, source: str) -> None:
 
 def stored_job(meta: dict, jpath: Path) -> dict:
     """The job a journal holds, refused when it no longer matches the checksum stored beside it."""
-    from controller.runtime.build import job_hash
+    from controller.job.identity import job_hash
 
     try:
         job = json.loads(meta["job_json"])

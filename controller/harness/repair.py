@@ -5,7 +5,7 @@ from pathlib import Path
 from typing import Any
 
 from controller.harness.sim import SIM_REPLY_TIMEOUT_MS, simulated
-from controller.runtime.repair_run import repair_run
+from controller.repair import repair_run
 from core.config import CellConfig, SimConfig
 
 

@@ -75,7 +75,7 @@ def _read_copy(src: Path) -> tuple[dict[str, list[tuple]], dict[str, int], set[s
 
 def recover(run_dir: Path, out_dir: Path, job: dict | None) -> Recovered:
     """Copy what the journal of `run_dir` proves into a new journal under `out_dir`."""
-    from controller.runtime.build import canonical_json, job_hash
+    from controller.job.identity import canonical_json, job_hash
     from controller.journal.store import SCHEMA
 
     src = run_dir / "journal.sqlite"

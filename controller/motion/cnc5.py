@@ -11,15 +11,14 @@ from typing import Any
 import numpy as np
 
 from controller.motion.post5 import Post5, inverse_time, move_line, weld_axes
+from controller.motion.weld_path import weld_points
 from core.errors import InputError
 
 Point = tuple[float, float, float]
 
 
 def _weld_points(points: list, max_step_mm: float) -> list[Point]:
-    from controller.runtime.build import weld_points  # the build's own subdivision: indices must agree
-
-    return weld_points(points, max_step_mm)
+    return weld_points(points, max_step_mm)  # the build's own subdivision: indices must agree
 
 
 class Five:

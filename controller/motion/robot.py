@@ -11,7 +11,10 @@ import asyncio
 import time
 from typing import Any, Callable
 
+from controller.motion.post5 import weld_axes
+from controller.motion.weld_path import weld_points
 from controller.ports import RobotLinkPort
+from core.errors import InputError
 
 Point = tuple[float, float, float]
 AXIS = (0.0, 0.0, 1.0)  # tool axis of a 3-axis pass: vertical torch
@@ -41,11 +44,7 @@ class RobotExecutor:
 
     def post_job(self, job: dict, max_step_mm: float) -> None:
         """The planned tool axis per weld point of every 5-axis pass (`axes`), before any motion."""
-        from controller.runtime.build import weld_points
-        from controller.motion.post5 import weld_axes
-
         if job.get("frame") == "cad" and not job.get("alignment"):
-            from core.errors import InputError
 
             raise InputError("the job is in the CAD frame and carries no alignment: the controller does not know "
                              "where the substrate is; align it (cell align run --job) or plan with --frame substrate")

@@ -14,12 +14,9 @@ resumed bead re-arcs, so no move is executed twice and none is skipped.
 from __future__ import annotations
 
 import asyncio
-import hashlib
-import json
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from controller.runtime.arc_handshake import ArcHandshake
@@ -29,57 +26,15 @@ from controller.runtime.bead_measure import BeadStats, Pace
 from controller.runtime.events import EventBus
 from controller.journal.store import Journal
 from controller.runtime.machine import CellMachine, State
+from controller.motion.weld_path import Point, weld_points
 from controller.ports import ArcControl, CellIOPort, MotionExecutor, PowerSourcePort
 from core.errors import CellError
 
-Point = tuple[float, float, float]
 STALE_STATUS_S = 0.1  # a power-source status older than its watchdog (100 ms) does not vouch for a move
 
 
 class BuildError(CellError):
     """The build cannot go on (a device refused, the job does not fit)."""
-
-
-# -- job helpers ------------------------------------------------------------------------------
-
-
-def canonical_json(job: dict) -> str:
-    return json.dumps(job, sort_keys=True, separators=(",", ":"))
-
-
-def job_hash(job: dict) -> str:
-    """sha256 of the job's canonical JSON: the journal and the run directory are keyed on it."""
-    return hashlib.sha256(canonical_json(job).encode("utf-8")).hexdigest()
-
-
-def job_name(job: dict) -> str:
-    name = job.get("name") or Path(str((job.get("source") or {}).get("file") or "job")).stem
-    return "".join(c if c.isalnum() or c in "-_." else "-" for c in str(name)) or "job"
-
-
-def run_dir_for(job: dict, runs_dir: str | Path) -> Path:
-    """runs/<job-name>-<hash8>/"""
-    return Path(runs_dir) / f"{job_name(job)}-{job_hash(job)[:8]}"
-
-
-def weld_points(points: Sequence[Sequence[float]], max_step_mm: float) -> list[Point]:
-    """The pass's polyline subdivided into moves of at most `max_step_mm` (deterministic).
-
-    Point indices of this list are what the journal records, so they must not change between
-    a run and its resume: they depend on the job and the step only.
-    """
-    out: list[Point] = [tuple(float(v) for v in points[0][:3])]  # type: ignore[list-item]
-    for p in points[1:]:
-        q = tuple(float(v) for v in p[:3])
-        a = out[-1]
-        d = math.dist(a, q)
-        if d < 1e-9:
-            continue
-        n = max(1, math.ceil(d / max_step_mm - 1e-9))
-        for k in range(1, n + 1):
-            f = k / n
-            out.append((a[0] + (q[0] - a[0]) * f, a[1] + (q[1] - a[1]) * f, a[2] + (q[2] - a[2]) * f))
-    return out
 
 
 @dataclass(frozen=True)
