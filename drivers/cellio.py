@@ -30,7 +30,6 @@ from typing import Any, Awaitable, Callable
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
-from core.config import CellIODevice
 from drivers.cyclic import CyclicDevice
 from drivers.errors import DeviceError, LinkLost
 from wire.cellio_map import COILS, INPUT_REGISTERS, INPUTS, from_register
@@ -188,9 +187,3 @@ class CellIO(CyclicDevice[CellInputs]):
             self._written = want
         self.cycles += 1
         return new
-
-
-def open_cellio(cfg: CellIODevice, url: str | None = None, timeout_ms: float | None = None) -> CellIO:
-    """The driver for `devices.cellio` of cell.yaml; `timeout_ms` overrides its link watchdog."""
-    return CellIO(url or cfg.url, device_id=cfg.device_id, cycle_ms=cfg.cycle_ms, timeout_ms=timeout_ms,
-                  lost_after_cycles=cfg.lost_after_cycles)
