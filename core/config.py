@@ -2,10 +2,10 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal, TypeVar
+from typing import Any, Callable, Literal, TypeVar, get_args
 
 import yaml
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, ValidationError
 from typing_extensions import Annotated
 
 from core.errors import ConfigError
@@ -61,7 +61,36 @@ class CellInfo(_Frozen):
     runs_dir: str = "runs"
 
 
+# The protocol / transport of each device kind: drivers/registry.py maps each name to its driver
+# class (tests/test_registry.py keeps the two lists equal). A name not listed is an error that
+# names the file, the key and the known names.
+RobotProtocolName = Literal["rlp1"]
+CncProtocolName = Literal["grbl"]
+PowerTransportName = Literal["modbus_tcp", "modbus_rtu", "can"]
+CellIOTransportName = Literal["modbus_tcp"]
+
+
+def _one_of(what: str, names: tuple[str, ...]) -> Callable[[object], object]:
+    """A before-validator naming the known values (pydantic's literal error only quotes them)."""
+    def check(v: object) -> object:
+        if isinstance(v, str) and v not in names:
+            raise ValueError(f"unknown {what} {v!r}; known: {', '.join(names)}")
+        return v
+    return check
+
+
+ROBOT_PROTOCOLS: tuple[str, ...] = get_args(RobotProtocolName)
+CNC_PROTOCOLS: tuple[str, ...] = get_args(CncProtocolName)
+POWER_TRANSPORTS: tuple[str, ...] = get_args(PowerTransportName)
+CELLIO_TRANSPORTS: tuple[str, ...] = get_args(CellIOTransportName)
+RobotProtocol = Annotated[RobotProtocolName, BeforeValidator(_one_of("robot protocol", ROBOT_PROTOCOLS))]
+CncProtocol = Annotated[CncProtocolName, BeforeValidator(_one_of("CNC protocol", CNC_PROTOCOLS))]
+PowerTransport = Annotated[PowerTransportName, BeforeValidator(_one_of("power-source transport", POWER_TRANSPORTS))]
+CellIOTransport = Annotated[CellIOTransportName, BeforeValidator(_one_of("cell I/O transport", CELLIO_TRANSPORTS))]
+
+
 class RobotDevice(_Frozen):
+    protocol: RobotProtocol = "rlp1"      # rlp1: RLP/1 over a serial URL (DESIGN.md §5)
     url: DeviceUrl
     baud: int = Field(default=115200, gt=0)
     heartbeat_s: float = Field(default=1.0, gt=0.0)
@@ -70,6 +99,7 @@ class RobotDevice(_Frozen):
 
 
 class CncDevice(_Frozen):
+    protocol: CncProtocol = "grbl"        # grbl: grbl 1.1 / grblHAL line protocol (DESIGN.md §5)
     url: DeviceUrl
     baud: int = Field(default=115200, gt=0)
     rx_buffer_bytes: int = Field(default=128, ge=32, le=4096)
@@ -87,7 +117,7 @@ class CanSettings(_Frozen):
 
 
 class PowerSourceDevice(_Frozen):
-    transport: Literal["modbus_tcp", "modbus_rtu", "can"] = "modbus_tcp"
+    transport: PowerTransport = "modbus_tcp"
     url: DeviceUrl = "tcp://127.0.0.1:5502"
     device_id: int = Field(default=1, ge=1, le=247)
     cycle_ms: float = Field(default=10.0, gt=0.0, le=1000.0)
@@ -103,6 +133,7 @@ class PowerSourceDevice(_Frozen):
 
 
 class CellIODevice(_Frozen):
+    transport: CellIOTransport = "modbus_tcp"   # the remote I/O coupler (DESIGN.md §5)
     url: DeviceUrl = "tcp://127.0.0.1:5503"
     device_id: int = Field(default=1, ge=1, le=247)
     cycle_ms: float = Field(default=10.0, gt=0.0, le=1000.0)

@@ -24,13 +24,12 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from dataclasses import dataclass
-from typing import Any, Awaitable, Callable
+from dataclasses import dataclass, fields, replace
+from typing import Any, Awaitable, Callable, Sequence
 
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
-from core.config import CellIODevice
 from drivers.cyclic import CyclicDevice
 from drivers.errors import DeviceError, LinkLost
 from wire.cellio_map import COILS, INPUT_REGISTERS, INPUTS, from_register
@@ -56,6 +55,30 @@ class CellInputs:
     def safe_to_weld(self) -> bool:
         """Door closed, E-stop released, gas pressure and fume extraction OK."""
         return self.door_closed and self.estop_released and self.gas_ok and self.fume_ok
+
+    def switches(self) -> tuple[bool, ...]:
+        """The discrete inputs, in the order of SWITCHES (a change of any is an input change)."""
+        return tuple(bool(getattr(self, n)) for n in SWITCHES)
+
+
+# the discrete inputs CellInputs holds: each read from the coupler by its name in the signal map
+SWITCHES: tuple[str, ...] = tuple(f.name for f in fields(CellInputs) if f.type in (bool, "bool"))
+
+
+def decode_inputs(bits: Sequence[bool], t: float, prev: CellInputs, names: Sequence[str] = INPUTS) -> CellInputs:
+    """The coupler's discrete inputs as CellInputs, each by its name: `names[i]` (the signal map,
+    wire/cellio_map.INPUTS) is the name of input `i`, so a reordered map never swaps the door and
+    the E-stop. The registers are kept from `prev` (read later in the cycle)."""
+    if len(bits) < len(names):
+        raise DeviceError(f"cell I/O: {len(bits)} discrete inputs read, the signal map names {len(names)}")
+    by_name = dict(zip(names, (bool(b) for b in bits)))
+    missing = [n for n in SWITCHES if n not in by_name]
+    if missing:
+        raise DeviceError(f"cell I/O: the signal map has no input named {', '.join(missing)} "
+                          "(wire/cellio_map.INPUTS against drivers/cellio.CellInputs)")
+    return CellInputs(t, door_closed=by_name["door_closed"], estop_released=by_name["estop_released"],
+                      gas_ok=by_name["gas_ok"], fume_ok=by_name["fume_ok"],
+                      part_temperature_c=prev.part_temperature_c, gas_flow_l_min=prev.gas_flow_l_min)
 
 
 class CellIO(CyclicDevice[CellInputs]):
@@ -168,11 +191,9 @@ class CellIO(CyclicDevice[CellInputs]):
         if c is None or not c.connected:
             raise LinkLost(f"{self.where()}: not connected")
         di = await self._call(c.read_discrete_inputs(0, count=len(INPUTS), device_id=dev))
-        t = time.monotonic()
         prev = self._inputs
-        b = list(di.bits[:len(INPUTS)])
-        new = CellInputs(t, b[0], b[1], b[2], b[3], prev.part_temperature_c, prev.gas_flow_l_min)
-        if (prev.door_closed, prev.estop_released, prev.gas_ok, prev.fume_ok) != tuple(b) and self.cycles:
+        new = decode_inputs(di.bits, time.monotonic(), prev)
+        if prev.switches() != new.switches() and self.cycles:
             self._inputs = new
             for fn in list(self._change):
                 try:
@@ -180,7 +201,9 @@ class CellIO(CyclicDevice[CellInputs]):
                 except Exception:
                     pass
         ir = await self._call(c.read_input_registers(0, count=len(INPUT_REGISTERS), device_id=dev))
-        new = CellInputs(t, b[0], b[1], b[2], b[3], from_register(ir.registers[0]), from_register(ir.registers[1]))
+        regs = dict(zip(INPUT_REGISTERS, ir.registers))
+        new = replace(new, part_temperature_c=from_register(regs["part_temperature_c"]),
+                      gas_flow_l_min=from_register(regs["gas_flow_l_min"]))
         self._inputs = new
         if self._written != self._coils:
             want = dict(self._coils)
@@ -188,9 +211,3 @@ class CellIO(CyclicDevice[CellInputs]):
             self._written = want
         self.cycles += 1
         return new
-
-
-def open_cellio(cfg: CellIODevice, url: str | None = None, timeout_ms: float | None = None) -> CellIO:
-    """The driver for `devices.cellio` of cell.yaml; `timeout_ms` overrides its link watchdog."""
-    return CellIO(url or cfg.url, device_id=cfg.device_id, cycle_ms=cfg.cycle_ms, timeout_ms=timeout_ms,
-                  lost_after_cycles=cfg.lost_after_cycles)

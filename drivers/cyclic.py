@@ -66,11 +66,11 @@ class CyclicDevice(ABC, Generic[S]):
         # A fieldbus watchdog: the link is lost after `lost_after_cycles` cycles without a valid
         # reply. `timeout_ms` overrides it (in-process simulators share the controller's GIL).
         self.timeout_s = timeout_ms / 1000.0 if timeout_ms else lost_after_cycles * self.cycle_s
-        self._task: asyncio.Task | None = None
+        self._task: asyncio.Task[None] | None = None
         self._error: CellError | None = None
         self._subs: list[Callable[[S], None]] = []
         self._err_subs: list[Callable[[CellError], None]] = []
-        self._waiters: list[asyncio.Future] = []
+        self._waiters: list[asyncio.Future[S]] = []
         self._closing = False
         self.stats = CycleStats()
         # how long (s) some CPU of this host did not run between two monotonic times: set by the
@@ -151,7 +151,7 @@ class CyclicDevice(ABC, Generic[S]):
             raise self._error
         if self._task is None or self._task.done():
             raise LinkLost(f"{self.where()}: not connected")
-        fut = asyncio.get_running_loop().create_future()
+        fut: asyncio.Future[S] = asyncio.get_running_loop().create_future()
         self._waiters.append(fut)
         return await fut
 
@@ -226,9 +226,14 @@ class CyclicDevice(ABC, Generic[S]):
             self._kicked = False
             return True
         loop = asyncio.get_running_loop()
-        self._wake = fut = loop.create_future()
-        timer = loop.call_later(max(0.0, deadline - time.monotonic()),
-                                lambda: fut.done() or fut.set_result(False))
+        fut: asyncio.Future[bool] = loop.create_future()
+        self._wake = fut
+
+        def due() -> None:
+            if not fut.done():
+                fut.set_result(False)
+
+        timer = loop.call_later(max(0.0, deadline - time.monotonic()), due)
         try:
             kicked = await fut
         finally:

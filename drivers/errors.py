@@ -7,7 +7,15 @@ class DeviceError(CellError):
 
 
 class LinkLost(DeviceError):
-    """A device went silent or its link dropped (timeouts, lost replies, closed port)."""
+    """A device went silent or its link dropped (timeouts, lost replies, closed port).
+
+    `reason` is the cause alone (e.g. "socket disconnected"), without the device and URL the
+    message names; a driver that drops its link on it words its own message around it.
+    """
+
+    def __init__(self, message: str, *, reason: str | None = None) -> None:
+        super().__init__(message)
+        self.reason = message if reason is None else reason
 
 
 class DeviceTimeout(LinkLost):

@@ -2,7 +2,7 @@
 
 Usage (the controller):
 
-    ps = open_power_source(cell.devices.power_source, material)   # drivers/power_open.py
+    ps = open_power_source(cell.devices.power_source, material)   # drivers/registry.py
     await ps.connect()                 # first cycle sends every start bit cleared
     ps.set_job(mode=0, job=5); ps.set_wire_feed(6.2); ps.set_trims(arc=0.0, dynamic=0.0)
     ps.subscribe(record)               # record(PowerStatus) once per 10 ms cycle
@@ -29,11 +29,13 @@ import asyncio
 import time
 from abc import abstractmethod
 from dataclasses import dataclass, field, replace
-from typing import Any
+from pathlib import Path
+from typing import Any, Self
 
 from drivers.cyclic import CycleStats, CyclicDevice
 from drivers.errors import LinkLost
 from wire.power_registers import ARC_TRIM_LIMIT, COMMAND_BITS, DYNAMIC_TRIM_LIMIT, MODES, STATUS_BITS
+from core.config import PowerSourceDevice
 from core.errors import CellError
 
 from core.material import Material
@@ -117,6 +119,12 @@ class PowerSource(CyclicDevice[PowerStatus]):
         self._status: PowerStatus | None = None
         self._counter = 0
         self._cycle = 0
+
+    @classmethod
+    @abstractmethod
+    def from_config(cls, cfg: PowerSourceDevice, material: Material | None = None, *,
+                    config_dir: str | Path | None = None, url: str | None = None) -> Self:
+        """The driver for `devices.power_source` of cell.yaml (drivers/registry.py picks the class)."""
 
     # -- transport hooks --------------------------------------------------------------------
     @abstractmethod

@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import asyncio
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
+from core.config import PowerSourceDevice
 from core.errors import ConfigError
 from core.material import Material
 from drivers.errors import DeviceError, LinkLost
 from drivers.power import PowerCommand, PowerSource
-from wire.can_codec import DEFAULT_DBC, CanCodec
+from wire.can_codec import DEFAULT_DBC, CanCodec, dbc_path
 
 
 class CanPowerSource(PowerSource):
@@ -46,6 +47,16 @@ class CanPowerSource(PowerSource):
         self._bus: Any = None                # can.BusABC once open (python-can has no stubs here)
         self._notifier: Any = None
         self._pending: tuple[int, asyncio.Future[dict[str, Any]], dict[str, Any]] | None = None
+
+    @classmethod
+    def from_config(cls, cfg: PowerSourceDevice, material: Material | None = None, *,
+                    config_dir: str | Path | None = None, url: str | None = None) -> Self:
+        """`devices.power_source` with transport can; `url` overrides can.channel, `config_dir`
+        resolves a relative can.dbc."""
+        return cls(interface=cfg.can.interface, channel=url or cfg.can.channel, node=cfg.can.node,
+                   dbc=dbc_path(cfg.can.dbc, config_dir), material=material, cycle_ms=cfg.cycle_ms,
+                   timeout_ms=cfg.timeout_ms, allow_network=cfg.can.allow_network,
+                   lost_after_cycles=cfg.lost_after_cycles)
 
     def where(self) -> str:
         return f"power source (CAN node {self.node}) on {self.interface} channel {self.channel}"

@@ -9,12 +9,14 @@ from __future__ import annotations
 
 
 import logging
-from typing import Any
+from pathlib import Path
+from typing import Any, Self
 
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 from pymodbus.framer import FramerType
 
+from core.config import PowerSourceDevice
 from core.material import Material
 from drivers.errors import DeviceError, LinkLost
 from drivers.power import PowerCommand, PowerSource
@@ -44,6 +46,13 @@ class ModbusPowerSource(PowerSource):
         self.baudrate = baudrate
         self.map = register_map.validate()
         self._client: AsyncModbusTcpClient | AsyncModbusSerialClient | None = None
+
+    @classmethod
+    def from_config(cls, cfg: PowerSourceDevice, material: Material | None = None, *,
+                    config_dir: str | Path | None = None, url: str | None = None) -> Self:
+        """`devices.power_source` with transport modbus_tcp or modbus_rtu (`config_dir` unused)."""
+        return cls(url or cfg.url, material, device_id=cfg.device_id, cycle_ms=cfg.cycle_ms, timeout_ms=cfg.timeout_ms,
+                   lost_after_cycles=cfg.lost_after_cycles, rtu=cfg.transport == "modbus_rtu")
 
     def where(self) -> str:
         kind = "Modbus RTU" if self.rtu else "Modbus TCP"

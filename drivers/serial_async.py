@@ -12,13 +12,26 @@ import select
 import socket
 import threading
 import time
+from dataclasses import dataclass
 
 import serial
 
 from core.realtime import elevate, is_realtime
 from drivers.errors import LinkLost
 
-_EOF = object()
+
+
+@dataclass(frozen=True)
+class _Closed:
+    """The reader thread's last item: the port closed or failed, and why."""
+
+    reason: str
+
+
+def _tcp_socket(ser: serial.Serial) -> socket.socket | None:
+    """The TCP socket under a socket:// port (pyserial keeps it private), else None."""
+    sock = getattr(ser, "_socket", None)
+    return sock if isinstance(sock, socket.socket) else None
 
 
 class SerialPort:
@@ -33,12 +46,11 @@ class SerialPort:
         self.bytes_written = 0
         self.bytes_read = 0
         self.rx_t = 0.0                  # monotonic arrival time of the chunk read() returned last
-        self._ser: serial.SerialBase | None = None
-        self._queue: asyncio.Queue = asyncio.Queue()
+        self._ser: serial.Serial | None = None
+        self._queue: asyncio.Queue[tuple[float, bytes] | _Closed] = asyncio.Queue()
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._free_at = 0.0
-        self._loop: asyncio.AbstractEventLoop | None = None
         self._error: str | None = None
         self._rt = False
 
@@ -47,18 +59,16 @@ class SerialPort:
         return self._ser is not None and self._error is None
 
     def _lost(self, what: str) -> LinkLost:
-        exc = LinkLost(f"{self.name} at {self.url}: {what}")
-        exc.reason = what
-        return exc
+        return LinkLost(f"{self.name} at {self.url}: {what}", reason=what)
 
     async def open(self) -> None:
-        self._loop = asyncio.get_running_loop()
+        loop = asyncio.get_running_loop()
         try:
-            self._ser = await self._loop.run_in_executor(
+            self._ser = ser = await loop.run_in_executor(
                 None, lambda: serial.serial_for_url(self.url, baudrate=self.baud, timeout=0.05, write_timeout=2.0))
         except (serial.SerialException, OSError, ValueError) as exc:
             raise self._lost(f"cannot open the port ({exc}); check the URL and that the device is up") from None
-        sock = getattr(self._ser, "_socket", None)
+        sock = _tcp_socket(ser)
         if sock is not None:  # socket://: no Nagle delay, frames go out as a UART would send them
             try:
                 sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -68,14 +78,13 @@ class SerialPort:
         # the reader runs at the loop's priority: a time-shared reader was starved for seconds
         # beside CPU-bound work (the robot's replies unread, the link lost while idle)
         self._rt = is_realtime()
-        self._thread = threading.Thread(target=self._reader, name=f"{self.name}-rx", daemon=True)
+        self._thread = threading.Thread(target=self._reader, args=(ser, loop), name=f"{self.name}-rx", daemon=True)
         self._thread.start()
 
-    def _reader(self) -> None:
-        ser, loop = self._ser, self._loop
+    def _reader(self, ser: serial.Serial, loop: asyncio.AbstractEventLoop) -> None:
         # pyserial's socket:// reports in_waiting as 0/1 and reads byte by byte: read what is
         # there straight from the socket, so the loop gets chunks, not thousands of 1-byte items
-        sock = getattr(ser, "_socket", None)
+        sock = _tcp_socket(ser)
         if self._rt:
             elevate(f"{self.name} reader")
         try:
@@ -102,16 +111,16 @@ class SerialPort:
         except Exception as exc:  # closed port or peer: report it once, to the reader
             if not self._stop.is_set():
                 try:
-                    loop.call_soon_threadsafe(self._queue.put_nowait, (_EOF, str(exc)))
+                    loop.call_soon_threadsafe(self._queue.put_nowait, _Closed(str(exc)))
                 except RuntimeError:
                     pass
 
     async def read(self) -> bytes:
         """The next received chunk; LinkLost when the port closed or failed."""
         item = await self._queue.get()
-        if item[0] is _EOF:
-            self._error = item[1]
-            raise self._lost(item[1])
+        if isinstance(item, _Closed):
+            self._error = item.reason
+            raise self._lost(item.reason)
         # when the bytes came off the wire (the reader thread's clock): a busy event loop does
         # not delay the time stamps of what the device reported
         self.rx_t, data = item

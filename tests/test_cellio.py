@@ -9,8 +9,9 @@ from contextlib import asynccontextmanager
 import pytest
 
 from controller.runtime.arc_handshake import ArcHandshake, drop_start_on_unsafe
-from drivers.cellio import CellIO
-from drivers.errors import LinkLost
+from drivers.cellio import SWITCHES, CellInputs, CellIO, decode_inputs
+from drivers.errors import DeviceError, LinkLost
+from wire.cellio_map import INPUTS
 from sims.cellio_sim import CellIOSim, serve_modbus_tcp
 from sims.clock import SimClock
 from sims.faults import parse_fault_spec
@@ -178,3 +179,44 @@ def test_cycle_statistics_give_the_p99_period_from_a_bounded_histogram():
     st.add_period(5.0)   # beyond the histogram: counted in the last bin, never an index error
     assert st.period_percentile_ms(100) == 1000.1
     assert len(st.hist) == 10_001
+
+
+# -- inputs by name (issue 25): the signal map, not the position, says which input is which ----------
+
+
+def test_a_reordered_signal_map_still_reads_the_door_as_the_door():
+    prev = CellInputs(t=0.0, part_temperature_c=80.0, gas_flow_l_min=12.0)
+    bits = [True, False, True, True]            # input 0 closed, input 1 open
+    as_shipped = decode_inputs(bits, 1.0, prev)
+    assert INPUTS[:2] == ("door_closed", "estop_released")
+    assert as_shipped.door_closed and not as_shipped.estop_released
+    swapped = ("estop_released", "door_closed", "gas_ok", "fume_ok")   # a coupler wired the other way
+    st = decode_inputs(bits, 1.0, prev, names=swapped)
+    assert st.estop_released and not st.door_closed and st.gas_ok and st.fume_ok
+    assert (st.t, st.part_temperature_c, st.gas_flow_l_min) == (1.0, 80.0, 12.0)   # registers kept
+    reordered = tuple(reversed(INPUTS))
+    st = decode_inputs(list(reversed([False, True, True, False])), 1.0, prev, names=reordered)
+    assert (st.door_closed, st.estop_released, st.gas_ok, st.fume_ok) == (False, True, True, False)
+
+
+def test_the_signal_map_names_every_input_of_cellinputs():
+    assert set(INPUTS) == set(SWITCHES)
+    with pytest.raises(DeviceError, match="no input named estop_released"):
+        decode_inputs([True] * 4, 0.0, CellInputs(t=0.0), names=("door_closed", "e_stop", "gas_ok", "fume_ok"))
+    with pytest.raises(DeviceError, match="3 discrete inputs read"):
+        decode_inputs([True] * 3, 0.0, CellInputs(t=0.0))
+
+
+async def test_opening_the_door_trips_door_closed_and_not_the_estop():
+    async with cellio_rig() as (th, sim, io):
+        st = await io.next_inputs()
+        assert st.door_closed and st.estop_released and io.inputs_safe()
+        th.call(sim.open_door)
+        for _ in range(3):
+            st = await io.next_inputs()
+        assert not st.door_closed and st.estop_released and not io.inputs_safe()
+        th.call(sim.close_door)
+        th.call(sim.press_estop)
+        for _ in range(3):
+            st = await io.next_inputs()
+        assert st.door_closed and not st.estop_released and not io.inputs_safe()

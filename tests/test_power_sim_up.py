@@ -10,8 +10,7 @@ import pytest
 from controller.runtime.arc_handshake import ArcHandshake, ArcLost
 from controller.defaults import SIM_REPLY_TIMEOUT_MS
 from core.config import load_cell, load_material, load_sim
-from drivers.cellio import open_cellio
-from drivers.power_open import open_power_source
+from drivers.registry import open_cellio, open_power_source
 from sims.clock import SimClock
 from sims.up import SimContext, close_all, serve_all
 from sims.world import World

@@ -1,7 +1,9 @@
 """The cell I/O coupler's Modbus map (DESIGN.md §5), one definition for the driver and the simulator.
 
 Discrete inputs 0..3 and coils 0..4 in the order of INPUTS and COILS; input registers 0..1 in
-the order of INPUT_REGISTERS, each the value times REGISTER_SCALE (0.1 °C, 0.1 L/min).
+the order of INPUT_REGISTERS, each the value times REGISTER_SCALE (0.1 °C, 0.1 L/min). The
+driver reads every signal by its name here (drivers/cellio.decode_inputs), never by a position
+of its own: this tuple alone says which input is the door and which the E-stop.
 """
 from __future__ import annotations
 

@@ -13,6 +13,7 @@ from typing import Any
 
 from core.config import CellConfig, load_material
 from drivers.errors import DeviceError
+from drivers.registry import open_cellio, open_cnc, open_power_source, open_robot
 from controller.ports import CellIOPort, CncLinkPort, PowerSourcePort, RobotLinkPort
 from core.material import Material
 
@@ -74,38 +75,25 @@ class Devices:
         `reply_timeout_ms` overrides the bus devices' reply timeout (in-process simulators
         share the GIL with the controller, so `--sim` allows them more than hardware gets).
         """
-        if reply_timeout_ms is not None:
-            ps = cfg.devices.power_source.model_copy(update={"timeout_ms": reply_timeout_ms})
-            cfg = cfg.model_copy(update={"devices": cfg.devices.model_copy(update={"power_source": ps})})
         mat = material or load_material(cfg.cell.material)
         d = cls(cfg, mat)
         try:
             if cfg.cell.platform == "robot":
-                from drivers.robot import RobotLink
-
                 r = cfg.devices.robot
-                d.robot = RobotLink(r.url, baud=r.baud, link_timeout_s=r.link_timeout_s,
-                                    line_scale=cfg.cell.time_scale)
+                d.robot = open_robot(r, time_scale=cfg.cell.time_scale)
                 await _connect("robot", r.url, d.robot.connect(resume_ticket=resume_ticket))
                 d.opened.append(d.robot)
             else:
-                from drivers.grbl import CncLink
-
                 c = cfg.devices.cnc
-                d.cnc = CncLink(c.url, baud=c.baud, rx_buffer_bytes=c.rx_buffer_bytes, status_hz=c.status_hz,
-                                homing_timeout_s=c.homing_timeout_s)
+                d.cnc = open_cnc(c)
                 await _connect("cnc", c.url, d.cnc.connect())
                 d.opened.append(d.cnc)
-            from drivers.power_open import open_power_source
-
-            d.power = open_power_source(cfg.devices.power_source, mat)
-            await _connect("power_source", cfg.devices.power_source.url, d.power.connect())
+            ps = cfg.devices.power_source
+            d.power = open_power_source(ps, mat, timeout_ms=reply_timeout_ms)
+            await _connect("power_source", ps.url, d.power.connect())
             d.opened.append(d.power)
-            from drivers.cellio import CellIO
-
             io = cfg.devices.cellio
-            d.cellio = CellIO(io.url, device_id=io.device_id, cycle_ms=io.cycle_ms,
-                              timeout_ms=reply_timeout_ms, lost_after_cycles=io.lost_after_cycles)
+            d.cellio = open_cellio(io, timeout_ms=reply_timeout_ms)
             await _connect("cellio", io.url, d.cellio.connect())
             d.opened.append(d.cellio)
         except BaseException:
