@@ -97,13 +97,17 @@ class HeightMap:
             j_lo, j_hi = min(j_lo, self._j0), max(j_hi, self._j0 + ny - 1)
         i0, j0 = i_lo - _GROW, j_lo - _GROW
         shape = (j_hi + _GROW - j0 + 1, i_hi + _GROW - i0 + 1)
-        arrays = []
-        for old, fill in ((self.top, np.nan), (self._base, np.nan), (self._stamp, 0), (self._before, np.nan)):
-            new = np.full(shape, fill, dtype=old.dtype)
-            if nx:
-                new[self._j0 - j0:self._j0 - j0 + ny, self._i0 - i0:self._i0 - i0 + nx] = old
-            arrays.append(new)
-        self.top, self._base, self._stamp, self._before = arrays
+        rows = slice(self._j0 - j0, self._j0 - j0 + ny)
+        cols = slice(self._i0 - i0, self._i0 - i0 + nx)
+
+        def grown(old: FloatArray) -> FloatArray:
+            new = np.full(shape, np.nan)
+            new[rows, cols] = old
+            return new
+
+        stamp = np.zeros(shape, dtype=np.int64)
+        stamp[rows, cols] = self._stamp
+        self.top, self._base, self._before, self._stamp = grown(self.top), grown(self._base), grown(self._before), stamp
         self._i0, self._j0 = i0, j0
 
     def index(self, x: float, y: float) -> tuple[int, int]:
@@ -206,8 +210,8 @@ class HeightMap:
         i_lo, j_lo = self.index(float(lo[0]), float(lo[1]))
         i_hi, j_hi = self.index(float(hi[0]), float(hi[1]))
         self._ensure(i_lo, i_hi, j_lo, j_hi)
-        ii, jj = np.meshgrid(np.arange(i_lo, i_hi + 1), np.arange(j_lo, j_hi + 1))
-        ii, jj = ii.ravel(), jj.ravel()
+        gi, gj = np.meshgrid(np.arange(i_lo, i_hi + 1, dtype=np.int64), np.arange(j_lo, j_hi + 1, dtype=np.int64))
+        ii, jj = gi.ravel(), gj.ravel()
         cx, cy = (ii + 0.5) * self.cell - a[0], (jj + 0.5) * self.cell - a[1]
         t = cx * u[0] + cy * u[1]
         s = cx * nrm[0] + cy * nrm[1]

@@ -39,7 +39,7 @@ class ProcessPhysics:
     def __init__(self, material: Material, cfg: ProcessSim | None = None, *, seed: int = 0) -> None:
         self.material = material
         self.cfg = cfg if cfg is not None else ProcessSim()
-        self.melting: MeltingRelation = relation_for(material, cfg.stick_out_mm, cfg.resistive_share)
+        self.melting: MeltingRelation = relation_for(material, self.cfg.stick_out_mm, self.cfg.resistive_share)
         self.maps: dict[str, HeightMap] = {}
         self._substrates: dict[str, Substrate] = {}
         self._rng = np.random.default_rng([int(seed), 27])

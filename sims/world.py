@@ -208,4 +208,4 @@ class World:
 
 
 def _dist(a: Vec3, b: Vec3) -> float:
-    return sum((x - y) ** 2 for x, y in zip(a, b)) ** 0.5
+    return float(sum((x - y) ** 2 for x, y in zip(a, b)) ** 0.5)
