@@ -18,13 +18,14 @@ import re
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Callable
+from typing import IO, Any, Callable
 
 import numpy as np
 
 from wire.grbl_protocol import GrblStatus, fmt, format_probe, format_status
 from sims.clock import SimClock
 from sims.faults import parse_fault_spec
+from sims.process_world import attach
 from sims.transport import serve_serial
 from sims.workpiece import Workpiece
 
@@ -729,17 +730,15 @@ async def serve(ctx) -> list:
     sim = CncSim(clock=ctx.clock, world=ctx.world, workpiece=wp, rx_buffer_bytes=dev.rx_buffer_bytes,
                  letters=wp.kin.letters,
                  log_path=(Path(ctx.log_dir) / "cnc.jsonl") if ctx.log_dir else None)
-    grow_workpiece(ctx.world, wp, ctx.sim.cnc.bead_width_mm, ctx.sim.cnc.bead_depth_mm)
+    use_deposit_map(ctx, wp)
     return await serve_serial(sim, DEVICE, dev, ctx, spec, {"protocol": "grbl 1.1"})
 
 
-def grow_workpiece(world, wp: Workpiece, width_mm: float, depth_mm: float) -> None:
-    """Metal the CNC deposits becomes part of the workpiece, so probing after a repair sees it."""
-    if world is None or not hasattr(world, "subscribe"):
+def use_deposit_map(ctx: Any, wp: Workpiece) -> None:
+    """Metal the CNC deposits is the World's height map in the workpiece frame (its substrate the
+    workpiece mesh): the touch probe reads it, so probing after a repair sees the deposit."""
+    phys = attach(ctx)
+    if phys is None:
         return
-
-    def on_segment(seg: dict) -> None:
-        if seg.get("device") == DEVICE and "part" in seg:
-            wp.deposit(seg["part"]["from"], seg["part"]["to"], width_mm, depth_mm)
-
-    world.subscribe(on_segment)
+    phys.set_substrate(DEVICE, wp.top_z)
+    wp.deposit_map = phys.height_map(DEVICE)

@@ -19,6 +19,7 @@ from typing import IO, Callable
 from wire import rlp
 from sims.clock import SimClock
 from sims.faults import FaultSpec, parse_fault_spec
+from sims.process_world import attach
 from sims.robot_lies import Misbehaviour
 from sims.transport import serve_serial
 
@@ -314,6 +315,7 @@ async def serve(ctx) -> list:
     dev = ctx.cell.devices.robot
     lim = ctx.cell.limits
     spec = parse_fault_spec(ctx.faults)
+    attach(ctx)   # the world's process physics: the robot's substrate is the plane z = 0 of its frame
     sim = RobotSim(clock=ctx.clock, world=ctx.world, queue_slots=dev.queue_slots,
                    log_path=(Path(ctx.log_dir) / "robot.jsonl") if ctx.log_dir else None,
                    heartbeat_s=dev.heartbeat_s, link_timeout_s=dev.link_timeout_s,

@@ -1,4 +1,4 @@
-"""`cell process inverse|forward|fit`: the welding-parameter model (Ribeiro 1997) on the command line.
+"""`cell process inverse|forward|fit|stickout-fit`: the welding-parameter model (Ribeiro 1997) and the wire melting rate (Lesnewich 1958) on the command line.
 
 CSV reading lives here, at the edge (planner/ stays pure): `read_csv_columns` is shared with
 `cell bead fit`.
@@ -17,6 +17,7 @@ import numpy as np
 from core.errors import InputError
 
 FIT_COLUMNS = ("current_a", "speed_mm_min", "width_mm", "height_mm")
+STICKOUT_COLUMNS = ("stick_out_mm", "wfs_m_min", "current_a")
 
 
 # --- CSV input -------------------------------------------------------------------------------
@@ -137,6 +138,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     fit.add_argument("--json", action="store_true", help="print one JSON object")
     fit.set_defaults(func=_fit)
 
+    so = s.add_parser("stickout-fit", help="refit the melting rate WFS = α·I + β·L·I² from a stick-out sweep")
+    so.add_argument("csv", metavar="CSV", help="columns stick_out_mm, wfs_m_min, current_a (header line required)")
+    so.add_argument("--json", action="store_true", help="print one JSON object")
+    so.set_defaults(func=_stickout_fit)
+
 
 def _inverse(args: argparse.Namespace) -> int:
     from controller.cli.main import emit_json
@@ -202,4 +208,26 @@ def _fit(args: argparse.Namespace) -> int:
         f"  k1: {res.k1:.6g}\n  k2: {res.k2:.6g}\n  k3: {res.k3:.6g}\n"
         f"  k4: {res.k4:.6g}\n  k5: {res.k5:.6g}\n  k6: {res.k6:.6g}\n"
     )
+    return 0
+
+
+def _stickout_fit(args: argparse.Namespace) -> int:
+    """α, β of the melting rate from a stick-out sweep (core/melting.py, docs/process-physics.md)."""
+    from controller.cli.main import emit_json
+    from core.melting import fit_sweep
+
+    cols = read_csv_columns(args.csv, STICKOUT_COLUMNS, positive=True)
+    try:
+        res = fit_sweep(*(cols[c] for c in STICKOUT_COLUMNS))
+    except InputError as exc:
+        raise InputError(f"{args.csv}: {exc}") from None
+    if args.json:
+        emit_json(res.to_dict())
+        return 0
+    _table([
+        ("points", str(res.n)),
+        ("melting rate", f"WFS = {res.alpha:.6g} · I + {res.beta:.6g} · L · I²   (m/min, A, mm)"),
+        ("fit", f"R² {res.r2:.4f}, RMS {res.rms:.4f} m/min, stick-out read back RMS {res.rms_stick_out_mm:.3f} mm"),
+    ])
+    sys.stdout.write(f"\nfor the material file (melting:):\n  alpha: {res.alpha:.6g}\n  beta: {res.beta:.6g}\n")
     return 0
