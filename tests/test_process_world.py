@@ -6,7 +6,7 @@ import asyncio
 import numpy as np
 import pytest
 
-from controller.arc_handshake import ArcHandshake
+from controller.runtime.arc_handshake import ArcHandshake
 from core.config import ProcessSim, load_material
 from core.melting import synergic_current
 from drivers.power_modbus import ModbusPowerSource
