@@ -298,7 +298,7 @@ class CellController:
         """
         if not self.machine.can("probe"):
             raise self._refuse("run_alignment")
-        from controller.align.routine import align, cad_mesh, plan_for_mesh, run_on_url
+        from controller.align.routine import align, cad_mesh, plan_for_mesh
 
         if plan is None:
             from core.config import load_sim
@@ -310,7 +310,7 @@ class CellController:
             if cnc is not None:
                 self.alignment = await align(cnc, self.cfg, plan)
             else:
-                self.alignment = await run_on_url(self.cfg.devices.cnc.url, self.cfg, plan)
+                self.alignment = await align_at(self.cfg.devices.cnc.url, self.cfg, plan)
         except BaseException as exc:
             if self.machine.can("fault"):
                 self.machine.send("fault", cause=f"alignment: {exc}")
@@ -431,3 +431,14 @@ def _validated(job: dict) -> dict:
             if len(p["points"]) < 2:
                 raise InputError(f"layers[{li}].passes[{pi}]: a pass needs at least 2 points")
     return job
+
+
+async def align_at(url: str, cell: CellConfig, plan: Any, *, settings: Any = None,
+                   on_point: Callable[[Any], None] | None = None) -> Any:
+    """Probe and align on the CNC at `url` outside a build session (the link is opened and closed
+    here): `cell align run`, the demo's probe on the CNC and the TUI's Align screen come in here,
+    a build session through `CellController.run_alignment`."""
+    # lazy: the alignment routine (ICP, trimesh) loads only when a cell is aligned
+    from controller.align.routine import run_on_url
+
+    return await run_on_url(url, cell, plan, settings=settings, on_point=on_point)

@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from controller.motion.kinematics import apply_to_job
-from controller.align.routine import alignment_record, cad_mesh, plan_for_mesh, run_on_url
+from controller.align.routine import alignment_record, cad_mesh, plan_for_mesh
+from controller.api import align_at
 from controller.harness.align_sim import run_with_sim
 from controller.job.read import read_job
 from core.config import load_cell, load_sim
@@ -221,7 +222,7 @@ def run_cli(args: argparse.Namespace) -> int:
     if args.sim:
         res = asyncio.run(run_with_sim(cell, sim_cfg, plan, config_dir=base))
     else:
-        res = asyncio.run(run_on_url(cell.devices.cnc.url, cell, plan))
+        res = asyncio.run(align_at(cell.devices.cnc.url, cell, plan))
     out = res.to_json()
     if args.report:
         from controller.align.report import write_report

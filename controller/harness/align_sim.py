@@ -4,7 +4,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Callable
 
-from controller.align.routine import AlignResult, ProbePlan, run_on_url
+from controller.align.routine import AlignResult, ProbePlan
+from controller.api import align_at
 from sims import cnc_sim
 from sims.clock import SimClock
 from sims.up import SimContext
@@ -27,6 +28,6 @@ async def _with_sim(cell: Any, sim_cfg: Any, config_dir: Path | None, body: Call
 async def run_with_sim(cell: Any, sim_cfg: Any, plan: ProbePlan, *, config_dir: Path | None = None,
                        settings: Any = None) -> AlignResult:
     async def body(url: str, _sim: Any) -> AlignResult:
-        return await run_on_url(url, cell, plan, settings=settings)
+        return await align_at(url, cell, plan, settings=settings)
 
     return await _with_sim(cell, sim_cfg, config_dir, body)

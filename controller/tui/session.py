@@ -406,7 +406,8 @@ class CellSession:
         return self._submit(_do)
 
     def _align_on_cnc_link(self) -> Any:
-        from controller.align.routine import cad_mesh, plan_for_mesh, run_on_url
+        from controller.align.routine import cad_mesh, plan_for_mesh
+        from controller.api import align_at
         from core.config import load_sim
 
         plan = plan_for_mesh(cad_mesh((self.sim_cfg or load_sim()).cnc.workpiece))
@@ -417,7 +418,7 @@ class CellSession:
             self._probed = self._probed + [(str(pp.name), pos, float(pp.spread_mm))]  # type: ignore[list-item]
 
         async def run() -> Any:
-            return await asyncio.wait_for(run_on_url(dev.url, self.cfg, plan, on_point=on_point), 120.0)
+            return await asyncio.wait_for(align_at(dev.url, self.cfg, plan, on_point=on_point), 120.0)
         try:
             return asyncio.run(run())
         except asyncio.TimeoutError:
