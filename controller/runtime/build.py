@@ -26,6 +26,7 @@ from controller.runtime.bead_measure import BeadStats, Pace
 from controller.runtime.events import EventBus
 from controller.journal.store import Journal
 from controller.runtime.machine import CellMachine, State
+from controller.runtime.progress import ProgressWatchdog, progress_timeout_s, wall_bound_s
 from controller.motion.weld_path import Point, weld_points
 from controller.ports import ArcControl, CellIOPort, MotionExecutor, PowerSourcePort
 from core.errors import CellError
@@ -60,6 +61,8 @@ class BuildOptions:
     run_on: RunOn = RunOn()             # how long the arc burns on after a crash (resume estimate)
     tolerance: Any = None               # planner.material.ProcessTolerance (None: its defaults)
     reset_errors: bool = False          # readiness may clear a latched power-source error (journaled)
+    progress_timeout_s: float | None = None  # process s a motion device may stand with the arc on
+                                        # (None: the longest planned move's time x 2 + 1 s)
 
 
 @dataclass
@@ -124,6 +127,9 @@ class BuildRunner:
         # to be committed (fsync), which would stall the device cycles at the end of the build
         self._defects_before = journal.defect_count()
         self._defects_new = 0
+        # the progress watchdog's bound (process s), from the job at build start (progress.py)
+        self.progress_s = progress_timeout_s(job, self.o.max_step_mm, self.o.progress_timeout_s)
+        self.watchdog: ProgressWatchdog | None = None
 
     # -- operator requests (honoured at the end of the current bead) -------------------------
     def request_pause(self) -> None:
@@ -329,7 +335,7 @@ class BuildRunner:
         self._t_exe = time.monotonic()
         self._pace = Pace(self._t_exe, start_mm, starved=-getattr(self.ex, "starved", 0))
         self.ex.release()
-        await self.ex.weld_done(await tickets)
+        await self._watched(self._weld_to_end(tickets), la, pa, len(pts) - 1)
         self.m.send("arc_end")
         self._arc_lit = False  # before the arc end: its falling arc-stable is no arc loss
         await self.arc.stop()
@@ -340,6 +346,31 @@ class BuildRunner:
         if why is not None:
             self._defect(la, pa, why)
         self._pass_done(la, pa)
+
+    async def _weld_to_end(self, tickets: "asyncio.Task[int]") -> None:
+        await self.ex.weld_done(await tickets)
+
+    async def _watched(self, weld: Any, la: int, pa: int, last: int) -> None:
+        """The bead's moves under the progress watchdog: a device that stands with the arc on
+        for the bound is a fault (arc dropped first, then motion held; controller/runtime/progress.py)."""
+        period = getattr(getattr(self.ex, "link", None), "status_period", None)
+        dog = self.watchdog = ProgressWatchdog(
+            self.ex, self.power, bound_wall_s=wall_bound_s(self.progress_s, self.o.time_scale, period),
+            bound_process_s=self.progress_s, time_scale=self.o.time_scale,
+            where=lambda: f"layer {la} pass {pa} point {self.cur_idx} of {last}", status_period_s=period)
+        w, d = asyncio.ensure_future(weld), asyncio.ensure_future(dog.watch())
+        try:
+            done, _ = await asyncio.wait({w, d}, return_when=asyncio.FIRST_COMPLETED)
+        except BaseException:
+            w.cancel()
+            d.cancel()
+            raise
+        if w in done:
+            d.cancel()
+            w.result()
+            return
+        w.cancel()
+        raise BuildError(d.result())
 
     def _tolerance(self) -> Any:
         if self.o.tolerance is None:
