@@ -32,6 +32,13 @@ from controller.ports import ArcControl, CellIOPort, MotionExecutor, PowerSource
 from core.errors import CellError
 
 STALE_STATUS_S = 0.1  # a power-source status older than its watchdog (100 ms) does not vouch for a move
+# the robot's queued motion must end this long before the power source's watchdog drops the arc
+# after the controller died (2 bus cycles, a simulator tick, line latency): it then runs dry first
+DRY_SLACK_S = 0.03
+
+
+def _fmt_pos(pos: Sequence[float] | None) -> str:
+    return "?" if pos is None else " ".join(f"{float(v):.3f}" for v in pos[:3])
 
 
 class BuildError(CellError):
@@ -282,19 +289,69 @@ class BuildRunner:
             s = max(s, min(hist.start_mm, cum[-1]))
         if first and hist is not None and hist.state == "arc_on" and not hist.arc_unstable:
             # the controller died while this bead was depositing: the arc ran on after `s`
-            stopped = getattr(self.ex, "stopped_at", None)
-            s_robot = project(pts, cum, stopped, s) if stopped is not None else None
-            scale = self.journal.run_time_scale(hist.run) or self.o.time_scale
-            s_new = arc_out_lower_bound(s, speed, scale, self.o.run_on, s_robot, cum[-1])
+            s_robot = self._device_record(item, hist, pts, cum, s)
+            if hist.ahead and s_robot is not None:
+                # the robot held at most `ahead` moves: it ran dry before the source's watchdog
+                # dropped the arc, so the deposit ends where the robot's own record says it stopped
+                s_new = min(max(s, s_robot - self.o.run_on.margin_mm), cum[-1])
+            else:
+                scale = self.journal.run_time_scale(hist.run) or self.o.time_scale
+                s_new = arc_out_lower_bound(s, speed, scale, self.o.run_on, s_robot, cum[-1])
             self.journal.event("info", f"resume: arc of run {hist.run} went out at or after "
                                        f"{s_new:.2f} mm along the pass (last known {s:.2f} mm, robot stopped at "
-                                       f"{'?' if s_robot is None else f'{s_robot:.2f}'} mm)",
+                                       f"{'?' if s_robot is None else f'{s_robot:.2f}'} mm"
+                                       f"{', ran dry first' if hist.ahead and s_robot is not None else ''})",
                                layer=item.layer, pass_=item.pass_)
             s = s_new
         if s >= cum[-1] - 1e-6:
             return len(pts) - 1, pts[-1], cum[-1]
         k, pt = point_at(pts, cum, s)
         return k, pt, s
+
+    def _ahead(self, pts: list[Point], i0: int, speed: float) -> int | None:
+        """Weld moves the robot may hold unexecuted so that, if the controller dies, its queue
+        runs dry before the power source's watchdog drops the arc (the deposit then ends where
+        the robot stopped: its own record). None where two moves already outlast that (slow in
+        wall time: the run-on estimate bounds the re-arc, arc_out.py) or for a CNC."""
+        if not hasattr(self.ex, "ahead") or speed <= 0 or len(pts) - 1 <= i0:
+            return None
+        longest = max(math.dist(a, b) for a, b in zip(pts[i0:], pts[i0 + 1:]))
+        move_wall = longest / (speed / 60.0) / self.o.time_scale
+        if move_wall <= 0:
+            return None
+        n = int((self.o.run_on.watchdog_s - DRY_SLACK_S) / move_wall)
+        return n if n >= 2 else None
+
+    def _device_record(self, item: WorkItem, hist: Any, pts: list[Point], cum: Sequence[float],
+                       s: float) -> float | None:
+        """Where the robot's own record says it stopped along the pass a crash cut (length), from
+        its position after the flush, else its last executed sequence number; BuildError (refused
+        before any motion) when the record contradicts the journal or cannot be placed on the pass."""
+        stopped = getattr(self.ex, "stopped_at", None)
+        rec = getattr(self.ex, "record", None)
+        s_robot = project(pts, cum, stopped, s) if stopped is not None else None
+        if rec is None:  # a device without an executed-move record (CNC): its position only
+            return s_robot
+        known = self.journal.max_progress_ticket() or 0
+        last = int(getattr(rec, "last_exec_ticket", 0) or 0)
+        where = (f"layer {item.layer} pass {item.pass_}: the journal knows the deposit reached {s:.2f} mm "
+                 f"of {cum[-1]:.2f} mm (ticket {known}) and run {hist.run} died with the arc on")
+        if last < known:
+            raise BuildError(f"resume refused: the robot reports last executed seq {rec.last_exec} (ticket {last}) "
+                             f"at {_fmt_pos(rec.pos)}, before what the journal saw it execute (ticket {known}): "
+                             f"it was reset or power-cycled and lost its record, so where the deposit of "
+                             f"{where} ends cannot be told; inspect the part")
+        if s_robot is not None:
+            return s_robot
+        span = self.journal.pass_tickets(item.layer, item.pass_, hist.run)
+        mv = self.journal.move_of(last)
+        if mv is not None and (mv[0], mv[1]) == (item.layer, item.pass_) and mv[3] == "weld":
+            return cum[min(mv[2], len(cum) - 1)]
+        if span is not None and last >= span[1]:
+            return cum[-1]  # it executed every weld move of the pass, and went on
+        raise BuildError(f"resume refused: the robot stands at {_fmt_pos(rec.pos)}, off {where}, and its last "
+                         f"executed seq {rec.last_exec} (ticket {last}) is no weld move of that pass: "
+                         f"where the deposit ends cannot be told; inspect the part")
 
     async def _one_pass(self, item: WorkItem) -> None:
         la, pa = item.layer, item.pass_
@@ -309,6 +366,9 @@ class BuildRunner:
         if start_idx >= len(pts) - 1:  # nothing left of this bead (it stopped on its last point)
             self._pass_done(la, pa)
             return
+        lookahead = self._ahead(pts, start_idx, speed)
+        if hasattr(self.ex, "ahead"):
+            self.ex.ahead = lookahead
         if hasattr(self.ex, "use_pass"):
             self.ex.use_pass(la, pa)  # the executor's tool axes for this pass
         self.m.send("travel")
@@ -329,7 +389,7 @@ class BuildRunner:
         self._unstable_noted = False
         self._unstable_since_exe = False
         self._bead = BeadStats(arc_on=time.time())
-        self.journal.pass_state(la, pa, "arc_on", idx=start_idx, start_mm=round(start_mm, 4))
+        self.journal.pass_state(la, pa, "arc_on", idx=start_idx, start_mm=round(start_mm, 4), ahead=lookahead)
         self.bus.update(arc_starts=self.bus.latest.arc_starts + 1, travel_speed_mm_min=speed)
         self.m.send("arc_on")
         self._t_exe = time.monotonic()
