@@ -20,25 +20,19 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 from controller.runtime.arc_handshake import ArcHandshake
-from controller.runtime.arc_out import RunOn, arc_lengths, arc_out_lower_bound, point_at, project
+from controller.runtime.arc_out import RunOn, arc_lengths, point_at, project
 from controller.runtime.bead_check import judge
 from controller.runtime.bead_measure import BeadStats, Pace
 from controller.runtime.events import EventBus
 from controller.journal.store import Journal
 from controller.runtime.machine import CellMachine, State
-from controller.runtime.progress import ProgressWatchdog, progress_timeout_s, wall_bound_s
+from controller.runtime.device_record import crash_rearc, dry_lookahead
+from controller.runtime.progress import ProgressWatchdog, progress_timeout_s
 from controller.motion.weld_path import Point, weld_points
 from controller.ports import ArcControl, CellIOPort, MotionExecutor, PowerSourcePort
 from core.errors import CellError
 
 STALE_STATUS_S = 0.1  # a power-source status older than its watchdog (100 ms) does not vouch for a move
-# the robot's queued motion must end this long before the power source's watchdog drops the arc
-# after the controller died (2 bus cycles, a simulator tick, line latency): it then runs dry first
-DRY_SLACK_S = 0.03
-
-
-def _fmt_pos(pos: Sequence[float] | None) -> str:
-    return "?" if pos is None else " ".join(f"{float(v):.3f}" for v in pos[:3])
 
 
 class BuildError(CellError):
@@ -68,8 +62,7 @@ class BuildOptions:
     run_on: RunOn = RunOn()             # how long the arc burns on after a crash (resume estimate)
     tolerance: Any = None               # planner.material.ProcessTolerance (None: its defaults)
     reset_errors: bool = False          # readiness may clear a latched power-source error (journaled)
-    progress_timeout_s: float | None = None  # process s a motion device may stand with the arc on
-                                        # (None: the longest planned move's time x 2 + 1 s)
+    progress_timeout_s: float | None = None  # process s standing with the arc on (None: from the job)
 
 
 @dataclass
@@ -134,7 +127,6 @@ class BuildRunner:
         # to be committed (fsync), which would stall the device cycles at the end of the build
         self._defects_before = journal.defect_count()
         self._defects_new = 0
-        # the progress watchdog's bound (process s), from the job at build start (progress.py)
         self.progress_s = progress_timeout_s(job, self.o.max_step_mm, self.o.progress_timeout_s)
         self.watchdog: ProgressWatchdog | None = None
 
@@ -288,70 +280,14 @@ class BuildRunner:
         if hist is not None and hist.start_mm is not None:
             s = max(s, min(hist.start_mm, cum[-1]))
         if first and hist is not None and hist.state == "arc_on" and not hist.arc_unstable:
-            # the controller died while this bead was depositing: the arc ran on after `s`
-            s_robot = self._device_record(item, hist, pts, cum, s)
-            if hist.ahead and s_robot is not None:
-                # the robot held at most `ahead` moves: it ran dry before the source's watchdog
-                # dropped the arc, so the deposit ends where the robot's own record says it stopped
-                s_new = min(max(s, s_robot - self.o.run_on.margin_mm), cum[-1])
-            else:
-                scale = self.journal.run_time_scale(hist.run) or self.o.time_scale
-                s_new = arc_out_lower_bound(s, speed, scale, self.o.run_on, s_robot, cum[-1])
-            self.journal.event("info", f"resume: arc of run {hist.run} went out at or after "
-                                       f"{s_new:.2f} mm along the pass (last known {s:.2f} mm, robot stopped at "
-                                       f"{'?' if s_robot is None else f'{s_robot:.2f}'} mm"
-                                       f"{', ran dry first' if hist.ahead and s_robot is not None else ''})",
-                               layer=item.layer, pass_=item.pass_)
-            s = s_new
+            # the controller died while this bead was depositing: the device's record decides
+            s, line = crash_rearc(self.ex, self.journal, item.layer, item.pass_, hist, pts, cum, s, speed,
+                                  self.o.time_scale, self.o.run_on)
+            self.journal.event("info", line, layer=item.layer, pass_=item.pass_)
         if s >= cum[-1] - 1e-6:
             return len(pts) - 1, pts[-1], cum[-1]
         k, pt = point_at(pts, cum, s)
         return k, pt, s
-
-    def _ahead(self, pts: list[Point], i0: int, speed: float) -> int | None:
-        """Weld moves the robot may hold unexecuted so that, if the controller dies, its queue
-        runs dry before the power source's watchdog drops the arc (the deposit then ends where
-        the robot stopped: its own record). None where two moves already outlast that (slow in
-        wall time: the run-on estimate bounds the re-arc, arc_out.py) or for a CNC."""
-        if not hasattr(self.ex, "ahead") or speed <= 0 or len(pts) - 1 <= i0:
-            return None
-        longest = max(math.dist(a, b) for a, b in zip(pts[i0:], pts[i0 + 1:]))
-        move_wall = longest / (speed / 60.0) / self.o.time_scale
-        if move_wall <= 0:
-            return None
-        n = int((self.o.run_on.watchdog_s - DRY_SLACK_S) / move_wall)
-        return n if n >= 2 else None
-
-    def _device_record(self, item: WorkItem, hist: Any, pts: list[Point], cum: Sequence[float],
-                       s: float) -> float | None:
-        """Where the robot's own record says it stopped along the pass a crash cut (length), from
-        its position after the flush, else its last executed sequence number; BuildError (refused
-        before any motion) when the record contradicts the journal or cannot be placed on the pass."""
-        stopped = getattr(self.ex, "stopped_at", None)
-        rec = getattr(self.ex, "record", None)
-        s_robot = project(pts, cum, stopped, s) if stopped is not None else None
-        if rec is None:  # a device without an executed-move record (CNC): its position only
-            return s_robot
-        known = self.journal.max_progress_ticket() or 0
-        last = int(getattr(rec, "last_exec_ticket", 0) or 0)
-        where = (f"layer {item.layer} pass {item.pass_}: the journal knows the deposit reached {s:.2f} mm "
-                 f"of {cum[-1]:.2f} mm (ticket {known}) and run {hist.run} died with the arc on")
-        if last < known:
-            raise BuildError(f"resume refused: the robot reports last executed seq {rec.last_exec} (ticket {last}) "
-                             f"at {_fmt_pos(rec.pos)}, before what the journal saw it execute (ticket {known}): "
-                             f"it was reset or power-cycled and lost its record, so where the deposit of "
-                             f"{where} ends cannot be told; inspect the part")
-        if s_robot is not None:
-            return s_robot
-        span = self.journal.pass_tickets(item.layer, item.pass_, hist.run)
-        mv = self.journal.move_of(last)
-        if mv is not None and (mv[0], mv[1]) == (item.layer, item.pass_) and mv[3] == "weld":
-            return cum[min(mv[2], len(cum) - 1)]
-        if span is not None and last >= span[1]:
-            return cum[-1]  # it executed every weld move of the pass, and went on
-        raise BuildError(f"resume refused: the robot stands at {_fmt_pos(rec.pos)}, off {where}, and its last "
-                         f"executed seq {rec.last_exec} (ticket {last}) is no weld move of that pass: "
-                         f"where the deposit ends cannot be told; inspect the part")
 
     async def _one_pass(self, item: WorkItem) -> None:
         la, pa = item.layer, item.pass_
@@ -366,9 +302,8 @@ class BuildRunner:
         if start_idx >= len(pts) - 1:  # nothing left of this bead (it stopped on its last point)
             self._pass_done(la, pa)
             return
-        lookahead = self._ahead(pts, start_idx, speed)
-        if hasattr(self.ex, "ahead"):
-            self.ex.ahead = lookahead
+        # the robot's lookahead: set on the executor, journaled with the arc (device_record.py)
+        lookahead = dry_lookahead(self.ex, pts, start_idx, speed, self.o.time_scale, self.o.run_on.watchdog_s)
         if hasattr(self.ex, "use_pass"):
             self.ex.use_pass(la, pa)  # the executor's tool axes for this pass
         self.m.send("travel")
@@ -395,7 +330,9 @@ class BuildRunner:
         self._t_exe = time.monotonic()
         self._pace = Pace(self._t_exe, start_mm, starved=-getattr(self.ex, "starved", 0))
         self.ex.release()
-        await self._watched(self._weld_to_end(tickets), la, pa, len(pts) - 1)
+        self.watchdog = ProgressWatchdog.of(self.ex, self.power, self.progress_s, self.o.time_scale,
+                                            lambda: f"layer {la} pass {pa} point {self.cur_idx} of {len(pts) - 1}")
+        await self.watchdog.guard(self.ex.weld_done, tickets)  # a stall: StallFault, arc first
         self.m.send("arc_end")
         self._arc_lit = False  # before the arc end: its falling arc-stable is no arc loss
         await self.arc.stop()
@@ -406,31 +343,6 @@ class BuildRunner:
         if why is not None:
             self._defect(la, pa, why)
         self._pass_done(la, pa)
-
-    async def _weld_to_end(self, tickets: "asyncio.Task[int]") -> None:
-        await self.ex.weld_done(await tickets)
-
-    async def _watched(self, weld: Any, la: int, pa: int, last: int) -> None:
-        """The bead's moves under the progress watchdog: a device that stands with the arc on
-        for the bound is a fault (arc dropped first, then motion held; controller/runtime/progress.py)."""
-        period = getattr(getattr(self.ex, "link", None), "status_period", None)
-        dog = self.watchdog = ProgressWatchdog(
-            self.ex, self.power, bound_wall_s=wall_bound_s(self.progress_s, self.o.time_scale, period),
-            bound_process_s=self.progress_s, time_scale=self.o.time_scale,
-            where=lambda: f"layer {la} pass {pa} point {self.cur_idx} of {last}", status_period_s=period)
-        w, d = asyncio.ensure_future(weld), asyncio.ensure_future(dog.watch())
-        try:
-            done, _ = await asyncio.wait({w, d}, return_when=asyncio.FIRST_COMPLETED)
-        except BaseException:
-            w.cancel()
-            d.cancel()
-            raise
-        if w in done:
-            d.cancel()
-            w.result()
-            return
-        w.cancel()
-        raise BuildError(d.result())
 
     def _tolerance(self) -> Any:
         if self.o.tolerance is None:

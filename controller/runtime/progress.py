@@ -21,7 +21,9 @@ import asyncio
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Awaitable, Callable, Sequence
+
+from core.errors import CellError
 
 NOISE_MM = 0.02          # position change that counts as progress (reports carry 3 decimals)
 FLOOR_WALL_S = 0.25      # never less than this (wall): a status round trip plus loop jitter
@@ -60,6 +62,10 @@ def wall_bound_s(process_s: float, time_scale: float, status_period_s: float | N
     """The bound in wall seconds, with the floor the status path can resolve."""
     floor = FLOOR_WALL_S if status_period_s is None else max(FLOOR_WALL_S, 2.5 * status_period_s)
     return max(process_s / max(time_scale, 1e-9), floor)
+
+
+class StallFault(CellError):
+    """A motion device stood with the arc on for the progress timeout (arc dropped, motion held)."""
 
 
 @dataclass
@@ -101,6 +107,35 @@ class ProgressWatchdog:
         self.period = min(max(bound_wall_s / 4.0, 0.02), 0.5)
         self.samples = 0
         self.stood_s: float | None = None
+
+    @classmethod
+    def of(cls, ex: Any, power: Any, bound_process_s: float, time_scale: float,
+           where: Callable[[], str]) -> "ProgressWatchdog":
+        """For a build runner's executor: the wall bound from the process bound and the time
+        scale, with the floor of a device that reports at a fixed rate (grbl's status period)."""
+        period = getattr(getattr(ex, "link", None), "status_period", None)
+        return cls(ex, power, bound_wall_s=wall_bound_s(bound_process_s, time_scale, period),
+                   bound_process_s=bound_process_s, time_scale=time_scale, where=where, status_period_s=period)
+
+    async def guard(self, weld_done: Callable[[int], Awaitable[None]], tickets: Awaitable[int]) -> None:
+        """Await a bead's moves (`weld_done(await tickets)`) under the watchdog: a stall cancels
+        them and raises StallFault with the message (arc already dropped, motion held)."""
+        async def weld() -> None:
+            await weld_done(await tickets)
+
+        w, d = asyncio.ensure_future(weld()), asyncio.ensure_future(self.watch())
+        try:
+            done, _ = await asyncio.wait({w, d}, return_when=asyncio.FIRST_COMPLETED)
+        except BaseException:
+            w.cancel()
+            d.cancel()
+            raise
+        if w in done:
+            d.cancel()
+            w.result()
+            return
+        w.cancel()
+        raise StallFault(d.result())
 
     def _exec_count(self) -> int:
         return int(getattr(self.ex, "exec_count", 0) or 0)
