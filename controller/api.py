@@ -73,7 +73,8 @@ class CellController:
             time_scale=cfg.cell.time_scale, travel_speed_mm_min=cfg.limits.travel_speed_mm_min,
             interpass_limit_c=mat.interpass.max_temperature_c, interpass_dwell_s=mat.interpass.dwell_s,
             arc_efficiency=mat.arc_efficiency,
-            run_on=RunOn.from_device(cfg.devices.power_source), tolerance=mat.tolerance)
+            run_on=RunOn.from_device(cfg.devices.power_source), tolerance=mat.tolerance,
+            progress_timeout_s=cfg.cell.progress_timeout_s)
         self.machine = CellMachine()
         self.bus = EventBus()
         self.devices: Devices | None = None

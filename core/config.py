@@ -59,6 +59,10 @@ class CellInfo(_Frozen):
     time_scale: float = Field(default=1.0, gt=0.0, le=1000.0)
     material: str = "inconel718-1.0mm"
     runs_dir: str = "runs"
+    # Progress watchdog (DESIGN.md §6): process seconds a motion device may stand (no EXE, no
+    # position change) with the arc on before it is a fault; null: from the job at build start,
+    # the longest planned weld move's time x 2 + 1 s (docs/controller.md, Progress watchdog).
+    progress_timeout_s: float | None = Field(default=None, gt=0.0, le=3600.0)
 
 
 # The protocol / transport of each device kind: drivers/registry.py maps each name to its driver

@@ -15,6 +15,7 @@ import asyncio
 import json
 import math
 import re
+import time
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
@@ -115,6 +116,8 @@ class CncSim:
         self.starved = 0          # times the planner ran empty while lines were still arriving
         self._rx = bytearray()
         self.hung = False    # a firmware whose main loop stopped reading its input (tests set it)
+        self.freeze: tuple[str, float] | None = None  # fault `freeze@t=`/`@move=`: Run, no motion
+        self._t0 = time.monotonic()
         self._line: list[str] = []
         self._overflow = False
         self._comment = 0
@@ -640,6 +643,9 @@ class CncSim:
 
     def advance(self, t: float, now: float) -> None:
         """Execute queued blocks over simulated time [t, now]."""
+        if self.freeze is not None and (time.monotonic() - self._t0 if self.freeze[0] == "t"
+                                        else self.executed_count) >= self.freeze[1]:
+            return  # fault: reports Run with lines queued, never moves
         while t < now and self._queue and not self.alarm and not (self.hold and self.hold_sub == 0):
             b = self._queue[0]
             if not b.motion:
@@ -730,6 +736,10 @@ async def serve(ctx) -> list:
     sim = CncSim(clock=ctx.clock, world=ctx.world, workpiece=wp, rx_buffer_bytes=dev.rx_buffer_bytes,
                  letters=wp.kin.letters,
                  log_path=(Path(ctx.log_dir) / "cnc.jsonl") if ctx.log_dir else None)
+    for cond, v in spec.events("freeze"):
+        sim.freeze = (cond, float(v))
+    if "freeze" in spec.values:
+        sim.freeze = ("t", 0.0)
     use_deposit_map(ctx, wp)
     return await serve_serial(sim, DEVICE, dev, ctx, spec, {"protocol": "grbl 1.1"})
 

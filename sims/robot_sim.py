@@ -56,6 +56,7 @@ class RobotSim:
         self.waiting = False
         self.fault = False
         self.discarding = False
+        self.held_at: float | None = None    # monotonic time of the latest !HOLD (tests: arc first)
         self.executed: list[int] | None = [] if record else None  # wire seqs, in execution order
         # counters
         self.frames_rx = self.crc_errors = self.syntax_errors = self.naks = self.duplicates = 0
@@ -176,7 +177,7 @@ class RobotSim:
 
     def _control(self, verb: str) -> None:
         if verb == "HOLD":
-            self.held = True
+            self.held, self.held_at = True, time.monotonic()
             self._stopped()
         elif verb == "GO":
             self.held = self.silence_held = False
@@ -234,6 +235,8 @@ class RobotSim:
     def advance(self, t: float, now: float) -> None:
         """Execute queued moves over simulated time [t, now]."""
         self._next_finish = None
+        if self.lies and self.lies.active("freeze"):  # fault: accepts moves, executes none (RUN)
+            return
         while t < now and self.queue and not (self.held or self.fault or self.waiting):
             m = self.queue[0]
             if m.verb == "WAIT":

@@ -82,6 +82,7 @@ class PassResume:
     start_mm: float | None    # where the latest run that started the pass (re-)arced, along the pass
     arc_run: int | None       # the latest run that lit the arc on the pass
     arc_unstable: bool        # that run saw the arc unstable while depositing (arc loss)
+    ahead: int | None = None  # that run's robot lookahead (weld moves unexecuted; None: the window)
 
 
 class Journal:
@@ -279,6 +280,7 @@ class Journal:
             return None
         start_mm: float | None = None
         arc_run: int | None = None
+        ahead: int | None = None
         for state, run, info in rows:
             try:
                 d = json.loads(info or "{}")
@@ -288,10 +290,18 @@ class Journal:
                 start_mm = float(d["start_mm"])
             if state == "arc_on":
                 arc_run = int(run)
+                ahead = d.get("ahead")
         unstable = arc_run is not None and bool(self.query(
             "SELECT 1 FROM events WHERE kind='arc' AND layer=? AND pass=? AND run=? LIMIT 1",
             (layer, pass_, arc_run)))
-        return PassResume(rows[-1][0], int(rows[-1][1]), start_mm, arc_run, unstable)
+        return PassResume(rows[-1][0], int(rows[-1][1]), start_mm, arc_run, unstable,
+                          int(ahead) if ahead else None)
+
+    def pass_tickets(self, layer: int, pass_: int, run: int) -> tuple[int, int] | None:
+        """(first, last) ticket of the weld moves a run wrote ahead for a pass, None if none."""
+        row = self._read1("SELECT min(ticket), max(ticket) FROM moves WHERE layer=? AND pass=? AND run=?",
+                          (layer, pass_, run))
+        return (int(row[0]), int(row[1])) if row and row[0] is not None else None
 
     def run_time_scale(self, run: int) -> float | None:
         """The time scale a run was started with (its `run` event), None if not journaled."""

@@ -20,12 +20,14 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 from controller.runtime.arc_handshake import ArcHandshake
-from controller.runtime.arc_out import RunOn, arc_lengths, arc_out_lower_bound, point_at, project
+from controller.runtime.arc_out import RunOn, arc_lengths, point_at, project
 from controller.runtime.bead_check import judge
 from controller.runtime.bead_measure import BeadStats, Pace
 from controller.runtime.events import EventBus
 from controller.journal.store import Journal
 from controller.runtime.machine import CellMachine, State
+from controller.runtime.device_record import crash_rearc, dry_lookahead
+from controller.runtime.progress import ProgressWatchdog, progress_timeout_s
 from controller.motion.weld_path import Point, weld_points
 from controller.ports import ArcControl, CellIOPort, MotionExecutor, PowerSourcePort
 from core.errors import CellError
@@ -60,6 +62,7 @@ class BuildOptions:
     run_on: RunOn = RunOn()             # how long the arc burns on after a crash (resume estimate)
     tolerance: Any = None               # planner.material.ProcessTolerance (None: its defaults)
     reset_errors: bool = False          # readiness may clear a latched power-source error (journaled)
+    progress_timeout_s: float | None = None  # process s standing with the arc on (None: from the job)
 
 
 @dataclass
@@ -124,6 +127,8 @@ class BuildRunner:
         # to be committed (fsync), which would stall the device cycles at the end of the build
         self._defects_before = journal.defect_count()
         self._defects_new = 0
+        self.progress_s = progress_timeout_s(job, self.o.max_step_mm, self.o.progress_timeout_s)
+        self.watchdog: ProgressWatchdog | None = None
 
     # -- operator requests (honoured at the end of the current bead) -------------------------
     def request_pause(self) -> None:
@@ -275,16 +280,10 @@ class BuildRunner:
         if hist is not None and hist.start_mm is not None:
             s = max(s, min(hist.start_mm, cum[-1]))
         if first and hist is not None and hist.state == "arc_on" and not hist.arc_unstable:
-            # the controller died while this bead was depositing: the arc ran on after `s`
-            stopped = getattr(self.ex, "stopped_at", None)
-            s_robot = project(pts, cum, stopped, s) if stopped is not None else None
-            scale = self.journal.run_time_scale(hist.run) or self.o.time_scale
-            s_new = arc_out_lower_bound(s, speed, scale, self.o.run_on, s_robot, cum[-1])
-            self.journal.event("info", f"resume: arc of run {hist.run} went out at or after "
-                                       f"{s_new:.2f} mm along the pass (last known {s:.2f} mm, robot stopped at "
-                                       f"{'?' if s_robot is None else f'{s_robot:.2f}'} mm)",
-                               layer=item.layer, pass_=item.pass_)
-            s = s_new
+            # the controller died while this bead was depositing: the device's record decides
+            s, line = crash_rearc(self.ex, self.journal, item.layer, item.pass_, hist, pts, cum, s, speed,
+                                  self.o.time_scale, self.o.run_on)
+            self.journal.event("info", line, layer=item.layer, pass_=item.pass_)
         if s >= cum[-1] - 1e-6:
             return len(pts) - 1, pts[-1], cum[-1]
         k, pt = point_at(pts, cum, s)
@@ -303,6 +302,8 @@ class BuildRunner:
         if start_idx >= len(pts) - 1:  # nothing left of this bead (it stopped on its last point)
             self._pass_done(la, pa)
             return
+        # the robot's lookahead: set on the executor, journaled with the arc (device_record.py)
+        lookahead = dry_lookahead(self.ex, pts, start_idx, speed, self.o.time_scale, self.o.run_on.watchdog_s)
         if hasattr(self.ex, "use_pass"):
             self.ex.use_pass(la, pa)  # the executor's tool axes for this pass
         self.m.send("travel")
@@ -323,13 +324,15 @@ class BuildRunner:
         self._unstable_noted = False
         self._unstable_since_exe = False
         self._bead = BeadStats(arc_on=time.time())
-        self.journal.pass_state(la, pa, "arc_on", idx=start_idx, start_mm=round(start_mm, 4))
+        self.journal.pass_state(la, pa, "arc_on", idx=start_idx, start_mm=round(start_mm, 4), ahead=lookahead)
         self.bus.update(arc_starts=self.bus.latest.arc_starts + 1, travel_speed_mm_min=speed)
         self.m.send("arc_on")
         self._t_exe = time.monotonic()
         self._pace = Pace(self._t_exe, start_mm, starved=-getattr(self.ex, "starved", 0))
         self.ex.release()
-        await self.ex.weld_done(await tickets)
+        self.watchdog = ProgressWatchdog.of(self.ex, self.power, self.progress_s, self.o.time_scale,
+                                            lambda: f"layer {la} pass {pa} point {self.cur_idx} of {len(pts) - 1}")
+        await self.watchdog.guard(self.ex.weld_done, tickets)  # a stall: StallFault, arc first
         self.m.send("arc_end")
         self._arc_lit = False  # before the arc end: its falling arc-stable is no arc loss
         await self.arc.stop()
