@@ -145,7 +145,7 @@ class CncLink:
     def __init__(self, url: str, *, baud: int = 115200, rx_buffer_bytes: int = 128, status_hz: float = 5.0,
                  link_timeout_s: float = 3.0, connect_timeout_s: float = 5.0, alarm_grace_s: float = 3.0,
                  ack_grace_s: float = 2.0, pace: bool = True, homing_timeout_s: float = 120.0,
-                 stuck_after_s: float = 30.0) -> None:
+                 stuck_after_s: float = 30.0, line_scale: float = 1.0) -> None:
         if not 0 < status_hz <= 5.0:
             raise ValueError("status_hz must be in (0, 5]: grbl recommends at most 5 status reports a second")
         if rx_buffer_bytes < 16:
@@ -169,7 +169,10 @@ class CncLink:
         self._rx_free_max = 0         # the largest Bf: RX free seen: grbl's empty RX buffer
         self._last_sent = 0.0
         self._pace = pace
-        self._port = SerialPort(url, baud=baud, name="cnc", pace=pace)
+        # a simulated line at time scale k carries k times the bytes per wall second (DESIGN.md §6,
+        # sims/transport.py): pace the writes to it as the robot link does (1 on hardware)
+        self.line_scale = line_scale
+        self._port = SerialPort(url, baud=baud, name="cnc", pace=pace, pace_factor=0.98 * line_scale)
         self.version: str | None = None
         self.firmware = "grbl"          # "Grbl 1.1h", "GrblHAL 1.1f" once the banner was seen
         self.rx_buffer_reported: int | None = None   # from `$I` [OPT:…,blocks,rx]
@@ -227,7 +230,8 @@ class CncLink:
         self.latest_status = None
         self._banner_event.clear()
         self._buf.clear()
-        self._port = SerialPort(self.url, baud=self.baud, name="cnc", pace=self._pace)
+        self._port = SerialPort(self.url, baud=self.baud, name="cnc", pace=self._pace,
+                                pace_factor=0.98 * self.line_scale)
         await self._port.open()
         self._last_rx = time.monotonic()
         self._tasks = [asyncio.get_running_loop().create_task(self._read_loop())]

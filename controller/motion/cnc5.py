@@ -6,15 +6,18 @@ axis limits refuses the job, naming layer, pass and point, instead of stopping m
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
-from controller.motion.post5 import Post5, inverse_time, move_line, weld_axes
+from controller.motion.post5 import Post5, inverse_time, linearise, move_line, weld_axes
 from controller.motion.weld_path import weld_points
 from core.errors import InputError
 
 Point = tuple[float, float, float]
+# the G-code words carry 3 decimals (mm and degrees: up to ~2 µm at 100 mm from an axis): the
+# split keeps a fifth of the chord tolerance for that rounding
+_ROUNDING_SHARE = 0.8
 
 
 def _weld_points(points: list, max_step_mm: float) -> list[Point]:
@@ -29,6 +32,11 @@ class Five:
         self.letters = "XYZA" + (trunnion.table[1] if trunnion is not None else "B")
         self.passes: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self.cur: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        # per pass the machine moves after the chord-tolerance split: part points, axes, machine
+        # axes and the planned (journaled) point each move end lies on or after
+        self.fine: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
+        self.cur_fine: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._stream: tuple[np.ndarray, np.ndarray] | None = None  # the streamed moves: machine xyz, planned index
         self.start: np.ndarray | None = None   # machine axes of the approached start point
         self.start_part: np.ndarray | None = None
         self.level: tuple[float, float] | None = None  # the job's A/B leveling (its alignment)
@@ -75,13 +83,14 @@ class Five:
         """Every pass to machine axes; yields between passes so the links stay serviced."""
         import asyncio
 
-        self.passes = {}
+        self.passes, self.fine = {}, {}
         if not any("axes" in p for la in job.get("layers", []) for p in la.get("passes", [])):
             return
         if self.trunnion is None:
             raise InputError("job has 5-axis passes (axes) but the CNC has no kinematics; "
                              "set kinematics in cell.yaml")
         post = Post5(self.trunnion)
+        tol = float(getattr(self.trunnion, "chord_tolerance_mm", 0.02)) * _ROUNDING_SHARE
         for li, la in enumerate(job["layers"]):
             for pi, p in enumerate(la["passes"]):
                 pts = np.asarray(_weld_points(p["points"], max_step_mm))
@@ -91,10 +100,13 @@ class Five:
                 except InputError as exc:
                     raise InputError(f"job layer {li} pass {pi} {exc}") from None
                 self.passes[(li, pi)] = (pts, axes, m)
+                self.fine[(li, pi)] = linearise(post, pts, axes, m, tol)
                 await asyncio.sleep(0)
 
     def use(self, layer: int, pass_: int) -> None:
         self.cur = self.passes.get((layer, pass_))
+        self.cur_fine = self.fine.get((layer, pass_))
+        self._stream = None
 
     def _machine_at(self, p: Point) -> tuple[int, np.ndarray]:
         """Index of the segment start nearest to p and the machine axes at p (a resume may start mid-move)."""
@@ -120,16 +132,57 @@ class Five:
                 f"G1 Z{m[2]:.3f} F{speed:.0f}"]
 
     def weld_lines(self, i0: int, speed: float) -> list[str]:
-        """G93 inverse-time moves from the approached start to the end of the pass, then G94."""
-        pts, _, m = self.cur  # type: ignore[misc]
+        """G93 inverse-time moves from the approached start to the end of the pass, then G94.
+
+        The moves are the pass's chord-tolerance split (post5.linearise); a start inside a planned
+        move (a resume) has its first move split afresh. F = speed / part-frame length of each move.
+        """
+        pts, axes, m = self.cur  # type: ignore[misc]
+        fp, fa, fm, fs = self.cur_fine if self.cur_fine is not None else (pts, axes, m, np.arange(len(pts)))
+        post = Post5(self.trunnion)
+        tol = float(getattr(self.trunnion, "chord_tolerance_mm", 0.02)) * _ROUNDING_SHARE
         start_part = self.start_part if self.start_part is not None else pts[i0]
-        part = np.vstack([start_part, pts[i0 + 1:]])
+        start_m = self.start if self.start is not None else m[i0]
+        j0 = int(np.searchsorted(fs, i0, side="right"))  # the first move end past planned point i0
+        if np.linalg.norm(start_part - pts[i0]) < 1e-6:
+            head_p, head_m, head_s = np.empty((0, 3)), np.empty((0, 5)), np.empty(0, dtype=int)
+        else:  # resumed inside move i0 → i0+1: split start → (the next planned point) afresh
+            f = float(np.clip((start_part - pts[i0]) @ (pts[i0 + 1] - pts[i0])
+                              / max(float(np.sum((pts[i0 + 1] - pts[i0]) ** 2)), 1e-12), 0.0, 1.0))
+            a_start = axes[i0] + (axes[i0 + 1] - axes[i0]) * f
+            a_start = a_start / np.linalg.norm(a_start)
+            hp, _, hm, hs = linearise(post, np.vstack([start_part, pts[i0 + 1]]),
+                                      np.vstack([a_start, axes[i0 + 1]]), np.vstack([start_m, m[i0 + 1]]), tol)
+            head_p, head_m, head_s = hp[1:], hm[1:], np.where(hs[1:] == 1, i0 + 1, i0)
+            j0 = int(np.searchsorted(fs, i0 + 1, side="right"))
+        part = np.vstack([start_part, head_p, fp[j0:]])
+        mach = np.vstack([start_m, head_m, fm[j0:]])
+        self._stream = (mach[:, :3], np.r_[i0, head_s, fs[j0:]])
         feeds = inverse_time(part, speed)
-        lines = ["G93"] + [move_line(m[k], self.letters, float(feeds[k - i0 - 1])) for k in range(i0 + 1, len(m))]
+        lines = ["G93"] + [move_line(mach[k], self.letters, float(feeds[k - 1])) for k in range(1, len(mach))]
         return lines + ["G94"]
 
     def machine_xyz(self) -> list[Point]:
-        return [tuple(float(v) for v in r[:3]) for r in self.cur[2]]  # type: ignore[index]
+        """The machine X Y Z of the streamed moves (after weld_lines): the path the status reports follow."""
+        if self._stream is None:
+            return [tuple(float(v) for v in r[:3]) for r in self.cur[2]]  # type: ignore[index]
+        return [tuple(float(v) for v in r) for r in self._stream[0]]
+
+    def track(self, i0: int, on_exec: Callable[[int, int], None]) -> tuple[list[Point], int, Callable[[int, int], None]]:
+        """For the executor's progress: the streamed path, its first index, and on_exec taking
+        indices into it back to the job's planned (journaled) points, each reported once."""
+        if self._stream is None:
+            return self.machine_xyz(), i0, on_exec
+        planned = self._stream[1]
+        done = [i0]
+
+        def cb(j: int, _k: int) -> None:
+            k = int(planned[min(j, len(planned) - 1)])
+            if k > done[0]:
+                done[0] = k
+                on_exec(k, k)
+
+        return self.machine_xyz(), 0, cb
 
     def part_point(self, mpos: Any) -> Point:
         """Where the tool tip is on the part, from a status report's X Y Z A B|C."""
