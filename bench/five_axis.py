@@ -52,7 +52,10 @@ def level_sim():
 
 
 async def build(job: dict, tmp: Path, table: str = "AB", scale: float = 60.0) -> tuple[object, Path]:
-    cfg = with_urls(kin_cfg(table), {}, time_scale=scale)
+    """Build `job` on the simulated CNC at `scale`, lowered to what the link can feed (issue 29)."""
+    from controller.motion.cnc5 import limit_time_scale
+
+    cfg, _note = limit_time_scale(with_urls(kin_cfg(table), {}, time_scale=scale), job)
     log = tmp / "log"
     harness = SimHarness(cfg, level_sim(), log_dir=log)
     cfg = with_urls(cfg, harness.start())
@@ -203,6 +206,13 @@ def bead_gaps(log: Path, device: str = "cnc") -> dict:
             "max_gap_s": round(float(g.max()), 4), "gaps_over_10ms": int((g > 0.01).sum())}
 
 
+def feed_scale(job: dict, table: str, scale: float) -> float:
+    """The time scale `build` runs `job` at (the asked one, or what the CNC link can feed)."""
+    from controller.motion.cnc5 import limit_time_scale
+
+    return float(limit_time_scale(with_urls(kin_cfg(table), {}, time_scale=scale), job)[0].cell.time_scale)
+
+
 def main(argv: list[str] | None = None) -> int:
     from bench.parts5 import cone_frustum, tilted_tube
 
@@ -210,15 +220,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--part", choices=("tube", "frustum"), default="tube")
     ap.add_argument("--table", choices=("AB", "AC"), default="AB")
     ap.add_argument("--scale", type=float, default=60.0)
+    ap.add_argument("--slow", type=float, default=1.0, help="divide the planned travel speeds by this")
     a = ap.parse_args(argv)
     mesh = tilted_tube() if a.part == "tube" else cone_frustum()
     job = plan5(mesh)
+    for la in job["layers"]:
+        for p in la["passes"]:
+            p["speed_mm_min"] = p["speed_mm_min"] / a.slow
     with tempfile.TemporaryDirectory() as tmp:
         res, log = asyncio.run(build(job, Path(tmp), a.table, a.scale))
         fig = figures(job, log)
         fig.update(executed_mid_dev(job, log, a.table))
         fig.update(bead_gaps(log))
     fig.update({"part": a.part, "table": a.table, "state": getattr(res, "state", None),
+                "time_scale": feed_scale(job, a.table, a.scale),
                 "passes_done": getattr(res, "passes_done", None)})
     print(json.dumps(fig))
     return 0

@@ -15,7 +15,7 @@ import math
 from typing import Any, Callable
 
 from controller.ports import CncLinkPort, PowerSourcePort
-from controller.motion.cnc5 import Five
+from controller.motion.cnc5 import Five, check_feed
 from drivers.errors import DeviceError
 
 Point = tuple[float, float, float]
@@ -70,6 +70,7 @@ class CncExecutor:
         """Before any motion: every 5-axis pass to machine axes, or InputError naming the point."""
         self.five.check_alignment(job, float(getattr(self.link, "reset_at", 0.0)))
         await self.five.post_job(job, max_step_mm)
+        check_feed(job, self.five.trunnion, self.link, max_step_mm)
 
     def use_pass(self, layer: int, pass_: int) -> None:
         self.five.use(layer, pass_)

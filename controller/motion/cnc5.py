@@ -6,6 +6,7 @@ axis limits refuses the job, naming layer, pass and point, instead of stopping m
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
@@ -143,7 +144,8 @@ class Five:
         tol = float(getattr(self.trunnion, "chord_tolerance_mm", 0.02)) * _ROUNDING_SHARE
         start_part = self.start_part if self.start_part is not None else pts[i0]
         start_m = self.start if self.start is not None else m[i0]
-        j0 = int(np.searchsorted(fs, i0, side="right"))  # the first move end past planned point i0
+        # fs: the planned point k is the first entry k, the split points of move k → k+1 follow it
+        j0 = int(np.searchsorted(fs, i0, side="left")) + 1  # the first move end past planned point i0
         if np.linalg.norm(start_part - pts[i0]) < 1e-6:
             head_p, head_m, head_s = np.empty((0, 3)), np.empty((0, 5)), np.empty(0, dtype=int)
         else:  # resumed inside move i0 → i0+1: split start → (the next planned point) afresh
@@ -154,7 +156,7 @@ class Five:
             hp, _, hm, hs = linearise(post, np.vstack([start_part, pts[i0 + 1]]),
                                       np.vstack([a_start, axes[i0 + 1]]), np.vstack([start_m, m[i0 + 1]]), tol)
             head_p, head_m, head_s = hp[1:], hm[1:], np.where(hs[1:] == 1, i0 + 1, i0)
-            j0 = int(np.searchsorted(fs, i0 + 1, side="right"))
+            j0 = int(np.searchsorted(fs, i0 + 1, side="left")) + 1
         part = np.vstack([start_part, head_p, fp[j0:]])
         mach = np.vstack([start_m, head_m, fm[j0:]])
         self._stream = (mach[:, :3], np.r_[i0, head_s, fs[j0:]])
@@ -190,3 +192,111 @@ class Five:
         inv = np.linalg.inv(self.trunnion.matrix(a, s))
         q = inv[:3, :3] @ np.array([x, y, z]) + inv[:3, 3]
         return (float(q[0]), float(q[1]), float(q[2]))
+
+
+# --- what the CNC link can feed (issue 29, DESIGN.md §6 "Simulated time") ---------------------------
+# The simulated serial line keeps its baud in simulated time on both sides (sims/transport.py and
+# CncLink(line_scale=time_scale)); what it cannot keep is the host: the in-process driver and grbl
+# simulator handle a streamed line in up to ~1–2 ms of wall time (measured on the 2-core build
+# host: 0 gaps at 1.5 ms per line, gaps of 0.1 s at 0.9 ms). A bead whose moves are shorter than
+# that at the time scale would stand still with the process on between moves, which the machine
+# would not: the time scale is limited to what the host can feed, and the build says so.
+HOST_LINE_WALL_S = 3.0e-3
+_WINDOW = 8   # moves averaged: the grbl planner (15 blocks) rides over a short burst of shorter ones
+
+
+@dataclass(frozen=True)
+class FeedLimit:
+    time_scale: float          # the largest time scale the host can feed every bead at
+    link_scale: float          # the same for the serial line at its baud (< 1: it starves on the machine too)
+    layer: int
+    pass_: int
+    move_s: float              # the shortest planned move (process time) of that bead, averaged
+
+    def message(self, time_scale: float) -> str:
+        return (f"cnc: at time scale {time_scale:g} the link cannot feed layer {self.layer} pass {self.pass_} "
+                f"(its moves take {self.move_s * 1000:.1f} ms of process time, {self.move_s / time_scale * 1000:.2f} ms "
+                f"of wall time; a streamed line takes up to {HOST_LINE_WALL_S * 1000:.1f} ms on this host): the torch "
+                f"would stand still with the process on between moves; time scale limited to {self.time_scale:g}")
+
+
+def _pass_moves(five: Five, post: Post5 | None, p: dict, max_step_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """(process seconds, bytes) per streamed weld line of one pass, as the executor sends them."""
+    speed = float(p.get("speed_mm_min") or 0.0) / 60.0
+    if post is not None and "axes" in p:
+        pts = np.asarray(_weld_points(p["points"], max_step_mm))
+        axes = np.asarray(weld_axes(p["points"], p.get("axes"), max_step_mm))
+        tol = float(getattr(five.trunnion, "chord_tolerance_mm", 0.02)) * _ROUNDING_SHARE
+        fp, _, fm, _ = linearise(post, pts, axes, post.machine(pts, axes), tol)
+        length = np.linalg.norm(np.diff(fp, axis=0), axis=1)
+        nbytes = np.array([len(move_line(r, five.letters, 1000.0)) + 1 for r in fm[1:]], dtype=float)
+    else:
+        pts = np.asarray(_weld_points(p["points"], max_step_mm))
+        length = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        nbytes = np.array([len(f"G1 X{x:.3f} Y{y:.3f} Z{z:.3f} F{speed * 60:.0f}") + 1 for x, y, z in pts[1:]],
+                          dtype=float)
+    return length / max(speed, 1e-9), nbytes
+
+
+def feed_limit(job: dict, trunnion: Any, baud: int = 115200, max_step_mm: float = 2.0) -> FeedLimit | None:
+    """The largest time scale at which the CNC link can feed every bead of `job` (None: no beads)."""
+    five = Five(trunnion)
+    post = Post5(trunnion) if trunnion is not None else None
+    best: FeedLimit | None = None
+    for li, la in enumerate(job.get("layers", [])):
+        for pi, p in enumerate(la.get("passes", [])):
+            if len(p.get("points", [])) < 2:
+                continue
+            try:
+                t, nb = _pass_moves(five, post, p, max_step_mm)
+            except InputError:
+                continue  # post_job names it before any motion
+            if len(t) == 0:
+                continue
+            w = min(_WINDOW, len(t))
+            k = np.ones(w) / w
+            tw, bw = np.convolve(t, k, mode="valid"), np.convolve(nb, k, mode="valid")
+            i = int(np.argmin(tw))
+            host = float(tw[i]) / HOST_LINE_WALL_S
+            link = float((tw / (bw / (baud / 10.0))).min())
+            if best is None or host < best.time_scale:
+                best = FeedLimit(host, link, li, pi, float(tw[i]))
+    if best is None:
+        return None
+    return FeedLimit(_round_down(best.time_scale), best.link_scale, best.layer, best.pass_, best.move_s)
+
+
+def _round_down(k: float) -> float:
+    """A time scale people can read: 1, 2, 5, 10, 20, 40, 60 … at most k (never below 1)."""
+    for v in (1000, 600, 400, 200, 120, 100, 60, 40, 30, 20, 15, 10, 8, 5, 4, 3, 2):
+        if v <= k:
+            return float(v)
+    return 1.0
+
+
+def limit_time_scale(cfg: Any, job: dict, max_step_mm: float = 2.0) -> tuple[Any, str | None]:
+    """cfg with cell.time_scale lowered to what the CNC link can feed for `job` (CNC cells, simulated
+    time only), and the message saying so; (cfg, None) when nothing was lowered."""
+    from controller.motion.kinematics import Trunnion
+
+    if cfg.cell.platform != "cnc" or cfg.cell.time_scale <= 1.0:
+        return cfg, None
+    lim = feed_limit(job, Trunnion.from_config(cfg.kinematics), cfg.devices.cnc.baud, max_step_mm)
+    if lim is None or lim.time_scale >= cfg.cell.time_scale:
+        return cfg, None
+    msg = lim.message(cfg.cell.time_scale)
+    return cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"time_scale": lim.time_scale})}), msg
+
+
+def check_feed(job: dict, trunnion: Any, link: Any, max_step_mm: float = 2.0) -> None:
+    """Before any motion: a simulated link (line_scale > 1) faster than the host can feed the job's
+    beads is refused, naming the time scale that can (`limit_time_scale` lowers it where the
+    simulators are started here: `cell run --sim`, `cell repair run --sim`)."""
+    scale = float(getattr(link, "line_scale", 1.0) or 1.0)
+    if scale <= 1.0:
+        return
+    lim = feed_limit(job, trunnion, int(getattr(link, "baud", 115200) or 115200), max_step_mm)
+    if lim is not None and scale > lim.time_scale + 1e-9:
+        raise InputError(lim.message(scale).replace("; time scale limited to",
+                                                    "; run the simulators at time scale")
+                         + " or less (cell.yaml cell.time_scale)")
