@@ -179,6 +179,10 @@ class Kinematics(_Frozen):
     second_limits_deg: tuple[float, float] = (-360.0, 360.0)
     tilt_limit_deg: float = Field(default=60.0, ge=0.0, le=120.0,
                                   description="largest tool-axis tilt from the part's vertical a 5-axis plan uses")
+    chord_tolerance_mm: float = Field(
+        default=0.02, gt=0.0, le=1.0,
+        description="5-axis: the tool tip stays this close to the planned path between the points of a "
+                    "machine-linear move; moves are split until it does (docs/kinematics.md)")
 
 
 class Nozzle(_Frozen):

@@ -258,6 +258,12 @@ def _build(args: argparse.Namespace, cfg: CellConfig, job: dict, run_dir: Path |
     from controller.api import CellController
     from controller.runtime.build import BuildOptions
 
+    if args.sim:  # issue 29: the time scale the CNC link can feed (controller/motion/cnc5.py), said on stderr
+        from controller.motion.cnc5 import limit_time_scale
+
+        cfg, note = limit_time_scale(cfg, job)
+        if note:
+            _err(note)
     session = SimSession(cfg, args.sim, args.sim_config, log_dir if args.sim else None, faults)
     say = _err if args.json else _out
     try:
