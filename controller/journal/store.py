@@ -7,7 +7,8 @@ the journal at the last committed row, and replaying the rows gives the build's 
 - `moves`     write-ahead: every weld move's ticket and the point it reaches, before it is sent;
 - `progress`  a weld move executed while the arc was stable: (layer, pass, point index);
 - `passes`    each pass's state changes (started, arc_on, done, interrupted);
-- `beads`     per bead: arc-on/off times, current/voltage/WFS statistics, heat input;
+- `beads`     per bead: arc-on/off times, current/voltage/WFS statistics, heat input (with
+              `bead_measures` and `bead_extra`: travel speed, arc time, stand-stills, spread);
 - `events`    state transitions, alarms and notes, with the torch position (kind `arc`: the arc
               went unstable while depositing, which a resume must not extrapolate past);
 - `samples`   I, U, WFS and part temperature, for the report's traces.
@@ -54,9 +55,17 @@ CREATE TABLE IF NOT EXISTS samples (t REAL NOT NULL, current_a REAL, voltage_v R
     temperature_c REAL, layer INTEGER, pass INTEGER);
 CREATE TABLE IF NOT EXISTS defects (id INTEGER PRIMARY KEY, layer INTEGER NOT NULL, pass INTEGER NOT NULL,
     run INTEGER NOT NULL, t REAL NOT NULL, reason TEXT NOT NULL, x REAL, y REAL, z REAL, measured_mm REAL);
+CREATE TABLE IF NOT EXISTS bead_extra (id INTEGER PRIMARY KEY, layer INTEGER NOT NULL, pass INTEGER NOT NULL,
+    run INTEGER NOT NULL, info TEXT NOT NULL DEFAULT '{}');
 CREATE INDEX IF NOT EXISTS progress_lp ON progress(layer, pass);
 CREATE INDEX IF NOT EXISTS passes_lp ON passes(layer, pass);
 """
+
+
+# per-bead figures kept as JSON in `bead_extra` (controller/runtime/bead_measure.py): arc time,
+# the torch's stand-stills with the arc on, and the 5th/95th percentiles of I, U and WFS
+BEAD_EXTRA = ("arc_s", "still_n", "still_s", "still_max_s", "lag_s",
+              "i_p5", "i_p95", "u_p5", "u_p95", "wfs_p5", "wfs_p95")
 
 
 class JournalError(CellError):
@@ -227,6 +236,11 @@ class Journal:
             (layer, pass_, self.run, stats.get("wfs_min"), stats.get("wfs_max"), stats.get("speed_mm_min"),
              stats.get("motion_s"), stats.get("moves"), stats.get("starved")),
         )
+        # the record's further figures (arc time, stand-stills, signal spread): one JSON row
+        extra = {k: stats[k] for k in BEAD_EXTRA if stats.get(k) is not None}
+        if extra:
+            self._write("INSERT INTO bead_extra (layer, pass, run, info) VALUES (?,?,?,?)",
+                        (layer, pass_, self.run, json.dumps(extra)))
 
     def defect(self, layer: int, pass_: int, reason: str, *, pos: Sequence[float] | None = None,
                measured_mm: float | None = None) -> None:
@@ -353,6 +367,15 @@ class Journal:
             " ORDER BY id")}
         for b in out:
             b.update(measured.get((b["layer"], b["pass"], b["run"]), dict.fromkeys(extra)))
+        more: dict[tuple[int, int, int], dict[str, Any]] = {}
+        for la, pa, run, info in self.query("SELECT layer, pass, run, info FROM bead_extra ORDER BY id"):
+            try:
+                more[(la, pa, run)] = {k: v for k, v in json.loads(info).items() if k in BEAD_EXTRA}
+            except (ValueError, AttributeError):
+                pass  # a damaged row: the bead keeps its other figures
+        for b in out:
+            b.update(dict.fromkeys(BEAD_EXTRA))
+            b.update(more.get((b["layer"], b["pass"], b["run"]), {}))
         return out
 
     def alarm_rows(self) -> list[dict[str, Any]]:

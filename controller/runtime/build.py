@@ -103,6 +103,7 @@ class BuildRunner:
         self._pts: list[Point] = []           # the current pass's weld points
         self._cum: Sequence[float] = []
         self._start_mm = 0.0
+        self._acct_idx = 0                    # the last point index a progress report reached
         self._t_exe = 0.0                     # monotonic time of the last EXE with the arc stable
         self._t_exe_rx = 0.0                  # ... as its bytes arrived (reader thread)
         self.closing: asyncio.Task | None = None  # an interrupted bead's close (awaits the held position)
@@ -296,7 +297,7 @@ class BuildRunner:
         pts = weld_points(p["points"], self.o.max_step_mm)
         speed = float(p["speed_mm_min"])
         start_idx, start_pt, start_mm = self._start_point(item, pts, speed)
-        self.current, self.cur_idx = item, start_idx
+        self.current, self.cur_idx, self._acct_idx = item, start_idx, start_idx
         self._pts, self._measured_mm, self._faltered, self._defect_at = pts, 0.0, False, None
         self._cum, self._start_mm = arc_lengths(pts), start_mm
         self.bus.update(layer=la, pass_=pa, passes_in_layer=len(self.layers[la]["passes"]))
@@ -327,7 +328,8 @@ class BuildRunner:
         self.bus.update(arc_starts=self.bus.latest.arc_starts + 1, travel_speed_mm_min=speed)
         self.m.send("arc_on")
         self._t_exe = time.monotonic()
-        self._pace = Pace(self._t_exe, start_mm, starved=-getattr(self.ex, "starved", 0))
+        self._pace = Pace(self._t_exe, start_mm, starved=-getattr(self.ex, "starved", 0), planned_mm_min=speed,
+                          speed_tol=float(getattr(self._tolerance(), "speed_pct", 10.0)) / 100.0)
         self.ex.release()
         await self.ex.weld_done(await tickets)
         self.m.send("arc_end")
@@ -390,6 +392,9 @@ class BuildRunner:
         item = self.current
         st = self.power.status
         faltered, self._unstable_since_exe = self._unstable_since_exe, False
+        # the moves since the last report, whether or not they are counted (a CNC status poll
+        # may pass several points at once: every one of them is in this report)
+        prev, self._acct_idx = self._acct_idx, max(self._acct_idx, idx)
         if item is None or st is None or not st.arc_stable or not self._arc_lit:
             return
         if time.monotonic() - st.t > STALE_STATUS_S:
@@ -397,7 +402,7 @@ class BuildRunner:
             # since; the move is not counted as deposited (never report metal that was not)
             faltered = True
         if not faltered and self._pts and 0 < idx < len(self._pts):
-            self._measured_mm += max(0.0, self._cum[idx] - max(self._cum[idx - 1], self._start_mm))
+            self._measured_mm += max(0.0, self._cum[idx] - max(self._cum[min(prev, idx)], self._start_mm))
         self._t_exe = time.monotonic()
         # when the robot's report arrived (the port's reader thread), else now
         self._t_exe_rx = getattr(self.ex, "exe_t", 0.0) or self._t_exe
@@ -411,6 +416,8 @@ class BuildRunner:
             self._bead.add(st.current_a, st.voltage_v, st.wfs_m_min)
         if self._arc_lit and not st.arc_stable:
             self._unstable_since_exe = True
+            if self._pace is not None:
+                self._pace.arc_lost(st.t)   # the source's falling edge ends the bead's arc time
             if not self._faltered and self._pts and self.cur_idx is not None:
                 self._defect_at = self._pts[min(self.cur_idx, len(self._pts) - 1)]
             self._faltered = True
