@@ -86,6 +86,7 @@ def summarize(journal: Journal, job: dict | None = None, state: str | None = Non
         "alarms": alarms,
         "defects": defects,
         "bead_defects": sum(1 for d in defects if d["state"] == "defect"),
+        "tolerance": _tolerance_dict(job),
     }
 
 
@@ -99,6 +100,14 @@ def _tolerance(job: dict | None) -> Any:
         return load_material(str(name)).tolerance
     except CellError:
         return None
+
+
+def _tolerance_dict(job: dict | None) -> dict[str, Any] | None:
+    tol = _tolerance(job)
+    if tol is None:
+        return None
+    return {k: getattr(tol, k) for k in ("current_pct", "wfs_pct", "speed_pct", "voltage_min_v", "voltage_max_v")
+            if hasattr(tol, k)}
 
 
 def _provenance(job: dict | None, operator: str | None) -> dict[str, Any]:

@@ -135,8 +135,7 @@ class Pace:
 
         Each report bounds the start from below: the torch reached s_i by t_i, so at most at
         the pace v it left s_release at t_i - (s_i - s_release) / v or later; the latest of those
-        bounds over the bead's first reports (before any stand-still) is where it set off. The
-        pace is the measured one (lower envelope), else the plan's."""
+        bounds over the bead's first reports (before any stand-still) is where it set off."""
         v = self._wall_speed(time_scale)
         if v is None or not self.points:
             return self.t_release
@@ -144,10 +143,12 @@ class Pace:
         return max(self.t_release, est)
 
     def _wall_speed(self, time_scale: float) -> float | None:
-        v = self.speed_mm_s()
-        if v is None and self.planned_mm_min:
-            v = self.planned_mm_min / 60.0 * time_scale
-        return v
+        """The faster of the measured pace and the plan: a stand-still mid-bead lowers the
+        measured pace, which would push the start estimate early; a device faster than its plan
+        would do the same with the planned pace."""
+        vs = [v for v in (self.speed_mm_s(),
+                          self.planned_mm_min / 60.0 * time_scale if self.planned_mm_min else None) if v]
+        return max(vs) if vs else None
 
     def arc_time(self, time_scale: float) -> dict[str, float | None]:
         """The bead's arc time in process seconds: from the torch setting off along the bead
