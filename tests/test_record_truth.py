@@ -130,14 +130,14 @@ async def test_a_tui_build_leaves_its_record_complete_and_estopped(tmp_path: Pat
             app.post_message(Key("s", None))
             await _until(pilot, lambda: app.view.snap.state == "complete", 120, "the build to complete")
             run_dir = Path(app.view.snap.run_dir or "")
-            await _until(pilot, lambda: "record in" in app.last_message, 60, "the record")
+            await _until(pilot, lambda: app.last_message.startswith("complete: record"), 150, "the record")
             # the message line follows the build to its end and says where the record is
             assert "start: build under way" not in app.last_message
             assert app.last_message.startswith("complete: record in ") and str(run_dir) in app.last_message
             await pilot.pause(0.3)
             assert str(run_dir / "report.json") in str(app.query_one("#build-record").render())
             rep = _assert_record(run_dir, job)
-            assert rep["state"] == "complete" and {b["status"] for b in rep["beads"]} == {"done"}
+            assert rep["state"] == "complete" and {b["status"] for b in rep["beads"]} == {"done"}, [b["defect_reasons"] for b in rep["beads"]]
 
             # the same job again (--new's run dir), stopped by the E-stop input of the cell I/O
             session.ctl.journal.close()
@@ -150,7 +150,7 @@ async def test_a_tui_build_leaves_its_record_complete_and_estopped(tmp_path: Pat
             session.harness.call(cellio.press_estop)
             await _until(pilot, lambda: app.view.snap.state == "estop", 10, "the E-stop")
             run2 = Path(app.view.snap.run_dir or "")
-            await _until(pilot, lambda: app.last_message.startswith("estop: record in"), 60, "the E-stop's record")
+            await _until(pilot, lambda: app.last_message.startswith("estop: record in"), 150, "the E-stop's record")
             rep2 = _assert_record(run2, job2)
             assert rep2["state"] == "estop" and "not built" in {b["status"] for b in rep2["beads"]}
             session.harness.call(cellio.release_estop)
