@@ -108,11 +108,12 @@ def _process_per_bead(plt: Any, out: Path, summary: dict) -> Path:
             ps = [b.get(plan) for b in beads]
             ax.step(x, [float("nan") if v is None else v for v in ps], where="mid", color="k", lw=0.8,
                     label="plan")
-            if pct.get(name):
-                f = float(pct[name]) / 100.0
+            band = pct.get(name)
+            if band:
+                f = float(band) / 100.0
                 ax.fill_between(x, [float("nan") if v is None else v * (1 - f) for v in ps],
                                 [float("nan") if v is None else v * (1 + f) for v in ps], step="mid",
-                                color="0.6", alpha=0.25, lw=0, label=f"±{pct[name]:g} %")
+                                color="0.6", alpha=0.25, lw=0, label=f"±{band:g} %")
         elif name == "voltage" and tol.get("voltage_min_v") is not None:
             ax.axhspan(tol["voltage_min_v"], tol["voltage_max_v"], color="0.6", alpha=0.15, lw=0,
                        label=f"window {tol['voltage_min_v']:g}-{tol['voltage_max_v']:g} V")
