@@ -7,8 +7,7 @@ the journal at the last committed row, and replaying the rows gives the build's 
 - `moves`     write-ahead: every weld move's ticket and the point it reaches, before it is sent;
 - `progress`  a weld move executed while the arc was stable: (layer, pass, point index);
 - `passes`    each pass's state changes (started, arc_on, done, interrupted);
-- `beads`     per bead: arc-on/off times, current/voltage/WFS statistics, heat input (with
-              `bead_measures` and `bead_extra`: travel speed, arc time, stand-stills, spread);
+- `beads`     per bead: arc-on/off times, I/U/WFS statistics, heat input (+ bead_measures, bead_extra);
 - `events`    state transitions, alarms and notes, with the torch position (kind `arc`: the arc
               went unstable while depositing, which a resume must not extrapolate past);
 - `samples`   I, U, WFS and part temperature, for the report's traces.
@@ -62,10 +61,16 @@ CREATE INDEX IF NOT EXISTS passes_lp ON passes(layer, pass);
 """
 
 
-# per-bead figures kept as JSON in `bead_extra` (controller/runtime/bead_measure.py): arc time,
-# the torch's stand-stills with the arc on, and the 5th/95th percentiles of I, U and WFS
-BEAD_EXTRA = ("arc_s", "still_n", "still_s", "still_max_s", "lag_s",
-              "i_p5", "i_p95", "u_p5", "u_p95", "wfs_p5", "wfs_p95")
+# per-bead figures kept as JSON in `bead_extra` (bead_measure.py): arc time, stand-stills, I/U/WFS p5/p95
+BEAD_EXTRA = ("arc_s", "still_n", "still_s", "still_max_s", "lag_s", "i_p5", "i_p95", "u_p5", "u_p95", "wfs_p5", "wfs_p95")
+
+
+def _extra(info: str) -> dict[str, Any]:
+    try:
+        d = json.loads(info)
+        return d if isinstance(d, dict) else {}
+    except ValueError:
+        return {}  # a damaged row: the bead keeps its other figures
 
 
 class JournalError(CellError):
@@ -236,9 +241,7 @@ class Journal:
             (layer, pass_, self.run, stats.get("wfs_min"), stats.get("wfs_max"), stats.get("speed_mm_min"),
              stats.get("motion_s"), stats.get("moves"), stats.get("starved")),
         )
-        # the record's further figures (arc time, stand-stills, signal spread): one JSON row
-        extra = {k: stats[k] for k in BEAD_EXTRA if stats.get(k) is not None}
-        if extra:
+        if extra := {k: stats[k] for k in BEAD_EXTRA if stats.get(k) is not None}:   # one JSON row
             self._write("INSERT INTO bead_extra (layer, pass, run, info) VALUES (?,?,?,?)",
                         (layer, pass_, self.run, json.dumps(extra)))
 
@@ -367,15 +370,10 @@ class Journal:
             " ORDER BY id")}
         for b in out:
             b.update(measured.get((b["layer"], b["pass"], b["run"]), dict.fromkeys(extra)))
-        more: dict[tuple[int, int, int], dict[str, Any]] = {}
-        for la, pa, run, info in self.query("SELECT layer, pass, run, info FROM bead_extra ORDER BY id"):
-            try:
-                more[(la, pa, run)] = {k: v for k, v in json.loads(info).items() if k in BEAD_EXTRA}
-            except (ValueError, AttributeError):
-                pass  # a damaged row: the bead keeps its other figures
+        more = {(la, pa, run): _extra(info) for la, pa, run, info in self.query(
+            "SELECT layer, pass, run, info FROM bead_extra ORDER BY id")}
         for b in out:
-            b.update(dict.fromkeys(BEAD_EXTRA))
-            b.update(more.get((b["layer"], b["pass"], b["run"]), {}))
+            b.update({k: more.get((b["layer"], b["pass"], b["run"]), {}).get(k) for k in BEAD_EXTRA})
         return out
 
     def alarm_rows(self) -> list[dict[str, Any]]:

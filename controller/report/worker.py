@@ -12,8 +12,10 @@ A plain child process, not a multiprocessing pool: a forkserver pool re-imports 
 `__main__`, which failed (and would have run the caller's script a second time) whenever the
 controller was embedded in a script without a `__main__` guard, and its atexit shutdown cancelled
 a record still being written when the TUI quit. The child is independent of how the controller
-was started, and it runs at a lower priority (nice 10): the devices' cycles come first. It
-inherits no real-time priority (the controller's threads ask for SCHED_RESET_ON_FORK).
+was started. It inherits no real-time priority (the controller's threads ask for
+SCHED_RESET_ON_FORK), so the device cycles (SCHED_FIFO) come first; it is not niced either: on a
+loaded host (load 11 on 2 cores) a nice-10 child got so little CPU that the TUI's record took
+more than 150 s.
 """
 from __future__ import annotations
 
@@ -91,10 +93,6 @@ def _main(argv: list[str]) -> int:
     """In the child: open the run's journal and write the record; print the path of report.json."""
     import argparse
 
-    try:
-        os.nice(10)
-    except OSError:
-        pass
     ap = argparse.ArgumentParser(prog="controller.report.worker")
     ap.add_argument("run_dir")
     ap.add_argument("--state", default=None)

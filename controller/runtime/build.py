@@ -328,8 +328,7 @@ class BuildRunner:
         self.bus.update(arc_starts=self.bus.latest.arc_starts + 1, travel_speed_mm_min=speed)
         self.m.send("arc_on")
         self._t_exe = time.monotonic()
-        self._pace = Pace(self._t_exe, start_mm, starved=-getattr(self.ex, "starved", 0), planned_mm_min=speed,
-                          speed_tol=float(getattr(self._tolerance(), "speed_pct", 10.0)) / 100.0)
+        self._pace = Pace(self._t_exe, start_mm, starved=-getattr(self.ex, "starved", 0), planned_mm_min=speed, speed_tol=self._tolerance().speed_pct / 100)
         self.ex.release()
         await self.ex.weld_done(await tickets)
         self.m.send("arc_end")
@@ -392,9 +391,7 @@ class BuildRunner:
         item = self.current
         st = self.power.status
         faltered, self._unstable_since_exe = self._unstable_since_exe, False
-        # the moves since the last report, whether or not they are counted (a CNC status poll
-        # may pass several points at once: every one of them is in this report)
-        prev, self._acct_idx = self._acct_idx, max(self._acct_idx, idx)
+        prev, self._acct_idx = self._acct_idx, max(self._acct_idx, idx)  # a CNC status may pass several points
         if item is None or st is None or not st.arc_stable or not self._arc_lit:
             return
         if time.monotonic() - st.t > STALE_STATUS_S:
@@ -416,8 +413,7 @@ class BuildRunner:
             self._bead.add(st.current_a, st.voltage_v, st.wfs_m_min)
         if self._arc_lit and not st.arc_stable:
             self._unstable_since_exe = True
-            if self._pace is not None:
-                self._pace.arc_lost(st.t)   # the source's falling edge ends the bead's arc time
+            self._pace.arc_lost(st.t) if self._pace is not None else None  # the falling edge ends the arc time
             if not self._faltered and self._pts and self.cur_idx is not None:
                 self._defect_at = self._pts[min(self.cur_idx, len(self._pts) - 1)]
             self._faltered = True
