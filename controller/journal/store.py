@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from controller.journal.check import inspect, uri
+from controller.journal.extra import BEAD_EXTRA, _extra
 from core.errors import CellError
 
 SCHEMA = """
@@ -59,18 +60,6 @@ CREATE TABLE IF NOT EXISTS bead_extra (id INTEGER PRIMARY KEY, layer INTEGER NOT
 CREATE INDEX IF NOT EXISTS progress_lp ON progress(layer, pass);
 CREATE INDEX IF NOT EXISTS passes_lp ON passes(layer, pass);
 """
-
-
-# per-bead figures kept as JSON in `bead_extra` (bead_measure.py): arc time, stand-stills, I/U/WFS p5/p95
-BEAD_EXTRA = ("arc_s", "still_n", "still_s", "still_max_s", "lag_s", "i_p5", "i_p95", "u_p5", "u_p95", "wfs_p5", "wfs_p95")
-
-
-def _extra(info: str) -> dict[str, Any]:
-    try:
-        d = json.loads(info)
-        return d if isinstance(d, dict) else {}
-    except ValueError:
-        return {}  # a damaged row: the bead keeps its other figures
 
 
 class JournalError(CellError):
