@@ -7,7 +7,7 @@ the journal at the last committed row, and replaying the rows gives the build's 
 - `moves`     write-ahead: every weld move's ticket and the point it reaches, before it is sent;
 - `progress`  a weld move executed while the arc was stable: (layer, pass, point index);
 - `passes`    each pass's state changes (started, arc_on, done, interrupted);
-- `beads`     per bead: arc-on/off times, current/voltage/WFS statistics, heat input;
+- `beads`     per bead: arc-on/off times, I/U/WFS statistics, heat input (+ bead_measures, bead_extra);
 - `events`    state transitions, alarms and notes, with the torch position (kind `arc`: the arc
               went unstable while depositing, which a resume must not extrapolate past);
 - `samples`   I, U, WFS and part temperature, for the report's traces.
@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from controller.journal.check import inspect, uri
+from controller.journal.extra import BEAD_EXTRA, _extra
 from core.errors import CellError
 
 SCHEMA = """
@@ -54,6 +55,8 @@ CREATE TABLE IF NOT EXISTS samples (t REAL NOT NULL, current_a REAL, voltage_v R
     temperature_c REAL, layer INTEGER, pass INTEGER);
 CREATE TABLE IF NOT EXISTS defects (id INTEGER PRIMARY KEY, layer INTEGER NOT NULL, pass INTEGER NOT NULL,
     run INTEGER NOT NULL, t REAL NOT NULL, reason TEXT NOT NULL, x REAL, y REAL, z REAL, measured_mm REAL);
+CREATE TABLE IF NOT EXISTS bead_extra (id INTEGER PRIMARY KEY, layer INTEGER NOT NULL, pass INTEGER NOT NULL,
+    run INTEGER NOT NULL, info TEXT NOT NULL DEFAULT '{}');
 CREATE INDEX IF NOT EXISTS progress_lp ON progress(layer, pass);
 CREATE INDEX IF NOT EXISTS passes_lp ON passes(layer, pass);
 """
@@ -228,6 +231,9 @@ class Journal:
             (layer, pass_, self.run, stats.get("wfs_min"), stats.get("wfs_max"), stats.get("speed_mm_min"),
              stats.get("motion_s"), stats.get("moves"), stats.get("starved")),
         )
+        if extra := {k: stats[k] for k in BEAD_EXTRA if stats.get(k) is not None}:   # one JSON row
+            self._write("INSERT INTO bead_extra (layer, pass, run, info) VALUES (?,?,?,?)",
+                        (layer, pass_, self.run, json.dumps(extra)))
 
     def defect(self, layer: int, pass_: int, reason: str, *, pos: Sequence[float] | None = None,
                measured_mm: float | None = None) -> None:
@@ -363,6 +369,10 @@ class Journal:
             " ORDER BY id")}
         for b in out:
             b.update(measured.get((b["layer"], b["pass"], b["run"]), dict.fromkeys(extra)))
+        more = {(la, pa, run): _extra(info) for la, pa, run, info in self.query(
+            "SELECT layer, pass, run, info FROM bead_extra ORDER BY id")}
+        for b in out:
+            b.update({k: more.get((b["layer"], b["pass"], b["run"]), {}).get(k) for k in BEAD_EXTRA})
         return out
 
     def alarm_rows(self) -> list[dict[str, Any]]:

@@ -106,6 +106,7 @@ class BuildRunner:
         self._pts: list[Point] = []           # the current pass's weld points
         self._cum: Sequence[float] = []
         self._start_mm = 0.0
+        self._acct_idx = 0                    # the last point index a progress report reached
         self._t_exe = 0.0                     # monotonic time of the last EXE with the arc stable
         self._t_exe_rx = 0.0                  # ... as its bytes arrived (reader thread)
         self.closing: asyncio.Task | None = None  # an interrupted bead's close (awaits the held position)
@@ -295,7 +296,7 @@ class BuildRunner:
         pts = weld_points(p["points"], self.o.max_step_mm)
         speed = float(p["speed_mm_min"])
         start_idx, start_pt, start_mm = self._start_point(item, pts, speed)
-        self.current, self.cur_idx = item, start_idx
+        self.current, self.cur_idx, self._acct_idx = item, start_idx, start_idx
         self._pts, self._measured_mm, self._faltered, self._defect_at = pts, 0.0, False, None
         self._cum, self._start_mm = arc_lengths(pts), start_mm
         self.bus.update(layer=la, pass_=pa, passes_in_layer=len(self.layers[la]["passes"]))
@@ -328,7 +329,7 @@ class BuildRunner:
         self.bus.update(arc_starts=self.bus.latest.arc_starts + 1, travel_speed_mm_min=speed)
         self.m.send("arc_on")
         self._t_exe = time.monotonic()
-        self._pace = Pace(self._t_exe, start_mm, starved=-getattr(self.ex, "starved", 0))
+        self._pace = Pace(self._t_exe, start_mm, starved=-getattr(self.ex, "starved", 0), planned_mm_min=speed, speed_tol=self._tolerance().speed_pct / 100)
         self.ex.release()
         self.watchdog = ProgressWatchdog.of(self.ex, self.power, self.progress_s, self.o.time_scale,
                                             lambda: f"layer {la} pass {pa} point {self.cur_idx} of {len(pts) - 1}")
@@ -393,6 +394,7 @@ class BuildRunner:
         item = self.current
         st = self.power.status
         faltered, self._unstable_since_exe = self._unstable_since_exe, False
+        prev, self._acct_idx = self._acct_idx, max(self._acct_idx, idx)  # a CNC status may pass several points
         if item is None or st is None or not st.arc_stable or not self._arc_lit:
             return
         if time.monotonic() - st.t > STALE_STATUS_S:
@@ -400,7 +402,7 @@ class BuildRunner:
             # since; the move is not counted as deposited (never report metal that was not)
             faltered = True
         if not faltered and self._pts and 0 < idx < len(self._pts):
-            self._measured_mm += max(0.0, self._cum[idx] - max(self._cum[idx - 1], self._start_mm))
+            self._measured_mm += max(0.0, self._cum[idx] - max(self._cum[min(prev, idx)], self._start_mm))
         self._t_exe = time.monotonic()
         # when the robot's report arrived (the port's reader thread), else now
         self._t_exe_rx = getattr(self.ex, "exe_t", 0.0) or self._t_exe
@@ -414,6 +416,7 @@ class BuildRunner:
             self._bead.add(st.current_a, st.voltage_v, st.wfs_m_min)
         if self._arc_lit and not st.arc_stable:
             self._unstable_since_exe = True
+            self._pace.arc_lost(st.t) if self._pace is not None else None  # the falling edge ends the arc time
             if not self._faltered and self._pts and self.cur_idx is not None:
                 self._defect_at = self._pts[min(self.cur_idx, len(self._pts) - 1)]
             self._faltered = True

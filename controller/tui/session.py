@@ -175,6 +175,13 @@ class CellSession:
             self.stop_safely().result(timeout)
         except Exception:
             pass
+        if self._build is not None:
+            # the build's end writes its record (controller/api.py): let it finish before the
+            # loop stops, so quitting mid-build still leaves report.json, beads.csv and the plots
+            try:
+                self._build.result(max(timeout, 60.0))
+            except Exception:
+                pass
         if self.ctl is not None:
             try:
                 self._submit(self.ctl.close).result(timeout)
