@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from controller.journal.check import inspect, uri
+from controller.journal.check import Row, inspect, uri
 from core.errors import CellError
 
 SCHEMA = """
@@ -90,7 +90,7 @@ class Journal:
     def __init__(self, path: str | Path, *, background: bool = False) -> None:
         self.path = Path(path)
         self._lock = threading.RLock()
-        self._q: queue.Queue | None = None
+        self._q: queue.Queue[tuple[str, Any, bool] | None] | None = None
         self._thread: threading.Thread | None = None
         self.write_errors = 0
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -414,7 +414,7 @@ class Journal:
         row = self._read1("SELECT max(ticket) FROM progress")
         return int(row[0]) if row and row[0] is not None else None
 
-    def events_after(self, last_id: int, limit: int = 200) -> list[tuple]:
+    def events_after(self, last_id: int, limit: int = 200) -> list[Row]:
         """(id, t, kind, state, message, layer, pass) of events after `last_id`."""
         return self.query("SELECT id, t, kind, state, message, layer, pass FROM events WHERE id > ? ORDER BY id"
                           " LIMIT ?", (last_id, limit))
@@ -426,13 +426,13 @@ class Journal:
                 for t, la, pa, reason, x, y, z, run, mm in self.query(
                     "SELECT t, layer, pass, reason, x, y, z, run, measured_mm FROM defects ORDER BY id")]
 
-    def query(self, sql: str, params: Sequence[Any] = ()) -> list[tuple]:
+    def query(self, sql: str, params: Sequence[Any] = ()) -> list[Row]:
         """Rows of a read (after every queued write is committed)."""
         self.flush()
         with self._lock:
             return list(self.db.execute(sql, params))
 
-    def _read1(self, sql: str, params: Sequence[Any] = ()) -> tuple | None:
+    def _read1(self, sql: str, params: Sequence[Any] = ()) -> Row | None:
         rows = self.query(sql, params)
         return rows[0] if rows else None
 
@@ -447,7 +447,7 @@ class Journal:
             pass
 
 
-def read_events_after(path: str | Path, after_id: int = 0, limit: int = 2000) -> list[tuple]:
+def read_events_after(path: str | Path, after_id: int = 0, limit: int = 2000) -> list[Row]:
     """(id, t, kind, state, message, layer, pass) after `after_id`, on a read-only connection.
 
     For a reader in another thread or process (the TUI's log): WAL lets it read mid-build without
