@@ -112,7 +112,7 @@ def parse_gcode(lines: list[str]) -> list[ParsedPass]:
     pos = {k: 0.0 for k in "XYZABC"}
     feed = 0.0
     on = False
-    header: tuple | None = None
+    header: tuple[int, int, str, float, float, float] | None = None
     pts: list[dict[str, float]] = []
     feeds: list[float] = []
     seen: set[str] = set()
