@@ -22,7 +22,7 @@ import dataclasses
 import json
 import os
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from core.realtime import elevate, is_realtime, quiet_gc, relax
 from controller.report.worker import record_build_end
@@ -41,6 +41,9 @@ from controller.journal.store import Journal
 from controller.runtime.machine import CellMachine, State, TransitionRefused
 from controller.runtime.resume import remaining_work
 from core.errors import CellError, InputError
+
+if TYPE_CHECKING:
+    from controller.align.routine import AlignResult
 
 COMMANDS = ("open_job", "run_alignment", "start", "pause", "resume", "abort", "reset", "estop")
 
@@ -435,7 +438,7 @@ def _validated(job: dict) -> dict:
 
 
 async def align_at(url: str, cell: CellConfig, plan: Any, *, settings: Any = None,
-                   on_point: Callable[[Any], None] | None = None) -> Any:
+                   on_point: Callable[[Any], None] | None = None) -> "AlignResult":
     """Probe and align on the CNC at `url` outside a build session (the link is opened and closed
     here): `cell align run`, the demo's probe on the CNC and the TUI's Align screen come in here,
     a build session through `CellController.run_alignment`."""

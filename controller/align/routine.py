@@ -119,7 +119,7 @@ class AlignResult:
     probed: tuple[ProbedPoint, ...] = ()
     log: tuple[str, ...] = ()
 
-    def planes(self) -> list[dict]:
+    def planes(self) -> list[dict[str, Any]]:
         t, s = self.top, self.side
         return [
             {"name": "top", "normal": t.normal.tolist(), "point": t.point.tolist(), "rms_mm": t.rms_mm,
@@ -131,7 +131,7 @@ class AlignResult:
              "max_residual_mm": 0.0, "outliers": [], "n_points": 1},
         ]
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         return {
             "planes": self.planes(), "level_a_deg": self.level_a_deg, "level_b_deg": self.level_b_deg,
             "face_angle_deg": self.face_angle_deg, "face_angle_eq1_deg": self.face_angle_eq1_deg,
@@ -320,7 +320,7 @@ async def run_on_url(url: str, cell: Any, plan: ProbePlan, *, settings: Any = No
         await link.close()
 
 
-def alignment_record(res: "AlignResult") -> dict:
+def alignment_record(res: "AlignResult") -> dict[str, Any]:
     """The job's `alignment` (DESIGN.md §3): transform, table angles, when it was probed."""
     import time
 

@@ -10,11 +10,14 @@ import csv
 import math
 import sys
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from core.errors import InputError
+
+if TYPE_CHECKING:  # the config loader is imported when a command needs it (start-up time)
+    from core.material import Material
 
 FIT_COLUMNS = ("current_a", "speed_mm_min", "width_mm", "height_mm")
 STICKOUT_COLUMNS = ("stick_out_mm", "wfs_m_min", "current_a")
@@ -30,60 +33,79 @@ def read_csv_columns(path: str | Path, columns: Sequence[str], *, positive: bool
     problem is an :class:`InputError` naming the file, the line and the column.
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError:
-        raise InputError(f"{p}: not a text (UTF-8) CSV file") from None
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read ({exc.strerror or exc}); check the path") from None
+    text = _read_text(p)
     header: list[str] | None = None
     index: dict[str, int] = {}
     data: dict[str, list[float]] = {c: [] for c in columns}
-    lines = text.splitlines()
-    for lineno, line in enumerate(lines, start=1):
+    for lineno, line in enumerate(text.splitlines(), start=1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
-        try:
-            row = next(csv.reader([line]))
-        except csv.Error as exc:
-            raise InputError(f"{p}: line {lineno}: malformed CSV ({exc})") from None
-        row = [f.strip() for f in row]
+        row = _csv_row(p, lineno, line)
         if header is None:
             header = row
-            seen: set[str] = set()
-            for name in header:
-                if name in seen and name in columns:
-                    raise InputError(f"{p}: line {lineno}: column '{name}' appears twice in the header")
-                seen.add(name)
-            for c in columns:
-                if c not in header:
-                    hint = ""
-                    if all(_is_number(f) for f in header if f):
-                        hint = "; the first line must be a header naming the columns"
-                    raise InputError(
-                        f"{p}: line {lineno}: missing column '{c}' (header has: {', '.join(header) or 'nothing'}; "
-                        f"expected columns: {', '.join(columns)}){hint}"
-                    )
-                index[c] = header.index(c)
+            index = _header_index(p, lineno, header, columns)
             continue
         if len(row) != len(header):
             raise InputError(f"{p}: line {lineno}: {len(row)} fields, but the header has {len(header)}")
         for c in columns:
-            raw = row[index[c]]
-            try:
-                v = float(raw)
-            except ValueError:
-                raise InputError(f"{p}: line {lineno}, column '{c}': {raw!r} is not a number") from None
-            if not math.isfinite(v):
-                raise InputError(f"{p}: line {lineno}, column '{c}': {raw!r} is not a finite number")
-            if positive and v <= 0.0:
-                raise InputError(f"{p}: line {lineno}, column '{c}': {raw} must be positive")
-            data[c].append(v)
+            data[c].append(_cell_value(p, lineno, c, row[index[c]], positive))
     if header is None:
         raise InputError(f"{p}: empty file; expected a header line with columns {', '.join(columns)}")
     if not data[columns[0]]:
         raise InputError(f"{p}: no data rows after the header")
     return {c: np.asarray(v, dtype=np.float64) for c, v in data.items()}
+
+
+def _read_text(p: Path) -> str:
+    try:
+        return p.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError:
+        raise InputError(f"{p}: not a text (UTF-8) CSV file") from None
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read ({exc.strerror or exc}); check the path") from None
+
+
+def _csv_row(p: Path, lineno: int, line: str) -> list[str]:
+    """The stripped fields of one CSV line."""
+    try:
+        row = next(csv.reader([line]))
+    except csv.Error as exc:
+        raise InputError(f"{p}: line {lineno}: malformed CSV ({exc})") from None
+    return [f.strip() for f in row]
+
+
+def _header_index(p: Path, lineno: int, header: list[str], columns: Sequence[str]) -> dict[str, int]:
+    """Column name → field index, for the wanted columns; each must appear exactly once."""
+    seen: set[str] = set()
+    for name in header:
+        if name in seen and name in columns:
+            raise InputError(f"{p}: line {lineno}: column '{name}' appears twice in the header")
+        seen.add(name)
+    index: dict[str, int] = {}
+    for c in columns:
+        if c not in header:
+            hint = ""
+            if all(_is_number(f) for f in header if f):
+                hint = "; the first line must be a header naming the columns"
+            raise InputError(
+                f"{p}: line {lineno}: missing column '{c}' (header has: {', '.join(header) or 'nothing'}; "
+                f"expected columns: {', '.join(columns)}){hint}"
+            )
+        index[c] = header.index(c)
+    return index
+
+
+def _cell_value(p: Path, lineno: int, c: str, raw: str, positive: bool) -> float:
+    """One field as a finite number (and > 0 when `positive`)."""
+    try:
+        v = float(raw)
+    except ValueError:
+        raise InputError(f"{p}: line {lineno}, column '{c}': {raw!r} is not a number") from None
+    if not math.isfinite(v):
+        raise InputError(f"{p}: line {lineno}, column '{c}': {raw!r} is not a finite number")
+    if positive and v <= 0.0:
+        raise InputError(f"{p}: line {lineno}, column '{c}': {raw} must be positive")
+    return v
 
 
 def _is_number(s: str) -> bool:
@@ -97,7 +119,7 @@ def _is_number(s: str) -> bool:
 # --- helpers ---------------------------------------------------------------------------------
 
 
-def _material(name: str | None):
+def _material(name: str | None) -> Material:
     from core.config import load_cell, load_material
 
     return load_material(name if name else load_cell().cell.material)
@@ -113,7 +135,7 @@ def _table(rows: Sequence[tuple[str, str]]) -> None:
 # --- commands --------------------------------------------------------------------------------
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("process", help="welding-parameter model (Ribeiro 1997)", description=__doc__.splitlines()[0])
     s = p.add_subparsers(dest="process_command", metavar="SUBCOMMAND")
     s.required = True

@@ -5,16 +5,17 @@ from __future__ import annotations
 import json
 from typing import Any, Sequence
 
+from controller.journal.check import Row
 from controller.journal.extra import BEAD_EXTRA, _extra
 
 
 class JournalQueries:
     """Reads over the journal's tables; `query` (committed rows only) comes from the Journal."""
 
-    def query(self, sql: str, params: Sequence[Any] = ()) -> list[tuple[Any, ...]]:
+    def query(self, sql: str, params: Sequence[Any] = ()) -> list[Row]:
         raise NotImplementedError   # the Journal reads after every queued write is committed
 
-    def _read1(self, sql: str, params: Sequence[Any] = ()) -> tuple[Any, ...] | None:
+    def _read1(self, sql: str, params: Sequence[Any] = ()) -> Row | None:
         rows = self.query(sql, params)
         return rows[0] if rows else None
 
@@ -120,7 +121,7 @@ class JournalQueries:
         row = self._read1("SELECT max(ticket) FROM progress")
         return int(row[0]) if row and row[0] is not None else None
 
-    def events_after(self, last_id: int, limit: int = 200) -> list[tuple]:
+    def events_after(self, last_id: int, limit: int = 200) -> list[Row]:
         """(id, t, kind, state, message, layer, pass) of events after `last_id`."""
         return self.query("SELECT id, t, kind, state, message, layer, pass FROM events WHERE id > ? ORDER BY id"
                           " LIMIT ?", (last_id, limit))

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from controller.journal.check import inspect, uri
+from controller.journal.check import Row, inspect, uri
 from controller.journal.extra import BEAD_EXTRA
 from controller.journal.queries import JournalQueries
 from core.errors import CellError
@@ -95,7 +95,7 @@ class Journal(JournalQueries):
     def __init__(self, path: str | Path, *, background: bool = False) -> None:
         self.path = Path(path)
         self._lock = threading.RLock()
-        self._q: queue.Queue | None = None
+        self._q: queue.Queue[tuple[str, Any, bool] | None] | None = None
         self._thread: threading.Thread | None = None
         self.write_errors = 0
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -332,7 +332,7 @@ class Journal(JournalQueries):
             "SELECT layer, pass, idx, kind FROM moves WHERE ticket=? ORDER BY run DESC LIMIT 1", (ticket,))
         return (int(row[0]), int(row[1]), int(row[2]), str(row[3])) if row else None
 
-    def query(self, sql: str, params: Sequence[Any] = ()) -> list[tuple]:
+    def query(self, sql: str, params: Sequence[Any] = ()) -> list[Row]:
         """Rows of a read (after every queued write is committed)."""
         self.flush()
         with self._lock:
@@ -349,7 +349,7 @@ class Journal(JournalQueries):
             pass
 
 
-def read_events_after(path: str | Path, after_id: int = 0, limit: int = 2000) -> list[tuple]:
+def read_events_after(path: str | Path, after_id: int = 0, limit: int = 2000) -> list[Row]:
     """(id, t, kind, state, message, layer, pass) after `after_id`, on a read-only connection.
 
     For a reader in another thread or process (the TUI's log): WAL lets it read mid-build without
