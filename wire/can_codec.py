@@ -90,6 +90,7 @@ class CanCodec:
 
     def encode_status(self, st: dict[str, Any], counter: int) -> list[Any]:
         """The status dict of the simulator -> [WELD_STATUS, WELD_ACTUALS] python-can messages."""
+        # lazy: python-can loads only when this path runs (start-up time)
         import can
         sig = {v: int(bool(st["bits"][k])) for k, v in _STATUS_BITS.items()}
         sig.update(ErrorNumber=int(st["error"]), CounterEcho=counter & 0xFF)
