@@ -21,7 +21,7 @@ from sims.clock import SimClock
 from sims.faults import FaultSpec, parse_fault_spec
 from sims.process_world import attach
 from sims.robot_lies import Misbehaviour
-from sims.transport import serve_serial
+from sims.transport import SerialServer, serve_serial
 
 DEVICE = "robot"
 ERR_WORKSPACE = 10
@@ -70,6 +70,7 @@ class RobotSim:
         self._last_heard = time.monotonic()
         self._log: IO[str] | None = None
         self._log_dirty = False
+        self.server: SerialServer | None = None   # set by serve_serial (tests pull the cable)
         if log_path is not None:
             Path(log_path).parent.mkdir(parents=True, exist_ok=True)
             self._log = open(log_path, "a", encoding="utf-8")
