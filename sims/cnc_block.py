@@ -10,6 +10,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+DEVICE = "cnc"
 Pos5 = tuple[float, float, float, float, float]
 
 _NUM = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)")

@@ -22,8 +22,9 @@ import numpy as np
 
 from wire.grbl_protocol import GrblStatus, format_status
 from sims.clock import SimClock
-from sims.cnc_block import Block, GrblError, Pos5, pos5
+from sims.cnc_block import DEVICE, Block, GrblError, Pos5, pos5
 from sims.cnc_gcode import run_gcode
+from sims.cnc_motion import move_block
 from sims.cnc_system import DEFAULT_SETTINGS, VERSION, system_command
 from sims.faults import parse_fault_spec
 from sims.process_world import attach
@@ -34,7 +35,6 @@ from sims.world import World
 if TYPE_CHECKING:
     from sims.up import Served, SimContext
 
-DEVICE = "cnc"
 BANNER = f"Grbl {VERSION} ['$' for help]"
 LINE_BUFFER_SIZE = 80     # grbl: at most 79 characters per line after stripping
 PLANNER_BLOCKS = 15       # grbl 1.1 on a 328p: BLOCK_BUFFER_SIZE 16, one kept free
@@ -417,61 +417,12 @@ class CncSim:
                     self.spindle_s = b.s
                 self._finish(b, t)
                 continue
-            done = self._move_block(b, b.target, t, now)
+            done = move_block(self, b, b.target, t, now)
             if done is None:
                 break
             t = done
         if self.hold and self.hold_sub == 1 and not self._current():
             self.hold_sub = 0
-            self._notify()
-
-    def _move_block(self, b: Block, target: Pos5, t: float, now: float) -> float | None:
-        """Move the head block toward `target` from t to at most now: the time it ended, or None
-        when it is still under way at `now` (or decelerating in a feed hold)."""
-        if not b.started:
-            b.started = True
-            if b.probe:
-                self._start_probe(b)
-        if self.spindle_on:
-            self.spindle_s = b.s  # laser mode: S changes apply in motion
-        p0 = pos5(self.pos)
-        delta = [e - s for s, e in zip(p0, target)]
-        dist = math.sqrt(sum(d * d for d in delta))
-        v = max(b.feed, 1e-6) / 60.0
-        if self.hold:  # decelerating to a stop (Hold:1): speed falls linearly to 0
-            self._decelerate(b, target, p0, delta, dist, t, now)
-            return None
-        need = dist / v
-        if t + need <= now:
-            self._moved(b, p0, target, t, t + need)
-            t += need
-            if b.probe:
-                self._latch = tuple(self.pos) if b.contact else None
-            self._finish(b, t)
-            return t
-        f = (now - t) * v / dist
-        self._moved(b, p0, pos5([a + f * d for a, d in zip(p0, delta)]), t, now)
-        return None
-
-    def _decelerate(self, b: Block, target: Pos5, p0: Pos5, delta: list[float], dist: float,
-                    t: float, now: float) -> None:
-        """The head block's travel in [t, now] while a feed hold brings it to a stop."""
-        th, dec = self._hold_t or t, max(self._hold_decel, 1e-9)
-        a0, a1 = max(t - th, 0.0), min(now - th, dec)
-        travel = self._hold_v * ((a1 - a0) - (a1 * a1 - a0 * a0) / (2 * dec)) if a1 > a0 else 0.0
-        stop = now - th >= dec
-        if travel >= dist:
-            p1, t1 = target, now
-        else:
-            f = travel / dist if dist > 0 else 0.0
-            p1, t1 = pos5([a + f * d for a, d in zip(p0, delta)]), now
-        self._moved(b, p0, p1, t, t1)
-        if travel >= dist:
-            self._finish(b, t1)
-        if stop:
-            self.hold_sub = 0
-            if self.world is not None:
-                self.world.motion_stopped(DEVICE)
             self._notify()
 
     def _moved(self, b: Block, p0: Pos5, p1: Pos5, t0: float, t1: float) -> None:

@@ -57,8 +57,10 @@ class TableKin:
             inner, outer = rot(self.axis_second, second_deg), rot(self.axis_a, a_deg)
         else:
             inner, outer = rot(self.axis_a, a_deg), rot(self.axis_second, second_deg)
-        return trans(c2) @ outer @ trans(-c2) @ trans(c1) @ inner @ trans(-c1)
+        m: np.ndarray = trans(c2) @ outer @ trans(-c2) @ trans(c1) @ inner @ trans(-c1)
+        return m
 
     def tool_in_table(self, a_deg: float, second_deg: float) -> np.ndarray:
         """The fixed tool axis (machine +Z) seen in the table frame."""
-        return self.matrix(a_deg, second_deg)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+        axis: np.ndarray = self.matrix(a_deg, second_deg)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+        return axis
