@@ -160,9 +160,7 @@ def test_pure_layers_import_no_device_library(pkg: str) -> None:
 # split by moving whole classes out once that work has landed.
 MAX_LINES = 500
 LONG_FILES = {
-    "sims/cnc_sim.py": "grbl firmware contract (issue 15)",
     "planner/bead.py": "planner quality (issue 16)",
-    "sims/power_sim.py": "power-source faults (issues 12, 13)",
 }
 
 
