@@ -21,6 +21,7 @@ from sims.faults import FaultSpec
 from sims.thermal import LumpedThermal
 from sims.world import World
 from wire.cellio_map import COILS, INPUTS, to_register
+from wire.urls import parse_tcp_url
 
 if TYPE_CHECKING:
     from sims.up import Served, SimContext
@@ -152,13 +153,14 @@ class CellIOSim:
 async def serve_modbus_tcp(sim: CellIOSim, host: str = "127.0.0.1", port: int = 0,
                            device_id: int = 1) -> tuple[str, Callable[[], Awaitable[None]]]:
     """Start the coupler on Modbus TCP and the model's ticking; returns (url, close)."""
+    # lazy: sims.up imports every simulator module (a cycle at import time)
     from sims.modbus_server import serve_tcp
     return await serve_tcp(sim, host, port, device_id)
 
 
 async def serve(ctx: SimContext) -> list[Served]:
     """`cell sim up`: the cell I/O coupler on cell.yaml's URL."""
-    from wire.urls import parse_tcp_url
+    # lazy: sims.up imports every simulator module (a cycle at import time)
     from sims.faults import parse_fault_spec
     from sims.process_world import attach
     from sims.up import Served

@@ -15,6 +15,9 @@ from typing import TYPE_CHECKING, Any
 from wire.power_registers import (
     COMMAND_BITS, POWER_MAP, STATUS_BITS, decode_block, pack_bits, unpack_bits, to_raw,
 )
+from wire.can_codec import DEFAULT_DBC
+from wire.can_net import open_bus
+from wire.can_codec import CanCodec
 
 if TYPE_CHECKING:
     from sims.power_sim import PowerSourceSim
@@ -93,13 +96,13 @@ class CanNode:
     WELD_STATUS and WELD_ACTUALS (config/power_source.dbc)."""
 
     def __init__(self, sim: PowerSourceSim, bus: Any, db: Any, node: int = 1) -> None:   # python-can / cantools: untyped
-        from wire.can_codec import CanCodec
         self.sim = sim
         self.bus = bus
         self.codec = CanCodec(db, node)
         self._notifier: Any = None   # can.Notifier (python-can: untyped)
 
     def start(self) -> None:
+        # lazy: python-can loads only when this path runs (start-up time)
         import can
         self._notifier = can.Notifier(self.bus, [self._on_message], loop=asyncio.get_running_loop())
 
@@ -132,6 +135,7 @@ class CanNode:
 async def serve_modbus_tcp(sim: PowerSourceSim, host: str = "127.0.0.1", port: int = 0,
                            device_id: int = 1) -> tuple[str, Close]:
     """Start the Modbus TCP server and the model's ticking; returns (url, close)."""
+    # lazy: sims.up imports every simulator module (a cycle at import time)
     from sims.modbus_server import serve_tcp
     return await serve_tcp(PowerModbusView(sim), host, port, device_id)
 
@@ -139,6 +143,7 @@ async def serve_modbus_tcp(sim: PowerSourceSim, host: str = "127.0.0.1", port: i
 async def serve_modbus_rtu(sim: PowerSourceSim, url: str = "socket://127.0.0.1:0",
                            device_id: int = 1) -> tuple[str, Close]:
     """Start the Modbus RTU server on a serial URL and the model's ticking; returns (url, close)."""
+    # lazy: sims.up imports every simulator module (a cycle at import time)
     from sims.modbus_server import serve_rtu
     return await serve_rtu(PowerModbusView(sim), url, device_id)
 
@@ -147,9 +152,8 @@ async def serve_can(sim: PowerSourceSim, interface: str, channel: str, dbc: str 
                     node: int = 1, allow_network: bool = False, **bus_kwargs: Any) -> tuple[str, Close]:
     """Start the CAN node on a python-can bus (kept on this host unless `allow_network`);
     returns (description, close)."""
+    # lazy: cantools loads only when this path runs (start-up time)
     import cantools
-    from wire.can_codec import DEFAULT_DBC
-    from wire.can_net import open_bus
     db = cantools.database.load_file(str(dbc or DEFAULT_DBC))
     bus = open_bus(interface, channel, allow_network=allow_network, device="power source simulator", **bus_kwargs)
     node_obj = CanNode(sim, bus, db, node)

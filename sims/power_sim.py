@@ -46,6 +46,11 @@ from sims.power_params import (
 )
 from sims.power_servers import CanNode, serve_can, serve_modbus_rtu, serve_modbus_tcp
 from sims.world import World
+from wire.urls import parse_tcp_url
+from core.errors import ConfigError
+from wire.can_codec import dbc_path
+from core.config import load_material
+import json
 
 if TYPE_CHECKING:
     from sims.up import Served, SimContext
@@ -121,7 +126,6 @@ class PowerSourceSim:
             self._state_path = None
 
     def _persisted(self) -> int:
-        import json
         if self._state_path is None or not self._state_path.exists():
             return ERR_NONE
         try:
@@ -130,7 +134,6 @@ class PowerSourceSim:
             return ERR_NONE
 
     def _persist(self) -> None:
-        import json
         if self._state_path is None:
             return
         self._state_path.parent.mkdir(parents=True, exist_ok=True)
@@ -432,10 +435,11 @@ class PowerSourceSim:
 
 async def serve(ctx: SimContext) -> list[Served]:
     """`cell sim up`: the power source on the transport and URL of cell.yaml."""
-    from core.config import load_material
+    # lazy: sims.up imports every simulator module (a cycle at import time)
     from sims.faults import parse_fault_spec
     from sims.up import Served
     cfg = ctx.cell.devices.power_source
+    # lazy: sims.up imports every simulator module (a cycle at import time)
     from sims.process_world import attach
     material = load_material(ctx.cell.cell.material)
     spec = parse_fault_spec(ctx.faults or ctx.sim.faults)
@@ -444,20 +448,17 @@ async def serve(ctx: SimContext) -> list[Served]:
                          state_path=(Path(ctx.log_dir) / "power_source.state.json") if ctx.log_dir else None)
     extra: dict[str, object] = {"transport": cfg.transport}
     if cfg.transport == "modbus_tcp":
-        from wire.urls import parse_tcp_url
         host, port = parse_tcp_url(cfg.url)
         url, close = await serve_modbus_tcp(sim, host, 0 if ctx.ephemeral else port, cfg.device_id)
     elif cfg.transport == "modbus_rtu":
         u = cfg.url
         if u.startswith("tcp://"):
-            from core.errors import ConfigError
             raise ConfigError("devices.power_source.url: transport modbus_rtu needs a serial URL "
                               f"(socket://host:port, a port); got {u}")
         if ctx.ephemeral and u.startswith("socket://"):
             u = u.rsplit(":", 1)[0] + ":0"
         url, close = await serve_modbus_rtu(sim, u, cfg.device_id)
     else:
-        from wire.can_codec import dbc_path
         dbc = dbc_path(cfg.can.dbc, ctx.config_dir)
         url, close = await serve_can(sim, cfg.can.interface, cfg.can.channel, dbc, cfg.can.node,
                                      allow_network=cfg.can.allow_network)

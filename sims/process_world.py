@@ -27,6 +27,7 @@ from core.config import ProcessSim
 from core.material import Material
 from core.melting import MeltingRelation, current_at, relation_for, stick_out_factor
 from sims.heightmap import HeightMap, Laid, Substrate
+from core.config import load_material
 
 if TYPE_CHECKING:
     from sims.up import SimContext
@@ -139,7 +140,7 @@ def attach(ctx: SimContext) -> ProcessPhysics | None:
     if world is None or not hasattr(world, "use_physics"):
         return None
     if world.physics is None:
-        from core.config import load_material
+        # lazy: sims.up imports every simulator module (a cycle at import time)
         from sims.faults import parse_fault_spec
 
         material = load_material(ctx.cell.cell.material)

@@ -80,6 +80,7 @@ class Workpiece:
     def from_config(cls, wp: WorkpieceConfig, noise_mm: float, *, seed: int = 0, kinematics: Kinematics | None = None,
                     base_dir: Path | None = None) -> "Workpiece":
         """From sim.yaml's `cnc.workpiece` (core.config.Workpiece) and cell.yaml's kinematics."""
+        # lazy: trimesh loads only when this path runs (start-up time)
         import trimesh
 
         if wp.mesh:

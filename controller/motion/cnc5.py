@@ -14,6 +14,8 @@ import numpy as np
 from controller.motion.post5 import Post5, inverse_time, linearise, move_line, weld_axes
 from controller.motion.weld_path import weld_points
 from core.errors import InputError
+from controller.motion.kinematics import Trunnion
+import asyncio
 
 Point = tuple[float, float, float]
 # the G-code words carry 3 decimals (mm and degrees: up to ~2 µm at 100 mm from an axis): the
@@ -82,7 +84,6 @@ class Five:
 
     async def post_job(self, job: dict, max_step_mm: float) -> None:
         """Every pass to machine axes; yields between passes so the links stay serviced."""
-        import asyncio
 
         self.passes, self.fine = {}, {}
         if not any("axes" in p for la in job.get("layers", []) for p in la.get("passes", [])):
@@ -277,8 +278,6 @@ def _round_down(k: float) -> float:
 def limit_time_scale(cfg: Any, job: dict, max_step_mm: float = 2.0) -> tuple[Any, str | None]:
     """cfg with cell.time_scale lowered to what the CNC link can feed for `job` (CNC cells, simulated
     time only), and the message saying so; (cfg, None) when nothing was lowered."""
-    from controller.motion.kinematics import Trunnion
-
     if cfg.cell.platform != "cnc" or cfg.cell.time_scale <= 1.0:
         return cfg, None
     lim = feed_limit(job, Trunnion.from_config(cfg.kinematics), cfg.devices.cnc.baud, max_step_mm)
