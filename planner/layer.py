@@ -8,6 +8,7 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
+from planner.balance import partition_shares
 from planner.gapfill import centre_lines, pocket_line
 from planner.infill import scan_fill
 from planner.ordering import join_chains, link_into_loops, order_passes, seam_at
@@ -59,7 +60,7 @@ def plan_layer(polys: list[Polygon], index: int, ctx: LayerCtx, pos: np.ndarray)
             b = poly.bounds
             issues.append(f"layer {index}: feature at ({c.x:.1f}, {c.y:.1f}), {b[2] - b[0]:.2f} x {b[3] - b[1]:.2f} mm, "
                           f"gets no bead of at least {ctx.min_length:.1f} mm (min_bead_length_mm)")
-        _balance_island(groups, poly)
+        _balance_island(groups, poly, ctx.width)
         per_island.append(groups)
     ordered, pos, travel = order_islands(per_island, pos)
     return LayerPlan(region, ordered, pos, travel, stats, issues, stubs, per_island)
@@ -140,18 +141,15 @@ def _thick(t: Polygon, index: int, angle: float, ctx: LayerCtx, groups: list[lis
     groups[2] += [seam_at(b, index) if b.closed else b for b in gaps]
 
 
-def _balance_island(groups: list[list[Path2D]], poly: Polygon) -> None:
-    """Scale the shares of overlapped beads so the island's metal fills its area (lone beads keep theirs)."""
+def _balance_island(groups: list[list[Path2D]], poly: Polygon, width: float) -> None:
+    """Each bead's share: the part of the island nearest to it (planner.balance.partition_shares),
+    so the island's beads lay its area × h exactly, lone beads their wall's whole section."""
     beads = [b for g in groups for b in g]
-    if not beads or any(b.lone for b in beads):
+    if not beads:
         return
-    planned = sum(b.share_mm * b.length for b in beads)
-    if planned <= 0:
-        return
-    # Round caps and joins make the strips a little approximate: the scale is bounded.
-    k = float(np.clip(poly.area / planned, 0.8, 1.25))
+    shares = iter(partition_shares(poly, beads, width).tolist())
     for g in groups:
-        g[:] = [Path2D(b.role, b.points, b.width_mm, b.closed, b.share_mm * k, b.lone) for b in g]
+        g[:] = [Path2D(b.role, b.points, b.width_mm, b.closed, next(shares), b.lone) for b in g]
 
 
 def reseamed(lp: LayerPlan, index: int, pos: np.ndarray) -> LayerPlan:

@@ -11,7 +11,7 @@ from planner import limits
 from core.errors import EnvelopeError, InputError, MeshError
 from core.material import Material
 from planner import five_axis
-from planner.balance import balance_error, balanced_speed
+from planner.balance import balance_error, balanced_speed, laid_area_mm2
 from planner.bead import area_factor, step_over
 from planner.ding import close_share
 from planner.five_axis import FiveAxisOptions
@@ -143,6 +143,10 @@ def plan_part(mesh_or_path, options: PlanOptions,
         regions.append(lp.region)
         z = float((sl.index + 1) * height)
         passes = _passes(paths, sl, z, proc, verdict)
+        if q.area_mm2 > 0 and passes:  # the layer's metal against its section x h (DESIGN §3.7)
+            laid = sum(laid_area_mm2(material.wire_diameter_mm, p.wfs_m_min, p.speed_mm_min) * p.length_mm
+                       for p in passes)
+            verdict.layer_balance(abs(laid - q.area_mm2 * height) / (q.area_mm2 * height))
         n_passes += len(passes)
         time_s += lp.travel_mm / TRAVEL_MM_MIN * 60.0 + len(passes) * ARC_START_S
         arc_s = sum(p.length_mm / p.speed_mm_min * 60.0 for p in passes)
@@ -236,8 +240,7 @@ def _as_welded(p: Path2D, proc: _Process) -> Path2D:
     w = proc.point(p.width_mm).width_mm
     if abs(w - p.width_mm) < 1e-9:
         return p
-    share = p.share_mm * w / p.width_mm if p.lone else p.share_mm
-    return Path2D(p.role, p.points, w, p.closed, share, p.lone)
+    return Path2D(p.role, p.points, w, p.closed, p.share_mm, p.lone)  # the share is the section it fills
 
 
 def _passes(paths: list[Path2D], sl: LayerSlice, z: float, proc: _Process, verdict: Verdict) -> list[Pass]:

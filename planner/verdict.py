@@ -20,6 +20,7 @@ class Verdict:
         self.overhang_layers: list[int] = []
         self.regions = 0
         self.worst_balance = 0.0
+        self.worst_layer_balance = 0.0  # |metal laid - section x h| / (section x h), worst layer
         self.close = (0.0, 0)  # Ding: worst share of bead length with a too-close neighbour, its layer
 
     def layer(self, index: int, lp, q, below, height: float) -> None:
@@ -43,6 +44,9 @@ class Verdict:
     def balance(self, err: float) -> None:
         self.worst_balance = max(self.worst_balance, err)
 
+    def layer_balance(self, err: float) -> None:
+        self.worst_layer_balance = max(self.worst_layer_balance, err)
+
     def finish(self, name: str, qualities) -> dict:
         """Summary fields; raises MeshError for what the options do not allow."""
         if self.regions == 0:
@@ -62,6 +66,7 @@ class Verdict:
         return {
             "coverage_min_layer": worst,
             "mass_balance_max_error": round(self.worst_balance, 5),
+            "mass_balance_layer_max": round(self.worst_layer_balance, 5),
             "close_neighbour_max": round(self.close[0], 4),  # below min_step_over_ratio x width
             "close_neighbour_layer": self.close[1],
             "overhang_layers": self.overhang_layers,
