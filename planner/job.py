@@ -42,6 +42,7 @@ class Pass:
     points: np.ndarray  # (n, 3) mm
     normals: np.ndarray | None = None  # (n, 3) unit facet normals (perimeters), optional
     axes: np.ndarray | None = None     # (n, 3) unit tool axes in the part frame (5-axis plans)
+    inside_envelope: bool = True       # False only under --allow-outside (written only then)
 
     @property
     def length_mm(self) -> float:
@@ -97,6 +98,8 @@ def job_to_dict(job: Job) -> dict[str, Any]:
                 d["normals"] = _arr(p.normals, 4)
             if p.axes is not None:
                 d["axes"] = _arr(p.axes, 5)
+            if not p.inside_envelope:
+                d["inside_envelope"] = False
             passes.append(d)
         ld: dict[str, Any] = {"index": L.index, "z_mm": _num(L.z_mm, 4), "height_mm": _num(L.height_mm, 4),
                               "passes": passes}
@@ -157,6 +160,27 @@ def _axes(p: dict, pw: str, n: int) -> np.ndarray | None:
     return ax
 
 
+def _pass(p: Any, pw: str) -> Pass:
+    role = _get(p, "role", pw)
+    if role not in ROLES:
+        raise InputError(f"job file: {pw}.role is {role!r}, expected one of {', '.join(ROLES)}")
+    pts = _points(_get(p, "points", pw), f"{pw}.points")
+    if len(pts) < 2:
+        raise InputError(f"job file: {pw}.points needs at least 2 points")
+    normals = None
+    if "normals" in p:
+        normals = _points(p["normals"], f"{pw}.normals")
+        if len(normals) != len(pts):
+            raise InputError(f"job file: {pw}.normals has {len(normals)} rows for {len(pts)} points")
+    axes = _axes(p, pw, len(pts))
+    inside = p.get("inside_envelope", True)
+    if not isinstance(inside, bool):
+        raise InputError(f"job file: {pw}.inside_envelope must be true or false")
+    return Pass(role, _number(p, "width_mm", pw, True), _number(p, "current_a", pw, True),
+                _number(p, "speed_mm_min", pw, True), _number(p, "wfs_m_min", pw, True),
+                pts, normals, axes, inside)
+
+
 def load_job(d: Any) -> Job:
     """Validate a parsed `cell-job/1` object; a bad field raises InputError naming it."""
     schema = _get(d, "schema", "")
@@ -183,24 +207,7 @@ def load_job(d: Any) -> Job:
         raw_passes = _get(L, "passes", w)
         if not isinstance(raw_passes, list):
             raise InputError(f"job file: {w}.passes must be a list")
-        passes = []
-        for j, p in enumerate(raw_passes):
-            pw = f"{w}.passes[{j}]"
-            role = _get(p, "role", pw)
-            if role not in ROLES:
-                raise InputError(f"job file: {pw}.role is {role!r}, expected one of {', '.join(ROLES)}")
-            pts = _points(_get(p, "points", pw), f"{pw}.points")
-            if len(pts) < 2:
-                raise InputError(f"job file: {pw}.points needs at least 2 points")
-            normals = None
-            if "normals" in p:
-                normals = _points(p["normals"], f"{pw}.normals")
-                if len(normals) != len(pts):
-                    raise InputError(f"job file: {pw}.normals has {len(normals)} rows for {len(pts)} points")
-            axes = _axes(p, pw, len(pts))
-            passes.append(Pass(role, _number(p, "width_mm", pw, True), _number(p, "current_a", pw, True),
-                               _number(p, "speed_mm_min", pw, True), _number(p, "wfs_m_min", pw, True),
-                               pts, normals, axes))
+        passes = [_pass(p, f"{w}.passes[{j}]") for j, p in enumerate(raw_passes)]
         ip = None
         if "interpass" in L:
             ip = Interpass(_number(L["interpass"], "max_temperature_c", f"{w}.interpass"),

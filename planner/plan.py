@@ -8,23 +8,23 @@ from typing import Callable
 import numpy as np
 
 from planner import limits
-from core.errors import EnvelopeError, InputError, MeshError
+from core.errors import InputError, MeshError
 from core.material import Material
 from planner import five_axis
-from planner.balance import balance_error, balanced_speed, laid_area_mm2
+from planner.balance import laid_area_mm2
 from planner.bead import area_factor, step_over
 from planner.ding import close_share
 from planner.five_axis import FiveAxisOptions
-from planner.job import BeadInfo, Interpass, Job, Layer, Pass, Source
+from planner.job import BeadInfo, Interpass, Job, Layer, Source
 from planner.layer import LayerCtx, plan_layer, reseamed
 from planner.mesh import PreparedMesh, check_size, prepare_mesh, read_mesh
-from planner.path2d import Path2D
-from planner.process import ProcessPoint, inverse
+from planner.process import inverse
 from planner.regions import islands
 from planner.slicer import LayerSlice, slice_levels, slice_mesh
 from planner.summary import ARC_START_S, TRAVEL_MM_MIN, LayerQuality, layer_quality, summarise
 from planner.thin import legal_widths
 from planner.verdict import Verdict
+from planner.weld import CellLimits, Process, as_welded, weld_passes
 
 Progress = Callable[[int, int], None]
 
@@ -43,6 +43,7 @@ class PlanOptions:
     workspace_mm: tuple[float, float, float] | None = None  # the cell's room: a larger part is refused
     five_axis: FiveAxisOptions | None = None  # tool axes per point (planner/five_axis.py)
     frame: str = "substrate"  # substrate: lowest point on z = 0; cad: keep the CAD coordinates (repair)
+    cell_limits: CellLimits = CellLimits()  # speeds and source range of the cell (cell.yaml limits)
 
     def __post_init__(self) -> None:
         if isinstance(self.perimeters, str):  # "all" or "3", as on the command line
@@ -63,34 +64,6 @@ class PlanOptions:
             raise InputError(f"--perimeters: must be 0..1000 or 'all', got {self.perimeters}")
 
 
-class _Process:
-    """Welding points per bead width at the layer height, cached."""
-
-    def __init__(self, material: Material, height: float, allow_outside: bool, nominal: float):
-        self.material, self.height, self.allow, self.nominal = material, height, allow_outside, nominal
-        self.cache: dict[float, ProcessPoint] = {}
-
-    def point(self, width: float) -> ProcessPoint:
-        w = round(float(width), 3)
-        if w not in self.cache:
-            self.cache[w] = self._solve(w)
-        return self.cache[w]
-
-    def _solve(self, w: float) -> ProcessPoint:
-        try:
-            return inverse(self.material, w, self.height, allow_outside=self.allow)
-        except EnvelopeError:
-            if w == round(self.nominal, 3):
-                raise
-        # A gap bead whose width the envelope cannot weld: the nearest weldable width toward nominal.
-        for cand in np.linspace(w, self.nominal, 9)[1:]:
-            try:
-                return inverse(self.material, round(float(cand), 3), self.height)
-            except EnvelopeError:
-                continue
-        return inverse(self.material, self.nominal, self.height, allow_outside=self.allow)
-
-
 def plan_part(mesh_or_path, options: PlanOptions,
               material: Material, progress: Progress | None = None) -> Job:
     """Plan a part (a path, a trimesh.Trimesh or a PreparedMesh) into a `cell-job/1` Job.
@@ -105,7 +78,7 @@ def plan_part(mesh_or_path, options: PlanOptions,
     check_size(mesh, w, height)
     limits.check_before_slicing(mesh.source.file, mesh.vertices, mesh.faces, height, options.workspace_mm)
     step = step_over(w, overlap_model=material.bead.overlap_model, profile=material.bead.profile)
-    proc = _Process(material, height, options.allow_outside, w)
+    proc = Process(material, height, options.allow_outside, w)
     ctx = LayerCtx(w, step, options.perimeters, options.infill_angle_deg,
                    legal_widths(material, height, w, step / w, options.allow_outside),
                    area_factor(material.bead.profile), material.min_bead_length_mm or 2.0 * w)
@@ -129,7 +102,7 @@ def plan_part(mesh_or_path, options: PlanOptions,
         hit = memo.get(polys, sl.index, pos, proc)
         if hit is None:
             lp = plan_layer(polys, sl.index, ctx, pos)
-            paths = [_as_welded(p, proc) for p in lp.paths]
+            paths = [as_welded(p, proc) for p in lp.paths]
             q = layer_quality(lp.region, paths, w, height)
             close = close_share(paths, material.bead.min_step_over_ratio, w)
             memo.put(polys, sl.index, lp, (q, close))
@@ -142,7 +115,9 @@ def plan_part(mesh_or_path, options: PlanOptions,
         below = lp.region
         regions.append(lp.region)
         z = float((sl.index + 1) * height)
-        passes = _passes(paths, sl, z, proc, verdict)
+        passes, worst, adjusted = weld_passes(paths, sl, z, proc, options.cell_limits, verdict.limits)
+        verdict.balance(worst)
+        verdict.wfs_adjusted += adjusted
         if q.area_mm2 > 0 and passes:  # the layer's metal against its section x h (DESIGN §3.7)
             laid = sum(laid_area_mm2(material.wire_diameter_mm, p.wfs_m_min, p.speed_mm_min) * p.length_mm
                        for p in passes)
@@ -198,13 +173,13 @@ class _LayerMemo:
         norm = shapely.normalize(shapely.set_precision(np.asarray(polys, dtype=object), 1e-6))
         return (b"".join(shapely.to_wkb(norm).tolist()), index % 2)
 
-    def get(self, polys: list, index: int, pos: np.ndarray, proc: "_Process"):
+    def get(self, polys: list, index: int, pos: np.ndarray, proc: Process):
         hit = self.seen.get(self._key(polys, index))
         if hit is None:
             return None
         lp, q = hit
         lp = reseamed(lp, index, pos)
-        return lp, [_as_welded(p, proc) for p in lp.paths], q
+        return lp, [as_welded(p, proc) for p in lp.paths], q
 
     def put(self, polys: list, index: int, lp, q) -> None:
         if len(self.seen) >= 64:  # bounded: a prism repeats the layer just below
@@ -233,43 +208,3 @@ def _fail_on_open(slices: list[LayerSlice], name: str, w: float) -> None:
     more = f"; and {len(bad) - 8} more" if len(bad) > 8 else ""
     raise MeshError(f"{name}: {len(bad)} open contour(s) wider than the gap tolerance ({0.5 * w:g} mm): "
                     + "; ".join(lines) + more + "; close the mesh (e.g. in a mesh repair tool) and plan again")
-
-
-def _as_welded(p: Path2D, proc: _Process) -> Path2D:
-    """The bead as the process will weld it: a gap bead may come out wider than its pocket."""
-    w = proc.point(p.width_mm).width_mm
-    if abs(w - p.width_mm) < 1e-9:
-        return p
-    return Path2D(p.role, p.points, w, p.closed, p.share_mm, p.lone)  # the share is the section it fills
-
-
-def _passes(paths: list[Path2D], sl: LayerSlice, z: float, proc: _Process, verdict: Verdict) -> list[Pass]:
-    closed = [c for c in sl.contours if c.closed]
-    nrm = np.vstack([c.normals for c in closed]) if closed else None
-    per = [p for p in paths if p.role == "perimeter"]
-    near = iter(())
-    if per and closed:  # one nearest-point query for every perimeter point of the layer
-        idx = _nearest(np.vstack([p.points for p in per]), np.vstack([c.points for c in closed]))
-        near = iter(np.split(idx, np.cumsum([len(p.points) for p in per])[:-1]))
-    out = []
-    for p in paths:
-        pp = proc.point(p.width_mm)
-        pts = np.column_stack([p.points, np.full(len(p.points), z)])
-        normals = nrm[next(near)] if p.role == "perimeter" and closed else None
-        # Mass balance: the speed at which this pass lays the cross-section it fills.
-        filled = max(p.share_mm, 0.05 * p.width_mm) * proc.height
-        speed = round(balanced_speed(proc.material.wire_diameter_mm, pp.wfs_m_min, filled), 1)
-        verdict.balance(balance_error(proc.material.wire_diameter_mm, round(pp.wfs_m_min, 3), speed, filled))
-        out.append(Pass(p.role, pp.width_mm, pp.current_a, speed, pp.wfs_m_min, pts, normals))
-    return out
-
-
-def _nearest(q: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Index of the nearest contour point for each query point (shapely's STRtree: no scipy import)."""
-    import shapely
-
-    tree = shapely.STRtree(shapely.points(pts))
-    hit = tree.query_nearest(shapely.points(q), all_matches=False)
-    out = np.zeros(len(q), dtype=np.int64)
-    out[hit[0]] = hit[1]
-    return out

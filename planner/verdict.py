@@ -20,6 +20,8 @@ class Verdict:
         self.overhang_layers: list[int] = []
         self.regions = 0
         self.worst_balance = 0.0
+        self.limits: list[tuple[str, bool]] = []  # beads outside the cell's limits (message, fatal anyway)
+        self.wfs_adjusted = 0  # passes whose wire feed was moved to keep the speed in the cell's range
         self.worst_layer_balance = 0.0  # |metal laid - section x h| / (section x h), worst layer
         self.close = (0.0, 0)  # Ding: worst share of bead length with a too-close neighbour, its layer
 
@@ -60,6 +62,9 @@ class Verdict:
             fatal += _listed("layer(s) beyond the overhang rule (Kerschbaumer: step out <= dz*tan "
                              f"{self.mat.max_overhang_deg:g} deg and <= w/2)", self.overhang,
                              "--allow-overhang (or a 5-axis plan)")
+        hard = [m for m, h in self.limits if h or not self.opt.allow_outside]
+        fatal += _listed("bead(s) outside the cell's limits (cell.yaml limits, the material's envelope)", hard,
+                         "--allow-outside, inside the power source's range,")
         if fatal:
             raise MeshError(f"{name}: " + "; ".join(fatal))
         worst = min(range(len(qualities)), key=lambda i: qualities[i].coverage) if qualities else 0
@@ -72,7 +77,12 @@ class Verdict:
             "overhang_layers": self.overhang_layers,
             "underfill_features": len(self.underfill),
             "stubs_dropped": len(self.stubs),
-            "warnings": (self.underfill + self.coverage + self.overhang + self.stubs)[:50],
+            "limits": {"max_speed_mm_min": self.opt.cell_limits.max_speed_mm_min,
+                       "min_speed_mm_min": self.opt.cell_limits.min_speed_mm_min,
+                       "wfs_adjusted_passes": self.wfs_adjusted,
+                       "outside_passes": len(self.limits)},
+            "warnings": (self.underfill + self.coverage + self.overhang + self.stubs
+                         + [m for m, _ in self.limits])[:50],
         }
 
 

@@ -5,9 +5,12 @@ import argparse
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from core.errors import CellError, ConfigError, InputError
+
+if TYPE_CHECKING:  # the planner (numpy, shapely) is imported on use: `cell plan --help` stays fast
+    from planner.weld import CellLimits
 
 LONG_PLAN_FACES = 200_000  # above this a progress bar is shown even when stderr is not a terminal
 
@@ -99,15 +102,21 @@ def _material(name: str | None):
     return load_material(name)
 
 
-def _workspace() -> tuple[float, float, float] | None:
-    """The cell's workspace extent (config/cell.yaml): a part larger than it is refused before slicing."""
+def _cell_limits() -> tuple[tuple[float, float, float] | None, CellLimits]:
+    """The cell's workspace extent (a part larger than it is refused before slicing) and its speed and
+    source limits (a bead outside them is refused at plan time), from config/cell.yaml; the
+    planner's defaults (cell.yaml's own) without one."""
     from core.config import load_cell
+    from planner.weld import CellLimits
 
     try:
         lim = load_cell().limits
     except CellError:
-        return None
-    return tuple(float(b - a) for a, b in zip(lim.workspace_min_mm, lim.workspace_max_mm))  # type: ignore[return-value]
+        return None, CellLimits()
+    lo, hi = lim.workspace_min_mm, lim.workspace_max_mm
+    room = (float(hi[0] - lo[0]), float(hi[1] - lo[1]), float(hi[2] - lo[2]))
+    return room, CellLimits(lim.max_speed_mm_min, lim.min_weld_speed_mm_min, lim.source_current_max_a,
+                            lim.source_wfs_max_m_min)
 
 
 class _Bar:
@@ -139,10 +148,11 @@ def run(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     material = _material(args.material)
+    workspace, cell_limits = _cell_limits()
     options = PlanOptions(width_mm=args.width, layer_height_mm=args.layer_height, perimeters=args.perimeters,
                           units=args.units, allow_outside=args.allow_outside,
                           allow_underfill=args.allow_underfill, allow_overhang=args.allow_overhang,
-                          min_coverage=args.min_coverage, workspace_mm=_workspace(), frame=args.frame,
+                          min_coverage=args.min_coverage, workspace_mm=workspace, cell_limits=cell_limits, frame=args.frame,
                           five_axis=_five_axis(args.five_axis))
     mesh = read_mesh(args.mesh, args.units)
     bar = _Bar(sys.stderr.isatty() or len(mesh.faces) >= LONG_PLAN_FACES)
