@@ -21,6 +21,7 @@ from planner.mesh import PreparedMesh, check_size, prepare_mesh, read_mesh
 from planner.process import inverse
 from planner.regions import islands
 from planner.slicer import LayerSlice, slice_levels, slice_mesh
+from planner.stubs import drop_short
 from planner.summary import ARC_START_S, TRAVEL_MM_MIN, LayerQuality, layer_quality, summarise
 from planner.thin import legal_widths
 from planner.verdict import Verdict
@@ -108,6 +109,7 @@ def plan_part(mesh_or_path, options: PlanOptions,
             memo.put(polys, sl.index, lp, (q, close))
         else:
             lp, paths, (q, close) = hit
+        paths = drop_short(paths, ctx.min_length, sl.index, verdict.stubs)
         verdict.ding(sl.index, close)
         pos = lp.end
         qualities.append(q)

@@ -21,6 +21,8 @@ class LayerQuality:
     volume_mm3: float
     deposit_mm: float
     layer_volume_mm3: float = 0.0  # layer area x layer height, what the beads should fill
+    # unfilled areas larger than one bead's footprint (π·w²/4): (x, y, area mm², width mm) each
+    gaps: tuple[tuple[float, float, float, float], ...] = ()
 
     @property
     def coverage(self) -> float:
@@ -37,11 +39,38 @@ def layer_quality(region, paths: list[Path2D], width: float, height: float) -> L
     fp = shapely.union_all(shapely.buffer(lines, widths / 2.0, quad_segs=4))
     covered = float(shapely.intersection(fp, region).area)
     outside = float(shapely.difference(fp, region).area)
+    gaps = unfilled(region, fp, width) if covered < area - 0.25 * np.pi * width * width else ()
     lengths = shapely.length(lines)
     # The metal the passes lay (mass balance): each bead's share of the layer times its length.
     share = np.array([p.share_mm for p in paths])
     return LayerQuality(area, covered, float(fp.area), outside, float(np.sum(share * lengths) * height),
-                        float(lengths.sum()), area * height)
+                        float(lengths.sum()), area * height, gaps)
+
+
+def unfilled(region: shapely.Geometry, footprint: shapely.Geometry,
+             width: float) -> tuple[tuple[float, float, float, float], ...]:
+    """The pieces of the layer no bead covers that are larger than one bead's footprint (π·w²/4):
+    (x, y) of a point inside each, its area and its mean width (2·area / perimeter), largest first.
+    Slivers thinner than 5 % of a bead on average (the seam between two touching beads) are the
+    neighbours' flow, not features."""
+    rest = shapely.get_parts(shapely.difference(region, footprint))
+    if len(rest) == 0:
+        return ()
+    areas = shapely.area(rest)
+    big = rest[areas > 0.25 * np.pi * width * width]
+    out = []
+    for g in big:
+        mean_w = 2.0 * float(g.area) / max(float(g.length), 1e-9)
+        if mean_w < 0.05 * width:
+            continue
+        c = g.representative_point()
+        out.append((round(float(c.x), 1), round(float(c.y), 1), round(float(g.area), 1), round(mean_w, 2)))
+    return tuple(sorted(out, key=lambda t: (-t[2], t[0], t[1])))
+
+
+def gap_message(index: int, gap: tuple[float, float, float, float]) -> str:
+    x, y, a, wd = gap
+    return f"layer {index}: unfilled area at ({x:.1f}, {y:.1f}), {a:.0f} mm2, about {wd:.2f} mm wide"
 
 
 def summarise(qualities: list[LayerQuality], n_passes: int, time_s: float) -> dict:

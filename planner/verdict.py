@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from core.errors import MeshError
 from planner.overhang import check_overhang
+from planner.summary import gap_message
 
 MAX_LISTED = 6
 
@@ -16,6 +17,7 @@ class Verdict:
         self.underfill: list[str] = []
         self.coverage: list[str] = []
         self.stubs: list[str] = []
+        self.unfilled: list[str] = []  # unfilled areas over one bead's footprint, named
         self.overhang: list[str] = []
         self.overhang_layers: list[int] = []
         self.regions = 0
@@ -30,8 +32,12 @@ class Verdict:
         self.regions += not lp.region.is_empty
         self.underfill += lp.issues
         self.stubs += lp.stubs
+        gaps = [gap_message(index, g) for g in q.gaps]
+        self.unfilled += gaps
         if q.area_mm2 > 0 and q.coverage < self.opt.min_coverage:
-            self.coverage.append(f"layer {index}: {100 * q.coverage:.1f} % covered (< {100 * self.opt.min_coverage:.0f} %)")
+            where = (": " + "; ".join(m.split(": ", 1)[1] for m in gaps[:3])) if gaps else ""
+            self.coverage.append(f"layer {index}: {100 * q.coverage:.1f} % covered "
+                                 f"(< {100 * self.opt.min_coverage:.0f} %){where}")
         oh = check_overhang(below, lp.region, height, self.ctx.width, self.mat.max_overhang_deg)
         if not oh.ok:
             self.overhang_layers.append(index)
@@ -77,11 +83,14 @@ class Verdict:
             "overhang_layers": self.overhang_layers,
             "underfill_features": len(self.underfill),
             "stubs_dropped": len(self.stubs),
+            "stubs": self.stubs[:50],
+            "unfilled_features": len(self.unfilled),
+            "unfilled": self.unfilled[:50],
             "limits": {"max_speed_mm_min": self.opt.cell_limits.max_speed_mm_min,
                        "min_speed_mm_min": self.opt.cell_limits.min_speed_mm_min,
                        "wfs_adjusted_passes": self.wfs_adjusted,
                        "outside_passes": len(self.limits)},
-            "warnings": (self.underfill + self.coverage + self.overhang + self.stubs
+            "warnings": (self.underfill + self.coverage + self.overhang + self.stubs + self.unfilled
                          + [m for m, _ in self.limits])[:50],
         }
 
