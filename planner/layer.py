@@ -9,6 +9,7 @@ import shapely
 from shapely.geometry import Polygon
 
 from planner.balance import partition_shares
+from planner.nearnet import allowance_for
 from planner.gapfill import centre_lines, pocket_line
 from planner.infill import scan_fill
 from planner.ordering import join_chains, link_into_loops, order_passes, seam_at
@@ -17,6 +18,9 @@ from planner.perimeters import perimeter_loops, split_thin
 from planner.regions import polygons_of
 from planner.stubs import no_stubs
 from planner.thin import Widths, layout, thin_beads, wall_width
+
+
+ALLOWANCE_HINT = "buildable with --machining-allowance"
 
 
 @dataclass(frozen=True)
@@ -30,6 +34,7 @@ class LayerCtx:
     widths: Widths
     lone_share: float  # profile area / (w·h): what a lone bead fills
     min_length: float
+    allowance: float = 0.0  # machining allowance the islands were grown by (mm)
 
 
 @dataclass
@@ -83,18 +88,27 @@ def _island(poly: Polygon, index: int, angle: float, ctx: LayerCtx, stats: dict,
         c = t.representative_point()
         if lay is None:
             issues.append(f"layer {index}: feature at ({c.x:.1f}, {c.y:.1f}) is {W:.2f} mm wide, narrower than "
-                          f"the smallest legal bead ({ctx.widths.lo:.2f} mm)")
+                          f"the smallest legal bead ({ctx.widths.lo:.2f} mm)" + _hint(W, ctx))
             continue
         beads, wide = thin_beads(t, lay, ctx.lone_share, ctx.widths, W)
         if wide or (lay.n > 1 and lay.filled < 0.97 * W):
             Wn = max(wide, default=W)
             issues.append(f"layer {index}: wall at ({c.x:.1f}, {c.y:.1f}) is {Wn:.2f} mm wide: no count of legal "
-                          f"beads ({ctx.widths.lo:.2f}-{ctx.widths.hi:.2f} mm) fills it; {ctx.widths.hi:.2f} mm filled")
+                          f"beads ({ctx.widths.lo:.2f}-{ctx.widths.hi:.2f} mm) fills it; {ctx.widths.hi:.2f} mm filled"
+                          + _hint(Wn, ctx))
         stats["regions"] += sum(1 for b in beads if not b.closed) or bool(beads)
         stats["loops"] += sum(1 for b in beads if b.closed)
         groups[0] += [seam_at(b, index) if b.closed else b for b in beads if b.role == "perimeter"]
         groups[2] += [seam_at(b, index) if b.closed else b for b in beads if b.role != "perimeter"]
     return groups
+
+
+def _hint(W: float, ctx: LayerCtx) -> str:
+    """What machining allowance would make a refused feature buildable (near-net, DESIGN §3.9)."""
+    extra = allowance_for(W, ctx.widths, 2.0 * ctx.width)
+    if extra is None:
+        return ""
+    return f" ({ALLOWANCE_HINT} {ctx.allowance + extra:.2f} mm)"
 
 
 def _thick(t: Polygon, index: int, angle: float, ctx: LayerCtx, groups: list[list[Path2D]], stats: dict) -> None:

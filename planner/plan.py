@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+import shapely
 
 from planner import limits
 from core.errors import InputError, MeshError
@@ -17,6 +18,7 @@ from planner.ding import close_share
 from planner.five_axis import FiveAxisOptions
 from planner.job import BeadInfo, Interpass, Job, Layer, Source
 from planner.layer import LayerCtx, plan_layer, reseamed
+from planner.nearnet import grow, layer_count
 from planner.mesh import PreparedMesh, check_size, prepare_mesh, read_mesh
 from planner.process import inverse
 from planner.regions import islands
@@ -45,6 +47,7 @@ class PlanOptions:
     five_axis: FiveAxisOptions | None = None  # tool axes per point (planner/five_axis.py)
     frame: str = "substrate"  # substrate: lowest point on z = 0; cad: keep the CAD coordinates (repair)
     cell_limits: CellLimits = CellLimits()  # speeds and source range of the cell (cell.yaml limits)
+    machining_allowance_mm: float | None = None  # near-net stock per face; None: the material's, else 0
 
     def __post_init__(self) -> None:
         if isinstance(self.perimeters, str):  # "all" or "3", as on the command line
@@ -61,6 +64,9 @@ class PlanOptions:
             raise InputError(f"--frame: '{self.frame}' is not substrate or cad")
         if not (0.0 <= self.min_coverage <= 1.0):
             raise InputError(f"--min-coverage: must be between 0 and 1, got {self.min_coverage}")
+        a = self.machining_allowance_mm
+        if a is not None and not (0.0 <= a <= 100.0):
+            raise InputError(f"--machining-allowance: must be between 0 and 100 mm, got {a}")
         if self.perimeters is not None and not (0 <= self.perimeters <= 1000):
             raise InputError(f"--perimeters: must be 0..1000 or 'all', got {self.perimeters}")
 
@@ -80,13 +86,16 @@ def plan_part(mesh_or_path, options: PlanOptions,
     limits.check_before_slicing(mesh.source.file, mesh.vertices, mesh.faces, height, options.workspace_mm)
     step = step_over(w, overlap_model=material.bead.overlap_model, profile=material.bead.profile)
     proc = Process(material, height, options.allow_outside, w)
+    allowance = _allowance(options, material)
     ctx = LayerCtx(w, step, options.perimeters, options.infill_angle_deg,
                    legal_widths(material, height, w, step / w, options.allow_outside),
-                   area_factor(material.bead.profile), material.min_bead_length_mm or 2.0 * w)
+                   area_factor(material.bead.profile), material.min_bead_length_mm or 2.0 * w, allowance)
     levels = slice_levels(float(mesh.extents[2]), height)
     gap_tols = (1e-6, 0.01 * w, 0.1 * w, 0.5 * w)
     slices = slice_mesh(mesh.vertices, mesh.faces, mesh.face_normals, levels, gap_tols)
     _fail_on_open(slices, mesh.source.file, w)
+    n_net = len(slices)
+    slices = _with_top(slices, layer_count(float(mesh.extents[2]), height, allowance, n_net), height)
     verdict = Verdict(options, material, ctx)
     layers: list[Layer] = []
     qualities: list[LayerQuality] = []
@@ -99,14 +108,17 @@ def plan_part(mesh_or_path, options: PlanOptions,
     regions = []  # each layer's outline, for the 5-axis overhang rule
     memo = _LayerMemo()
     for sl in slices:
-        polys = islands([c.points for c in sl.contours if c.closed], simplify_mm=0.005 * w)
-        hit = memo.get(polys, sl.index, pos, proc)
+        net = islands([c.points for c in sl.contours if c.closed], simplify_mm=0.005 * w)
+        polys = grow(net, allowance)
+        top = sl.index >= n_net  # a layer of the top's stock (near-net): no net contour in it
+        hit = memo.get(polys, sl.index, pos, proc, top)
         if hit is None:
             lp = plan_layer(polys, sl.index, ctx, pos)
             paths = [as_welded(p, proc) for p in lp.paths]
-            q = layer_quality(lp.region, paths, w, height)
+            stock_of = shapely.union_all(net) if allowance > 0 and not top and net else None
+            q = layer_quality(lp.region, paths, w, height, stock_of)
             close = close_share(paths, material.bead.min_step_over_ratio, w)
-            memo.put(polys, sl.index, lp, (q, close))
+            memo.put(polys, sl.index, lp, (q, close), top)
         else:
             lp, paths, (q, close) = hit
         paths = drop_short(paths, ctx.min_length, sl.index, verdict.stubs)
@@ -139,6 +151,8 @@ def plan_part(mesh_or_path, options: PlanOptions,
     summary = summarise(qualities, n_passes, time_s)
     summary["arc_time_s"] = round(arc_time_s, 1)
     summary.update(verdict.finish(mesh.source.file, qualities))
+    summary["machining"] = _machining(allowance, qualities, len(slices) * height - float(mesh.extents[2]),
+                                      len(slices) - n_net)
     summary["repairs"] = list(mesh.repairs)
     summary["open_contours"] = []
     summary["closed_gaps"] = sum(1 for sl in slices for c in sl.contours if c.gap_mm > 1e-6)
@@ -169,24 +183,50 @@ class _LayerMemo:
         self.seen: dict[tuple, tuple] = {}
 
     @staticmethod
-    def _key(polys: list, index: int) -> tuple:
-        import shapely
-
+    def _key(polys: list, index: int, tag: bool) -> tuple:
         norm = shapely.normalize(shapely.set_precision(np.asarray(polys, dtype=object), 1e-6))
-        return (b"".join(shapely.to_wkb(norm).tolist()), index % 2)
+        return (b"".join(shapely.to_wkb(norm).tolist()), index % 2, tag)
 
-    def get(self, polys: list, index: int, pos: np.ndarray, proc: Process):
-        hit = self.seen.get(self._key(polys, index))
+    def get(self, polys: list, index: int, pos: np.ndarray, proc: Process, tag: bool = False):
+        hit = self.seen.get(self._key(polys, index, tag))
         if hit is None:
             return None
         lp, q = hit
         lp = reseamed(lp, index, pos)
         return lp, [as_welded(p, proc) for p in lp.paths], q
 
-    def put(self, polys: list, index: int, lp, q) -> None:
+    def put(self, polys: list, index: int, lp, q, tag: bool = False) -> None:
         if len(self.seen) >= 64:  # bounded: a prism repeats the layer just below
             self.seen.clear()
-        self.seen[self._key(polys, index)] = (lp, q)
+        self.seen[self._key(polys, index, tag)] = (lp, q)
+
+
+def _allowance(options: PlanOptions, material: Material) -> float:
+    """The machining allowance: the option's, else the material's, else 0 (net shape)."""
+    if options.machining_allowance_mm is not None:
+        return float(options.machining_allowance_mm)
+    return float(material.machining_allowance_mm or 0.0)
+
+
+def _with_top(slices: list[LayerSlice], count: int, height: float) -> list[LayerSlice]:
+    """The slices, and layers repeating the top one's contours up to `count` (the top's stock)."""
+    if count <= len(slices) or not slices:
+        return slices
+    top = slices[-1]
+    return slices + [LayerSlice(i, (i + 0.5) * height, top.contours) for i in range(len(slices), count)]
+
+
+def _machining(allowance: float, qualities: list[LayerQuality], top_mm: float, added: int) -> dict:
+    """The summary's near-net record: allowance, stock left to machine per face, layers added on top."""
+    out: dict = {"allowance_mm": round(allowance, 3)}
+    if allowance <= 0:
+        return out
+    st = [q.stock for q in qualities if q.stock is not None]
+    out["stock_mm"] = {"side_min": round(min((s[0] for s in st), default=0.0), 3),
+                       "side_max": round(max((s[1] for s in st), default=0.0), 3),
+                       "top": round(top_mm, 3), "bottom": 0.0}
+    out["top_layers_added"] = added
+    return out
 
 
 def _mesh(m, units: str) -> PreparedMesh:

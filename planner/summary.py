@@ -6,6 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
+from planner.nearnet import side_stock
 from planner.path2d import Path2D
 
 TRAVEL_MM_MIN = 6000.0  # assumed torch travel speed between beads (arc off)
@@ -23,13 +24,15 @@ class LayerQuality:
     layer_volume_mm3: float = 0.0  # layer area x layer height, what the beads should fill
     # unfilled areas larger than one bead's footprint (π·w²/4): (x, y, area mm², width mm) each
     gaps: tuple[tuple[float, float, float, float], ...] = ()
+    stock: tuple[float, float] | None = None  # near-net: (min, max) side stock from the net contour, mm
 
     @property
     def coverage(self) -> float:
         return self.covered_mm2 / self.area_mm2 if self.area_mm2 > 0 else 1.0
 
 
-def layer_quality(region, paths: list[Path2D], width: float, height: float) -> LayerQuality:
+def layer_quality(region, paths: list[Path2D], width: float, height: float,
+                  net: shapely.Geometry | None = None) -> LayerQuality:
     """Coverage = share of the layer inside the union of bead footprints (round-capped, at width)."""
     area = float(region.area)
     if not paths:
@@ -44,7 +47,8 @@ def layer_quality(region, paths: list[Path2D], width: float, height: float) -> L
     # The metal the passes lay (mass balance): each bead's share of the layer times its length.
     share = np.array([p.share_mm for p in paths])
     return LayerQuality(area, covered, float(fp.area), outside, float(np.sum(share * lengths) * height),
-                        float(lengths.sum()), area * height, gaps)
+                        float(lengths.sum()), area * height, gaps,
+                        side_stock(net, fp, width) if net is not None else None)
 
 
 def unfilled(region: shapely.Geometry, footprint: shapely.Geometry,

@@ -3,6 +3,9 @@ allows it, becomes a warning in the summary). Nothing is dropped silently (DESIG
 from __future__ import annotations
 
 from core.errors import MeshError
+import re
+
+from planner.layer import ALLOWANCE_HINT
 from planner.overhang import check_overhang
 from planner.summary import gap_message
 
@@ -61,8 +64,12 @@ class Verdict:
             raise MeshError(f"{name}: no layer has a closed region (the mesh is not a solid: a triangle soup "
                             f"or open surfaces); close the mesh and plan again")
         fatal: list[str] = []
+        fix = _allowance_fixes(self.underfill)
         if not self.opt.allow_underfill:
             fatal += _listed("feature(s) no legal bead fills", self.underfill, "--allow-underfill")
+            if fix:
+                fatal.append(f"--machining-allowance {max(fix.values()):.2f} would make {len(fix)} of the "
+                             f"{len(self.underfill)} buildable")
             fatal += _listed("layer(s) below --min-coverage", self.coverage, "--allow-underfill")
         if not self.opt.allow_overhang and getattr(self.opt, "five_axis", None) is None:  # 5-axis: five_axis.apply
             fatal += _listed("layer(s) beyond the overhang rule (Kerschbaumer: step out <= dz*tan "
@@ -84,6 +91,7 @@ class Verdict:
             "underfill_features": len(self.underfill),
             "stubs_dropped": len(self.stubs),
             "stubs": self.stubs[:50],
+            "allowance_would_fix": [{"feature": m, "allowance_mm": a} for m, a in list(fix.items())[:50]],
             "unfilled_features": len(self.unfilled),
             "unfilled": self.unfilled[:50],
             "limits": {"max_speed_mm_min": self.opt.cell_limits.max_speed_mm_min,
@@ -100,3 +108,13 @@ def _listed(what: str, items: list[str], flag: str) -> list[str]:
         return []
     more = f"; and {len(items) - MAX_LISTED} more" if len(items) > MAX_LISTED else ""
     return [f"{len(items)} {what}: " + "; ".join(items[:MAX_LISTED]) + more + f" ({flag} to plan anyway)"]
+
+
+def _allowance_fixes(messages: list[str]) -> dict[str, float]:
+    """Refused features a machining allowance would make buildable: {message: allowance mm}."""
+    out: dict[str, float] = {}
+    for m in messages:
+        found = re.search(ALLOWANCE_HINT + r" ([0-9.]+) mm", m)
+        if found:
+            out[m] = float(found.group(1))
+    return out

@@ -138,13 +138,13 @@ def weld_passes(paths: list[Path2D], sl: LayerSlice, z: float, proc: Process, li
         normals = nrm[next(near_it)] if p.role == "perimeter" and nrm is not None else None
         filled = max(p.share_mm, 0.05 * p.width_mm) * proc.height
         wd = balanced_weld(pp, filled, proc.material, lim)
-        speed, wfs = round(wd.speed_mm_min, 1), round(wd.wfs_m_min, 3)
-        worst = max(worst, balance_error(d, wfs, speed, filled))
+        speed = round(wd.speed_mm_min, 1)
+        worst = max(worst, balance_error(d, round(wd.wfs_m_min, 3), speed, filled))  # as written in the job
         adjusted += wd.adjusted
         if wd.problem is not None:
             hard = "power source" in wd.problem
             findings.append((f"layer {sl.index}: {bead_name(i, p)} needs {wd.problem}", hard))
-        out.append(Pass(p.role, pp.width_mm, wd.current_a, speed, wfs, pts, normals,
+        out.append(Pass(p.role, pp.width_mm, wd.current_a, speed, wd.wfs_m_min, pts, normals,
                         inside_envelope=wd.inside_envelope))
     return out, worst, adjusted
 

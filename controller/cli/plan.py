@@ -37,6 +37,16 @@ def _positive(value: str) -> float:
     return x
 
 
+def _allowance(value: str) -> float:
+    try:
+        x = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{value}' is not a number of mm") from None
+    if not 0.0 <= x <= 100.0:
+        raise argparse.ArgumentTypeError(f"{value}: must be between 0 and 100 mm")
+    return x
+
+
 def _fraction(value: str) -> float:
     try:
         x = float(value)
@@ -67,6 +77,9 @@ def register(sub: Any) -> None:
                    help="plan layers stepping out beyond the overhang rule, with warnings")
     p.add_argument("--min-coverage", type=_fraction, default=0.97, metavar="F",
                    help="least share of every layer covered by beads (default 0.97)")
+    p.add_argument("--machining-allowance", type=_allowance, metavar="MM",
+                   help="near-net: grow every layer and the top by MM of stock to machine "
+                        "(default: the material's machining_allowance_mm, else 0)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--frame", choices=("substrate", "cad"), default="substrate",
                    help="substrate: the part's lowest point on z = 0 (default); cad: keep the CAD coordinates")
@@ -152,7 +165,8 @@ def run(args: argparse.Namespace) -> int:
     options = PlanOptions(width_mm=args.width, layer_height_mm=args.layer_height, perimeters=args.perimeters,
                           units=args.units, allow_outside=args.allow_outside,
                           allow_underfill=args.allow_underfill, allow_overhang=args.allow_overhang,
-                          min_coverage=args.min_coverage, workspace_mm=workspace, cell_limits=cell_limits, frame=args.frame,
+                          min_coverage=args.min_coverage, workspace_mm=workspace, cell_limits=cell_limits,
+                          machining_allowance_mm=args.machining_allowance, frame=args.frame,
                           five_axis=_five_axis(args.five_axis))
     mesh = read_mesh(args.mesh, args.units)
     bar = _Bar(sys.stderr.isatty() or len(mesh.faces) >= LONG_PLAN_FACES)
@@ -185,6 +199,13 @@ def run(args: argparse.Namespace) -> int:
               f"coverage {100 * s['coverage']:.1f} % (min {100 * s['coverage_min']:.1f} % at layer "
               f"{s['coverage_min_layer']}), overfill {100 * s['overfill']:.2f} %, mass balance within "
               f"{100 * s['mass_balance_max_error']:.2f} %, about {s['est_time_s'] / 60:.0f} min")
+        mach = s.get("machining", {})
+        if mach.get("allowance_mm"):
+            st = mach["stock_mm"]
+            print(f"  near-net: {mach['allowance_mm']:g} mm allowance; stock to machine: sides "
+                  f"{st['side_min']:.2f}-{st['side_max']:.2f} mm, top {st['top']:.2f} mm, bottom {st['bottom']:.2f} mm")
+        for fx in s.get("allowance_would_fix", [])[:6]:
+            print(f"  buildable with --machining-allowance {fx['allowance_mm']:g}: {fx['feature'].split(' (buildable')[0]}")
         for r in s["repairs"]:
             print(f"  repaired: {r}")
         for wmsg in s["warnings"]:
