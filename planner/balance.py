@@ -12,6 +12,7 @@ from typing import Sequence
 
 import numpy as np
 import shapely
+import shapely.errors
 from shapely.geometry import Polygon
 
 from planner.path2d import Path2D
@@ -32,35 +33,60 @@ def balance_error(wire_diameter_mm: float, wfs_m_min: float, speed_mm_min: float
     return abs(laid_area_mm2(wire_diameter_mm, wfs_m_min, speed_mm_min) - filled_mm2) / filled_mm2
 
 
-MAX_SAMPLES = 20_000  # sample points per island: the partition's cost is bounded on large layers
-
-
 def partition_shares(island: Polygon, beads: Sequence[Path2D], width: float) -> np.ndarray:
     """The width of the strip each bead fills (mm): the island's area nearest to its centre line
     divided by its length (DESIGN.md §3.7, docs/planner.md "Mass balance").
 
-    The island is split among its beads by nearest centre line (a Voronoi partition of the bead
-    paths, sampled on a grid about w/5 apart), so the shares add up to the island's area exactly:
-    a lone bead fills its wall's whole section, an outermost loop the half step-over plus the
-    edge, a pocket bead the pocket. Deterministic (a fixed grid, ties to the lower index).
+    The island is split among its beads by nearest centre line: the Voronoi diagram of points
+    every w/8 along the beads, cells gathered by bead and clipped to the island. The shares add
+    up to the island's area exactly: a lone bead fills its wall's whole section, an outermost
+    loop the half step-over plus the edge, a pocket bead its pocket. Deterministic.
     """
     n = len(beads)
     lengths = np.array([b.length for b in beads])
     area = float(island.area)
     if n == 0 or area <= 0.0:
         return np.zeros(n)
-    minx, miny, maxx, maxy = island.bounds
-    g = max(width / 5.0, float(np.sqrt(area / MAX_SAMPLES)))
-    xs = np.arange(minx + 0.5 * g, maxx, g)
-    ys = np.arange(miny + 0.5 * g, maxy, g)
-    gx, gy = np.meshgrid(xs, ys)
-    px, py = gx.ravel(), gy.ravel()
-    inside = shapely.contains_xy(island, px, py)
-    if not inside.any():  # smaller than the grid: shared by length
+    if n == 1:
+        return np.array([area / max(float(lengths[0]), 1e-9)])
+    pts, owner = _samples(beads, width / 8.0)
+    cells = shapely.get_parts(shapely.voronoi_polygons(shapely.multipoints(pts), extend_to=island, ordered=True))
+    if len(cells) != len(pts):  # degenerate input (GEOS merged points): share by length
         return np.full(n, area / max(float(lengths.sum()), 1e-9))
-    pts = shapely.points(np.column_stack([px[inside], py[inside]]))
-    lines = np.array([shapely.linestrings(b.points) for b in beads], dtype=object)
-    hit = shapely.STRtree(lines).query_nearest(pts, all_matches=False)
-    counts = np.bincount(hit[1], minlength=n).astype(np.float64)
-    near = counts / counts.sum() * area
+    bad = ~shapely.is_valid(cells)  # GEOS can leave a sliver cell self-intersecting
+    cells[bad] = shapely.make_valid(cells[bad])
+    try:
+        areas = _clipped_areas(cells, island)
+    except shapely.errors.GEOSException:  # a topology conflict of nearly coincident edges: snap both
+        areas = _clipped_areas(shapely.make_valid(shapely.set_precision(cells, 1e-6)),
+                               shapely.make_valid(shapely.set_precision(island, 1e-6)))
+    near = np.bincount(owner, weights=areas, minlength=n)
+    near *= area / max(float(near.sum()), 1e-12)  # the cells tile the island: rounding only
     return near / np.maximum(lengths, 1e-9)
+
+
+def _clipped_areas(cells: np.ndarray, island: shapely.Geometry) -> np.ndarray:
+    """Area of each cell inside the island (cells wholly inside are not clipped)."""
+    shapely.prepare(island)
+    areas = shapely.area(cells)
+    edge = ~shapely.contains(island, cells)
+    areas[edge] = shapely.area(shapely.intersection(cells[edge], island))
+    return np.asarray(areas, dtype=np.float64)
+
+
+def _samples(beads: Sequence[Path2D], spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points every `spacing` along each bead (vertices included), without duplicates; and their bead."""
+    pts, owner = [], []
+    for i, b in enumerate(beads):
+        seg = np.linalg.norm(np.diff(b.points, axis=0), axis=1)
+        k = np.maximum(np.ceil(seg / spacing).astype(np.int64), 1)
+        t = np.concatenate([np.arange(m) / m for m in k])
+        start = np.repeat(b.points[:-1], k, axis=0)
+        step = np.repeat(np.diff(b.points, axis=0), k, axis=0)
+        p = np.vstack([start + t[:, None] * step, b.points[-1:]])
+        pts.append(p)
+        owner.append(np.full(len(p), i, dtype=np.int64))
+    allp, allo = np.vstack(pts), np.concatenate(owner)
+    _, first = np.unique(np.round(allp, 5), axis=0, return_index=True)
+    first.sort()
+    return allp[first], allo[first]

@@ -100,7 +100,7 @@ def _layer_directions(job: Job) -> list[np.ndarray]:
 
 def _raw_axes(p: Pass, layer_dir: np.ndarray) -> np.ndarray:
     ax = np.tile(layer_dir, (len(p.points), 1))
-    if p.normals is None or p.role != "perimeter":
+    if p.normals is None:  # boundary beads (perimeters, lone beads of a single-bead wall) carry normals
         return ax
     n = _unit_rows(np.asarray(p.normals, dtype=float))
     g = np.cross(n, _tangents(p.points))
@@ -199,7 +199,7 @@ def overhangs(job: Job, max_overhang_deg: float = 30.0,
         limit = min(w / 2.0, dz * np.tan(np.radians(max_overhang_deg)))
         worst, where = 0.0, None
         for p in layer.passes:
-            if p.role != "perimeter":  # the part's boundary is what steps out; infill lies inside it
+            if p.role != "perimeter" and p.normals is None:  # the boundary steps out (loops, lone beads)
                 continue
             ax = p.axes if p.axes is not None else np.tile(Z, (len(p.points), 1))
             foot = p.points - ax * (dz / np.maximum(ax[:, 2:3], 1e-6))

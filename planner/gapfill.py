@@ -118,7 +118,7 @@ def _axis_beads(poly: Polygon, width: float, min_width: float) -> list[tuple[np.
         if not closed:
             # The axis runs out into the corners where the inscribed circle shrinks to nothing:
             # the bead stops where the circle is still nearly the typical one (its cap fills the end).
-            keep = np.flatnonzero(radii >= 0.9 * r_med)
+            keep = np.flatnonzero(radii >= 0.97 * r_med)
             path = path[keep[0]:keep[-1] + 1]
         if len(path) < 2:
             continue

@@ -25,6 +25,7 @@ class LayerQuality:
     # unfilled areas larger than one bead's footprint (π·w²/4): (x, y, area mm², width mm) each
     gaps: tuple[tuple[float, float, float, float], ...] = ()
     stock: tuple[float, float] | None = None  # near-net: (min, max) side stock from the net contour, mm
+    largest: tuple[tuple[float, float, float, float], ...] = ()  # the 3 largest unfilled pieces, any size
 
     @property
     def coverage(self) -> float:
@@ -42,18 +43,21 @@ def layer_quality(region, paths: list[Path2D], width: float, height: float,
     fp = shapely.union_all(shapely.buffer(lines, widths / 2.0, quad_segs=4))
     covered = float(shapely.intersection(fp, region).area)
     outside = float(shapely.difference(fp, region).area)
-    gaps = unfilled(region, fp, width) if covered < area - 0.25 * np.pi * width * width else ()
+    # what no bead covers: the pieces over one bead's footprint are features; the three largest
+    # of any size say where a layer under --min-coverage is short
+    rest = unfilled(region, fp, width, 0.05 * width * width) if covered < area - 0.05 * width * width else ()
+    gaps = tuple(g for g in rest if g[2] > 0.25 * np.pi * width * width)
     lengths = shapely.length(lines)
     # The metal the passes lay (mass balance): each bead's share of the layer times its length.
     share = np.array([p.share_mm for p in paths])
     return LayerQuality(area, covered, float(fp.area), outside, float(np.sum(share * lengths) * height),
                         float(lengths.sum()), area * height, gaps,
-                        side_stock(net, fp, width) if net is not None else None)
+                        side_stock(net, fp, width) if net is not None else None, rest[:3])
 
 
-def unfilled(region: shapely.Geometry, footprint: shapely.Geometry,
-             width: float) -> tuple[tuple[float, float, float, float], ...]:
-    """The pieces of the layer no bead covers that are larger than one bead's footprint (π·w²/4):
+def unfilled(region: shapely.Geometry, footprint: shapely.Geometry, width: float,
+             min_area: float | None = None) -> tuple[tuple[float, float, float, float], ...]:
+    """The pieces of the layer no bead covers larger than `min_area` (default one bead's footprint, π·w²/4):
     (x, y) of a point inside each, its area and its mean width (2·area / perimeter), largest first.
     Slivers thinner than 5 % of a bead on average (the seam between two touching beads) are the
     neighbours' flow, not features."""
@@ -61,7 +65,7 @@ def unfilled(region: shapely.Geometry, footprint: shapely.Geometry,
     if len(rest) == 0:
         return ()
     areas = shapely.area(rest)
-    big = rest[areas > 0.25 * np.pi * width * width]
+    big = rest[areas > (0.25 * np.pi * width * width if min_area is None else min_area)]
     out = []
     for g in big:
         mean_w = 2.0 * float(g.area) / max(float(g.length), 1e-9)

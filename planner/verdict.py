@@ -38,7 +38,7 @@ class Verdict:
         gaps = [gap_message(index, g) for g in q.gaps]
         self.unfilled += gaps
         if q.area_mm2 > 0 and q.coverage < self.opt.min_coverage:
-            where = (": " + "; ".join(m.split(": ", 1)[1] for m in gaps[:3])) if gaps else ""
+            where = "".join("; " + gap_message(index, g).split(": ", 1)[1] for g in q.largest)
             self.coverage.append(f"layer {index}: {100 * q.coverage:.1f} % covered "
                                  f"(< {100 * self.opt.min_coverage:.0f} %){where}")
         oh = check_overhang(below, lp.region, height, self.ctx.width, self.mat.max_overhang_deg)

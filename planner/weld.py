@@ -123,7 +123,9 @@ def weld_passes(paths: list[Path2D], sl: LayerSlice, z: float, proc: Process, li
     """
     closed = [c for c in sl.contours if c.closed]
     nrm = np.vstack([c.normals for c in closed]) if closed else None
-    per = [p for p in paths if p.role == "perimeter"]
+    # Boundary beads carry the facet normals: perimeters, and lone beads (a single-bead wall's
+    # surface normal gives its build direction for a 5-axis plan).
+    per = [p for p in paths if p.role == "perimeter" or p.lone]
     near: list[np.ndarray] = []
     if per and closed:  # one nearest-point query for every perimeter point of the layer
         idx = _nearest(np.vstack([p.points for p in per]), np.vstack([c.points for c in closed]))
@@ -135,7 +137,7 @@ def weld_passes(paths: list[Path2D], sl: LayerSlice, z: float, proc: Process, li
     for i, p in enumerate(paths):
         pp = proc.point(p.width_mm)
         pts = np.column_stack([p.points, np.full(len(p.points), z)])
-        normals = nrm[next(near_it)] if p.role == "perimeter" and nrm is not None else None
+        normals = nrm[next(near_it)] if (p.role == "perimeter" or p.lone) and nrm is not None else None
         filled = max(p.share_mm, 0.05 * p.width_mm) * proc.height
         wd = balanced_weld(pp, filled, proc.material, lim)
         speed = round(wd.speed_mm_min, 1)

@@ -24,10 +24,14 @@ def _laid(p) -> float:
 
 def _class_areas(section, layer, grid: float) -> dict[str, float]:
     """Area of the section nearest to each bead class's centre lines."""
-    minx, miny, maxx, maxy = section.bounds
-    gx, gy = np.meshgrid(np.arange(minx + grid / 2, maxx, grid), np.arange(miny + grid / 2, maxy, grid))
-    ok = shapely.contains_xy(section, gx.ravel(), gy.ravel())
-    pts = shapely.points(np.column_stack([gx.ravel()[ok], gy.ravel()[ok]]))
+    # a grid turned 0.3 rad off the axes: straight beads along x or y do not alias with its rows
+    c, s_ = np.cos(0.3), np.sin(0.3)
+    cx, cy = section.centroid.x, section.centroid.y
+    r = float(np.hypot(section.bounds[2] - section.bounds[0], section.bounds[3] - section.bounds[1])) / 2 + grid
+    u, v = np.meshgrid(np.arange(-r, r, grid), np.arange(-r, r, grid))
+    x, y = cx + c * u.ravel() - s_ * v.ravel(), cy + s_ * u.ravel() + c * v.ravel()
+    ok = shapely.contains_xy(section, x, y)
+    pts = shapely.points(np.column_stack([x[ok], y[ok]]))
     lines = np.array([shapely.linestrings(p.points[:, :2]) for p in layer.passes], dtype=object)
     d = np.stack([shapely.distance(pts, ln) for ln in lines])
     near = np.argmin(d, axis=0)
