@@ -205,7 +205,7 @@ def run_part(name: str, mesh: trimesh.Trimesh, width: float, material, allowance
     except MeshError as exc:
         verdict = f"error: {exc}"
     t_strict = time.perf_counter() - t0
-    job = plan_part(mesh, PlanOptions(width_mm=width, allow_underfill=True, allow_overhang=True,
+    job = plan_part(mesh, PlanOptions(width_mm=width, allow_underfill=True, allow_overhang=True, allow_outside=True,
                                       machining_allowance_mm=allowance), material)
     row = {"part": name, "width_mm": width, "layers": len(job.layers),
            "passes": sum(len(L.passes) for L in job.layers), "plan_s": round(t_strict, 2), "verdict": verdict,

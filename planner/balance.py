@@ -50,9 +50,14 @@ def partition_shares(island: Polygon, beads: Sequence[Path2D], width: float) -> 
     if n == 1:
         return np.array([area / max(float(lengths[0]), 1e-9)])
     pts, owner = _samples(beads, width / 8.0)
-    cells = shapely.get_parts(shapely.voronoi_polygons(shapely.multipoints(pts), extend_to=island, ordered=True))
-    if len(cells) != len(pts):  # degenerate input (GEOS merged points): share by length
-        return np.full(n, area / max(float(lengths.sum()), 1e-9))
+    # A ring of far points around the island: the unbounded cells are theirs, not a bead's (GEOS
+    # leaves hull cells clipped to an envelope self-intersecting; bounded ones come out right).
+    frame = _frame(island, width)
+    allp = np.vstack([pts, frame])
+    cells = shapely.get_parts(shapely.voronoi_polygons(shapely.multipoints(allp), ordered=True))
+    if len(cells) != len(allp):  # degenerate input (GEOS merged points): share by length
+        return np.full(n, area / max(float(lengths.sum()), 1e-12))
+    cells = cells[:len(pts)]
     bad = ~shapely.is_valid(cells)  # GEOS can leave a sliver cell self-intersecting
     cells[bad] = shapely.make_valid(cells[bad])
     try:
@@ -60,9 +65,19 @@ def partition_shares(island: Polygon, beads: Sequence[Path2D], width: float) -> 
     except shapely.errors.GEOSException:  # a topology conflict of nearly coincident edges: snap both
         areas = _clipped_areas(shapely.make_valid(shapely.set_precision(cells, 1e-6)),
                                shapely.make_valid(shapely.set_precision(island, 1e-6)))
-    near = np.bincount(owner, weights=areas, minlength=n)
-    near *= area / max(float(near.sum()), 1e-12)  # the cells tile the island: rounding only
-    return near / np.maximum(lengths, 1e-9)
+    near = np.bincount(owner, weights=areas, minlength=n).astype(np.float64)
+    near = near * (area / max(float(near.sum()), 1e-12))  # the cells tile the island: rounding only
+    out: np.ndarray = near / np.maximum(lengths, 1e-9)
+    return out
+
+
+def _frame(island: Polygon, width: float) -> np.ndarray:
+    """Points on a circle 2 w beyond the island's bounding box, about w apart."""
+    minx, miny, maxx, maxy = island.bounds
+    r = 0.5 * float(np.hypot(maxx - minx, maxy - miny)) + 2.0 * width
+    k = int(2.0 * np.pi * r / width) + 8
+    ang = np.arange(k) * (2.0 * np.pi / k)
+    return np.column_stack([0.5 * (minx + maxx) + r * np.cos(ang), 0.5 * (miny + maxy) + r * np.sin(ang)])
 
 
 def _clipped_areas(cells: np.ndarray, island: shapely.Geometry) -> np.ndarray:

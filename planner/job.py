@@ -81,9 +81,10 @@ def _num(x: float, nd: int) -> float:
     return 0.0 if v == 0 else v  # no "-0.0" in the file
 
 
-def _arr(a: np.ndarray, nd: int) -> list:
+def _arr(a: np.ndarray, nd: int) -> list[Any]:
     r = np.round(np.asarray(a, dtype=np.float64), nd) + 0.0
-    return r.tolist()
+    out: list[Any] = r.tolist()
+    return out
 
 
 def job_to_dict(job: Job) -> dict[str, Any]:
@@ -130,7 +131,7 @@ def _get(d: Any, key: str, where: str) -> Any:
     return d[key]
 
 
-def _number(d: dict, key: str, where: str, positive: bool = False) -> float:
+def _number(d: dict[str, Any], key: str, where: str, positive: bool = False) -> float:
     v = _get(d, key, where)
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
         raise InputError(f"job file: {where}.{key} must be a number, got {v!r}")
@@ -149,7 +150,7 @@ def _points(v: Any, where: str) -> np.ndarray:
     return a
 
 
-def _axes(p: dict, pw: str, n: int) -> np.ndarray | None:
+def _axes(p: dict[str, Any], pw: str, n: int) -> np.ndarray | None:
     if "axes" not in p:
         return None
     ax = _points(p["axes"], f"{pw}.axes")

@@ -21,6 +21,7 @@ from planner.thin import Widths, layout, thin_beads, wall_width
 
 
 ALLOWANCE_HINT = "buildable with --machining-allowance"
+Groups = list[list[Path2D]]  # an island's beads: [perimeters, infill, gaps]
 
 
 @dataclass(frozen=True)
@@ -39,14 +40,14 @@ class LayerCtx:
 
 @dataclass
 class LayerPlan:
-    region: object
+    region: shapely.Geometry
     paths: list[Path2D]
     end: np.ndarray
     travel_mm: float
-    stats: dict = field(default_factory=dict)
+    stats: dict[str, int] = field(default_factory=dict)
     issues: list[str] = field(default_factory=list)  # underfill: for the plan's verdict
     stubs: list[str] = field(default_factory=list)  # short beads dropped (no neighbour to merge into)
-    groups: list = field(default_factory=list)  # per island: [perimeters, infill, gaps], before ordering
+    groups: list[Groups] = field(default_factory=list)  # per island: [perimeters, infill, gaps], before ordering
 
 
 def plan_layer(polys: list[Polygon], index: int, ctx: LayerCtx, pos: np.ndarray) -> LayerPlan:
@@ -71,7 +72,8 @@ def plan_layer(polys: list[Polygon], index: int, ctx: LayerCtx, pos: np.ndarray)
     return LayerPlan(region, ordered, pos, travel, stats, issues, stubs, per_island)
 
 
-def _island(poly: Polygon, index: int, angle: float, ctx: LayerCtx, stats: dict, issues: list[str]):
+def _island(poly: Polygon, index: int, angle: float, ctx: LayerCtx, stats: dict[str, int],
+            issues: list[str]) -> Groups:
     w = ctx.width
     thick, thin = split_thin(poly, w)
     # A piece narrower than two perimeters a side (w + 3 d*) gets the thin layout too: perimeters
@@ -111,12 +113,13 @@ def _hint(W: float, ctx: LayerCtx) -> str:
     return f" ({ALLOWANCE_HINT} {ctx.allowance + extra:.2f} mm)"
 
 
-def _thick(t: Polygon, index: int, angle: float, ctx: LayerCtx, groups: list[list[Path2D]], stats: dict) -> None:
+def _thick(t: Polygon, index: int, angle: float, ctx: LayerCtx, groups: Groups, stats: dict[str, int]) -> None:
     w, step = ctx.width, ctx.step
     min_sp = ctx.widths.r_lo * w
     slivers: list[Polygon] = []
     if ctx.perimeters == 0:
-        loops, inset = [], 0.5 * w - step  # infill centres from half a bead inside
+        loops: list[list[Path2D]] = []
+        inset = 0.5 * w - step  # infill centres from half a bead inside
     else:
         loops, inset, slivers = perimeter_loops(t, w, step, ctx.perimeters, min_spacing=min_sp)
     stats["loops"] += sum(len(lv) for lv in loops)
@@ -170,22 +173,25 @@ def reseamed(lp: LayerPlan, index: int, pos: np.ndarray) -> LayerPlan:
     """The same layer plan for another layer index: seams moved on, beads ordered from `pos`."""
     groups = [[[seam_at(p, index) if p.closed else p for p in g] for g in isl] for isl in lp.groups]
     ordered, end, travel = order_islands(groups, pos)
-    relayer = lambda m: re.sub(r"^layer \d+:", f"layer {index}:", m)  # noqa: E731
+    tag = f"layer {index}:"
     return replace(lp, paths=ordered, end=end, travel_mm=travel, groups=groups,
-                   issues=[relayer(m) for m in lp.issues], stubs=[relayer(m) for m in lp.stubs])
+                   issues=[re.sub(r"^layer \d+:", tag, m) for m in lp.issues],
+                   stubs=[re.sub(r"^layer \d+:", tag, m) for m in lp.stubs])
 
 
-def order_islands(per_island: list[list[list[Path2D]]], pos: np.ndarray) -> tuple[list[Path2D], np.ndarray, float]:
+def _nearest_end(ends: np.ndarray, pos: np.ndarray) -> float:
+    return float(np.min(np.hypot(*(ends - pos).T))) if len(ends) else float("inf")
+
+
+def order_islands(per_island: list[Groups], pos: np.ndarray) -> tuple[list[Path2D], np.ndarray, float]:
     """Islands nearest first from `pos`, each ordered by `order_passes`; (beads, end, travel)."""
     ordered: list[Path2D] = []
     travel = 0.0
     todo = list(range(len(per_island)))
+    ends = [np.array([p.points[k] for g in isl for p in g for k in (0, -1)]).reshape(-1, 2) for isl in per_island]
     while todo:
         # Next island: the one whose nearest bead end is closest to where the torch is.
-        def near(i: int) -> float:
-            ends = [p.points[k] for g in per_island[i] for p in g for k in (0, -1)]
-            return min((float(np.hypot(*(e - pos))) for e in ends), default=np.inf)
-        i = min(todo, key=near)
+        i = min(todo, key=lambda k: _nearest_end(ends[k], pos))
         todo.remove(i)
         seq, end = order_passes(per_island[i], pos)
         for p in seq:

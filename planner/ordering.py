@@ -1,6 +1,8 @@
 """Seams, linking infill into perimeter loops, and bead order (nearest neighbour) within a layer."""
 from __future__ import annotations
 
+from typing import Any
+
 import math
 
 import numpy as np
@@ -100,7 +102,7 @@ def order_passes(groups: list[list[Path2D]], start: np.ndarray) -> tuple[list[Pa
     return out, pos
 
 
-def join_chains(chains: list[Path2D], reach: float, corridor) -> list[Path2D]:
+def join_chains(chains: list[Path2D], reach: float, corridor: Any) -> list[Path2D]:
     """Join open beads whose ends lie within `reach` through `corridor`: fewer arc starts."""
     import shapely
 

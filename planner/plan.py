@@ -3,10 +3,11 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 import shapely
+from shapely.geometry import Polygon
 
 from planner import limits
 from core.errors import InputError, MeshError
@@ -17,11 +18,12 @@ from planner.bead import area_factor, step_over
 from planner.ding import close_share
 from planner.five_axis import FiveAxisOptions
 from planner.job import BeadInfo, Interpass, Job, Layer, Source
-from planner.layer import LayerCtx, plan_layer, reseamed
+from planner.layer import LayerCtx, LayerPlan, plan_layer, reseamed
 from planner.nearnet import grow, layer_count
 from planner.mesh import PreparedMesh, check_size, prepare_mesh, read_mesh
 from planner.process import inverse
 from planner.regions import islands
+from planner.path2d import Path2D
 from planner.slicer import LayerSlice, slice_levels, slice_mesh
 from planner.stubs import drop_short
 from planner.summary import ARC_START_S, TRAVEL_MM_MIN, LayerQuality, layer_quality, summarise
@@ -67,11 +69,11 @@ class PlanOptions:
         a = self.machining_allowance_mm
         if a is not None and not (0.0 <= a <= 100.0):
             raise InputError(f"--machining-allowance: must be between 0 and 100 mm, got {a}")
-        if self.perimeters is not None and not (0 <= self.perimeters <= 1000):
+        if isinstance(self.perimeters, int) and not (0 <= self.perimeters <= 1000):
             raise InputError(f"--perimeters: must be 0..1000 or 'all', got {self.perimeters}")
 
 
-def plan_part(mesh_or_path, options: PlanOptions,
+def plan_part(mesh_or_path: Any, options: PlanOptions,
               material: Material, progress: Progress | None = None) -> Job:
     """Plan a part (a path, a trimesh.Trimesh or a PreparedMesh) into a `cell-job/1` Job.
 
@@ -84,86 +86,103 @@ def plan_part(mesh_or_path, options: PlanOptions,
     height = options.layer_height_mm or nominal.height_mm
     check_size(mesh, w, height)
     limits.check_before_slicing(mesh.source.file, mesh.vertices, mesh.faces, height, options.workspace_mm)
-    step = step_over(w, overlap_model=material.bead.overlap_model, profile=material.bead.profile)
-    proc = Process(material, height, options.allow_outside, w)
-    allowance = _allowance(options, material)
-    ctx = LayerCtx(w, step, options.perimeters, options.infill_angle_deg,
-                   legal_widths(material, height, w, step / w, options.allow_outside),
-                   area_factor(material.bead.profile), material.min_bead_length_mm or 2.0 * w, allowance)
-    levels = slice_levels(float(mesh.extents[2]), height)
+    run = _Run(options, material, height)
+    top_z = float(mesh.extents[2])
     gap_tols = (1e-6, 0.01 * w, 0.1 * w, 0.5 * w)
-    slices = slice_mesh(mesh.vertices, mesh.faces, mesh.face_normals, levels, gap_tols)
+    slices = slice_mesh(mesh.vertices, mesh.faces, mesh.face_normals, slice_levels(top_z, height), gap_tols)
     _fail_on_open(slices, mesh.source.file, w)
     n_net = len(slices)
-    slices = _with_top(slices, layer_count(float(mesh.extents[2]), height, allowance, n_net), height)
-    verdict = Verdict(options, material, ctx)
+    slices = _with_top(slices, layer_count(top_z, height, run.ctx.allowance, n_net), height)
     layers: list[Layer] = []
-    qualities: list[LayerQuality] = []
-    pos = np.zeros(2)
-    time_s = 0.0
-    arc_time_s = 0.0          # the beads alone, at their planned speed (the record compares it)
-    n_passes = 0
-    interpass = Interpass(material.interpass.max_temperature_c, material.interpass.dwell_s)
-    below = None
-    regions = []  # each layer's outline, for the 5-axis overhang rule
-    memo = _LayerMemo()
     for sl in slices:
-        net = islands([c.points for c in sl.contours if c.closed], simplify_mm=0.005 * w)
-        polys = grow(net, allowance)
-        top = sl.index >= n_net  # a layer of the top's stock (near-net): no net contour in it
-        hit = memo.get(polys, sl.index, pos, proc, top)
-        if hit is None:
-            lp = plan_layer(polys, sl.index, ctx, pos)
-            paths = [as_welded(p, proc) for p in lp.paths]
-            stock_of = shapely.union_all(net) if allowance > 0 and not top and net else None
-            q = layer_quality(lp.region, paths, w, height, stock_of)
-            close = close_share(paths, material.bead.min_step_over_ratio, w)
-            memo.put(polys, sl.index, lp, (q, close), top)
-        else:
-            lp, paths, (q, close) = hit
-        paths = drop_short(paths, ctx.min_length, sl.index, verdict.stubs)
-        verdict.ding(sl.index, close)
-        pos = lp.end
-        qualities.append(q)
-        verdict.layer(sl.index, lp, q, below, height)
-        below = lp.region
-        regions.append(lp.region)
-        z = float((sl.index + 1) * height)
-        passes, worst, adjusted = weld_passes(paths, sl, z, proc, options.cell_limits, verdict.limits)
-        verdict.balance(worst)
-        verdict.wfs_adjusted += adjusted
-        if q.area_mm2 > 0 and passes:  # the layer's metal against its section x h (DESIGN §3.7)
-            laid = sum(laid_area_mm2(material.wire_diameter_mm, p.wfs_m_min, p.speed_mm_min) * p.length_mm
-                       for p in passes)
-            verdict.layer_balance(abs(laid - q.area_mm2 * height) / (q.area_mm2 * height))
-        n_passes += len(passes)
-        time_s += lp.travel_mm / TRAVEL_MM_MIN * 60.0 + len(passes) * ARC_START_S
-        arc_s = sum(p.length_mm / p.speed_mm_min * 60.0 for p in passes)
-        time_s += arc_s
-        arc_time_s += arc_s
-        if sl.index > 0:
-            time_s += material.interpass.dwell_s
-        layers.append(Layer(sl.index, z, height, tuple(passes), interpass,
-                            {"area_mm2": round(q.area_mm2, 2), "coverage": round(q.coverage, 5),
-                             "perimeter_loops": lp.stats["loops"], "fill_regions": lp.stats["regions"]}))
+        layers.append(run.layer(sl, sl.index >= n_net))
         if progress is not None:
             progress(sl.index + 1, len(slices))
-    summary = summarise(qualities, n_passes, time_s)
-    summary["arc_time_s"] = round(arc_time_s, 1)
-    summary.update(verdict.finish(mesh.source.file, qualities))
-    summary["machining"] = _machining(allowance, qualities, len(slices) * height - float(mesh.extents[2]),
-                                      len(slices) - n_net)
+    summary = summarise(run.qualities, run.n_passes, run.time_s)
+    summary["arc_time_s"] = round(run.arc_time_s, 1)
+    summary.update(run.verdict.finish(mesh.source.file, run.qualities))
+    summary["machining"] = _machining(run.ctx.allowance, run.qualities, len(slices) * height - top_z, len(slices) - n_net)
     summary["repairs"] = list(mesh.repairs)
     summary["open_contours"] = []
     summary["closed_gaps"] = sum(1 for sl in slices for c in sl.contours if c.gap_mm > 1e-6)
     mat = material.model_dump(mode="json")
-    bead = BeadInfo(w, height, step, f"{material.bead.profile}/{material.bead.overlap_model}")
+    bead = BeadInfo(w, height, run.ctx.step, f"{material.bead.profile}/{material.bead.overlap_model}")
     src = Source(mesh.source.file, mesh.source.sha256, mesh.source.units)
     job = Job(src, mat, bead, tuple(layers), summary)
     if options.five_axis is not None:  # the tool tilts to bring the overhangs within the rule
         fa = dataclasses.replace(options.five_axis, max_overhang_deg=material.max_overhang_deg)
-        job = five_axis.apply(job, fa, options.allow_overhang, regions)
+        job = five_axis.apply(job, fa, options.allow_overhang, run.regions)
     return in_frame(job, options.frame, mesh.z_shift_mm)
+
+
+class _Run:
+    """One plan's state carried from layer to layer: the torch position, the verdict, the totals."""
+
+    def __init__(self, options: PlanOptions, material: Material, height: float) -> None:
+        w = options.width_mm
+        step = step_over(w, overlap_model=material.bead.overlap_model, profile=material.bead.profile)
+        perimeters = options.perimeters if not isinstance(options.perimeters, str) else None
+        self.ctx = LayerCtx(w, step, perimeters, options.infill_angle_deg,
+                            legal_widths(material, height, w, step / w, options.allow_outside),
+                            area_factor(material.bead.profile), material.min_bead_length_mm or 2.0 * w,
+                            _allowance(options, material))
+        self.options, self.material, self.height = options, material, height
+        self.proc = Process(material, height, options.allow_outside, w)
+        self.verdict = Verdict(options, material, self.ctx)
+        self.interpass = Interpass(material.interpass.max_temperature_c, material.interpass.dwell_s)
+        self.memo = _LayerMemo()
+        self.pos = np.zeros(2)
+        self.below: shapely.Geometry | None = None
+        self.regions: list[shapely.Geometry] = []  # each layer's outline, for the 5-axis overhang rule
+        self.qualities: list[LayerQuality] = []
+        self.time_s = 0.0
+        self.arc_time_s = 0.0  # the beads alone, at their planned speed (the record compares it)
+        self.n_passes = 0
+
+    def _plan(self, sl: LayerSlice, top: bool) -> tuple[LayerPlan, list[Path2D], LayerQuality, float]:
+        """The layer's beads (from the memo when a layer below had the same islands)."""
+        w, allowance = self.ctx.width, self.ctx.allowance
+        net = islands([c.points for c in sl.contours if c.closed], simplify_mm=0.005 * w)
+        polys = grow(net, allowance)
+        hit = self.memo.get(polys, sl.index, self.pos, self.proc, top)
+        if hit is not None:
+            return hit
+        lp = plan_layer(polys, sl.index, self.ctx, self.pos)
+        paths = [as_welded(p, self.proc) for p in lp.paths]
+        stock_of = shapely.union_all(net) if allowance > 0 and not top and net else None
+        q = layer_quality(lp.region, paths, w, self.height, stock_of)
+        close = close_share(paths, self.material.bead.min_step_over_ratio, w)
+        self.memo.put(polys, sl.index, lp, (q, close), top)
+        return lp, paths, q, close
+
+    def layer(self, sl: LayerSlice, top: bool) -> Layer:
+        """Plan, weld and judge one layer (`top`: a layer of the top's near-net stock)."""
+        lp, paths, q, close = self._plan(sl, top)
+        v, h = self.verdict, self.height
+        paths = drop_short(paths, self.ctx.min_length, sl.index, v.stubs)
+        v.ding(sl.index, close)
+        self.pos = lp.end
+        self.qualities.append(q)
+        v.layer(sl.index, lp, q, self.below, h)
+        self.below = lp.region
+        self.regions.append(lp.region)
+        z = float((sl.index + 1) * h)
+        passes, worst, adjusted = weld_passes(paths, sl, z, self.proc, self.options.cell_limits, v.limits)
+        v.balance(worst)
+        v.wfs_adjusted += adjusted
+        if q.area_mm2 > 0 and passes:  # the layer's metal against its section x h (DESIGN §3.7)
+            laid = sum(laid_area_mm2(self.material.wire_diameter_mm, p.wfs_m_min, p.speed_mm_min) * p.length_mm
+                       for p in passes)
+            v.layer_balance(abs(laid - q.area_mm2 * h) / (q.area_mm2 * h))
+        self.n_passes += len(passes)
+        arc_s = sum(p.length_mm / p.speed_mm_min * 60.0 for p in passes)
+        self.time_s += lp.travel_mm / TRAVEL_MM_MIN * 60.0 + len(passes) * ARC_START_S + arc_s
+        self.arc_time_s += arc_s
+        if sl.index > 0:
+            self.time_s += self.material.interpass.dwell_s
+        return Layer(sl.index, z, h, tuple(passes), self.interpass,
+                     {"area_mm2": round(q.area_mm2, 2), "coverage": round(q.coverage, 5),
+                      "perimeter_loops": lp.stats["loops"], "fill_regions": lp.stats["regions"]})
 
 
 def in_frame(job: Job, frame: str, z_shift_mm: float) -> Job:
@@ -180,22 +199,24 @@ class _LayerMemo:
     is planned the same; its seams move on and its beads are ordered from where the torch is."""
 
     def __init__(self) -> None:
-        self.seen: dict[tuple, tuple] = {}
+        self.seen: dict[tuple[bytes, int, bool], tuple[LayerPlan, tuple[LayerQuality, float]]] = {}
 
     @staticmethod
-    def _key(polys: list, index: int, tag: bool) -> tuple:
+    def _key(polys: list[Polygon], index: int, tag: bool) -> tuple[bytes, int, bool]:
         norm = shapely.normalize(shapely.set_precision(np.asarray(polys, dtype=object), 1e-6))
         return (b"".join(shapely.to_wkb(norm).tolist()), index % 2, tag)
 
-    def get(self, polys: list, index: int, pos: np.ndarray, proc: Process, tag: bool = False):
+    def get(self, polys: list[Polygon], index: int, pos: np.ndarray, proc: Process,
+            tag: bool = False) -> tuple[LayerPlan, list[Path2D], LayerQuality, float] | None:
         hit = self.seen.get(self._key(polys, index, tag))
         if hit is None:
             return None
-        lp, q = hit
+        lp, (q, close) = hit
         lp = reseamed(lp, index, pos)
-        return lp, [as_welded(p, proc) for p in lp.paths], q
+        return lp, [as_welded(p, proc) for p in lp.paths], q, close
 
-    def put(self, polys: list, index: int, lp, q, tag: bool = False) -> None:
+    def put(self, polys: list[Polygon], index: int, lp: LayerPlan, q: tuple[LayerQuality, float],
+            tag: bool = False) -> None:
         if len(self.seen) >= 64:  # bounded: a prism repeats the layer just below
             self.seen.clear()
         self.seen[self._key(polys, index, tag)] = (lp, q)
@@ -216,9 +237,9 @@ def _with_top(slices: list[LayerSlice], count: int, height: float) -> list[Layer
     return slices + [LayerSlice(i, (i + 0.5) * height, top.contours) for i in range(len(slices), count)]
 
 
-def _machining(allowance: float, qualities: list[LayerQuality], top_mm: float, added: int) -> dict:
+def _machining(allowance: float, qualities: list[LayerQuality], top_mm: float, added: int) -> dict[str, Any]:
     """The summary's near-net record: allowance, stock left to machine per face, layers added on top."""
-    out: dict = {"allowance_mm": round(allowance, 3)}
+    out: dict[str, Any] = {"allowance_mm": round(allowance, 3)}
     if allowance <= 0:
         return out
     st = [q.stock for q in qualities if q.stock is not None]
@@ -229,7 +250,7 @@ def _machining(allowance: float, qualities: list[LayerQuality], top_mm: float, a
     return out
 
 
-def _mesh(m, units: str) -> PreparedMesh:
+def _mesh(m: Any, units: str) -> PreparedMesh:
     if isinstance(m, PreparedMesh):
         return m
     if hasattr(m, "faces") and hasattr(m, "vertices"):  # a trimesh.Trimesh

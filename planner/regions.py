@@ -44,7 +44,7 @@ def islands(loops: list[np.ndarray], simplify_mm: float = 0.0) -> list[Polygon]:
     return [p for p in out if p.area > 1e-9]
 
 
-def _polygons(geom) -> list[Polygon]:
+def _polygons(geom: shapely.Geometry) -> list[Polygon]:
     if isinstance(geom, Polygon):
         return [] if geom.is_empty else [geom]
     if isinstance(geom, MultiPolygon):
@@ -54,6 +54,6 @@ def _polygons(geom) -> list[Polygon]:
     return []
 
 
-def polygons_of(geom) -> list[Polygon]:
+def polygons_of(geom: shapely.Geometry) -> list[Polygon]:
     """The polygons inside any shapely geometry (collections flattened, lines dropped)."""
     return _polygons(geom)

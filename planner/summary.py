@@ -1,6 +1,8 @@
 """Plan quality per layer: coverage, underfill, overfill, planned volume; and the job summary."""
 from __future__ import annotations
 
+from typing import Any
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,7 +34,7 @@ class LayerQuality:
         return self.covered_mm2 / self.area_mm2 if self.area_mm2 > 0 else 1.0
 
 
-def layer_quality(region, paths: list[Path2D], width: float, height: float,
+def layer_quality(region: shapely.Geometry, paths: list[Path2D], width: float, height: float,
                   net: shapely.Geometry | None = None) -> LayerQuality:
     """Coverage = share of the layer inside the union of bead footprints (round-capped, at width)."""
     area = float(region.area)
@@ -81,7 +83,7 @@ def gap_message(index: int, gap: tuple[float, float, float, float]) -> str:
     return f"layer {index}: unfilled area at ({x:.1f}, {y:.1f}), {a:.0f} mm2, about {wd:.2f} mm wide"
 
 
-def summarise(qualities: list[LayerQuality], n_passes: int, time_s: float) -> dict:
+def summarise(qualities: list[LayerQuality], n_passes: int, time_s: float) -> dict[str, Any]:
     area = sum(q.area_mm2 for q in qualities)
     cov = sum(q.covered_mm2 for q in qualities) / area if area > 0 else 1.0
     fp = sum(q.footprint_mm2 for q in qualities)

@@ -4,10 +4,17 @@ from __future__ import annotations
 
 from core.errors import MeshError
 import re
+from typing import TYPE_CHECKING, Any
 
-from planner.layer import ALLOWANCE_HINT
+import shapely
+
+from core.material import Material
+from planner.layer import ALLOWANCE_HINT, LayerCtx, LayerPlan
 from planner.overhang import check_overhang
-from planner.summary import gap_message
+from planner.summary import LayerQuality, gap_message
+
+if TYPE_CHECKING:  # plan.py imports this module
+    from planner.plan import PlanOptions
 
 MAX_LISTED = 6
 
@@ -15,7 +22,7 @@ MAX_LISTED = 6
 class Verdict:
     """Collects underfill, coverage, stub, overhang and mass-balance findings layer by layer."""
 
-    def __init__(self, options, material, ctx) -> None:
+    def __init__(self, options: PlanOptions, material: Material, ctx: LayerCtx) -> None:
         self.opt, self.mat, self.ctx = options, material, ctx
         self.underfill: list[str] = []
         self.coverage: list[str] = []
@@ -30,7 +37,8 @@ class Verdict:
         self.worst_layer_balance = 0.0  # |metal laid - section x h| / (section x h), worst layer
         self.close = (0.0, 0)  # Ding: worst share of bead length with a too-close neighbour, its layer
 
-    def layer(self, index: int, lp, q, below, height: float) -> None:
+    def layer(self, index: int, lp: LayerPlan, q: LayerQuality, below: shapely.Geometry | None,
+              height: float) -> None:
         """Findings of one planned layer (`lp`: LayerPlan, `q`: LayerQuality, `below`: region or None)."""
         self.regions += not lp.region.is_empty
         self.underfill += lp.issues
@@ -42,7 +50,7 @@ class Verdict:
             self.coverage.append(f"layer {index}: {100 * q.coverage:.1f} % covered "
                                  f"(< {100 * self.opt.min_coverage:.0f} %){where}")
         oh = check_overhang(below, lp.region, height, self.ctx.width, self.mat.max_overhang_deg)
-        if not oh.ok:
+        if oh.where is not None:
             self.overhang_layers.append(index)
             self.overhang.append(f"layer {index}: steps out {oh.step_out_mm:.2f} mm at ({oh.where[0]:.1f}, "
                                  f"{oh.where[1]:.1f}), more than {oh.limit_mm:.2f} mm, {oh.unsupported_mm2:.0f} mm2 "
@@ -58,7 +66,7 @@ class Verdict:
     def layer_balance(self, err: float) -> None:
         self.worst_layer_balance = max(self.worst_layer_balance, err)
 
-    def finish(self, name: str, qualities) -> dict:
+    def finish(self, name: str, qualities: list[LayerQuality]) -> dict[str, Any]:
         """Summary fields; raises MeshError for what the options do not allow."""
         if self.regions == 0:
             raise MeshError(f"{name}: no layer has a closed region (the mesh is not a solid: a triangle soup "
@@ -71,7 +79,7 @@ class Verdict:
                 fatal.append(f"--machining-allowance {max(fix.values()):.2f} would make {len(fix)} of the "
                              f"{len(self.underfill)} buildable")
             fatal += _listed("layer(s) below --min-coverage", self.coverage, "--allow-underfill")
-        if not self.opt.allow_overhang and getattr(self.opt, "five_axis", None) is None:  # 5-axis: five_axis.apply
+        if not self.opt.allow_overhang and self.opt.five_axis is None:  # 5-axis: five_axis.apply
             fatal += _listed("layer(s) beyond the overhang rule (Kerschbaumer: step out <= dz*tan "
                              f"{self.mat.max_overhang_deg:g} deg and <= w/2)", self.overhang,
                              "--allow-overhang (or a 5-axis plan)")
