@@ -54,7 +54,7 @@ class ProfileFit:
 
 def least_squares(*args: Any, **kwargs: Any) -> Any:
     """scipy's least squares, imported on first use: `cell plan` never fits a profile."""
-    from scipy.optimize import least_squares as ls
+    from scipy.optimize import least_squares as ls  # lazy: `cell plan` never fits (start-up time)
 
     return ls(*args, **kwargs)
 

@@ -236,7 +236,7 @@ def _sample(points: np.ndarray, step: float) -> np.ndarray:
 
 def collisions(job: Job, nozzle: Nozzle, first_only: bool = True) -> list[dict[str, Any]]:
     """Points where the nozzle cone would hit the part built so far (bead centre lines)."""
-    from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree  # lazy: only a 5-axis plan with a nozzle loads scipy (start-up time)
 
     tan_h = np.tan(np.radians(nozzle.half_angle_deg))
     built: list[np.ndarray] = []

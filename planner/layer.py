@@ -85,24 +85,29 @@ def _island(poly: Polygon, index: int, angle: float, ctx: LayerCtx, stats: dict[
         if not n:
             _thick(t, index, angle, ctx, groups, stats)
     for t in thin:
-        W = wall_width(t, 0.02 * w)
-        lay = layout(W, ctx.widths)
-        c = t.representative_point()
-        if lay is None:
-            issues.append(f"layer {index}: feature at ({c.x:.1f}, {c.y:.1f}) is {W:.2f} mm wide, narrower than "
-                          f"the smallest legal bead ({ctx.widths.lo:.2f} mm)" + _hint(W, ctx))
-            continue
-        beads, wide = thin_beads(t, lay, ctx.lone_share, ctx.widths, W)
-        if wide or (lay.n > 1 and lay.filled < 0.97 * W):
-            Wn = max(wide, default=W)
-            issues.append(f"layer {index}: wall at ({c.x:.1f}, {c.y:.1f}) is {Wn:.2f} mm wide: no count of legal "
-                          f"beads ({ctx.widths.lo:.2f}-{ctx.widths.hi:.2f} mm) fills it; {ctx.widths.hi:.2f} mm filled"
-                          + _hint(Wn, ctx))
-        stats["regions"] += sum(1 for b in beads if not b.closed) or bool(beads)
-        stats["loops"] += sum(1 for b in beads if b.closed)
-        groups[0] += [seam_at(b, index) if b.closed else b for b in beads if b.role == "perimeter"]
-        groups[2] += [seam_at(b, index) if b.closed else b for b in beads if b.role != "perimeter"]
+        _thin(t, index, ctx, groups, stats, issues)
     return groups
+
+
+def _thin(t: Polygon, index: int, ctx: LayerCtx, groups: Groups, stats: dict[str, int], issues: list[str]) -> None:
+    """A thin piece: its width from the process (planner.thin), or an issue naming it."""
+    W = wall_width(t, 0.02 * ctx.width)
+    lay = layout(W, ctx.widths)
+    c = t.representative_point()
+    if lay is None:
+        issues.append(f"layer {index}: feature at ({c.x:.1f}, {c.y:.1f}) is {W:.2f} mm wide, narrower than "
+                      f"the smallest legal bead ({ctx.widths.lo:.2f} mm)" + _hint(W, ctx))
+        return
+    beads, wide = thin_beads(t, lay, ctx.lone_share, ctx.widths, W)
+    if wide or (lay.n > 1 and lay.filled < 0.97 * W):
+        Wn = max(wide, default=W)
+        issues.append(f"layer {index}: wall at ({c.x:.1f}, {c.y:.1f}) is {Wn:.2f} mm wide: no count of legal "
+                      f"beads ({ctx.widths.lo:.2f}-{ctx.widths.hi:.2f} mm) fills it; {ctx.widths.hi:.2f} mm filled"
+                      + _hint(Wn, ctx))
+    stats["regions"] += sum(1 for b in beads if not b.closed) or bool(beads)
+    stats["loops"] += sum(1 for b in beads if b.closed)
+    groups[0] += [seam_at(b, index) if b.closed else b for b in beads if b.role == "perimeter"]
+    groups[2] += [seam_at(b, index) if b.closed else b for b in beads if b.role != "perimeter"]
 
 
 def _hint(W: float, ctx: LayerCtx) -> str:
@@ -142,20 +147,25 @@ def _thick(t: Polygon, index: int, angle: float, ctx: LayerCtx, groups: Groups, 
         rest = t.buffer(-(inset + 0.5 * w))
     else:
         rest = t
-    # What neither the perimeters nor the scan lines reach gets centre-line gap beads.
-    reach = filled + gaps
+    gaps += _pockets(rest, filled + gaps, w, stats)
+    stats["regions"] += len(gaps) and 1
+    groups[2] += [seam_at(b, index) if b.closed else b for b in gaps]
+
+
+def _pockets(rest: shapely.Geometry, reach: list[Path2D], w: float, stats: dict[str, int]) -> list[Path2D]:
+    """Centre-line gap beads for what neither the perimeters nor the scan lines reach."""
     if reach and not rest.is_empty:
         lines = np.array([shapely.linestrings(c.points) for c in reach], dtype=object)
         rest = rest.difference(shapely.union_all(shapely.buffer(lines, 0.5 * w, quad_segs=4)))
+    out: list[Path2D] = []
     for piece in polygons_of(rest):
         if piece.area > 0.2 * w * w:
             # A small pocket (a lune at a row's end) is nearly straight: no medial axis needed.
             small = piece.area < 2.0 * w * w and len(piece.interiors) == 0
             beads = pocket_line(piece, w, 0.2 * w) if small else centre_lines(piece, w, min_width=0.2 * w)
             stats["regions"] += bool(beads)
-            gaps += beads
-    stats["regions"] += len(gaps) and 1
-    groups[2] += [seam_at(b, index) if b.closed else b for b in gaps]
+            out += beads
+    return out
 
 
 def _balance_island(groups: list[list[Path2D]], poly: Polygon, width: float) -> None:

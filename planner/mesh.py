@@ -67,7 +67,7 @@ def read_mesh(path: str | Path, units: str = "mm") -> PreparedMesh:
         fast = _prepare_clean(vertices, faces, units, source)
         if fast is not None:
             return fast
-        import trimesh
+        import trimesh  # lazy: the fast binary-STL path never loads trimesh (start-up time)
 
         return prepare_mesh(trimesh.Trimesh(vertices, faces, process=False), units, source)
     return prepare_mesh(_parse(data, ext, p), units, source)
@@ -152,7 +152,7 @@ def _prepare_clean(vertices: np.ndarray, faces: np.ndarray, units: str, source: 
 
 
 def _parse(data: bytes, ext: str, p: Path) -> Any:
-    import trimesh  # noqa: PLC0415  (on use: the fast binary-STL path never loads trimesh)
+    import trimesh  # lazy: the fast binary-STL path never loads trimesh (start-up time)
 
     try:
         loaded = trimesh.load(io.BytesIO(data), file_type=ext, force="mesh", process=False)
@@ -169,7 +169,7 @@ def _parse(data: bytes, ext: str, p: Path) -> Any:
 
 def prepare_mesh(mesh: Any, units: str = "mm", source: MeshSource | None = None) -> PreparedMesh:
     """Scale to mm, merge, drop degenerate/duplicate faces, fix winding, fill small holes, z0 = 0."""
-    import trimesh
+    import trimesh  # lazy: the fast binary-STL path never loads trimesh (start-up time)
 
     name = source.file if source else "mesh"
     if len(mesh.faces) == 0:

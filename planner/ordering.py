@@ -6,6 +6,7 @@ from typing import Any
 import math
 
 import numpy as np
+import shapely
 
 from planner.path2d import Path2D
 
@@ -102,30 +103,34 @@ def order_passes(groups: list[list[Path2D]], start: np.ndarray) -> tuple[list[Pa
     return out, pos
 
 
+def _closest_ends(chains: list[Path2D], tags: list[int], rejected: set[tuple[int, int, bool, bool]],
+                  reach: float) -> tuple[float, int, int, bool, bool] | None:
+    """The nearest (end of a, start of b) pair within reach not refused yet: (d, i, j, ra, rb)."""
+    best: tuple[float, int, int, bool, bool] | None = None
+    for i, a in enumerate(chains):
+        for j, b in enumerate(chains):
+            if i == j:
+                continue
+            for ra, rb in ((False, False), (False, True), (True, False), (True, True)):
+                if (tags[i], tags[j], ra, rb) in rejected:
+                    continue
+                pa = a.points[0] if ra else a.points[-1]  # where a ends (run reversed if ra)
+                pb = b.points[-1] if rb else b.points[0]  # where b starts
+                d = float(np.hypot(*(pb - pa)))
+                if d <= reach and (best is None or d < best[0]):
+                    best = (d, i, j, ra, rb)
+    return best
+
+
 def join_chains(chains: list[Path2D], reach: float, corridor: Any) -> list[Path2D]:
     """Join open beads whose ends lie within `reach` through `corridor`: fewer arc starts."""
-    import shapely
-
     chains = list(chains)
     tags = list(range(len(chains)))  # stable names for pairs already refused (never id())
     serial = len(chains)
     shapely.prepare(corridor)
     rejected: set[tuple[int, int, bool, bool]] = set()
     while len(chains) > 1:
-        best = None
-        for i, a in enumerate(chains):
-            for j, b in enumerate(chains):
-                if i == j:
-                    continue
-                for ra in (False, True):
-                    for rb in (False, True):
-                        if (tags[i], tags[j], ra, rb) in rejected:
-                            continue
-                        pa = a.points[0] if ra else a.points[-1]  # where a ends (run reversed if ra)
-                        pb = b.points[-1] if rb else b.points[0]  # where b starts
-                        d = float(np.hypot(*(pb - pa)))
-                        if d <= reach and (best is None or d < best[0]):
-                            best = (d, i, j, ra, rb)
+        best = _closest_ends(chains, tags, rejected, reach)
         if best is None:
             break
         _, i, j, ra, rb = best
