@@ -104,8 +104,15 @@ def tangent_f_paper(d: float, w: float, a: float) -> float:
     )
 
 
+# The roots of the aspect-free profiles, solved by _critical_ratio once and kept (a test checks
+# they still agree): a plan does no root finding before its first layer.
+SOLVED_RATIOS: dict[str, float] = {"parabola": 0.7378432588978603, "cosine": 0.6885223764801173}
+
+
 @lru_cache(maxsize=64)
-def _critical_ratio(profile: str, aspect: float) -> float:
+def _critical_ratio(profile: str, aspect: float, solve: bool = False) -> float:
+    if profile in SOLVED_RATIOS and not solve:
+        return SOLVED_RATIOS[profile]
     grid = np.linspace(0.5 + 1e-6, 1.0 - 1e-6, 41)
     vals = [tangent_f(float(g), profile, aspect) for g in grid]
     for (g0, v0), (g1, v1) in zip(zip(grid, vals), zip(grid[1:], vals[1:])):
