@@ -49,7 +49,7 @@ def partition_shares(island: Polygon, beads: Sequence[Path2D], width: float) -> 
         return np.zeros(n)
     if n == 1:
         return np.array([area / max(float(lengths[0]), 1e-9)])
-    pts, owner = _samples(beads, width / 8.0)
+    pts, owner = _samples(beads, width / 6.0)
     # A ring of far points around the island: the unbounded cells are theirs, not a bead's (GEOS
     # leaves hull cells clipped to an envelope self-intersecting; bounded ones come out right).
     frame = _frame(island, width)
@@ -61,10 +61,10 @@ def partition_shares(island: Polygon, beads: Sequence[Path2D], width: float) -> 
     bad = ~shapely.is_valid(cells)  # GEOS can leave a sliver cell self-intersecting
     cells[bad] = shapely.make_valid(cells[bad])
     try:
-        areas = _clipped_areas(cells, island)
+        areas = _clipped_areas(cells, island, 4.0 * width)
     except shapely.errors.GEOSException:  # a topology conflict of nearly coincident edges: snap both
         areas = _clipped_areas(shapely.make_valid(shapely.set_precision(cells, 1e-6)),
-                               shapely.make_valid(shapely.set_precision(island, 1e-6)))
+                               shapely.make_valid(shapely.set_precision(island, 1e-6)), 4.0 * width)
     near = np.bincount(owner, weights=areas, minlength=n).astype(np.float64)
     near = near * (area / max(float(near.sum()), 1e-12))  # the cells tile the island: rounding only
     out: np.ndarray = near / np.maximum(lengths, 1e-9)
@@ -80,28 +80,37 @@ def _frame(island: Polygon, width: float) -> np.ndarray:
     return np.column_stack([0.5 * (minx + maxx) + r * np.cos(ang), 0.5 * (miny + maxy) + r * np.sin(ang)])
 
 
-def _clipped_areas(cells: np.ndarray, island: shapely.Geometry) -> np.ndarray:
-    """Area of each cell inside the island (cells wholly inside are not clipped)."""
+def _clipped_areas(cells: np.ndarray, island: shapely.Geometry, tile_mm: float) -> np.ndarray:
+    """Area of each cell inside the island. Cells wholly inside are not clipped; the others are
+    clipped against tiles of the island (a grid of squares about `tile_mm` wide): each overlay
+    then sees a few island edges, not all of them."""
     shapely.prepare(island)
-    areas = shapely.area(cells)
-    edge = ~shapely.contains(island, cells)
-    areas[edge] = shapely.area(shapely.intersection(cells[edge], island))
-    return np.asarray(areas, dtype=np.float64)
+    areas = np.asarray(shapely.area(cells), dtype=np.float64)
+    edge = np.flatnonzero(~shapely.contains(island, cells))
+    if len(edge) == 0:
+        return areas
+    minx, miny, maxx, maxy = island.bounds
+    xs = np.arange(minx, maxx + tile_mm, tile_mm)
+    ys = np.arange(miny, maxy + tile_mm, tile_mm)
+    gx, gy = np.meshgrid(xs[:-1], ys[:-1])
+    boxes = shapely.box(gx.ravel(), gy.ravel(), gx.ravel() + tile_mm, gy.ravel() + tile_mm)
+    tiles = shapely.intersection(boxes, island)
+    tiles = tiles[~shapely.is_empty(tiles)]
+    ci, ti = shapely.STRtree(tiles).query(cells[edge], predicate="intersects")
+    part = shapely.area(shapely.intersection(cells[edge][ci], tiles[ti]))
+    areas[edge] = np.bincount(ci, weights=part, minlength=len(edge))
+    return areas
 
 
 def _samples(beads: Sequence[Path2D], spacing: float) -> tuple[np.ndarray, np.ndarray]:
-    """Points every `spacing` along each bead (vertices included), without duplicates; and their bead."""
-    pts, owner = [], []
-    for i, b in enumerate(beads):
-        seg = np.linalg.norm(np.diff(b.points, axis=0), axis=1)
-        k = np.maximum(np.ceil(seg / spacing).astype(np.int64), 1)
-        t = np.concatenate([np.arange(m) / m for m in k])
-        start = np.repeat(b.points[:-1], k, axis=0)
-        step = np.repeat(np.diff(b.points, axis=0), k, axis=0)
-        p = np.vstack([start + t[:, None] * step, b.points[-1:]])
-        pts.append(p)
-        owner.append(np.full(len(p), i, dtype=np.int64))
-    allp, allo = np.vstack(pts), np.concatenate(owner)
-    _, first = np.unique(np.round(allp, 5), axis=0, return_index=True)
+    """Points evenly along each bead by arc length, about `spacing` apart (ends included), and
+    their bead; points of different beads closer than spacing/4 are kept once (a junction)."""
+    lines = np.array([shapely.linestrings(b.points) for b in beads], dtype=object)
+    lengths = shapely.length(lines)
+    counts = np.maximum(np.ceil(lengths / spacing).astype(np.int64), 1) + 1
+    owner = np.repeat(np.arange(len(beads)), counts)
+    frac = np.concatenate([np.linspace(0.0, 1.0, int(k)) for k in counts])
+    pts = shapely.get_coordinates(shapely.line_interpolate_point(lines[owner], frac, normalized=True))
+    _, first = np.unique(np.round(pts / (0.25 * spacing)), axis=0, return_index=True)
     first.sort()
-    return allp[first], allo[first]
+    return pts[first], owner[first]

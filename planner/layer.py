@@ -15,6 +15,7 @@ from planner.infill import scan_fill
 from planner.ordering import join_chains, link_into_loops, order_passes, seam_at
 from planner.path2d import Path2D
 from planner.perimeters import perimeter_loops, split_thin
+from planner.reach import reach_fill
 from planner.regions import polygons_of
 from planner.stubs import no_stubs
 from planner.thin import Widths, layout, thin_beads, wall_width
@@ -36,6 +37,7 @@ class LayerCtx:
     lone_share: float  # profile area / (w·h): what a lone bead fills
     min_length: float
     allowance: float = 0.0  # machining allowance the islands were grown by (mm)
+    min_coverage: float = 0.97  # an island covered less gets narrower legal beads where they fit
 
 
 @dataclass
@@ -60,6 +62,7 @@ def plan_layer(polys: list[Polygon], index: int, ctx: LayerCtx, pos: np.ndarray)
     per_island = []
     for poly in polys:
         groups = _island(poly, index, angle, ctx, stats, issues)
+        groups[2] += reach_fill(poly, [b for g in groups for b in g], ctx.widths, ctx.min_coverage, ctx.min_length)
         groups = no_stubs(groups, ctx.min_length, poly, index, stubs, 1.5 * ctx.width)
         if not any(groups) and poly.area > 0.05 * ctx.width ** 2:
             c = poly.representative_point()

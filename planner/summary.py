@@ -47,8 +47,8 @@ def layer_quality(region: shapely.Geometry, paths: list[Path2D], width: float, h
     outside = float(shapely.difference(fp, region).area)
     # what no bead covers: the pieces over one bead's footprint are features; the three largest
     # of any size say where a layer under --min-coverage is short
-    rest = unfilled(region, fp, width, 0.05 * width * width) if covered < area - 0.05 * width * width else ()
-    gaps = tuple(g for g in rest if g[2] > 0.25 * np.pi * width * width)
+    rest = unfilled(region, fp, width, 0.05 * width * width, 0.0) if covered < area - 0.05 * width * width else ()
+    gaps = tuple(g for g in rest if g[2] > 0.25 * np.pi * width * width and g[3] >= 0.05 * width)
     lengths = shapely.length(lines)
     # The metal the passes lay (mass balance): each bead's share of the layer times its length.
     share = np.array([p.share_mm for p in paths])
@@ -58,7 +58,7 @@ def layer_quality(region: shapely.Geometry, paths: list[Path2D], width: float, h
 
 
 def unfilled(region: shapely.Geometry, footprint: shapely.Geometry, width: float,
-             min_area: float | None = None) -> tuple[tuple[float, float, float, float], ...]:
+             min_area: float | None = None, sliver: float = 0.05) -> tuple[tuple[float, float, float, float], ...]:
     """The pieces of the layer no bead covers larger than `min_area` (default one bead's footprint, π·w²/4):
     (x, y) of a point inside each, its area and its mean width (2·area / perimeter), largest first.
     Slivers thinner than 5 % of a bead on average (the seam between two touching beads) are the
@@ -71,7 +71,7 @@ def unfilled(region: shapely.Geometry, footprint: shapely.Geometry, width: float
     out = []
     for g in big:
         mean_w = 2.0 * float(g.area) / max(float(g.length), 1e-9)
-        if mean_w < 0.05 * width:
+        if mean_w < sliver * width:
             continue
         c = g.representative_point()
         out.append((round(float(c.x), 1), round(float(c.y), 1), round(float(g.area), 1), round(mean_w, 2)))
