@@ -54,7 +54,11 @@ class Process:
 
     def _solve(self, w: float) -> ProcessPoint:
         try:
-            return inverse(self.material, w, self.height, allow_outside=self.allow)
+            pp = inverse(self.material, w, self.height, allow_outside=self.allow)
+            # Under --allow-outside the synergic line is extrapolated: never to a wire feed or a
+            # current of nothing (the bead cannot be welded at all).
+            if (pp.wfs_m_min > 0.0 and pp.current_a > 0.0) or w == round(self.nominal, 3):
+                return pp
         except EnvelopeError:
             if w == round(self.nominal, 3):
                 raise

@@ -63,3 +63,13 @@ def test_allow_outside_plans_it_flagged_in_the_job():
 def test_inside_the_limits_the_job_carries_no_flag():
     d = json.loads(job_to_json(plan_part(BLOCK, PlanOptions(width_mm=6.0), MAT)))
     assert all("inside_envelope" not in p for L in d["layers"] for p in L["passes"])
+
+
+def test_allow_outside_never_extrapolates_to_no_wire():
+    """A 1.8 mm gap bead at 2 mm layers is below the synergic line's zero: it gets the nearest
+    weldable width instead of a negative wire feed and speed."""
+    from planner.weld import Process
+
+    proc = Process(MAT, 2.0, True, 6.0)
+    pp = proc.point(1.8)
+    assert pp.wfs_m_min > 0 and pp.current_a > 0 and pp.speed_mm_min > 0
