@@ -4,17 +4,15 @@ from __future__ import annotations
 
 from core.errors import MeshError
 import re
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import shapely
 
 from core.material import Material
 from planner.layer import ALLOWANCE_HINT, LayerCtx, LayerPlan
+from planner.options import PlanOptions
 from planner.overhang import check_overhang
 from planner.summary import LayerQuality, gap_message
-
-if TYPE_CHECKING:  # plan.py imports this module
-    from planner.plan import PlanOptions
 
 MAX_LISTED = 6
 

@@ -148,7 +148,6 @@ LONG_FILES = {
     "sims/cnc_sim.py": "grbl firmware contract (issue 15)",
     "drivers/grbl.py": "grbl firmware contract (issue 15)",
     "drivers/robot.py": "link liveness (issue 13)",
-    "planner/bead.py": "planner quality (issue 16)",
     "sims/power_sim.py": "power-source faults (issues 12, 13)",
     "controller/build.py": "measured-deposit accounting (issue 13); the bead bookkeeping moves to its own module next",
 }
