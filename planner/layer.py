@@ -17,7 +17,7 @@ from planner.path2d import Path2D
 from planner.perimeters import perimeter_loops, split_thin
 from planner.reach import reach_fill
 from planner.regions import polygons_of
-from planner.stubs import no_stubs
+from planner.stubs import drop_short, no_stubs
 from planner.thin import Widths, layout, thin_beads, wall_width
 
 
@@ -64,6 +64,8 @@ def plan_layer(polys: list[Polygon], index: int, ctx: LayerCtx, pos: np.ndarray)
         groups = _island(poly, index, angle, ctx, stats, issues)
         groups[2] += reach_fill(poly, [b for g in groups for b in g], ctx.widths, ctx.min_coverage, ctx.min_length)
         groups = no_stubs(groups, ctx.min_length, poly, index, stubs, 1.5 * ctx.width)
+        # two stubs welded together can still be short: dropped before the shares are drawn
+        groups = [drop_short(g, ctx.min_length, index, stubs) for g in groups]
         if not any(groups) and poly.area > 0.05 * ctx.width ** 2:
             c = poly.representative_point()
             b = poly.bounds
