@@ -71,7 +71,7 @@ def plan_layer(polys: list[Polygon], index: int, ctx: LayerCtx, pos: np.ndarray)
             b = poly.bounds
             issues.append(f"layer {index}: feature at ({c.x:.1f}, {c.y:.1f}), {b[2] - b[0]:.2f} x {b[3] - b[1]:.2f} mm, "
                           f"gets no bead of at least {ctx.min_length:.1f} mm (min_bead_length_mm)")
-        _balance_island(groups, poly, ctx.width)
+        _balance_island(groups, poly, ctx.width, ctx.widths.lo)
         per_island.append(groups)
     ordered, pos, travel = order_islands(per_island, pos)
     return LayerPlan(region, ordered, pos, travel, stats, issues, stubs, per_island)
@@ -173,15 +173,27 @@ def _pockets(rest: shapely.Geometry, reach: list[Path2D], w: float, stats: dict[
     return out
 
 
-def _balance_island(groups: list[list[Path2D]], poly: Polygon, width: float) -> None:
+def _balance_island(groups: list[list[Path2D]], poly: Polygon, width: float, narrowest: float) -> None:
     """Each bead's share: the part of the island nearest to it (planner.balance.partition_shares),
-    so the island's beads lay its area × h exactly, lone beads their wall's whole section."""
-    beads = [b for g in groups for b in g]
-    if not beads:
-        return
-    shares = iter(partition_shares(poly, beads, width).tolist())
+    so the island's beads lay its area × h exactly, lone beads their wall's whole section.
+
+    A gap bead left less than a quarter of its width (at least the narrowest legal bead's: it is
+    welded at least that wide) lies on its neighbours: there is nothing for it to fill and the cell
+    could not weld so little; it is removed and the island shared again.
+    """
+    for attempt in range(3):
+        beads = [b for g in groups for b in g]
+        if not beads:
+            return
+        shares = partition_shares(poly, beads, width).tolist()
+        idle = {id(b) for b, s in zip(beads, shares) if b.role == "gap" and s < 0.25 * max(b.width_mm, narrowest)}
+        if not idle or len(idle) == len(beads) or attempt == 2:
+            break
+        for g in groups:
+            g[:] = [b for b in g if id(b) not in idle]
+    it = iter(shares)
     for g in groups:
-        g[:] = [Path2D(b.role, b.points, b.width_mm, b.closed, next(shares), b.lone) for b in g]
+        g[:] = [Path2D(b.role, b.points, b.width_mm, b.closed, next(it), b.lone) for b in g]
 
 
 def reseamed(lp: LayerPlan, index: int, pos: np.ndarray) -> LayerPlan:
