@@ -8,10 +8,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import shapely
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from shapely.geometry import Point, box
 
 from core.config import load_material
+from planner.balance import partition_shares
 from planner.extrude import extrude
+from planner.path2d import Path2D
 from planner.plan import PlanOptions, plan_part
 
 MAT = load_material("inconel718-1.0mm")
@@ -69,3 +73,21 @@ def test_every_layer_and_every_bead_class_lays_what_it_fills(section):
         for role, area in per_class.items():
             mine = sum(_laid(p) for p in layer.passes if p.role == role)
             assert mine == pytest.approx(area * layer.height_mm, rel=0.03, abs=0.005 * laid), role
+
+
+
+@settings(max_examples=25, deadline=None)
+@given(length=st.floats(30.0, 120.0), rows=st.integers(2, 6), spacing=st.floats(3.5, 5.5))
+def test_partition_of_parallel_rows_is_their_strips(length, rows, spacing):
+    """Rows `spacing` apart in a rectangle whose edges lie half a spacing beyond the outer rows:
+    each row fills a strip of the spacing (the ends included), and the shares tile the area."""
+    width = rows * spacing
+    island = shapely.box(0.0, 0.0, length, width)
+    beads = [Path2D("infill", np.array([[3.0, (k + 0.5) * spacing], [length - 3.0, (k + 0.5) * spacing]]), 6.0)
+             for k in range(rows)]
+    shares = partition_shares(island, beads, 6.0)
+    lengths = np.array([b.length for b in beads])
+    assert float(np.sum(shares * lengths)) == pytest.approx(island.area, rel=1e-9)
+    # the inner rows own their strip exactly; the ends of the strip go to the row too
+    for s, ln in zip(shares[1:-1], lengths[1:-1]):
+        assert s * ln == pytest.approx(spacing * length, rel=0.02)
