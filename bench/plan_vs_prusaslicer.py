@@ -78,14 +78,15 @@ def run_prusa(exe: str, stl: Path, work: Path, width: float = WIDTH, layer: floa
 
 
 def part_set(exe: str | None, work: Path, repeat: int, quick: bool) -> bool:
-    """The bench.plan_quality parts at their own width and the process model's layer height."""
+    """The bench.plan_quality parts at 6 mm beads and the process model's layer height."""
     from bench.plan_quality import parts
     from core.config import load_material
     from planner.process import inverse
 
     mat = load_material("inconel718-1.0mm")
     ok = True
-    for name, mesh, width in parts(quick):
+    for name, mesh in parts(quick):
+        width = 6.0
         layer = round(inverse(mat, width).height_mm, 4)
         stl = work / ("part-" + "".join(c if c.isalnum() else "_" for c in name) + ".stl")
         stl.write_bytes(mesh.export(file_type="stl"))
