@@ -25,6 +25,7 @@ Point = tuple[float, float, float]
 # the robot's queued motion must end this long before the power source's watchdog drops the arc
 # after the controller died (2 bus cycles, a simulator tick, line latency)
 DRY_SLACK_S = 0.03
+EXACT_RESUME_MAX_SCALE = 20.0   # above this time scale the robot's queue is not narrowed
 
 
 class ResumeRefused(CellError):
@@ -37,6 +38,12 @@ def dry_lookahead(ex: Any, pts: Sequence[Point], i0: int, speed: float, time_sca
     drops the arc after a crash (set as the executor's `ahead`); None (the whole window) where two
     moves outlast that, or for an executor without the setting (CNC)."""
     if not hasattr(ex, "ahead"):
+        return None
+    if time_scale > EXACT_RESUME_MAX_SCALE:
+        # the whole watchdog is a few ms of wall time per move here: a queue that short starves
+        # on any host hiccup (the torch stands still with the arc on), so the window stays whole
+        # and a crash resume falls back to the run-on estimate (docs/controller.md)
+        ex.ahead = None
         return None
     n = 0
     if speed > 0 and len(pts) - 1 > i0:
