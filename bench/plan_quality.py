@@ -183,6 +183,12 @@ def measure(mesh: trimesh.Trimesh, job, material, allowance: float = ALLOWANCE) 
         shortest = min(shortest, min(p.length_mm for p in layer.passes))
         if layer.index % 5 == 0:
             close.append(_close_fraction(layer, material.bead.min_step_over_ratio, job.bead.width_mm))
+    return _figures(cov, out, fp_total, mass, mass_class, job, shortest, min_len, close, unnamed)
+
+
+def _figures(cov: list, out: float, fp_total: float, mass: list, mass_class: list, job, shortest: float,
+             min_len: float, close: list, unnamed: list) -> dict:
+    """measure()'s figures, rounded for the table."""
     cov_arr = np.array(cov)
     return {"coverage_min": round(float(cov_arr.min()), 4) if len(cov_arr) else 1.0,
             "worst_layer": int(np.argmin(cov_arr)) if len(cov_arr) else 0,
@@ -196,6 +202,7 @@ def measure(mesh: trimesh.Trimesh, job, material, allowance: float = ALLOWANCE) 
 
 
 def run_part(name: str, mesh: trimesh.Trimesh, width: float, material, allowance: float = ALLOWANCE) -> dict:
+    # lazy: only this benchmark's path needs it
     from planner.plan import PlanOptions, plan_part
 
     t0 = time.perf_counter()
@@ -238,6 +245,7 @@ def check(row: dict) -> list[str]:
 
 
 def main(argv: list[str]) -> int:
+    # lazy: only this benchmark's path needs it
     from core.config import load_material
 
     ap = argparse.ArgumentParser(prog="bench.plan_quality")

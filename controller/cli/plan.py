@@ -96,6 +96,7 @@ def _five_axis(enabled: bool) -> FiveAxisOptions | None:
     """FiveAxisOptions from cell.yaml (tilt limit, nozzle cone), or None for a 3-axis plan."""
     if not enabled:
         return None
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from core.config import load_cell
     from planner.five_axis import FiveAxisOptions, Nozzle
 
@@ -109,6 +110,7 @@ def _five_axis(enabled: bool) -> FiveAxisOptions | None:
 
 
 def _material(name: str | None) -> Material:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from core.config import load_cell, load_material
 
     if name is None:
@@ -123,6 +125,7 @@ def _cell_limits() -> tuple[tuple[float, float, float] | None, CellLimits]:
     """The cell's workspace extent (a part larger than it is refused before slicing) and its speed and
     source limits (a bead outside them is refused at plan time), from config/cell.yaml; the
     planner's defaults (cell.yaml's own) without one."""
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from core.config import load_cell
     from planner.weld import CellLimits
 
@@ -147,6 +150,7 @@ class _Bar:
         if not self.enabled:
             return
         if self.bar is None:
+            # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
             from tqdm import tqdm
 
             self.bar = tqdm(total=total, unit="layer", desc="planning", file=sys.stderr, leave=False)
@@ -158,6 +162,7 @@ class _Bar:
 
 
 def run(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from planner.job import job_to_json
     from planner.mesh import read_mesh
@@ -186,6 +191,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--out {out}: cannot write the job file ({exc.strerror or exc})") from exc
     previews: list[str] = []
     if args.preview:
+        # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
         from controller.job.preview import write_previews
 
         try:
