@@ -171,7 +171,9 @@ async def build(job: dict, *, part: str, platform: str, gain: float, mode: str, 
                 timeout_s: float = 900.0) -> Outcome:
     """One build on the simulators; the outcome judged from the world's truth."""
     cfg, sim = _configs(platform, mode, scale, gain, temp_coeff, noise_pct, heat_capacity)
-    log = tmp / "log"
+    from controller.job.identity import run_dir_for
+
+    log = run_dir_for(job, tmp / "runs") / "sim"   # where the build record finds the truth
     harness = SimHarness(cfg, sim, log_dir=log)
     cfg = with_urls(cfg, harness.start())
     ctl = CellController(cfg, runs_dir=tmp / "runs")
