@@ -99,11 +99,11 @@ class Outcome:
 
 
 def _configs(platform: str, mode: str, scale: float, gain: float, temp_coeff: float, noise_pct: float,
-             heat_capacity: float) -> tuple[Any, Any]:
+             heat_capacity: float, pc: dict | None = None) -> tuple[Any, Any]:
     cfg = with_urls(load_cell(), {}, time_scale=scale)
     cfg = cfg.model_copy(update={
         "cell": cfg.cell.model_copy(update={"platform": platform}),
-        "process_control": cfg.process_control.model_copy(update={"mode": mode, "probe_points": 3})})
+        "process_control": cfg.process_control.model_copy(update={"mode": mode, "probe_points": 3, **(pc or {})})})
     sim = load_sim()
     wp = sim.cnc.workpiece.model_copy(update={"tilt_a_deg": 0.0, "tilt_b_deg": 0.0, "rotation_c_deg": 0.0})
     sim = sim.model_copy(update={
@@ -168,9 +168,9 @@ def _near(seg: dict, pts: list, tol: float = 0.3) -> bool:
 
 async def build(job: dict, *, part: str, platform: str, gain: float, mode: str, tmp: Path, scale: float = 60.0,
                 temp_coeff: float = 0.0, noise_pct: float = 0.0, heat_capacity: float = 2000.0,
-                timeout_s: float = 900.0) -> Outcome:
+                timeout_s: float = 900.0, pc: dict | None = None) -> Outcome:
     """One build on the simulators; the outcome judged from the world's truth."""
-    cfg, sim = _configs(platform, mode, scale, gain, temp_coeff, noise_pct, heat_capacity)
+    cfg, sim = _configs(platform, mode, scale, gain, temp_coeff, noise_pct, heat_capacity, pc)
     from controller.job.identity import run_dir_for
 
     log = run_dir_for(job, tmp / "runs") / "sim"   # where the build record finds the truth
