@@ -170,25 +170,16 @@ async def build(job: dict, *, part: str, platform: str, gain: float, mode: str, 
                 temp_coeff: float = 0.0, noise_pct: float = 0.0, heat_capacity: float = 2000.0,
                 timeout_s: float = 900.0, pc: dict | None = None) -> Outcome:
     """One build on the simulators; the outcome judged from the world's truth."""
-    cfg, sim = _configs(platform, mode, scale, gain, temp_coeff, noise_pct, heat_capacity, pc)
     from controller.job.identity import run_dir_for
 
+    cfg, sim = _configs(platform, mode, scale, gain, temp_coeff, noise_pct, heat_capacity, pc)
     log = run_dir_for(job, tmp / "runs") / "sim"   # where the build record finds the truth
     harness = SimHarness(cfg, sim, log_dir=log)
     cfg = with_urls(cfg, harness.start())
     ctl = CellController(cfg, runs_dir=tmp / "runs")
     t0 = time.monotonic()
-    paused = False
     try:
-        await ctl.connect(reply_timeout_ms=500.0)
-        ctl.open_job(job)
-        task = asyncio.ensure_future(ctl.start())
-        while not task.done():
-            await asyncio.sleep(0.05)
-            if ctl.machine.state.value == "paused" or time.monotonic() - t0 > timeout_s:
-                paused = paused or ctl.machine.state.value == "paused"
-                ctl.abort()
-        res = await task
+        res, paused = await _run(ctl, job, t0, timeout_s)
         assert ctl.journal is not None and ctl.runner is not None
         rows = ctl.journal.query("SELECT kind, message FROM events WHERE kind IN ('layer', 'stick_out', 'alarm')"
                                  " ORDER BY id")
@@ -200,18 +191,29 @@ async def build(job: dict, *, part: str, platform: str, gain: float, mode: str, 
         harness.stop()
     records = [json.loads(m) for k, m in rows if k == "layer"]
     beads = [json.loads(m) for k, m in rows if k == "stick_out"]
-    alarms = [m for k, m in rows if k == "alarm"]
     segs = _segments(log, platform)
-    # the beads' steady CTWD: the segments of each bead without its first and last tenth
-    ctwd = [s["ctwd_mm"] for s in segs]
-    final = _final_top(hm, built[-1]) if hm is not None and built else None
-    probe_err = None
-    if platform == "cnc" and hm is not None:
-        probe_err = _probe_error(records, hm, built)
-    return Outcome(part, platform, gain, temp_coeff, mode, ("paused, then " if paused else "") + res.state, len(job["layers"]), res.layers_done,
-                   float(job["layers"][-1]["z_mm"]), final, min(ctwd) if ctwd else None,
-                   max(ctwd) if ctwd else None, _estimate_rms(records, beads, segs, built) if beads else None,
-                   probe_err, alarms, records, time.monotonic() - t0, run_dir)
+    ctwd = [s["ctwd_mm"] for s in segs]   # the truth on every deposited segment
+    return Outcome(part, platform, gain, temp_coeff, mode, ("paused, then " if paused else "") + res.state,
+                   len(job["layers"]), res.layers_done, float(job["layers"][-1]["z_mm"]),
+                   _final_top(hm, built[-1]) if hm is not None and built else None,
+                   min(ctwd) if ctwd else None, max(ctwd) if ctwd else None,
+                   _estimate_rms(records, beads, segs, built) if beads else None,
+                   _probe_error(records, hm, built) if platform == "cnc" and hm is not None else None,
+                   [m for k, m in rows if k == "alarm"], records, time.monotonic() - t0, run_dir)
+
+
+async def _run(ctl: CellController, job: dict, t0: float, timeout_s: float) -> tuple[Any, bool]:
+    """Connect, build; a pause (the control's) ends the build by an abort. (result, paused)."""
+    paused = False
+    await ctl.connect(reply_timeout_ms=500.0)
+    ctl.open_job(job)
+    task = asyncio.ensure_future(ctl.start())
+    while not task.done():
+        await asyncio.sleep(0.05)
+        if ctl.machine.state.value == "paused" or time.monotonic() - t0 > timeout_s:
+            paused = paused or ctl.machine.state.value == "paused"
+            ctl.abort()
+    return await task, paused
 
 
 def _probe_error(records: list[dict], hm: Any, built: list[dict]) -> float | None:
