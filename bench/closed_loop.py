@@ -239,7 +239,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="bench.closed_loop")
     ap.add_argument("--quick", action="store_true", help="a 10-layer wall and block, robot and CNC, gain 0.85")
     ap.add_argument("--layers", type=int, default=60, help="wall layers (the block: a third)")
-    ap.add_argument("--scale", type=float, default=60.0)
+    ap.add_argument("--scale", type=float, default=30.0, help="robot time scale (the through-arc estimate wants "
+                    "samples: the power source's 10 ms cycle gives ~6 per wall bead at 30)")
+    ap.add_argument("--cnc-scale", type=float, default=60.0)
     ap.add_argument("--temp-coeff", type=float, default=0.002)
     ap.add_argument("--only", default="", help="part:platform[:gain] filter, e.g. wall:robot")
     ap.add_argument("--modes", default="open,layer")
@@ -256,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
         for mode in args.modes.split(","):
             with tempfile.TemporaryDirectory(prefix="closed_loop_") as d:
                 o = asyncio.run(build(jobs[part], part=part, platform=platform, gain=gain, mode=mode, tmp=Path(d),
-                                      scale=args.scale, temp_coeff=args.temp_coeff, heat_capacity=150.0))
+                                      scale=args.scale if platform == "robot" else args.cnc_scale, temp_coeff=args.temp_coeff, heat_capacity=150.0))
             print(json.dumps(o.row()), flush=True)
             out.append(o.row())
     with tempfile.TemporaryDirectory(prefix="closed_loop_") as d:

@@ -132,7 +132,7 @@ def _clip_k(k: float, lo: float, hi: float) -> float:
 
 def decide(*, top_mm: float, final_mm: float, heights: list[float], gain: float, p: float,
            k_range: tuple[float, float], n_done: int, n_total: int, n_planned: int,
-           layer_change: bool = True) -> Decision:
+           layer_change: bool = True, tol_mm: float = 0.25, margin_mm: float = 0.1) -> Decision:
     """The trim (and the layer count) that end the build at `final_mm` from `top_mm`.
 
     `heights`: the planned height of every layer of the current plan (len n_total) and after
@@ -154,12 +154,15 @@ def decide(*, top_mm: float, final_mm: float, heights: list[float], gain: float,
     k, proj = outcome(n_total)
     n = n_total
     layer_rise = gain * h_extra
-    if layer_change and abs(proj - final_mm) > 0.5 * layer_rise:
-        # the trim cannot end within half a layer of the plan: one layer more (or less) a decision
+    miss = abs(proj - final_mm)
+    if layer_change and miss > min(0.5 * layer_rise, tol_mm):
+        # the trim cannot end near the plan: one layer more (or less) a decision, when it ends nearer
+        # (by half a layer when the trim misses by more than that, else by `margin_mm`)
         cand = n_total + (1 if proj < final_mm else -1)
         if cand >= n_done:
             kc, pc = outcome(cand)
-            if abs(pc - final_mm) < abs(proj - final_mm):
+            gain_mm = miss - abs(pc - final_mm)
+            if gain_mm > (0.0 if miss > 0.5 * layer_rise else margin_mm):
                 n, k, proj = cand, kc, pc
     action = []
     if n > n_total:
