@@ -84,6 +84,7 @@ class Outcome:
     records: list[dict] = field(default_factory=list)
     wall_s: float = 0.0
     run_dir: str = ""
+    ctwd_all: tuple[float, float] | None = None   # every segment, the beads' ends included
 
     @property
     def height_error_mm(self) -> float | None:
@@ -94,6 +95,7 @@ class Outcome:
         return {"part": self.part, "platform": self.platform, "gain": self.gain, "temp_coeff": self.temp_coeff,
                 "mode": self.mode, "state": self.state, "layers": f"{self.layers_built}/{self.layers_planned}",
                 "height_error_mm": r(self.height_error_mm), "ctwd_min": r(self.ctwd_min), "ctwd_max": r(self.ctwd_max),
+                "ctwd_all": [r(v) for v in self.ctwd_all] if self.ctwd_all else None,
                 "estimate_rms_mm": r(self.estimate_rms_mm, 3), "probe_err_max_mm": r(self.probe_err_max_mm, 3),
                 "alarms": self.alarms[:1], "wall_s": round(self.wall_s, 1)}
 
@@ -134,6 +136,32 @@ def _final_top(hm: Any, layer: dict, middle: float = 0.6) -> float | None:
     vals = [hm.surface(x, y) for x, y, _z in spots]
     vals = [v for v in vals if v is not None and math.isfinite(v)]
     return float(np.mean(vals)) if vals else None
+
+
+def _bead_segments(segs: list[dict], built: list[dict]) -> dict[tuple[int, int], list[dict]]:
+    """The deposited segments of each bead (its layer's commanded z, on its path), in time order."""
+    by_z: dict[float, list[dict]] = {}
+    for s in segs:
+        by_z.setdefault(round(float(s["to"][2]), 3), []).append(s)
+    out: dict[tuple[int, int], list[dict]] = {}
+    for la, layer in enumerate(built):
+        for pa, p in enumerate(layer["passes"]):
+            pts = p["points"]
+            out[(la, pa)] = [s for s in by_z.get(round(float(pts[0][2]), 3), []) if _near(s, pts)]
+    return out
+
+
+def bead_ctwd(segs: list[dict], built: list[dict], middle: float = 0.8) -> list[float]:
+    """Each bead's CTWD truth over its middle `middle` share (the bead's ends, where a wall slumps,
+    left out): the values of every bead, flattened."""
+    vals: list[float] = []
+    for mine in _bead_segments(segs, built).values():
+        n = len(mine)
+        if not n:
+            continue
+        cut = int(n * (1.0 - middle) / 2.0)
+        vals += [s["ctwd_mm"] for s in (mine[cut:n - cut] or mine)]
+    return vals
 
 
 def _estimate_rms(records: list[dict], beads: list[dict], segs: list[dict], built: list[dict]) -> float | None:
@@ -192,14 +220,16 @@ async def build(job: dict, *, part: str, platform: str, gain: float, mode: str, 
     records = [json.loads(m) for k, m in rows if k == "layer"]
     beads = [json.loads(m) for k, m in rows if k == "stick_out"]
     segs = _segments(log, platform)
-    ctwd = [s["ctwd_mm"] for s in segs]   # the truth on every deposited segment
+    ctwd = bead_ctwd(segs, built)          # the truth on every bead's steady part
+    raw = [s["ctwd_mm"] for s in segs]     # and on every deposited segment, ends included
     return Outcome(part, platform, gain, temp_coeff, mode, ("paused, then " if paused else "") + res.state,
                    len(job["layers"]), res.layers_done, float(job["layers"][-1]["z_mm"]),
                    _final_top(hm, built[-1]) if hm is not None and built else None,
                    min(ctwd) if ctwd else None, max(ctwd) if ctwd else None,
                    _estimate_rms(records, beads, segs, built) if beads else None,
                    _probe_error(records, hm, built) if platform == "cnc" and hm is not None else None,
-                   [m for k, m in rows if k == "alarm"], records, time.monotonic() - t0, run_dir)
+                   [m for k, m in rows if k == "alarm"], records, time.monotonic() - t0, run_dir,
+                   (min(raw), max(raw)) if raw else None)
 
 
 async def _run(ctl: CellController, job: dict, t0: float, timeout_s: float) -> tuple[Any, bool]:

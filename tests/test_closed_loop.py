@@ -167,14 +167,14 @@ async def test_a_resume_reapplies_the_journaled_corrections(tmp_path: Path):
     j.start_job("h", "wall", "robot", "{}")
     lc = LayerControl(job=job, cfg=cfg, material=MAT, platform="robot", journal=j)
     work = [WorkItem(i, 0) for i in range(6)]
-    for la in range(3):   # each layer 0.3 mm low: the stick-out the current says is 0.3 mm longer
+    for la in range(3):   # each layer 0.15 mm low: the stick-out the current says is longer
         z = lc.pass_for(la, 0)["points"][0][2]
-        truth = 15.0 + z - (0.77 * (la + 1) - 0.3 * (la + 1))
+        truth = 15.0 + z - (0.62 * (la + 1))
         lc.bead_closed(la, 0, [current_at(rel, MAT.ribeiro, 6.9, truth)] * 10, 6.9)
         assert await lc.after_pass(work[la], work, la) is None
     applied = {la: lc.pass_for(la, 0)["points"][0][2] for la in range(4)}
     speeds = {la: lc.pass_for(la, 0)["speed_mm_min"] for la in range(4)}
-    assert applied[3] < 0.77 * 4 - 0.5              # the next layer follows the low part down
+    assert applied[3] < 0.77 * 4 - 0.3              # the next layer follows the low part down
     j.close()
     j2 = Journal(tmp_path / "journal.sqlite")
     lc2 = LayerControl(job=job, cfg=cfg, material=MAT, platform="robot", journal=j2)
@@ -183,7 +183,7 @@ async def test_a_resume_reapplies_the_journaled_corrections(tmp_path: Path):
         assert lc2.pass_for(la, 0)["points"][0][2] == pytest.approx(applied[la], abs=1e-4)
         assert lc2.pass_for(la, 0)["speed_mm_min"] == pytest.approx(speeds[la], rel=1e-4)
     rows = [json.loads(m) for (m,) in j2.query("SELECT message FROM events WHERE kind = 'layer' ORDER BY id")]
-    assert [r["layer"] for r in rows] == [0, 1, 2] and rows[-1]["height_error_mm"] == pytest.approx(-0.9, abs=1e-3)
+    assert [r["layer"] for r in rows] == [0, 1, 2] and rows[-1]["measured_top_mm"] == pytest.approx(0.62 * 3, abs=1e-3)
     assert lc2.adjust_work([WorkItem(3, 0)], set())[0] == WorkItem(3, 0)
     j2.close()
 

@@ -19,7 +19,7 @@ from controller.journal.store import Journal
 
 COLUMNS = ("layer", "planned_top_mm", "z_mm", "measured_top_mm", "height_error_mm", "source", "stick_out_mm",
            "stick_out_min_mm", "stick_out_max_mm", "true_stick_out_mm", "true_stick_out_min_mm",
-           "true_stick_out_max_mm", "z_offset_mm", "speed_factor", "gain", "action", "added", "mode")
+           "true_stick_out_max_mm", "z_offset_mm", "correction_mm", "speed_factor", "gain", "action", "added", "mode")
 
 
 def _events(journal: Journal, kind: str) -> list[dict[str, Any]]:
@@ -119,7 +119,7 @@ def plot_height(rows: list[dict[str, Any]], path: Path, window: tuple[float, flo
             ax[1].axhline(v, color="red", ls=":", lw=0.8)
     ax[1].set_ylabel("CTWD [mm]")
     ax[1].legend(loc="upper left")
-    ax[2].plot(x, _num(rows, "z_offset_mm"), "o-", ms=3, color="tab:purple", label="z correction [mm]")
+    ax[2].plot(x, _num(rows, "correction_mm"), "o-", ms=3, color="tab:purple", label="z correction vs plan [mm]")
     ax[2].plot(x, [v - 1.0 for v in _num(rows, "speed_factor")], "s-", ms=3, color="tab:brown",
                label="travel speed trim (factor − 1)")
     ax[2].set_ylabel("correction")

@@ -174,8 +174,8 @@ class LayerControl:
 
     async def layer_done(self, la: int, work: list[WorkItem], k: int) -> str | None:
         dz, kf = self.applied.get(la, (0.0, 1.0))
-        planned = layer_z(self.layers.raw(la))
-        z_cmd = planned + dz
+        z_cmd = layer_z(self.layers.raw(la)) + dz
+        planned = self.replanned_z(la)
         h = layer_height(self.layers.raw(la))
         expected = h * rise_factor(kf, self.p)
         top, source, so, vals = await self._measure(la, z_cmd)
@@ -190,7 +190,7 @@ class LayerControl:
             "layer": la, "planned_top_mm": _r(planned), "z_mm": _r(z_cmd), "measured_top_mm": _r(top),
             "source": source, "stick_out_mm": _r(so), "stick_out_min_mm": _r(min(vals)) if vals else None,
             "stick_out_max_mm": _r(max(vals)) if vals else None, "height_error_mm": _r(top - planned),
-            "z_offset_mm": _r(dz), "speed_factor": _r(kf, 5), "gain": _r(self.gain, 5),
+            "z_offset_mm": _r(dz), "correction_mm": _r(z_cmd - planned), "speed_factor": _r(kf, 5), "gain": _r(self.gain, 5),
             "expected_rise_mm": _r(expected), "expected_cum_mm": _r(self.expected_cum), "mode": self.cfg.mode, "added": bool(self.layers.raw(la).get("added")),
         }
         pause = None
@@ -204,29 +204,48 @@ class LayerControl:
             self.bus.update(stick_out_mm=so, layer_height_error_mm=top - planned)
         return pause
 
+    def replanned_z(self, j: int) -> float:
+        """Layer j's top in the current plan: the planned final top spread over the current layer
+        count in proportion to the layers' heights (the job's z while no layer is added or dropped)."""
+        hs = [layer_height(x) for x in list.__iter__(self.layers)]
+        base = layer_z(self.job_layers[0]) - layer_height(self.job_layers[0])
+        if len(hs) == self.n_planned or sum(hs) <= 0:
+            return layer_z(self.layers.raw(j))
+        return base + (self.final_mm - base) * sum(hs[:j + 1]) / sum(hs)
+
     def _next(self, la: int, top: float, so: float | None, vals: list[float], work: list[WorkItem],
               k: int) -> tuple[dict, str, str | None]:
-        heights = [layer_height(x) for x in build_layers(self.job_layers, max(self.n_total, self.n_planned))]
+        n_max = self.n_planned + math.ceil(self.n_planned * self.cfg.max_layer_change_pct / 100.0)
+        heights = [layer_height(x) for x in build_layers(self.job_layers, max(self.n_total + 1, self.n_planned))]
         d = decide(top_mm=top, final_mm=self.final_mm, heights=heights, gain=self.gain, p=self.p,
                    k_range=self.k_range, n_done=la + 1, n_total=self.n_total, n_planned=self.n_planned,
-                   layer_change=self.cfg.layer_change == "add_drop")
+                   layer_change=self.cfg.layer_change == "add_drop",
+                   n_range=(self.n_planned - (n_max - self.n_planned), n_max))
         if d.n_total != self.n_total:
             self._set_count(d.n_total)
             work[k + 1:] = [WorkItem(j, pi) for j in range(la + 1, self.n_total)
                             for pi in range(len(self.layers.raw(j)["passes"]))]
             self._event("layer_count", {"after_layer": la, "layers": self.n_total}, layer=la)
         self.next_k = d.speed_factor
-        pause = None
+        pause, corr = None, 0.0
+        rise = self.gain * layer_height(self.layers.raw(min(la + 1, self.n_total - 1))) * rise_factor(self.next_k, self.p)
+        if abs(d.projected_top_mm - self.final_mm) > max(0.5 * rise, 0.5) and self.n_total in (n_max, 2 * self.n_planned - n_max):
+            pause = (f"layer {la + 1}: the part rises {self.gain:.2f} × the model a layer (top {top:.2f} mm after layer "
+                     f"{la}); even at the speed trim's limit and {self.n_total} layers (max_layer_change_pct "
+                     f"{self.cfg.max_layer_change_pct:g}) it would end at {d.projected_top_mm:.2f} mm, not "
+                     f"{self.final_mm:.2f} mm")
         if la + 1 < self.n_total:
             nxt = self.layers.raw(la + 1)
-            want = top + self.gain * layer_height(nxt) * rise_factor(self.next_k, self.p) - layer_z(nxt)
+            plan = self.replanned_z(la + 1)
             lim = self.cfg.max_z_correction_mm
-            self.next_dz = max(-lim, min(lim, want))
+            want = top + rise - plan
+            corr = max(-lim, min(lim, want))
+            self.next_dz = plan + corr - layer_z(nxt)
             if abs(want) > lim:
-                pause = (f"layer {la + 1}: the part's top is {top - layer_z(self.layers.raw(la)):+.2f} mm off the plan "
+                pause = (f"layer {la + 1}: the part's top is {top - self.replanned_z(la):+.2f} mm off the plan "
                          f"after layer {la}; the next layer needs a z correction of {want:+.2f} mm, beyond "
                          f"process_control.max_z_correction_mm {lim:g}: its stick-out would be "
-                         f"{self.l0 + want - self.next_dz:.2f} mm at the largest correction")
+                         f"{self.l0 + want - corr:.2f} mm at the largest correction")
         lo, hi = self.cfg.ctwd_window_mm
         out = [v for v in vals if not lo <= v <= hi]
         if out:
@@ -234,8 +253,8 @@ class LayerControl:
             pause = (f"layer {la}: stick-out {worst:.2f} mm ({'through the arc' if self.platform == 'robot' else 'probed'}"
                      f", layer mean {so:.2f} mm) outside process_control.ctwd_window_mm [{lo:g}, {hi:g}]; "
                      f"paused before layer {la + 1}")
-        nxt_rec = {"z_offset_mm": _r(self.next_dz), "speed_factor": _r(self.next_k, 5), "layers": self.n_total,
-                   "projected_top_mm": _r(d.projected_top_mm)}
+        nxt_rec = {"z_offset_mm": _r(self.next_dz), "correction_mm": _r(corr), "speed_factor": _r(self.next_k, 5),
+                   "layers": self.n_total, "projected_top_mm": _r(d.projected_top_mm)}
         return nxt_rec, d.action, pause
 
     def _set_count(self, n: int) -> None:

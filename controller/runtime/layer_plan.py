@@ -132,11 +132,13 @@ def _clip_k(k: float, lo: float, hi: float) -> float:
 
 def decide(*, top_mm: float, final_mm: float, heights: list[float], gain: float, p: float,
            k_range: tuple[float, float], n_done: int, n_total: int, n_planned: int,
-           layer_change: bool = True, tol_mm: float = 0.25, margin_mm: float = 0.1) -> Decision:
+           layer_change: bool = True, tol_mm: float = 0.25, margin_mm: float = 0.1,
+           n_range: tuple[int, int] = (0, 1 << 30)) -> Decision:
     """The trim (and the layer count) that end the build at `final_mm` from `top_mm`.
 
     `heights`: the planned height of every layer of the current plan (len n_total) and after
-    (the extra layers' height is the last one's); `n_done` layers are built.
+    (the extra layers' height is the last one's); `n_done` layers are built; the layer count
+    stays inside `n_range`.
     """
     lo, hi = k_range
     h_extra = heights[n_planned - 1] if n_planned else (heights[-1] if heights else 0.0)
@@ -159,7 +161,7 @@ def decide(*, top_mm: float, final_mm: float, heights: list[float], gain: float,
         # the trim cannot end near the plan: one layer more (or less) a decision, when it ends nearer
         # (by half a layer when the trim misses by more than that, else by `margin_mm`)
         cand = n_total + (1 if proj < final_mm else -1)
-        if cand >= n_done:
+        if max(n_done, n_range[0]) <= cand <= n_range[1]:
             kc, pc = outcome(cand)
             gain_mm = miss - abs(pc - final_mm)
             if gain_mm > (0.0 if miss > 0.5 * layer_rise else margin_mm):
