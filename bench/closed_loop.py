@@ -278,7 +278,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", default="")
     args = ap.parse_args(argv or [])
     n_wall = 10 if args.quick else args.layers
-    jobs = {"wall": wall_job(n_wall), "block": block_job(max(4, n_wall // 3))}
+    # a long wall: its ends slump a little more each layer (a 2.5-D pool running down the end
+    # faces), so a short wall 60 layers tall turns into a dome; 100 mm keeps a straight middle
+    jobs = {"wall": wall_job(n_wall, 100.0 if n_wall > 20 else 40.0), "block": block_job(max(4, n_wall // 3))}
     cases = [c for c in CASES if not args.quick or c[2] == 0.85]
     if args.only:
         want = args.only.split(":")

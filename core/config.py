@@ -222,7 +222,7 @@ class ProcessControl(_Frozen):
     max_z_correction_mm: float = Field(default=5.0, gt=0.0, le=100.0)  # beyond: pause with a message
     speed_trim_pct: float = Field(default=25.0, ge=0.0, le=60.0)  # travel speed within ± this of the plan
     layer_change: Literal["add_drop", "none"] = "add_drop"      # add / drop top layers when the trim saturates
-    max_layer_change_pct: float = Field(default=25.0, ge=0.0, le=100.0)  # at most this share of layers added / dropped
+    max_layer_change_pct: float = Field(default=50.0, ge=0.0, le=200.0)  # at most this share of layers added / dropped
     gain_window_layers: int = Field(default=6, ge=2, le=100)    # measured tops the gain is fitted over
     steady_share: float = Field(default=0.6, gt=0.0, le=1.0)    # middle share of a bead's samples estimated
 

@@ -26,7 +26,7 @@ from controller.journal.store import Journal
 from controller.runtime.build import WorkItem
 from controller.runtime.events import EventBus
 from controller.runtime.layer_plan import (
-    adjusted_layer, build_layers, decide, layer_height, layer_z, rise_exponent, rise_factor, fit_gain,
+    adjusted_layer, build_layers, decide, layer_height, layer_z, rise_factor, fit_gain,
 )
 from controller.runtime.stickout import StickOutEstimator
 from core.config import ProcessControl
@@ -69,7 +69,7 @@ class LayerControl:
         self.layers = BuiltLayers(self, self.job_layers)   # the runner builds this list (edited in place)
         self.est = StickOutEstimator(material, cfg.steady_share)
         self.l0 = self.est.nominal_mm
-        self.p = rise_exponent(len(self.job_layers[-1]["passes"]), material.ribeiro.k3)
+        self.p = 1.0   # the rise follows the metal (controller/runtime/layer_plan.py)
         top_speed = max(float(p["speed_mm_min"]) for la in self.job_layers for p in la["passes"])
         trim = cfg.speed_trim_pct / 100.0
         self.k_range = (max(1.0 - trim, 0.05), max(min(1.0 + trim, max_speed_mm_min / top_speed), 1e-3))
@@ -229,11 +229,15 @@ class LayerControl:
         self.next_k = d.speed_factor
         pause, corr = None, 0.0
         rise = self.gain * layer_height(self.layers.raw(min(la + 1, self.n_total - 1))) * rise_factor(self.next_k, self.p)
-        if abs(d.projected_top_mm - self.final_mm) > max(0.5 * rise, 0.5) and self.n_total in (n_max, 2 * self.n_planned - n_max):
+        # the layers the saturated trim needs to reach the planned top: beyond the allowed change,
+        # the disturbance cannot be corrected in range (judged once the gain rests on enough layers)
+        most = self.gain * layer_height(self.job_layers[-1]) * rise_factor(self.k_range[0], self.p)
+        need = la + 1 + math.ceil(max(self.final_mm - top, 0.0) / most) if most > 0 else n_max
+        if len(self.hist) > self.cfg.gain_window_layers and need > n_max and self.cfg.layer_change == "add_drop":
             pause = (f"layer {la + 1}: the part rises {self.gain:.2f} × the model a layer (top {top:.2f} mm after layer "
-                     f"{la}); even at the speed trim's limit and {self.n_total} layers (max_layer_change_pct "
-                     f"{self.cfg.max_layer_change_pct:g}) it would end at {d.projected_top_mm:.2f} mm, not "
-                     f"{self.final_mm:.2f} mm")
+                     f"{la}, planned {self.replanned_z(la):.2f} mm); even at the speed trim's limit it needs {need} "
+                     f"layers for the planned {self.final_mm:.2f} mm, beyond {n_max} "
+                     f"(process_control.max_layer_change_pct {self.cfg.max_layer_change_pct:g})")
         if la + 1 < self.n_total:
             nxt = self.layers.raw(la + 1)
             plan = self.replanned_z(la + 1)

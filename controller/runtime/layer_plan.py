@@ -8,9 +8,9 @@ CTWD = L0 + z − top, and a bead laid at z whose stick-out reads L has its top 
 The law, after layer i with measured top T (mean over the layer's bead centre lines):
 - gain: the measured tops against the model's cumulative rise E = Σ h·f(k) (k the speed factor
   each layer was laid with): ĝ the least-squares slope over the last `gain_window_layers`
-  measured tops (and the substrate). f(k) = k^−p is the metal's effect on
-  the rise: p = 1 for overlapped beads (rise = metal / step-over), p = 1 + K3 for a lone bead
-  (rise = metal / width, Ribeiro's width ∝ S^K3 widens a slower bead);
+  measured tops (and the substrate). f(k) = k^−p is the metal's effect on the rise, p = 1: an
+  overlapped layer rises metal / step-over, a wall metal / the wall's width (set by the layers
+  under it: a faster, narrower bead spreads on it, a slower, wider one first widens it);
 - trim: the remaining layers must rise H − T (H the planned final top) where the model says
   ĝ·Σh·f(k): k = f⁻¹((H − T) / (ĝ·Σh)), kept inside [1 − trim, 1 + trim] and the cell's speed limit;
 - layers: only when the trim cannot end within half a layer of H, one top layer per decision is
@@ -24,7 +24,7 @@ import math
 from dataclasses import dataclass
 
 __all__ = ["Decision", "layer_z", "layer_height", "shift_layer", "trim_layer", "adjusted_layer",
-           "extra_layer", "build_layers", "rise_exponent", "rise_factor", "speed_for", "fit_gain", "decide"]
+           "extra_layer", "build_layers", "rise_factor", "speed_for", "fit_gain", "decide"]
 
 
 def layer_z(layer: dict) -> float:
@@ -85,11 +85,6 @@ def build_layers(layers: list[dict], n_total: int) -> list[dict]:
     if n_total <= len(layers):
         return list(layers[:n_total])
     return list(layers) + [extra_layer(layers, j) for j in range(len(layers), n_total)]
-
-
-def rise_exponent(passes_in_layer: int, k3: float) -> float:
-    """p of f(k) = k^−p: 1 for overlapped beads, 1 + K3 (Ribeiro's width exponent) for a lone bead."""
-    return 1.0 if passes_in_layer > 1 else max(1.0 + k3, 0.1)
 
 
 def rise_factor(speed_factor: float, p: float) -> float:
