@@ -288,9 +288,14 @@ def main(argv: list[str] | None = None) -> int:
     out = []
     for part, platform, gain in cases:
         for mode in args.modes.split(","):
-            with tempfile.TemporaryDirectory(prefix="closed_loop_") as d:
-                o = asyncio.run(build(jobs[part], part=part, platform=platform, gain=gain, mode=mode, tmp=Path(d),
-                                      scale=args.scale if platform == "robot" else args.cnc_scale, temp_coeff=args.temp_coeff, heat_capacity=150.0))
+            for _attempt in range(2):   # a link fault of a loaded host (watchdog) is retried once
+                with tempfile.TemporaryDirectory(prefix="closed_loop_") as d:
+                    o = asyncio.run(build(jobs[part], part=part, platform=platform, gain=gain, mode=mode, tmp=Path(d),
+                                          scale=args.scale if platform == "robot" else args.cnc_scale,
+                                          temp_coeff=args.temp_coeff, heat_capacity=150.0))
+                if o.state != "fault":
+                    break
+                print(json.dumps({"retry": o.row()}), flush=True)
             print(json.dumps(o.row()), flush=True)
             out.append(o.row())
     with tempfile.TemporaryDirectory(prefix="closed_loop_") as d:
