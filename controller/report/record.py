@@ -75,7 +75,8 @@ def bead_records(journal: Journal, job: dict | None, scale: float, defects: list
             "voltage_min_v": _r(b["u_min"]), "voltage_max_v": _r(b["u_max"]),
             "planned_wfs_m_min": plan.get("wfs_m_min"), "wfs_mean_m_min": w_mean,
             "wfs_min_m_min": w_min, "wfs_max_m_min": w_max,
-            "planned_speed_mm_min": plan.get("speed_mm_min", b["speed_mm_min"]),
+            # the speed the bead was commanded at: the plan's, or the layer control's trim of it
+            "planned_speed_mm_min": b["speed_mm_min"] or plan.get("speed_mm_min"),
             "actual_speed_mm_min": _r(b.get("speed_actual_mm_min"), 1),
             "motion_time_s": _r(b.get("motion_s"), 3),
             "starved": b.get("starved"),
