@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 from pydantic import ValidationError
@@ -192,12 +193,20 @@ async def test_a_resume_reapplies_the_journaled_corrections(tmp_path: Path):
 # -- short builds against the simulators ------------------------------------------------------------
 
 
+def _build(job: dict, tmp: Path, **kw: Any) -> Any:
+    """A build; once more when a loaded host (2 cores shared) let a link's watchdog trip (not the subject here)."""
+    o = asyncio.run(build(job, tmp=tmp / "a", **kw))
+    if o.state == "fault" and any("watchdog" in a or "link" in a for a in o.alarms):
+        o = asyncio.run(build(job, tmp=tmp / "b", **kw))
+    return o
+
+
 @pytest.mark.timeout(600)
 def test_a_closed_loop_wall_ends_nearer_the_plan_with_the_ctwd_in_band(tmp_path: Path):
     job = wall_job(8)
     kw = dict(part="wall", platform="robot", gain=0.85, scale=30.0)
-    op = asyncio.run(build(job, mode="open", tmp=tmp_path / "open", **kw))
-    cl = asyncio.run(build(job, mode="layer", tmp=tmp_path / "closed", **kw))
+    op = _build(job, tmp_path / "open", mode="open", **kw)
+    cl = _build(job, tmp_path / "closed", mode="layer", **kw)
     assert op.state == cl.state == "complete", (op.alarms, cl.alarms)
     assert op.height_error_mm is not None and cl.height_error_mm is not None
     assert op.height_error_mm < -1.2                        # open loop: low, the torch drifts away
@@ -213,8 +222,7 @@ def test_a_closed_loop_wall_ends_nearer_the_plan_with_the_ctwd_in_band(tmp_path:
 
 @pytest.mark.timeout(600)
 def test_a_disturbance_out_of_range_pauses_before_the_ctwd_leaves_the_window(tmp_path: Path):
-    o = asyncio.run(build(wall_job(12), part="wall", platform="robot", gain=0.5, mode="layer", tmp=tmp_path,
-                          scale=30.0))
+    o = _build(wall_job(12), tmp_path, part="wall", platform="robot", gain=0.5, mode="layer", scale=30.0)
     assert o.state.startswith("paused"), (o.state, o.alarms)
     assert o.alarms and "max_layer_change_pct" in o.alarms[0] and "layer " in o.alarms[0]
     assert o.layers_built < 12
@@ -223,8 +231,7 @@ def test_a_disturbance_out_of_range_pauses_before_the_ctwd_leaves_the_window(tmp
 
 @pytest.mark.timeout(600)
 def test_a_closed_loop_wall_on_the_cnc_probes_between_layers(tmp_path: Path):
-    o = asyncio.run(build(wall_job(5), part="wall", platform="cnc", gain=1.15, mode="layer", tmp=tmp_path,
-                          scale=60.0))
+    o = _build(wall_job(5), tmp_path, part="wall", platform="cnc", gain=1.15, mode="layer", scale=60.0)
     assert o.state == "complete", o.alarms
     assert o.probe_err_max_mm is not None and o.probe_err_max_mm < 0.05
     assert [r["source"] for r in o.records] == ["probe"] * len(o.records)
