@@ -232,7 +232,7 @@ class LayerControl:
         # the layers the saturated trim needs to reach the planned top: beyond the allowed change,
         # the disturbance cannot be corrected in range (judged once the gain rests on enough layers)
         most = self.gain * layer_height(self.job_layers[-1]) * rise_factor(self.k_range[0], self.p)
-        need = la + 1 + math.ceil(max(self.final_mm - top, 0.0) / most) if most > 0 else n_max
+        need = la + 1 + math.ceil(max(self.final_mm - top - 0.5 * most, 0.0) / most) if most > 0 else n_max
         if len(self.hist) > self.cfg.gain_window_layers and need > n_max and self.cfg.layer_change == "add_drop":
             pause = (f"layer {la + 1}: the part rises {self.gain:.2f} × the model a layer (top {top:.2f} mm after layer "
                      f"{la}, planned {self.replanned_z(la):.2f} mm); even at the speed trim's limit it needs {need} "
