@@ -237,3 +237,59 @@ def test_a_closed_loop_wall_on_the_cnc_probes_between_layers(tmp_path: Path):
     assert [r["source"] for r in o.records] == ["probe"] * len(o.records)
     assert o.height_error_mm is not None and abs(o.height_error_mm) < 0.5
     assert o.ctwd_min is not None and o.ctwd_max is not None and 13.5 <= o.ctwd_min and o.ctwd_max <= 16.5
+
+
+@pytest.mark.timeout(600)
+def test_a_build_aborted_mid_layer_resumes_at_the_journaled_z(tmp_path: Path):
+    """Abort inside layer 2 of a closed-loop block, continue with a new controller on the same
+    journal (what `cell resume` does): the rest of layer 2 is laid at the z the first run gave it."""
+    from bench.closed_loop import _configs, block_job
+    from controller.api import CellController
+    from controller.harness.sim import SimHarness, with_urls
+
+    job = block_job(4)
+    cfg, sim = _configs("robot", "layer", 30.0, 0.85, 0.0, 0.0, 2000.0)
+    harness = SimHarness(cfg, sim, log_dir=tmp_path / "log")
+    cfg = with_urls(cfg, harness.start())
+
+    async def first() -> tuple[str, dict[int, float]]:
+        ctl = CellController(cfg, runs_dir=tmp_path / "runs")
+        try:
+            await ctl.connect(reply_timeout_ms=500.0)
+            ctl.open_job(job)
+            task = asyncio.ensure_future(ctl.start())
+            n_first = len(job["layers"][0]["passes"]) + len(job["layers"][1]["passes"]) + 1
+            while not task.done():
+                await asyncio.sleep(0.005)
+                if ctl.snapshot().passes_done >= n_first - 1 and ctl.snapshot().layer == 2:
+                    ctl.abort()
+                    break
+            res = await task
+            assert ctl.runner is not None
+            return res.state, {la: ctl.runner.layers[la]["passes"][0]["points"][0][2] for la in range(3)}
+        finally:
+            await ctl.close()
+
+    async def second() -> tuple[str, dict[int, float]]:
+        ctl = CellController(cfg, runs_dir=tmp_path / "runs")
+        try:
+            await ctl.connect(reply_timeout_ms=500.0)
+            ctl.open_job(job)
+            res = await ctl.start()
+            assert ctl.runner is not None
+            return res.state, {la: ctl.runner.layers[la]["passes"][0]["points"][0][2] for la in range(3)}
+        finally:
+            await ctl.close()
+
+    try:
+        s1, z1 = asyncio.run(first())
+        s2, z2 = asyncio.run(second())
+    finally:
+        harness.stop()
+    assert s1 == "aborted" and s2 == "complete"
+    assert z2 == z1                                   # the layers already started keep their z, exactly
+    assert abs(z1[2] - 0.77 * 3) > 1e-3               # and layer 2 was corrected (not the plan's z)
+    zs = sorted({round(json.loads(x)["to"][2], 4) for x in (tmp_path / "log" / "deposit.jsonl").read_text().splitlines()
+                 if json.loads(x).get("device") == "robot"})
+    # one z for layer 2 over both runs (the robot's positions carry 3 decimals)
+    assert len([z for z in zs if abs(z - z1[2]) < 0.02]) == 1 and any(abs(z - z1[2]) < 1.5e-3 for z in zs)

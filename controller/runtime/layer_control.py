@@ -125,10 +125,10 @@ class LayerControl:
         got = self._built.get(la)
         if got is not None:
             return got
-        if la not in self.applied:
-            self.applied[la] = (self.next_dz, self.next_k)
-            self._event("layer_plan", {"layer": la, "z_offset_mm": _r(self.next_dz),
-                                       "speed_factor": _r(self.next_k, 5)}, layer=la)
+        if la not in self.applied:   # rounded as journaled: a resume lays it at the very same z
+            dz, k = round(self.next_dz, 6), round(self.next_k, 6)
+            self.applied[la] = (dz, k)
+            self._event("layer_plan", {"layer": la, "z_offset_mm": dz, "speed_factor": k}, layer=la)
         dz, k = self.applied[la]
         got = self._built[la] = adjusted_layer(self.layers.raw(la), dz, k)
         if self.bus is not None:
