@@ -2,7 +2,8 @@
 simulated cell, judged from the world's truth (deposit.jsonl's `ctwd_mm`, the height map).
 
 Parts (planned with planner.plan.plan_part from trimesh boxes): a single-bead wall (7 mm bead,
-40 mm long) and a multi-bead block (two perimeters and fill, 40 × 20 mm). Hidden process gains
+100 mm long; 40 mm for 20 layers or fewer) and a multi-bead block (a perimeter and fill, 40 × 20 mm,
+a third of the wall's layers). Hidden process gains
 0.85 and 1.15 (sim.yaml `process.height_gain`) plus a temperature term
 (`height_temp_coeff`, the part kept hot by a small heat capacity); robot (stick-out through the
 arc) and CNC (probe between layers). Figures: final height error (the height map on the last
