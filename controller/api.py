@@ -29,6 +29,7 @@ from controller.report.worker import record_build_end
 from controller.runtime.arc_out import RunOn
 from controller.job.check import check_job, job_material
 from controller.runtime.build import BuildOptions, BuildResult, BuildRunner
+from controller.runtime.controlled_build import ControlledRunner, make_control
 from controller.job.identity import canonical_json, job_hash, job_name, run_dir_for
 from controller.runtime.devices import Devices
 from controller.runtime.host_witness import HostWitness
@@ -336,13 +337,16 @@ class CellController:
             raise self._refuse("start")
         assert self.devices is not None and self.interlocks is not None
         work = remaining_work(self.job, self.journal)
+        # process_control (docs/closed-loop.md): the layers as built, restored from the journal
+        control = make_control(self.cfg, self.job, self.material, self.journal, self.bus, self.executor)
+        work = control.adjust_work(work, self.journal.done_passes())
         quiet_gc()
         self.journal.event("info", f"run {self.journal.run}: {len(work)} passes to deposit")
         self.journal.event("run", json.dumps({"run": self.journal.run, "time_scale": self.options.time_scale,
                                               "passes_left": len(work)}))
-        self.runner = BuildRunner(job=self.job, journal=self.journal, machine=self.machine, bus=self.bus,
-                                  executor=self.executor, power=self.devices.power_source(), cellio=self.devices.cellio,
-                                  options=self.options, arc=self.arc)
+        self.runner = ControlledRunner(control=control, job=self.job, journal=self.journal, machine=self.machine,
+                                       bus=self.bus, executor=self.executor, power=self.devices.power_source(),
+                                       cellio=self.devices.cellio, options=self.options, arc=self.arc)
         self.interlocks.runner = self.runner
         task = asyncio.get_running_loop().create_task(self.runner.run(work))
         self.interlocks.build_task = task

@@ -5,7 +5,7 @@ from pathlib import Path
 from typing import Any, Callable, Literal, TypeVar, get_args
 
 import yaml
-from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
 from typing_extensions import Annotated
 
 from core.errors import ConfigError
@@ -219,6 +219,29 @@ class OpcUaSettings(_Frozen):
     serial_number: str = ""            # default: the cell's name
 
 
+class ProcessControl(_Frozen):
+    """Closed-loop layer height (DESIGN.md §6b, docs/closed-loop.md); `open` keeps the plan's z."""
+
+    mode: Literal["open", "layer"] = "open"
+    # the stick-out (CTWD) the torch may have: an estimate outside pauses before the next layer
+    ctwd_window_mm: tuple[float, float] = (12.0, 18.0)
+    probe_every_layers: int = Field(default=1, ge=1, le=1000)   # CNC: probe the top every n layers
+    probe_points: int = Field(default=4, ge=1, le=50)           # CNC: points per probed layer
+    max_z_correction_mm: float = Field(default=5.0, gt=0.0, le=100.0)  # beyond: pause with a message
+    speed_trim_pct: float = Field(default=25.0, ge=0.0, le=60.0)  # travel speed within ± this of the plan
+    layer_change: Literal["add_drop", "none"] = "add_drop"      # add / drop top layers when the trim saturates
+    max_layer_change_pct: float = Field(default=50.0, ge=0.0, le=200.0)  # at most this share of layers added / dropped
+    gain_window_layers: int = Field(default=6, ge=2, le=100)    # measured tops the gain is fitted over
+    steady_share: float = Field(default=0.6, gt=0.0, le=1.0)    # middle share of a bead's samples estimated
+
+    @model_validator(mode="after")
+    def _window(self) -> "ProcessControl":
+        lo, hi = self.ctwd_window_mm
+        if not 0.0 < lo < hi:
+            raise ValueError(f"ctwd_window_mm: needs 0 < lo < hi (got [{lo}, {hi}])")
+        return self
+
+
 class CellConfig(_Frozen):
     cell: CellInfo = CellInfo()
     devices: Devices
@@ -227,6 +250,7 @@ class CellConfig(_Frozen):
     nozzle: Nozzle = Nozzle()
     probe: ProbeSettings = ProbeSettings()
     opcua: OpcUaSettings = OpcUaSettings()
+    process_control: ProcessControl = ProcessControl()
 
 
 # --- sim.yaml --------------------------------------------------------------------------------

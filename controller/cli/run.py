@@ -57,6 +57,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--layers", type=int, default=None, help=argparse.SUPPRESS)  # quick demo in tests
     d.add_argument("--runs", default=None, metavar="DIR", help="runs directory (default cell.yaml's runs_dir)")
     d.add_argument("--no-align", action="store_true", help="skip probing and aligning the substrate")
+    d.add_argument("--process-control", choices=("open", "layer"), default=None,
+                   help="closed-loop layer height for the demo (default cell.yaml's process_control.mode)")
     d.add_argument("--repair", action="store_true",
                    help="hybrid repair instead: a block with a milled pocket, posed on the CNC table, "
                         "repaired end to end (cell repair run --sim)")
@@ -389,6 +391,8 @@ def _demo(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     cfg = load_cell()
     cfg = with_urls(cfg, {}, time_scale=args.time_scale)
+    if getattr(args, "process_control", None):  # docs/closed-loop.md
+        cfg = cfg.model_copy(update={"process_control": cfg.process_control.model_copy(update={"mode": args.process_control})})
     mat = load_material(cfg.cell.material)
     say(f"planning {DEMO_PART.name}: {DEMO_WIDTH_MM} mm beads of {mat.name}, perimeters until they meet (Fang 2019)")
     job = job_to_dict(plan_part(str(DEMO_PART), PlanOptions(width_mm=DEMO_WIDTH_MM, perimeters="all"), mat))

@@ -8,7 +8,8 @@ another thread.
 
 Node tree (modelled on OPC 40540 and OPC UA for Machinery), under Objects/Machines/<cell name>/:
 Identification (Manufacturer, Model, SerialNumber, SoftwareRevision), Monitoring/Process
-(Current, Voltage, WireFeedSpeed, TravelSpeed, PartTemperature, ArcOn), State, JobManagement
+(Current, Voltage, WireFeedSpeed, TravelSpeed, PartTemperature, ArcOn, StickOut,
+LayerHeightError, ZCorrection), State, JobManagement
 (JobName, JobHash, LayersTotal, LayersDone, PassesTotal, PassesDone, Layer, Pass), alarms as
 CellAlarmEventType events (Layer, Pass, PositionX/Y/Z, Kind) emitted by the machine object, and
 methods Pause, Resume, Abort only with `allow_control: true`.
@@ -47,6 +48,9 @@ PROCESS = {  # node name → (snapshot field, OPC UA type)
     "TravelSpeed": ("travel_speed_mm_min", ua.VariantType.Double),
     "PartTemperature": ("temperature_c", ua.VariantType.Double),
     "ArcOn": ("arc_on", ua.VariantType.Boolean),
+    "StickOut": ("stick_out_mm", ua.VariantType.Double),             # CTWD estimate (docs/closed-loop.md)
+    "LayerHeightError": ("layer_height_error_mm", ua.VariantType.Double),  # last layer's top − plan
+    "ZCorrection": ("z_correction_mm", ua.VariantType.Double),       # z offset of the current layer
 }
 JOB = {
     "JobName": ("job_name", ua.VariantType.String),

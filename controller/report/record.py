@@ -94,7 +94,8 @@ def _bead_run(b: dict, plan: dict, scale: float, samples: list[tuple]) -> dict[s
             "u_max": b["u_max"], "u_p5": b.get("u_p5"), "u_p95": b.get("u_p95"), "w_mean": w_mean,
             "w_min": w_min, "w_max": w_max, "w_p5": b.get("wfs_p5"), "w_p95": b.get("wfs_p95"),
             "speed": b.get("speed_actual_mm_min"), "starved": b.get("starved"), "heat": b["heat_input_j_mm"],
-            "speed_plan": plan.get("speed_mm_min", b["speed_mm_min"])}
+            # the speed the bead was commanded at: the plan's, or the layer control's trim of it
+            "speed_plan": b["speed_mm_min"] or plan.get("speed_mm_min")}
 
 
 def _bead_keys(job: dict | None, runs: dict[tuple[int, int], list[dict]]) -> list[tuple[int, int]]:

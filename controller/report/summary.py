@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from controller.journal.store import Journal
+from controller.report.height import add_height
 from controller.report.plots import plot_report
 from controller.report.record import (
     arc_time_figures,
@@ -148,6 +149,7 @@ def write_report(journal: Journal, out_dir: str | Path, job: dict | None = None,
     summary = summarize(journal, job, state, operator)
     pngs = plot_report(journal, out, job, summary) if plots else []
     summary["plots"] = [p.name for p in pngs]
+    add_height(summary, journal, out, plots)   # layer heights: layers[], layers.csv, height.png
     summary["csv"] = str(write_csv(summary["beads"], csv_path or out / "beads.csv"))
     path = out / "report.json"
     tmp = path.with_suffix(".json.tmp")

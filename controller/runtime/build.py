@@ -184,7 +184,7 @@ class BuildRunner:
                     self.m.send("abort", cause="by the operator")
                     return self._result()
                 if self.pause_requested:
-                    self.m.send("pause", cause="at the end of a bead")
+                    self.m.send("pause", cause=getattr(self, "pause_cause", None) or "at the end of a bead")
                     self._resume_evt.clear()
                     await self._resume_evt.wait()
                     if self.abort_requested:

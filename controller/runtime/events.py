@@ -69,6 +69,9 @@ class Snapshot:
     alarms: tuple[Alarm, ...] = ()
     allowed_commands: tuple[str, ...] = ()
     message: str = ""                # the latest progress line
+    stick_out_mm: float | None = None           # the latest stick-out (CTWD) estimate (docs/closed-loop.md)
+    layer_height_error_mm: float | None = None  # the last layer's measured top − its planned top
+    z_correction_mm: float | None = None        # z offset the current layer is laid with
     record_path: str | None = None   # the build record (report.json) of the last build that ended
 
     @property
@@ -109,6 +112,9 @@ class SnapshotChanges(TypedDict, total=False):
     allowed_commands: tuple[str, ...]
     message: str
     record_path: str | None
+    stick_out_mm: float | None
+    layer_height_error_mm: float | None
+    z_correction_mm: float | None
 
 
 class AlarmWhere(TypedDict, total=False):

@@ -93,7 +93,7 @@ class BuildPane(Vertical):
         self.query_one("#trend-voltage", Trend).show(arc[1], [h.voltage_v for h in hist])
         self.query_one("#trend-wfs", Trend).show(arc[2], [h.wfs_m_min for h in hist])
         self.query_one("#trend-temp", Trend).show(s.temperature_c, [h.temperature_c for h in hist])
-        self.query_one("#build-interpass", Static).update(interpass_text(v))
+        self.query_one("#build-interpass", Static).update(interpass_text(v) + process_text(s))
         links = tuple((d.device, d.connected, d.frames_tx, d.frames_rx, d.errors, d.queue_free) for d in v.devices)
         if links != self._links_key:
             self._links_key = links
@@ -171,6 +171,18 @@ def interpass_text(v: View) -> str:
     if s.interpass_limit_c is not None:
         return f"interpass limit {s.interpass_limit_c:.0f} °C"
     return ""
+
+
+def process_text(s: Snapshot) -> str:
+    """The layer-height control's figures (docs/closed-loop.md), when a build gives them."""
+    parts = []
+    if s.stick_out_mm is not None:
+        parts.append(f"stick-out {s.stick_out_mm:.2f} mm")
+    if s.layer_height_error_mm is not None:
+        parts.append(f"layer top {s.layer_height_error_mm:+.2f} mm vs plan")
+    if s.z_correction_mm is not None:
+        parts.append(f"z correction {s.z_correction_mm:+.2f} mm")
+    return ("\n" + " · ".join(parts)) if parts else ""
 
 
 def alarms_text(v: View, n: int = 5) -> str:

@@ -1,0 +1,270 @@
+"""Closed-loop layer height (DESIGN.md §6b, docs/closed-loop.md): the build runner's process control.
+
+The runner asks it for each pass as built (`pass_for`: the layer's z offset and travel-speed trim
+applied), tells it each bead's current samples (`bead_closed`: the robot's stick-out through the
+arc) and, after each pass, lets it close a layer (`after_pass`): measure the layer's top (robot:
+from the beads' stick-out; CNC: probed every `probe_every_layers`), update the gain, choose the
+next layer's z and the remaining layers' trim / count (controller/runtime/layer_plan.py), record
+it, and return a pause message when the stick-out left `ctwd_window_mm` or the correction needed
+exceeds `max_z_correction_mm`.
+
+Journal (events, one JSON object per message; nothing of the schema changes):
+- `layer_plan` {layer, z_offset_mm, speed_factor}: written before the layer's first bead; a
+  resumed build reads it back, so a layer is never laid at another height after a restart;
+- `stick_out` {layer, pass, stick_out_mm, current_a, n, sigma_mm}: per bead (through the arc);
+- `layer` {layer, planned_top_mm, z_mm, measured_top_mm, source, stick_out_mm, ...}: per layer;
+- `layer_count` {after_layer, layers}: top layers added or dropped.
+`open` mode keeps the plan (no copy of a pass, no pause): it only records the estimates.
+"""
+from __future__ import annotations
+
+import json
+import math
+from typing import Any, Awaitable, Callable, Sequence
+
+from controller.journal.store import Journal
+from controller.runtime.build import WorkItem
+from controller.runtime.events import EventBus
+from controller.runtime.layer_plan import (
+    adjusted_layer, build_layers, decide, layer_height, layer_z, rise_factor, fit_gain,
+)
+from controller.runtime.stickout import StickOutEstimator
+from core.config import ProcessControl
+from core.material import Material
+
+ProbeFn = Callable[[int, dict], Awaitable[list[float]]]   # (layer, the layer as built) -> probed tops
+
+
+class BuiltLayers(list):
+    """The layers the runner indexes: `layers[i]` is layer i as built (LayerControl.layer); the
+    list itself holds the plan's layers (planned, then added ones), iteration and slices too."""
+
+    def __init__(self, lc: "LayerControl", layers: list[dict]) -> None:
+        super().__init__(layers)
+        self.lc = lc
+
+    def __getitem__(self, i: Any) -> Any:
+        if isinstance(i, int):
+            return self.lc.layer(i if i >= 0 else len(self) + i)
+        return super().__getitem__(i)
+
+    def raw(self, i: int) -> dict:
+        return list.__getitem__(self, i)
+
+
+def _r(x: float | None, nd: int = 4) -> float | None:
+    return None if x is None or not math.isfinite(x) else round(float(x), nd)
+
+
+class LayerControl:
+    """One build's layer-height control; `open` records only."""
+
+    def __init__(self, *, job: dict, cfg: ProcessControl, material: Material, platform: str, journal: Journal,
+                 bus: EventBus | None = None, max_speed_mm_min: float = 1e9, probe: ProbeFn | None = None) -> None:
+        self.cfg, self.platform, self.journal, self.bus, self.probe = cfg, platform, journal, bus, probe
+        self.closed = cfg.mode == "layer"
+        self.job_layers: list[dict] = list(job["layers"])
+        self.n_planned = len(self.job_layers)
+        self.n_total = self.n_planned
+        self.layers = BuiltLayers(self, self.job_layers)   # the runner builds this list (edited in place)
+        self.est = StickOutEstimator(material, cfg.steady_share)
+        self.l0 = self.est.nominal_mm
+        self.p = 1.0   # the rise follows the metal (controller/runtime/layer_plan.py)
+        top_speed = max(float(p["speed_mm_min"]) for la in self.job_layers for p in la["passes"])
+        trim = cfg.speed_trim_pct / 100.0
+        self.k_range = (max(1.0 - trim, 0.05), max(min(1.0 + trim, max_speed_mm_min / top_speed), 1e-3))
+        self.final_mm = layer_z(self.job_layers[-1])
+        self.applied: dict[int, tuple[float, float]] = {}
+        self._built: dict[int, dict] = {}
+        self.next_dz, self.next_k = 0.0, 1.0
+        self.gain = 1.0
+        first = self.job_layers[0]
+        self.top = layer_z(first) - layer_height(first)        # the substrate under the plan
+        self.expected_cum = 0.0                                 # the model's rise so far (Σ h·f(k))
+        self.hist: list[tuple[float, float]] = [(0.0, self.top)]  # (model rise, measured top)
+        self.beads: dict[int, list[Any]] = {}
+        self.records: list[dict] = []
+
+    # -- journal --------------------------------------------------------------------------------
+    def _event(self, kind: str, data: dict, layer: int | None = None) -> None:
+        self.journal.event(kind, json.dumps(data, sort_keys=True), layer=layer)
+
+    def restore(self) -> None:
+        """A resumed build: the corrections already applied and the latest state, from the journal."""
+        rows = self.journal.query("SELECT kind, message FROM events WHERE kind IN "
+                                  "('layer_plan', 'layer', 'layer_count') ORDER BY id")
+        for kind, msg in rows:
+            d = json.loads(msg)
+            if kind == "layer_plan":
+                self.applied[int(d["layer"])] = (float(d["z_offset_mm"]), float(d["speed_factor"]))
+            elif kind == "layer_count":
+                self._set_count(int(d["layers"]))
+            else:
+                self.records.append(d)
+                self.gain = float(d.get("gain") or self.gain)
+                self.top = float(d["measured_top_mm"])
+                self.expected_cum = float(d.get("expected_cum_mm") or 0.0)
+                if d.get("source") in ("arc", "probe"):
+                    self.hist.append((self.expected_cum, self.top))
+                nxt = d.get("next") or {}
+                self.next_dz = float(nxt.get("z_offset_mm", self.next_dz))
+                self.next_k = float(nxt.get("speed_factor", self.next_k))
+
+    def adjust_work(self, work: list[WorkItem], done: set[tuple[int, int]]) -> list[WorkItem]:
+        """The remaining work of the planned layers, without dropped layers, with added ones."""
+        out = [w for w in work if w.layer < self.n_total]
+        out += [WorkItem(j, pi) for j in range(self.n_planned, self.n_total)
+                for pi in range(len(self.layers.raw(j)["passes"])) if (j, pi) not in done]
+        return out
+
+    # -- the runner's hooks ----------------------------------------------------------------------
+    def layer(self, la: int) -> dict:
+        """Layer `la` as built (its z offset and trim journaled before its first bead)."""
+        if not self.closed:
+            return self.layers.raw(la)
+        got = self._built.get(la)
+        if got is not None:
+            return got
+        if la not in self.applied:   # rounded as journaled: a resume lays it at the very same z
+            dz, k = round(self.next_dz, 6), round(self.next_k, 6)
+            self.applied[la] = (dz, k)
+            self._event("layer_plan", {"layer": la, "z_offset_mm": dz, "speed_factor": k}, layer=la)
+        dz, k = self.applied[la]
+        got = self._built[la] = adjusted_layer(self.layers.raw(la), dz, k)
+        if self.bus is not None:
+            self.bus.update(z_correction_mm=dz)
+        return got
+
+    def pass_for(self, la: int, pa: int) -> dict:
+        return self.layer(la)["passes"][pa]
+
+    def bead_closed(self, la: int, pa: int, currents: Sequence[float], wfs_m_min: float) -> None:
+        """A bead's arc-stable current samples: its stick-out through the arc (journaled)."""
+        e = self.est.estimate(currents, wfs_m_min)
+        if e is None:
+            return
+        self.beads.setdefault(la, []).append(e)
+        self._event("stick_out", {"layer": la, "pass": pa, "stick_out_mm": _r(e.stick_out_mm),
+                                  "current_a": _r(e.current_a, 3), "n": e.n, "sigma_mm": _r(e.sigma_mm)}, layer=la)
+        if self.bus is not None:
+            self.bus.update(stick_out_mm=e.stick_out_mm)
+
+    async def after_pass(self, item: WorkItem, work: list[WorkItem], k: int) -> str | None:
+        """After each pass: at the end of a layer, close it (may edit `work[k+1:]`); a pause message or None."""
+        if k + 1 < len(work) and work[k + 1].layer == item.layer:
+            return None
+        return await self.layer_done(item.layer, work, k)
+
+    # -- a layer's end ------------------------------------------------------------------------------
+    async def _measure(self, la: int, z_cmd: float) -> tuple[float | None, str, float | None, list[float]]:
+        """(top, source, stick-out, per-point stick-outs) of a layer just laid."""
+        beads = self.beads.pop(la, [])
+        if self.platform == "robot" and beads:
+            vals = [b.stick_out_mm for b in beads]
+            so = sum(vals) / len(vals)
+            return z_cmd + self.l0 - so, "arc", so, vals
+        last = la + 1 >= self.n_total
+        if self.closed and self.probe is not None and ((la + 1) % self.cfg.probe_every_layers == 0 or last):
+            tops = await self.probe(la, self.layer(la))
+            if tops:
+                vals = [z_cmd + self.l0 - t for t in tops]
+                top = sum(tops) / len(tops)
+                return top, "probe", z_cmd + self.l0 - top, vals
+        return None, "model", None, []
+
+    async def layer_done(self, la: int, work: list[WorkItem], k: int) -> str | None:
+        dz, kf = self.applied.get(la, (0.0, 1.0))
+        z_cmd = layer_z(self.layers.raw(la)) + dz
+        planned = self.replanned_z(la)
+        h = layer_height(self.layers.raw(la))
+        expected = h * rise_factor(kf, self.p)
+        top, source, so, vals = await self._measure(la, z_cmd)
+        self.expected_cum += expected
+        if top is None:
+            top = self.top + self.gain * expected
+        else:
+            self.hist.append((self.expected_cum, top))
+            self.gain = fit_gain(self.hist, self.cfg.gain_window_layers) or self.gain
+        self.top = top
+        rec: dict[str, Any] = {
+            "layer": la, "planned_top_mm": _r(planned), "z_mm": _r(z_cmd), "measured_top_mm": _r(top),
+            "source": source, "stick_out_mm": _r(so), "stick_out_min_mm": _r(min(vals)) if vals else None,
+            "stick_out_max_mm": _r(max(vals)) if vals else None, "height_error_mm": _r(top - planned),
+            "z_offset_mm": _r(dz), "correction_mm": _r(z_cmd - planned), "speed_factor": _r(kf, 5), "gain": _r(self.gain, 5),
+            "expected_rise_mm": _r(expected), "expected_cum_mm": _r(self.expected_cum), "mode": self.cfg.mode, "added": bool(self.layers.raw(la).get("added")),
+        }
+        pause = None
+        if self.closed:
+            rec["next"], rec["action"], pause = self._next(la, top, so, vals, work, k)
+        elif source == "model":
+            return None   # open loop without a measurement: nothing to record
+        self.records.append(rec)
+        self._event("layer", rec, layer=la)
+        if self.bus is not None:
+            self.bus.update(stick_out_mm=so, layer_height_error_mm=top - planned)
+        return pause
+
+    def replanned_z(self, j: int) -> float:
+        """Layer j's top in the current plan: the planned final top spread over the current layer
+        count in proportion to the layers' heights (the job's z while no layer is added or dropped)."""
+        hs = [layer_height(x) for x in list.__iter__(self.layers)]
+        base = layer_z(self.job_layers[0]) - layer_height(self.job_layers[0])
+        if len(hs) == self.n_planned or sum(hs) <= 0:
+            return layer_z(self.layers.raw(j))
+        return base + (self.final_mm - base) * sum(hs[:j + 1]) / sum(hs)
+
+    def _next(self, la: int, top: float, so: float | None, vals: list[float], work: list[WorkItem],
+              k: int) -> tuple[dict, str, str | None]:
+        n_max = self.n_planned + math.ceil(self.n_planned * self.cfg.max_layer_change_pct / 100.0)
+        heights = [layer_height(x) for x in build_layers(self.job_layers, max(self.n_total + 1, self.n_planned))]
+        d = decide(top_mm=top, final_mm=self.final_mm, heights=heights, gain=self.gain, p=self.p,
+                   k_range=self.k_range, n_done=la + 1, n_total=self.n_total, n_planned=self.n_planned,
+                   layer_change=self.cfg.layer_change == "add_drop",
+                   n_range=(self.n_planned - (n_max - self.n_planned), n_max))
+        if d.n_total != self.n_total:
+            self._set_count(d.n_total)
+            work[k + 1:] = [WorkItem(j, pi) for j in range(la + 1, self.n_total)
+                            for pi in range(len(self.layers.raw(j)["passes"]))]
+            self._event("layer_count", {"after_layer": la, "layers": self.n_total}, layer=la)
+        self.next_k = d.speed_factor
+        pause, corr = None, 0.0
+        rise = self.gain * layer_height(self.layers.raw(min(la + 1, self.n_total - 1))) * rise_factor(self.next_k, self.p)
+        # the layers the saturated trim needs to reach the planned top: beyond the allowed change,
+        # the disturbance cannot be corrected in range (judged once the gain rests on enough layers)
+        most = self.gain * layer_height(self.job_layers[-1]) * rise_factor(self.k_range[0], self.p)
+        need = la + 1 + math.ceil(max(self.final_mm - top - 0.5 * most, 0.0) / most) if most > 0 else n_max
+        if len(self.hist) > self.cfg.gain_window_layers and need > n_max and self.cfg.layer_change == "add_drop":
+            pause = (f"layer {la + 1}: the part rises {self.gain:.2f} × the model a layer (top {top:.2f} mm after layer "
+                     f"{la}, planned {self.replanned_z(la):.2f} mm); even at the speed trim's limit it needs {need} "
+                     f"layers for the planned {self.final_mm:.2f} mm, beyond {n_max} "
+                     f"(process_control.max_layer_change_pct {self.cfg.max_layer_change_pct:g})")
+        if la + 1 < self.n_total:
+            nxt = self.layers.raw(la + 1)
+            plan = self.replanned_z(la + 1)
+            lim = self.cfg.max_z_correction_mm
+            want = top + rise - plan
+            corr = max(-lim, min(lim, want))
+            self.next_dz = plan + corr - layer_z(nxt)
+            if abs(want) > lim:
+                pause = (f"layer {la + 1}: the part's top is {top - self.replanned_z(la):+.2f} mm off the plan "
+                         f"after layer {la}; the next layer needs a z correction of {want:+.2f} mm, beyond "
+                         f"process_control.max_z_correction_mm {lim:g}: its stick-out would be "
+                         f"{self.l0 + want - corr:.2f} mm at the largest correction")
+        lo, hi = self.cfg.ctwd_window_mm
+        out = [v for v in vals if not lo <= v <= hi]
+        if out:
+            worst = max(out, key=lambda v: abs(v - self.l0))
+            pause = (f"layer {la}: stick-out {worst:.2f} mm ({'through the arc' if self.platform == 'robot' else 'probed'}"
+                     f", layer mean {so:.2f} mm) outside process_control.ctwd_window_mm [{lo:g}, {hi:g}]; "
+                     f"paused before layer {la + 1}")
+        nxt_rec = {"z_offset_mm": _r(self.next_dz), "correction_mm": _r(corr), "speed_factor": _r(self.next_k, 5),
+                   "layers": self.n_total, "projected_top_mm": _r(d.projected_top_mm)}
+        return nxt_rec, d.action, pause
+
+    def _set_count(self, n: int) -> None:
+        self.n_total = n
+        self.layers[:] = build_layers(self.job_layers, n)
+        for j in [j for j in self._built if j >= n]:
+            del self._built[j]
+        if self.bus is not None:
+            self.bus.update(layers_total=n, passes_total=sum(len(x["passes"]) for x in list.__iter__(self.layers)))
