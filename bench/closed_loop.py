@@ -38,8 +38,10 @@ WIDTH = 7.0
 
 def wall_job(layers: int, length: float = 40.0) -> dict:
     """A single-bead wall: a box one bead wide, `layers` planned layers tall."""
+    # lazy: only this benchmark's path needs it
     import trimesh
 
+    # lazy: only this benchmark's path needs it
     from planner.job import job_to_dict
     from planner.plan import PlanOptions, plan_part
 
@@ -53,8 +55,10 @@ def wall_job(layers: int, length: float = 40.0) -> dict:
 
 def block_job(layers: int, size: tuple[float, float] = (40.0, 20.0)) -> dict:
     """A multi-bead block: perimeters and fill."""
+    # lazy: only this benchmark's path needs it
     import trimesh
 
+    # lazy: only this benchmark's path needs it
     from planner.job import job_to_dict
     from planner.plan import PlanOptions, plan_part
 
@@ -131,6 +135,7 @@ def _segments(log: Path, device: str) -> list[dict]:
 
 def _final_top(hm: Any, layer: dict, middle: float = 0.6) -> float | None:
     """Mean of the height map on the layer's centre lines, over the middle of each pass."""
+    # lazy: only this benchmark's path needs it
     from controller.align.layer_probe import probe_spots
 
     spots = probe_spots(layer["passes"], 24, middle)
@@ -199,6 +204,7 @@ async def build(job: dict, *, part: str, platform: str, gain: float, mode: str, 
                 temp_coeff: float = 0.0, noise_pct: float = 0.0, heat_capacity: float = 2000.0,
                 timeout_s: float = 900.0, pc: dict | None = None) -> Outcome:
     """One build on the simulators; the outcome judged from the world's truth."""
+    # lazy: only this benchmark's path needs it
     from controller.job.identity import run_dir_for
 
     cfg, sim = _configs(platform, mode, scale, gain, temp_coeff, noise_pct, heat_capacity, pc)
@@ -253,6 +259,7 @@ def _probe_error(records: list[dict], hm: Any, built: list[dict]) -> float | Non
     if not last:
         return None
     r = last[-1]
+    # lazy: only this benchmark's path needs it
     from controller.align.layer_probe import probe_spots
 
     spots = probe_spots(built[r["layer"]]["passes"], 3)

@@ -17,6 +17,10 @@ from typing import Any
 
 import numpy as np
 
+from controller.align.probe_cycle import ProbeTarget, probe_points
+from controller.align.routine import alignment_record, plan_for_mesh
+from controller.api import CellController
+from controller.motion.kinematics import apply_to_job
 from core.errors import CellError, InputError
 
 
@@ -55,6 +59,7 @@ class VerifyResult:
 
 
 def load_cad(job: dict, job_path: Path | None) -> Any:
+    # lazy: trimesh loads only when this path runs (start-up time)
     import trimesh
 
     rep = job.get("repair") or {}
@@ -76,7 +81,6 @@ def probe_plan(cad: Any, job: dict) -> Any:
     Limitation (docs/repair.md): the region must leave the middle of the top face and of the +X
     face intact, where the routine touches.
     """
-    from controller.align.routine import plan_for_mesh
 
     lo, hi = np.asarray(cad.bounds, dtype=float)
     size, ctr = hi - lo, (lo + hi) / 2
@@ -101,6 +105,7 @@ def probe_plan(cad: Any, job: dict) -> Any:
 def _layer_footprint(L: dict, job: dict) -> Any:
     """One layer's planned deposit: the union of its passes' centre lines widened by their width
     (None: the layer has no pass with a point)."""
+    # lazy: shapely loads only when this path runs (start-up time)
     from shapely.geometry import LineString, Point
     from shapely.ops import unary_union
 
@@ -118,6 +123,7 @@ def _layer_footprint(L: dict, job: dict) -> Any:
 def _core_candidates(core: Any, z: float) -> list[tuple[float, float, float, str]]:
     """Touch candidates on one layer's inset exposed top at height z: a grid inside it, and points
     spread along its edges."""
+    # lazy: shapely loads only when this path runs (start-up time)
     from shapely.geometry import Point
 
     lo = np.array(core.bounds[:2])
@@ -136,6 +142,7 @@ def _core_candidates(core: Any, z: float) -> list[tuple[float, float, float, str
 def _layer_candidates(foot: list[Any], i: int, z: float, inset: float) -> list[tuple[float, float, float, str]]:
     """Touch candidates on layer i's exposed top (its footprint minus the layers above), `inset` in
     from its boundary; none when nothing of it is exposed that wide."""
+    # lazy: shapely loads only when this path runs (start-up time)
     from shapely.ops import unary_union
 
     if foot[i] is None or foot[i].is_empty:
@@ -195,7 +202,6 @@ async def verify(link: Any, cell: Any, job: dict, transform: np.ndarray, grid: i
                  tolerance_mm: float = 0.1) -> VerifyResult:
     """Probe the deposit's exposed top (inside and along its edges, `verify_targets`); positions
     read back into the CAD frame and compared with the planned top under each touch."""
-    from controller.align.probe_cycle import ProbeTarget, probe_points
 
     rep = job["repair"]
     rb = np.asarray(rep["bounds_mm"], dtype=float)
@@ -222,9 +228,6 @@ async def repair_run(job: dict, cell: Any, *, job_path: Path | None = None, runs
                      tolerance_mm: float = 0.1) -> dict:
     """The whole chain on the CNC cell of `cell` (its device URLs: hardware, `cell sim up` or the
     in-process simulators of controller.harness); returns the report."""
-    from controller.motion.kinematics import apply_to_job
-    from controller.align.routine import alignment_record
-    from controller.api import CellController
 
     if cell.cell.platform != "cnc":
         cell = cell.model_copy(update={"cell": cell.cell.model_copy(update={"platform": "cnc"})})

@@ -95,9 +95,11 @@ def _num(rows: list[dict[str, Any]], key: str) -> list[float]:
 
 def plot_height(rows: list[dict[str, Any]], path: Path, window: tuple[float, float] | None = None) -> Path:
     """height.png: planned and measured top per layer, the stick-out (estimate, truth) and the correction."""
+    # lazy: matplotlib loads only when this path runs (start-up time)
     import matplotlib
 
     matplotlib.use("Agg")
+    # lazy: matplotlib loads only when this path runs (start-up time)
     import matplotlib.pyplot as plt
 
     x = [int(r["layer"]) + 1 for r in rows]

@@ -35,9 +35,11 @@ def _with_gaps(t: list[float], cols: list[list[Any]]) -> tuple[list[float], list
 
 def plot_report(journal: Journal, out: Path, job: dict | None, summary: dict) -> list[Path]:
     """Write layers.png, process.png, temperature.png and defects.png into `out`."""
+    # lazy: matplotlib loads only when this path runs (start-up time)
     import matplotlib
 
     matplotlib.use("Agg")
+    # lazy: matplotlib loads only when this path runs (start-up time)
     import matplotlib.pyplot as plt
 
     paths: list[Path] = []
@@ -103,6 +105,7 @@ def _process_per_bead(plt: Any, out: Path, summary: dict) -> Path:
         _bead_panel(ax, signal, beads, x, bad, layer_starts, pct, tol)
     axes[-1].set_xlabel("bead (in build order; grey lines: layer starts; red: beads with a defect)")
     axes[-1].set_xlim(0.5, max(n, 1) + 0.5)
+    # lazy: matplotlib loads only when this path runs (start-up time)
     from matplotlib.ticker import MaxNLocator
 
     axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
@@ -216,6 +219,7 @@ def _defects(plt: Any, out: Path, job: dict | None, summary: dict) -> Path:
 def _save(fig: Any, path: Path) -> Path:
     fig.tight_layout()
     fig.savefig(path, dpi=80)
+    # lazy: matplotlib loads only when this path runs (start-up time)
     import matplotlib.pyplot as plt
 
     plt.close(fig)

@@ -36,28 +36,11 @@ def summarize(journal: Journal, job: dict | None = None, state: str | None = Non
     layers_total = len(job["layers"]) if job else None
     passes_total = sum(len(la["passes"]) for la in job["layers"]) if job else None
     done = journal.done_passes()
-    layers_done = 0
-    if job:
-        for li, la in enumerate(job["layers"]):
-            if all((li, pi) in done for pi in range(len(la["passes"]))):
-                layers_done += 1
-            else:
-                break
+    layers_done = _layers_done(job, done)
     alarms = journal.alarm_rows()
-    defects = [a for a in alarms if a["position"] is not None]
-    # beads the measurements say were not deposited as planned (controller/runtime/bead_check.py)
-    defects += [{"t": d["t"], "message": f"defect: {d['reason']}", "state": "defect", "layer": d["layer"],
-                 "pass": d["pass"], "position": d["position"], "run": d["run"], "measured_mm": d["measured_mm"]}
-                for d in journal.defect_rows()]
+    defects = _defects(journal, alarms)
     beads = bead_records(journal, job, scale, defects, _tolerance(job))
-    per_layer: dict[int, dict[str, float]] = {}
-    for b in beads:
-        if b["status"] == "not built":
-            continue
-        d = per_layer.setdefault(b["layer"], {"arc_time_s": 0.0, "heat_j": 0.0, "length_mm": 0.0})
-        d["arc_time_s"] += b["arc_time_s"] or 0.0
-        d["length_mm"] += b["length_measured_mm"] or 0.0
-        d["heat_j"] += (b["heat_input_j_mm"] or 0.0) * (b["length_measured_mm"] or 0.0)
+    per_layer = _per_layer(beads)
     started, ended = journal.wall_clock_span()
     return {
         "job": {"name": meta.get("name"), "hash": meta.get("hash"), "platform": meta.get("platform")},
@@ -89,6 +72,39 @@ def summarize(journal: Journal, job: dict | None = None, state: str | None = Non
         "bead_defects": sum(1 for d in defects if d["state"] == "defect"),
         "tolerance": _tolerance_dict(job),
     }
+
+
+def _layers_done(job: dict[str, Any] | None, done: set[tuple[int, int]]) -> int:
+    """Layers from the first whose every pass is done (the count stops at the first one that is not)."""
+    n = 0
+    for li, la in enumerate(job["layers"] if job else []):
+        if not all((li, pi) in done for pi in range(len(la["passes"]))):
+            break
+        n += 1
+    return n
+
+
+def _defects(journal: Journal, alarms: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Alarms with a position, then the beads the measurements say were not deposited as planned
+    (controller/runtime/bead_check.py)."""
+    defects = [a for a in alarms if a["position"] is not None]
+    defects += [{"t": d["t"], "message": f"defect: {d['reason']}", "state": "defect", "layer": d["layer"],
+                 "pass": d["pass"], "position": d["position"], "run": d["run"], "measured_mm": d["measured_mm"]}
+                for d in journal.defect_rows()]
+    return defects
+
+
+def _per_layer(beads: list[dict[str, Any]]) -> dict[int, dict[str, float]]:
+    """Arc time, deposited length and heat per layer, over the beads that were built."""
+    per_layer: dict[int, dict[str, float]] = {}
+    for b in beads:
+        if b["status"] == "not built":
+            continue
+        d = per_layer.setdefault(b["layer"], {"arc_time_s": 0.0, "heat_j": 0.0, "length_mm": 0.0})
+        d["arc_time_s"] += b["arc_time_s"] or 0.0
+        d["length_mm"] += b["length_measured_mm"] or 0.0
+        d["heat_j"] += (b["heat_input_j_mm"] or 0.0) * (b["length_measured_mm"] or 0.0)
+    return per_layer
 
 
 def _tolerance(job: dict | None) -> Any:

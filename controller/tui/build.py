@@ -94,21 +94,31 @@ class BuildPane(Vertical):
         self.query_one("#trend-wfs", Trend).show(arc[2], [h.wfs_m_min for h in hist])
         self.query_one("#trend-temp", Trend).show(s.temperature_c, [h.temperature_c for h in hist])
         self.query_one("#build-interpass", Static).update(interpass_text(v) + process_text(s))
-        links = tuple((d.device, d.connected, d.frames_tx, d.frames_rx, d.errors, d.queue_free) for d in v.devices)
-        if links != self._links_key:
-            self._links_key = links
-            t = self.query_one("#build-links", DataTable)
-            t.clear()
-            for dev, ok, tx, rx, err, q in links:
-                t.add_row(dev, "[green]up[/]" if ok else "[red]down[/]", str(tx), str(rx),
-                          f"[red]{err}[/]" if err else "0", "—" if q is None else str(q))
+        self._links(v)
         self.query_one("#build-alarms", Static).update(alarms_text(v))
-        if v.job is not None:
-            layer = s.layer if s.layer is not None else (min(s.layers_done, v.job.layers - 1))
-            self.query_one(LayerPreview).show(v.job.layer_paths, layer, in_layer if s.layer is not None else 0,
-                                              f"layer {layer + 1}/{v.job.layers}")
-        else:
+        self._preview(v, in_layer)
+
+    def _links(self, v: View) -> None:
+        """The link table, redrawn only when a figure changed."""
+        links = tuple((d.device, d.connected, d.frames_tx, d.frames_rx, d.errors, d.queue_free) for d in v.devices)
+        if links == self._links_key:
+            return
+        self._links_key = links
+        t = self.query_one("#build-links", DataTable)
+        t.clear()
+        for dev, ok, tx, rx, err, q in links:
+            t.add_row(dev, "[green]up[/]" if ok else "[red]down[/]", str(tx), str(rx),
+                      f"[red]{err}[/]" if err else "0", "—" if q is None else str(q))
+
+    def _preview(self, v: View, in_layer: int) -> None:
+        """The layer being built (or the last one done) with its beads so far."""
+        s = v.snap
+        if v.job is None:
             self.query_one(LayerPreview).show((), None)
+            return
+        layer = s.layer if s.layer is not None else (min(s.layers_done, v.job.layers - 1))
+        self.query_one(LayerPreview).show(v.job.layer_paths, layer, in_layer if s.layer is not None else 0,
+                                          f"layer {layer + 1}/{v.job.layers}")
 
     def _bar(self, name: str, done: int, total: int) -> None:
         self.query_one(f"#{name}-text", Label).update(f"{done} / {total}")
