@@ -246,7 +246,8 @@ class CncSim:
         s = self.spindle_s if self.spindle_on else 0.0
         pins = "P" if self.probe_tripped() else ""
         return GrblStatus(state=name, mpos=tuple(self.pos), feed=feed, spindle=s,  # type: ignore[arg-type]
-                          probe_tripped=bool(pins), substate=int(sub) if sub else None, pins=pins)
+                          probe_tripped=bool(pins), substate=int(sub) if sub else None, pins=pins,
+                          accessories="S" if self.spindle_on else "")
 
     def status_line(self) -> str:
         return format_status(self.status(), report_buffer=bool(int(self.settings[10]) & 2),

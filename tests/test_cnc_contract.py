@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import pytest
 
 from drivers.errors import DeviceError
-from drivers.grbl import CncLink, GrblError, ProbeError
+from drivers.grbl import CncLink, GrblAxesMissing, GrblError, GrblStopped, ProbeError, SafeStopResult
 from sims.clock import SimClock
 from sims.cnc_sim import CncSim
 from sims.transport import SerialServer
@@ -92,9 +92,13 @@ async def test_banner_build_info_and_axes(target: Target) -> None:
 
 async def test_a_job_needing_ab_is_refused_on_a_3_axis_controller(target: Target) -> None:
     link = target.link
+    assert link.axis_count == target.axes
     if target.axes < 5:
-        with pytest.raises(DeviceError, match=r"needs axis A, B but Grbl 1\.1h reports 3 axes"):
+        with pytest.raises(GrblAxesMissing, match=r"^Grbl 1\.1h on .+: 3 axes \(X Y Z\); job part\.yaml needs A B "
+                                                  r"\(5-axis\); use a 5-axis firmware such as grblHAL$") as e:
             link.require_axes("XYZAB", "job part.yaml")
+        assert isinstance(e.value, DeviceError) and (e.value.have, e.value.missing) == ("XYZ", "AB")
+        assert (await link.status()).mpos == (0.0,) * 5          # refused before any motion
     else:
         link.require_axes("XYZAB", "job part.yaml")
 
@@ -180,3 +184,101 @@ async def test_failed_probe_names_the_point_and_recovers(target: Target) -> None
     assert st.state == "Idle" and st.mpos[2] == pytest.approx(z0, abs=1e-3)
     gc = await link.command("$G")               # replies still matched to the lines sent
     assert gc[0].startswith("[GC:")
+
+
+# -- the safe stop (DESIGN.md §6 "Every stop is safe", issue 26) ---------------------------------
+
+# Slow weld moves (5 mm at F150: 2 s of machine time each) so a stop lands mid-stream on every
+# target (the CNC sim runs at 50x, grbl-sim at ~0.37x real time).
+WELD = ["G21 G90 G94", "G1 F150", "M3 S1000"] + [
+    f"G1 X{5 * (i % 2) + 1:.3f} Y{0.5 * i + 0.5:.3f}" for i in range(40)]
+
+
+async def _welding(link: CncLink) -> asyncio.Future[object]:
+    """Start streaming WELD and return once the machine moves with the process on."""
+    stream: asyncio.Future[object] = asyncio.ensure_future(link.stream(WELD))
+    for _ in range(100):
+        st = await link.status()
+        if st.state == "Run" and st.spindle > 0:
+            return stream
+        assert not stream.done(), stream.exception() if stream.done() else None
+    raise AssertionError(f"never welding: {st}")
+
+
+async def _assert_stopped_clean(link: CncLink, res: SafeStopResult) -> None:
+    """What the next status reports say after a safe stop: not moving, process off, nothing queued,
+    and (after a fresh $X when alarmed) standing where it stopped."""
+    assert res.verified, (res.problems, res.steps)
+    st = await link.status()
+    assert st.state in ("Idle", "Alarm"), st
+    assert st.spindle == 0 and st.spindle_on is not True, st
+    assert st.planner_free is not None and st.rx_free is not None, "no Bf: in the status report"
+    assert st.planner_free >= link.planner_blocks_empty and st.rx_free >= link.rx_free_empty, st
+    if st.state == "Alarm":
+        assert res.needs_unlock
+        await link.unlock()
+    here = (await link.status()).mpos
+    await asyncio.sleep(0.5)
+    st = await link.status()
+    assert st.state == "Idle" and st.mpos == here == res.position     # no motion left anywhere
+    gc = await link.command("$G")
+    assert "M5" in gc[0][4:-1].split()
+
+
+async def test_safe_stop_mid_stream_holds_resets_and_verifies(target: Target) -> None:
+    link = target.link
+    await link.command("$32=1")                    # laser mode, as the cell sets it before any M3
+    stream = await _welding(link)
+    res = await link.safe_stop("test: SIGINT")
+    with pytest.raises(GrblStopped) as e:
+        await stream
+    assert e.value.result is res and "SIGINT" in str(e.value)
+    assert res.held and res.reset and not res.needs_homing and res.alarm is None   # hold completed first
+    assert res.planner_queued == 0 and res.rx_queued == 0 and res.spindle == 0 and res.spindle_off and res.modal_m5
+    assert res.unanswered_lines > 0 and res.spindle_off_s is not None and res.spindle_off_s <= res.elapsed_s
+    await _assert_stopped_clean(link, res)
+
+
+async def test_safe_stop_when_idle_sends_m5_without_reset(target: Target) -> None:
+    link = target.link
+    await link.command("M3 S500")
+    res = await link.safe_stop("test: idle")
+    assert res.verified, (res.problems, res.steps)
+    assert res.state == "Idle" and res.modal_m5
+    await _assert_stopped_clean(link, res)
+
+
+async def test_an_error_mid_stream_leaves_no_hold_with_lines_queued(target: Target) -> None:
+    link = target.link
+    await link.command("$32=1")
+    prog = WELD[:6] + ["G1 X5 Y5 W3"] + WELD[6:]            # W: not a grbl word
+    with pytest.raises(GrblError) as e:
+        await link.stream(prog)
+    assert e.value.line_number == 7 and e.value.code in (20, 36)     # grbl 20, grblHAL 36 (W is an axis word there)
+    res = e.value.safe_stop
+    assert res is not None and f"error:{e.value.code} at line 7" in res.reason
+    assert "safe stop verified" in str(e.value)
+    await _assert_stopped_clean(link, res)
+
+
+async def test_safe_stop_five_times_figures(target: Target) -> None:
+    """Each stop path 5 times (mid-stream with the process on): seconds from the call to the
+    verified spindle 0 and to everything verified (printed for the docs; run with -s)."""
+    link = target.link
+    await link.command("$32=1")
+    off, done = [], []
+    for i in range(5):
+        stream = await _welding(link)
+        res = await link.safe_stop(f"run {i}")
+        with pytest.raises(GrblStopped):
+            await stream
+        assert res.verified, (res.problems, res.steps)
+        assert res.spindle_off_s is not None
+        off.append(res.spindle_off_s)
+        done.append(res.elapsed_s)
+        if res.needs_unlock:
+            await link.unlock()
+        await link.command("G90 G0 X0 Y0")
+        await link.wait_idle(60)
+    print(f"\nsafe stop on {target.name} ({link.firmware}): spindle 0 verified after "
+          f"{', '.join(f'{t:.2f}' for t in off)} s; all verified after {', '.join(f'{t:.2f}' for t in done)} s")

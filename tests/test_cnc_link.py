@@ -17,7 +17,7 @@ import pytest
 from core.config import Workpiece as WorkpieceConfig
 from core.config import load_cell, load_sim
 from drivers.errors import LinkLost
-from drivers.grbl import CncLink, GrblAckLost, GrblAlarm, GrblError, GrblReset, GrblStuck, ProbeError
+from drivers.grbl import CncLink, GrblAckLost, GrblAlarm, GrblError, GrblReset, GrblStopped, GrblStuck, ProbeError
 from sims.clock import SimClock
 from sims.cnc_sim import CncSim
 from sims.faults import parse_fault_spec
@@ -217,6 +217,45 @@ async def test_soft_reset_in_motion_raises_alarm_3_and_flushes(rig_factory):
     await asyncio.sleep(0.3)
     assert (await r.link.status()).mpos[0] == x   # the rest of the program was flushed
     await r.link.home()
+
+
+async def test_safe_stop_from_another_thread_while_streaming(rig_factory):
+    # what the controller's signal / fault path does: a thread that is not the link's loop
+    r = await ready(rig_factory, time_scale=5.0)
+    await r.link.command("$32=1")
+    stream = asyncio.ensure_future(r.link.stream(["G1 F600", "M3 S800"] + [f"G1 X{i * 3} Y{i % 2}" for i in range(1, 60)]))
+    while (st := await r.link.status()).state != "Run" or st.spindle == 0:
+        assert not stream.done()
+    results = await asyncio.gather(asyncio.to_thread(r.link.safe_stop_threadsafe, "SIGTERM"),
+                                   r.link.safe_stop("a second signal"))       # joins the first stop
+    assert results[0] is results[1] and results[0].reason in ("SIGTERM", "a second signal")   # one stop, not two
+    res = results[0]
+    assert res.verified and res.reset and res.held and not res.needs_unlock, (res.problems, res.steps)
+    with pytest.raises(GrblStopped):
+        await stream
+    x = (await r.link.status()).mpos[0]
+    await asyncio.sleep(0.3)
+    st = await r.link.status()
+    assert st.state == "Idle" and st.mpos[0] == x and st.spindle == 0 and st.accessories == ""
+    ran = [e["line"] for e in r.executed()]
+    assert ran[-1] != "G1X177Y0" and "M5" not in ran     # the rest was flushed, not run
+    await r.link.command("G0 X0")                         # usable again, no $X needed
+
+
+async def test_safe_stop_that_cannot_wait_for_the_hold_resets_in_motion_and_says_so(rig_factory):
+    r = await ready(rig_factory, time_scale=2.0)
+    stream = asyncio.ensure_future(r.link.stream(["G1 F3000", "M3 S500"] + [f"G1 X{i * 20}" for i in range(1, 20)]))
+    while (await r.link.status()).state != "Run":
+        assert not stream.done()
+    res = await r.link.safe_stop("fault", hold_timeout_s=0.0)     # no time to decelerate
+    with pytest.raises(GrblStopped):
+        await stream
+    assert "hold" in res.timed_out and res.reset and res.alarm == 3
+    assert res.needs_unlock and res.needs_homing and res.state == "Alarm" and res.verified
+    assert not r.link.homed
+    with pytest.raises(GrblError) as e:                  # left alarmed, as reported: G-code locked out
+        await r.link.command("G0 X0")
+    assert e.value.code == 9
 
 
 # -- probing -------------------------------------------------------------------------------------

@@ -105,6 +105,18 @@ class GrblStatus:
     rx_free: int | None = None        # Bf: field (free bytes in the serial RX buffer)
     wco: Pos5 | None = None
     axes: int = 3                     # how many coordinates the position field carried
+    # A: field (accessories on: S spindle CW, C spindle CCW, F flood, M mist). grbl 1.1h prints
+    # it only in the reports that carry Ov: (every 10-20 reports, and the first after a reset),
+    # and leaves it out when nothing is on; grblHAL prints an empty `A:`. So "" means the report
+    # said nothing is on, None that this report does not tell.
+    accessories: str | None = None
+
+    @property
+    def spindle_on(self) -> bool | None:
+        """The spindle / laser enable output as this report tells it (None: it does not)."""
+        if self.accessories is None:
+            return None
+        return "S" in self.accessories or "C" in self.accessories
 
 
 @dataclass(frozen=True)
@@ -192,6 +204,8 @@ def parse_status(line: str, wco: Pos5 | None = None) -> GrblStatus:
     bf_planner = bf_rx = None
     new_wco = None
     axes = 3
+    overrides = False
+    acc: str | None = None
     for f in fields[1:]:
         key, _, val = f.partition(":")
         if key == "MPos":
@@ -213,6 +227,10 @@ def parse_status(line: str, wco: Pos5 | None = None) -> GrblStatus:
             bf_planner, bf_rx = int(a), int(b)
         elif key == "WCO":
             new_wco = _pos(val)
+        elif key == "Ov":
+            overrides = True
+        elif key == "A":
+            acc = val
     use_wco = new_wco or wco
     if mpos is None:
         if wpos is None:
@@ -223,7 +241,7 @@ def parse_status(line: str, wco: Pos5 | None = None) -> GrblStatus:
     return GrblStatus(
         state=state, mpos=mpos, feed=feed, spindle=spindle, probe_tripped="P" in pins,
         substate=substate, pins=pins, planner_free=bf_planner, rx_free=bf_rx, wco=new_wco,
-        axes=axes,
+        axes=axes, accessories=acc if acc is not None else ("" if overrides else None),
     )
 
 
@@ -280,7 +298,10 @@ def fmt(v: float) -> str:
 
 
 def format_status(st: GrblStatus, *, report_buffer: bool = False, rx_free: int = 0, planner_free: int = 0) -> str:
-    """The status report line a grbl 1.1 controller prints for `st` (used by the simulator)."""
+    """The status report line a grbl 1.1 controller prints for `st` (used by the simulator).
+
+    When `st.accessories` is not None the report carries `Ov:100,100,100` and, when anything
+    is on, `A:` (as grbl 1.1h prints them in its override reports)."""
     head = st.state if st.substate is None else f"{st.state}:{st.substate}"
     parts = [head, "MPos:" + ",".join(fmt(v) for v in st.mpos)]
     if report_buffer:
@@ -288,6 +309,10 @@ def format_status(st: GrblStatus, *, report_buffer: bool = False, rx_free: int =
     parts.append(f"FS:{st.feed:.0f},{st.spindle:.0f}")
     if st.pins:
         parts.append("Pn:" + st.pins)
+    if st.accessories is not None:
+        parts.append("Ov:100,100,100")
+        if st.accessories:
+            parts.append("A:" + st.accessories)
     return "<" + "|".join(parts) + ">"
 
 
