@@ -257,6 +257,9 @@ class CellController:
             self.devices.power_source().drop_all()
         except Exception:
             pass
+        stopping = getattr(self.executor, "stopping", None)  # a CNC safe stop ends before the link closes
+        if stopping is not None and not stopping.done():
+            await asyncio.wait([stopping], timeout=30.0)
         await self.devices.close()
         self._close_witness()
         return True
@@ -275,6 +278,9 @@ class CellController:
         job = _validated(job)
         # the whole job against the cell before it can start (the CLI checks it before connecting)
         check_job(job, self.cfg, job_material(job, self.cfg))
+        axes = getattr(self.executor, "require_job_axes", None)
+        if axes is not None:  # the firmware's axes against the job, before any motion (exit 2)
+            axes(job)
         self.job = job
         self.run_dir = Path(run_dir) if run_dir else run_dir_for(job, self.runs_dir)
         if self.journal is not None:
@@ -331,6 +337,9 @@ class CellController:
         if not self.machine.can("start"):
             raise self._refuse("start")
         assert self.devices is not None and self.interlocks is not None
+        if not self._journal_faults(self.journal, self.interlocks):
+            self.last_result = BuildResult(state=self.machine.state.value, layers_done=0, passes_done=0, arc_starts=0)
+            return self.last_result
         work = remaining_work(self.job, self.journal)
         quiet_gc()
         self.journal.event("info", f"run {self.journal.run}: {len(work)} passes to deposit")
@@ -389,6 +398,29 @@ class CellController:
         if self.runner is None or not (self.machine.state.running or self.machine.state is State.PAUSED):
             raise self._refuse("abort")
         self.runner.request_abort()
+
+    def stop_now(self, reason: str) -> bool:
+        """A stop from outside (a signal): the fault path, as a lost link takes it: weld start
+        dropped, motion held, Fault latched, the cause journaled. False when no device is
+        connected (nothing to stop)."""
+        if self.interlocks is None:
+            return False
+        self.interlocks.trip("fault", reason)
+        return True
+
+    def _journal_faults(self, journal: Journal, ilk: Interlocks) -> bool:
+        """A journal write that fails trips the cell (DESIGN.md §6): the writer thread's error
+        goes to this loop. A journal that already failed trips it now: False, no build."""
+        loop = asyncio.get_running_loop()
+
+        def on_error(msg: str) -> None:
+            loop.call_soon_threadsafe(ilk.fault, msg)
+
+        journal.on_error = on_error
+        if journal.failed is not None:
+            ilk.fault(journal.failed)
+            return False
+        return True
 
     def estop(self) -> None:
         if not self.machine.can("estop") or self.interlocks is None:

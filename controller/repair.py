@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from controller.runtime import stops
 from core.errors import CellError, InputError
 
 
@@ -134,6 +135,7 @@ async def repair_run(job: dict, cell: Any, *, job_path: Path | None = None, runs
     cad = load_cad(job, job_path)
     plan = probe_plan(cad, job)
     ctl = CellController(cell, runs_dir=runs_dir)
+    stops.attach(ctl)  # SIGINT / SIGTERM / SIGHUP: the fault path (when the CLI installed them)
     try:
         await ctl.connect(reply_timeout_ms=reply_timeout_ms)
         res = await ctl.run_alignment(plan)
@@ -144,6 +146,7 @@ async def repair_run(job: dict, cell: Any, *, job_path: Path | None = None, runs
             raise CellError(f"repair: the build stopped in state {result.state}; see the journal in {ctl.run_dir}")
         ver = await verify(ctl.devices.cnc, cell, job, res.transform, tolerance_mm=tolerance_mm)
     finally:
+        stops.detach()
         await ctl.close()
     return {"alignment": {"level_a_deg": round(res.level_a_deg, 5), "level_b_deg": round(res.level_b_deg, 5),
                           "face_angle_deg": round(res.face_angle_deg, 5)},

@@ -25,8 +25,8 @@ async def _with_sim(cell: Any, sim_cfg: Any, config_dir: Path | None, body: Call
 
 
 async def run_with_sim(cell: Any, sim_cfg: Any, plan: ProbePlan, *, config_dir: Path | None = None,
-                       settings: Any = None) -> AlignResult:
+                       settings: Any = None, no_level: bool = False) -> AlignResult:
     async def body(url: str, _sim: Any) -> AlignResult:
-        return await run_on_url(url, cell, plan, settings=settings)
+        return await run_on_url(url, cell, plan, settings=settings, no_level=no_level)
 
     return await _with_sim(cell, sim_cfg, config_dir, body)

@@ -22,12 +22,13 @@ from __future__ import annotations
 
 import json
 import queue
+import shutil
 import sqlite3
 import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 from controller.journal.check import inspect, uri
 from core.errors import CellError
@@ -93,6 +94,11 @@ class Journal:
         self._q: queue.Queue | None = None
         self._thread: threading.Thread | None = None
         self.write_errors = 0
+        # a write that fails (disk full, I/O error, read-only) is a fault like a lost link
+        # (DESIGN.md §6): `failed` says why (path and free space), `on_error(message)` is called
+        # once, from the writer thread (the controller hands it to its loop: it trips the cell)
+        self.failed: str | None = None
+        self.on_error: Callable[[str], None] | None = None
         self.path.parent.mkdir(parents=True, exist_ok=True)
         # an existing journal is inspected read-only first and opened read-write only when
         # healthy: a damaged one is never overwritten, truncated or replaced (issue 14)
@@ -128,10 +134,23 @@ class Journal:
                 return
             try:
                 self._do(*item)
-            except sqlite3.Error:
-                self.write_errors += 1
+            except sqlite3.Error as exc:
+                self._write_failed(exc)
             finally:
                 self._q.task_done()
+
+    def _write_failed(self, exc: BaseException) -> None:
+        """A write was lost: name the path and its free space, tell `on_error` (once)."""
+        self.write_errors += 1
+        if self.failed is not None:
+            return
+        self.failed = write_failure_message(self.path, exc)
+        cb = self.on_error
+        if cb is not None:
+            try:
+                cb(self.failed)
+            except Exception:
+                pass
 
     def _do(self, sql: str, params: Any, many: bool) -> None:
         with self._lock:
@@ -150,7 +169,11 @@ class Journal:
         if self._q is not None:
             self._q.put((sql, params, many))
         else:
-            self._do(sql, params, many)
+            try:
+                self._do(sql, params, many)
+            except sqlite3.Error as exc:
+                self._write_failed(exc)
+                raise
 
     def flush(self) -> None:
         """Wait until every queued write is committed (background mode)."""
@@ -445,6 +468,18 @@ class Journal:
             self.db.close()
         except sqlite3.Error:
             pass
+
+
+def write_failure_message(path: Path, exc: BaseException) -> str:
+    """`journal PATH: a write failed (why); N MB free on DIR`: the fault of a journal that cannot
+    be written."""
+    try:
+        du = shutil.disk_usage(path.parent)
+        free = f"{du.free / 1e6:.1f} MB free of {du.total / 1e6:.1f} MB on {path.parent}"
+    except OSError as err:
+        free = f"free space on {path.parent} unknown ({err.strerror or err})"
+    return (f"journal {path}: a write failed ({exc}); {free}; the build was stopped "
+            "(free space or fix the disk, then `cell resume`)")
 
 
 def read_events_after(path: str | Path, after_id: int = 0, limit: int = 2000) -> list[tuple]:

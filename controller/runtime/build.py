@@ -185,6 +185,10 @@ class BuildRunner:
                         return self._result()
                     self.m.send("resume")
                     prev_layer = None if work[k + 1].layer != item.layer else prev_layer
+            # never `complete` with the journal incomplete: every row committed first (off the loop)
+            await asyncio.to_thread(self.journal.flush)
+            if getattr(self.journal, "failed", None):
+                raise BuildError(str(self.journal.failed))
             if self.m.can("complete"):
                 self.m.send("complete", cause="every pass done")
             return self._result()
