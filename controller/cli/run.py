@@ -26,6 +26,7 @@ from typing import Any, Callable
 from core.config import CellConfig, load_cell, load_sim
 from controller.cli import guard, runargs
 from controller.job.read import read_job
+from controller.journal.space import check_free_space
 from core.errors import CellError, InputError
 
 from controller.defaults import (  # noqa: F401  (the demo's figures live with the controller)
@@ -208,6 +209,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.new and (run_dir / "journal.sqlite").exists():
         run_dir = runargs.new_run_dir(run_dir)
     log_dir = Path(args.sim_log) if args.sim_log else run_dir / "sim"
+    check_free_space(run_dir, job, args.max_step, cfg.cell.time_scale)  # before any device (exit 2)
     return _build(args, cfg, job, run_dir, sim_faults, scen, log_dir, runs)
 
 
@@ -253,6 +255,7 @@ def _resume(args: argparse.Namespace) -> int:
     job = runargs.stored_job(meta, jpath)
     runargs.check_job_for_cell(job, cfg, str(jpath))
     log_dir = Path(args.sim_log) if args.sim_log else run_dir / "sim"
+    check_free_space(run_dir, job, args.max_step, cfg.cell.time_scale)  # before any device (exit 2)
     return _build(args, cfg, job, run_dir, "", [], log_dir, runs, resume=True)
 
 
