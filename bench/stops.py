@@ -251,8 +251,9 @@ def one_stop(c: SimCell, jobp: Path, path: str, rng: random.Random) -> dict:
         fig["cnc_status"] = cnc_status(c.url("cnc"))
         stops = journal_rows(run_dir, "SELECT message FROM events WHERE message LIKE 'cnc safe stop:%'")
         fig["cnc_safe_stop"] = stops[-1][0] if stops else None
-    else:
-        fig["robot_exe_after_ms"] = _robot_exec_after(c.logs / "robot.jsonl", t_sig)
+    else:   # the held position comes from the robot's own STA in HOLD (interlocks._record)
+        held = journal_rows(run_dir, "SELECT x FROM events WHERE kind='alarm' AND x IS NOT NULL")
+        fig["robot_hold_confirmed"] = bool(held)
     r = c.run("resume", str(run_dir))
     rout, rerr = r.communicate(timeout=600)
     fig["resume_exit"] = r.returncode
@@ -262,23 +263,6 @@ def one_stop(c: SimCell, jobp: Path, path: str, rng: random.Random) -> dict:
 
 def _ms(v: float | None) -> float | None:
     return None if v is None else round(v * 1000, 1)
-
-
-def _robot_exec_after(log: Path, t_sig: float) -> float | None:
-    """How long after the signal the robot simulator still executed a move (its log's `t`
-    is the simulator's wall clock time.time(); the signal's monotonic time is converted)."""
-    if not log.exists():
-        return None
-    wall_sig = time.time() - (time.monotonic() - t_sig)
-    last = None
-    for line in log.read_text().splitlines():
-        try:
-            t = float(json.loads(line)["t"])
-        except (ValueError, KeyError):
-            continue
-        if t >= wall_sig - 5:
-            last = t
-    return None if last is None else round(max(0.0, last - wall_sig) * 1000, 1)
 
 
 def judge(c: SimCell, job_d: dict) -> dict:

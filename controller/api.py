@@ -371,7 +371,12 @@ class CellController:
         await asyncio.to_thread(self.journal.flush)
         assert self.run_dir is not None
         state = self.last_result.state if self.last_result is not None else None
-        self.last_report = await write_report_elsewhere(self.run_dir, self.job, state=state)
+        try:
+            self.last_report = await write_report_elsewhere(self.run_dir, self.job, state=state)
+        except Exception:
+            if not self.journal.failed:
+                raise
+            self.last_report = None  # the disk that failed the journal holds no record either
         return self.last_result
 
     def write_report(self, plots: bool = True) -> Path:

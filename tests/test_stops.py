@@ -157,6 +157,9 @@ def test_a_second_controller_is_refused_and_the_first_build_is_unharmed(sim_cell
     first = c.run("run", str(jobp))
     wait_arc(first)
     time.sleep(1.0)
+    t0 = time.monotonic()        # the bare interpreter's start-up with yaml, on this host now
+    subprocess.run([sys.executable, "-c", "import yaml"], check=True)
+    startup = time.monotonic() - t0
     t0 = time.monotonic()
     second = cell("run", str(jobp), "--cell-config", str(c.cfg_path), "--runs", str(c.work / "runs2"),
                   stdout=subprocess.PIPE, stderr=subprocess.PIPE)
@@ -165,7 +168,7 @@ def test_a_second_controller_is_refused_and_the_first_build_is_unharmed(sim_cell
     assert second.returncode == 2, err2
     assert err2.startswith("error: cell 'demo-cell' is in use by PID "), err2
     assert f"PID {first.pid} (" in err2 and " since " in err2
-    assert dt < 1.5, dt            # the interpreter's start-up included (the refusal itself is < 0.1 s)
+    assert dt < startup + 1.0, (dt, startup)   # refused within 1 s of the interpreter's start-up
     assert not (c.work / "runs2").exists()
     out, err = first.communicate(timeout=300)
     assert first.returncode == 0, err[-2000:]

@@ -10,6 +10,7 @@ import sqlite3
 import sys
 from typing import Any, NoReturn, Sequence
 
+from controller.runtime.cell_lock import early as early_lock
 from core.errors import CellError
 
 # Subcommand modules, imported lazily so that `cell process` does not pay for Textual or
@@ -90,6 +91,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # planner's one `error:` line instead
     logging.getLogger("trimesh").setLevel(logging.CRITICAL)
     try:
+        early_lock(argv)  # one controller per cell: refused before the heavy imports
         parser = build_parser(argv)
         args = parser.parse_args(argv)
         return int(args.func(args) or 0)

@@ -340,6 +340,8 @@ async def _drive(ctl: Any, job: dict, run_dir: Path | None, session: Any, scen: 
 
 def _report(ctl: Any) -> Path | None:
     """The build record; none when the journal could not be written (the fault said where)."""
+    if ctl.journal is not None and ctl.journal.failed:
+        return ctl.last_report
     try:
         return ctl.last_report or ctl.write_report()
     except OSError:

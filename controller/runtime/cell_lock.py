@@ -59,18 +59,23 @@ def lock_path(cell_name: str, config_path: str | Path | None) -> Path:
 
 
 class CellLock:
-    """The held lock of one cell; `release()` (or process exit) frees it."""
+    """The held lock of one cell; `release()` (or process exit) frees it. Re-entrant within a
+    process (`cell` takes it first thing in main(), the command's guard again): counted."""
 
     def __init__(self, path: Path, fd: int, cell_name: str) -> None:
         self.path, self.fd, self.cell_name = path, fd, cell_name
+        self.count = 1
 
     def release(self) -> None:
-        if self.fd >= 0:
-            try:
-                fcntl.flock(self.fd, fcntl.LOCK_UN)
-            finally:
-                os.close(self.fd)
-                self.fd = -1
+        self.count -= 1
+        if self.count > 0 or self.fd < 0:
+            return
+        _held.pop(self.path, None)
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_UN)
+        finally:
+            os.close(self.fd)
+            self.fd = -1
 
     def __enter__(self) -> "CellLock":
         return self
@@ -82,6 +87,10 @@ class CellLock:
 def acquire(cell_name: str, config_path: str | Path | None, command: str | None = None) -> CellLock:
     """Take the cell's lock or raise CellInUse naming the holder (never blocks)."""
     path = lock_path(cell_name, config_path)
+    mine = _held.get(path)
+    if mine is not None and mine.fd >= 0:
+        mine.count += 1
+        return mine
     try:
         path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
         fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
@@ -99,7 +108,36 @@ def acquire(cell_name: str, config_path: str | Path | None, command: str | None 
                        "config": str(Path(config_path or DEFAULT_CONFIG).resolve())})
     os.ftruncate(fd, 0)
     os.pwrite(fd, (text + "\n").encode(), 0)
-    return CellLock(path, fd, cell_name)
+    lock = _held[path] = CellLock(path, fd, cell_name)
+    return lock
+
+
+_held: dict[Path, CellLock] = {}   # the locks this process holds
+
+
+def early(argv: list[str]) -> CellLock | None:
+    """`cell run|resume|demo|tui|align run|repair run`: take the cell's lock first thing, before
+    the heavy imports (pydantic, numpy), so a second controller is refused within a second. The
+    cell name is read with plain YAML; anything unreadable is left to the command (which takes the
+    lock again, re-entrantly, once its config is validated)."""
+    words = [a for a in argv if not a.startswith("-")]
+    cmd = words[:2] if words[:1] in (["align"], ["repair"]) else words[:1]
+    if cmd not in (["run"], ["resume"], ["demo"], ["tui"], ["align", "run"], ["repair", "run"]):
+        return None
+    config = None
+    for i, a in enumerate(argv):
+        if a == "--cell-config" and i + 1 < len(argv):
+            config = argv[i + 1]
+        elif a.startswith("--cell-config="):
+            config = a.split("=", 1)[1]
+    try:
+        import yaml  # light; the validated config (pydantic) is loaded by the command itself
+
+        data = yaml.safe_load(Path(config or DEFAULT_CONFIG).read_text(encoding="utf-8"))
+        name = str(data["cell"].get("name", "cell")) if isinstance(data.get("cell"), dict) else "cell"
+    except Exception:
+        return None
+    return acquire(name, config)
 
 
 def _holder(fd: int, wait_s: float = 0.3) -> dict:
