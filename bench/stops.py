@@ -234,8 +234,9 @@ def one_stop(c: SimCell, jobp: Path, path: str, rng: random.Random) -> dict:
     if path == "second":
         time.sleep(0.05)
         os.kill(p.pid, signal.SIGINT)        # noted, not obeyed
-    out, _ = p.communicate(timeout=120)
+    out, err = p.communicate(timeout=120)
     t_exit = time.monotonic()
+    lines.append(err)
     time.sleep(0.3)
     watch.close()
     res = json.loads(out.strip().splitlines()[-1]) if out.strip() else {}
