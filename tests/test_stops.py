@@ -260,3 +260,75 @@ def test_run_refuses_before_any_device_when_the_runs_dir_cannot_hold_the_journal
     assert r.returncode == 2, err
     assert err.startswith(f"error: runs directory {runs}") and "MB free on" in err and "needs" in err, err
     assert "does not answer" not in err and "cannot open" not in err
+
+
+# -- axes before motion ----------------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def grbl_3_axis():
+    from tests.peers import firmware
+
+    try:
+        firmware.build("grbl")
+    except firmware.PeerUnavailable as e:
+        pytest.skip(str(e))
+    with firmware.serve("grbl") as pty:
+        yield pty
+
+
+def _grbl_cell(c: SimCell, pty: str) -> Path:
+    """The cell of `c` with its CNC on real grbl 1.1h (3 axes), the other devices on the simulators."""
+    import yaml
+
+    cfg = json.loads(json.dumps(c.cfg))
+    cfg["devices"]["cnc"]["url"] = pty
+    p = c.work / "cell-grbl.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    return p
+
+
+@pytest.mark.parametrize("sim_cell", ["cnc"], indirect=True)
+def test_a_3_axis_firmware_refuses_an_aligned_job_and_a_leveling_alignment_before_motion(sim_cell):
+    c = sim_cell
+    jd = job(1)
+    jd["alignment"] = {"transform": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
+                       "level_a_deg": 0.8, "level_b_deg": -0.5, "table_deg": {"a": 0.8, "b": -0.5},
+                       "face_angle_deg": 0.0, "probed_at": time.time() + 3600}
+    jobp = c.work / "aligned.json"
+    jobp.write_text(json.dumps(jd))
+    with grbl_3_axis() as pty:
+        cfgp = _grbl_cell(c, pty)
+        r = cell("run", str(jobp), "--cell-config", str(cfgp), "--runs", str(c.runs),
+                 stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        _, err = r.communicate(timeout=120)
+        assert r.returncode == 2, err
+        assert "error: Grbl 1.1h on " in err and "3 axes (X Y Z)" in err and "needs A B" in err, err
+        assert "alignment levels the table" in err
+        a = cell("align", "run", "--cell-config", str(cfgp), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        _, aerr = a.communicate(timeout=120)
+        assert a.returncode == 2, aerr
+        assert aerr.startswith("error: Grbl 1.1h on ") and "alignment" in aerr and "needs A B" in aerr, aerr
+        assert "--no-level" in aerr
+    assert not (c.logs / "deposit.jsonl").exists() or not (c.logs / "deposit.jsonl").read_text().strip()
+
+
+def test_align_no_level_measures_the_tilt_and_commands_no_ab(tmp_path):
+    import numpy as np
+
+    cfgp = SimCell(tmp_path / "cell", platform="cnc", time_scale=60.0).cfg_path
+    runs = {}
+    for flag in ((), ("--no-level",)):
+        r = cell("align", "run", "--sim", "--json", "--cell-config", str(cfgp), *flag,
+                 stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        out, err = r.communicate(timeout=300)
+        assert r.returncode == 0, err
+        runs[bool(flag)] = json.loads(out)
+    lev, flat = runs[False], runs[True]
+    assert flat["no_level"] is True and flat["level_a_deg"] == 0.0 and flat["level_b_deg"] == 0.0
+    assert abs(flat["tilt_deg"] - lev["tilt_deg"]) < 0.02 and flat["tilt_deg"] > 0.5   # sim.yaml: 0.8°/-0.5°
+    # CAD -> machine at A = B = 0: the leveled run's table transform, from the tilted touches alone
+    corners = np.array([[x, y, z, 1.0] for x in (-50, 50) for y in (-50, 50) for z in (-20, 0)])
+    a = corners @ np.array(flat["transform"]).T
+    b = corners @ np.array(lev["transform_table"]).T
+    assert np.abs(a - b).max() < 0.05, np.abs(a - b).max()

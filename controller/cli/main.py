@@ -35,6 +35,17 @@ COMMANDS: dict[str, str] = {
 }
 
 
+EPILOG = """exit status (docs/controller.md, "Exit codes"):
+  0    complete              1    stopped by a fault, E-stop or abort (a journal write that failed too)
+  2    bad input, an unreachable device, a cell in use by another controller, a firmware lacking axes
+  3    complete with defects
+  130 / 143 / 129   stopped by SIGINT / SIGTERM / SIGHUP: weld start dropped, motion held (CNC safe stop),
+                    the cause journaled; `cell resume` continues (a second signal is noted, not obeyed)
+
+one controller per cell: run, resume, demo, tui, align run and repair run hold an exclusive lock
+named after the cell ($CELL_LOCK_DIR, else $XDG_RUNTIME_DIR/cell, else /tmp/cell-UID)."""
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse that reports a usage error as one `error:` line and exit status 2."""
 
@@ -61,7 +72,8 @@ def _finite(obj: Any) -> Any:
 
 
 def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
-    parser = _Parser(prog="cell", description="Cell controller for metal additive manufacturing.")
+    parser = _Parser(prog="cell", description="Cell controller for metal additive manufacturing.", epilog=EPILOG,
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     wanted = None

@@ -126,9 +126,9 @@ def early(argv: list[str]) -> CellLock | None:
         return None
     config = None
     for i, a in enumerate(argv):
-        if a == "--cell-config" and i + 1 < len(argv):
+        if a in ("--cell-config", "--config" if cmd == ["tui"] else "--cell-config") and i + 1 < len(argv):
             config = argv[i + 1]
-        elif a.startswith("--cell-config="):
+        elif a.startswith(("--cell-config=", "--config=" if cmd == ["tui"] else "--cell-config=")):
             config = a.split("=", 1)[1]
     try:
         import yaml  # light; the validated config (pydantic) is loaded by the command itself

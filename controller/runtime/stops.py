@@ -90,6 +90,12 @@ class StopSignals:
         for sig in SIGNALS:
             loop.add_signal_handler(sig, self._got, int(sig))
 
+    def forward(self, on_stop: Callable[[str], None], on_note: Callable[[str], None] | None = None) -> None:
+        """Without a loop of ours on this thread (the TUI: Textual owns the main thread's loop, the
+        controller runs on a thread): the Python-level handlers call `on_stop(reason)` themselves;
+        it must hand the stop to the controller's loop (call_soon_threadsafe)."""
+        self._on_stop, self._on_note = on_stop, on_note
+
     def detach(self) -> None:
         """Back to recording only (the loop's handlers removed; asyncio would restore SIG_DFL)."""
         loop, self._loop = self._loop, None
