@@ -299,24 +299,34 @@ def one_build(job: Path, work: Path, *, hog: bool, probe: Prober | None = None,
         if hog_procs:
             hog_procs.__exit__()
     out = json.loads(r.stdout) if r.stdout.strip() else {"state": "error", "alarms": [], "error": r.stderr[-500:]}
-    # the source latches error 50 when its watchdog drops the start; the controller reads it
-    drops = sum(1 for a in out.get("alarms", []) if "error 50" in a.get("message", "")
-                or "watchdog" in a.get("message", ""))
-    # each reply over SLOW_MS: did a CPU stop running the guest meanwhile (the witness's gap)?
-    slow = [{"device": d, "ms": round(ms, 1),
-             "t": round(t, 3),
-             "witness": [(cpu, round(g, 1)) for cpu, g in witness.overlapping(t, ms / 1000.0)]}
-            for d, t, ms in prober.slow]
-    links = {x["device"]: {k: x.get(k) for k in ("late", "lost", "bad", "max_period_ms", "p99_period_ms")}
-             for x in out.get("links", [])}
     return {"state": out.get("state"), "exit": r.returncode, "hog": hog, "wall_s": round(time.monotonic() - t0, 1),
-            "links": links,
-            "alarms": [a.get("message") for a in out.get("alarms", [])][:3], "watchdog_drops": drops,
+            "links": _links(out),
+            "alarms": [a.get("message") for a in out.get("alarms", [])][:3], "watchdog_drops": _watchdog_drops(out),
             "error": out.get("error"), "reply_ms": {k: list(v) for k, v in prober.times.items()},
-            "probe_errors": dict(prober.errors), "slow_replies": slow,
+            "probe_errors": dict(prober.errors), "slow_replies": _slow_replies(prober, witness),
             "defects": [str(d)[:200] for d in (out.get("defects") or [])][:5],
             "witness_max_gap_ms": witness.longest_ms(),
             "opcua_changes": client.changes if client else None}
+
+
+def _watchdog_drops(out: dict[str, Any]) -> int:
+    """The source latches error 50 when its watchdog drops the start; the controller reads it."""
+    return sum(1 for a in out.get("alarms", []) if "error 50" in a.get("message", "")
+               or "watchdog" in a.get("message", ""))
+
+
+def _slow_replies(prober: Prober, witness: WitnessRecord) -> list[dict[str, Any]]:
+    """Each reply over SLOW_MS: did a CPU stop running the guest meanwhile (the witness's gap)?"""
+    return [{"device": d, "ms": round(ms, 1),
+             "t": round(t, 3),
+             "witness": [(cpu, round(g, 1)) for cpu, g in witness.overlapping(t, ms / 1000.0)]}
+            for d, t, ms in prober.slow]
+
+
+def _links(out: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The controller's link statistics per device, from `cell run --json`."""
+    return {x["device"]: {k: x.get(k) for k in ("late", "lost", "bad", "max_period_ms", "p99_period_ms")}
+            for x in out.get("links", [])}
 
 
 # A fault a stalled host explains: one CPU of this machine did not run for longer than the limit
@@ -349,53 +359,88 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--work", metavar="DIR", help="keep every build's config and logs here (default: a temporary directory)")
     ap.add_argument("--opcua", action="store_true", help="serve OPC UA during the builds (its cost on the cycle)")
     a = ap.parse_args(argv)
-    results = []
-    with tempfile.TemporaryDirectory() as tmp:
-        work = Path(a.work or tmp)
-        work.mkdir(parents=True, exist_ok=True)
-        job = block_job(work, a.height)
-        for i in range(a.builds):
-            res = one_build(job, work / f"b{i}", hog=bool(i % 2), opcua=a.opcua)
-            results.append(res)
-            print(f"build {i + 1}/{a.builds} hog={res['hog']}: {res['state']} in {res['wall_s']} s"
-                  f"{' ' + str(res['alarms'][:1]) if res['state'] != 'complete' else ''}", flush=True)
-    faults = [r for r in results if r["state"] != "complete"]
-    false_trips = [r for r in faults if not host_explained(r)]
-    summary: dict[str, Any] = {"builds": len(results), "with_hogs": sum(r["hog"] for r in results),
-                               "complete": len(results) - len(faults),
-                               "false_trips": len(false_trips),
-                               "host_stall_trips": len(faults) - len(false_trips),
-                               "watchdog_drops": sum(r["watchdog_drops"] for r in results),
-                               "faults": [(r["hog"], r["alarms"][:1], r["witness_max_gap_ms"]) for r in faults]}
-    for dev in ("power_source", "cellio", "robot"):
-        ls = [r["links"].get(dev, {}) for r in results]
-        summary[f"{dev}_controller_side"] = {
-            "late": sum(x.get("late") or 0 for x in ls), "lost": sum(x.get("lost") or 0 for x in ls),
-            "bad": sum(x.get("bad") or 0 for x in ls),
-            "max_period_ms": max((x.get("max_period_ms") or 0 for x in ls), default=None),
-            # the controller's cycle period: median over the builds of each build's p99
-            "p99_period_ms_median": pct([x["p99_period_ms"] for x in ls if x.get("p99_period_ms")], 50)}
-    for dev in ("power_source", "cellio"):
-        for label, sel in (("all", results), ("hog", [r for r in results if r["hog"]]),
-                           ("idle", [r for r in results if not r["hog"]])):
-            xs = [x for r in sel for x in r["reply_ms"][dev]]
-            summary[f"{dev}_reply_ms_{label}"] = {"n": len(xs), "p50": round(pct(xs, 50), 2),
-                                                  "p99": round(pct(xs, 99), 2), "max": round(max(xs), 2) if xs else None}
-    # replies over SLOW_MS, told apart by the host witness: a CPU stalled meanwhile (the machine),
-    # or both CPUs ran the witness on time (the cell's own software)
-    slow = [x for r in results for x in r["slow_replies"]]
-    summary["slow_replies"] = {
-        "n": len(slow), "with_cpu_stalled": sum(1 for x in slow if x["witness"]),
-        "cpus_ran": sorted((x["device"], x["ms"]) for x in slow if not x["witness"])[-10:],
-        "longest_witness_gap_ms": max((g for r in results for g in r["witness_max_gap_ms"].values()), default=0.0)}
-    summary["opcua"] = a.opcua
-    if a.opcua:   # the client saw the build: data changes it was notified of, per build
-        summary["opcua_changes_per_build"] = sorted(r["opcua_changes"] or 0 for r in results)
+    results = run_builds(a.builds, a.height, a.work, a.opcua)
+    summary = summarise(results, a.opcua)
     print(json.dumps(summary, indent=1))
     if a.json:
         Path(a.json).write_text(json.dumps({"summary": summary, "builds": [
             {k: v for k, v in r.items() if k != "reply_ms"} for r in results]}, indent=1))
-    return 0 if not false_trips else 1
+    return 0 if not summary["false_trips"] else 1
+
+
+def run_builds(builds: int, height: float, work_dir: str | None, opcua: bool) -> list[dict[str, Any]]:
+    """`builds` builds of the block, every other one with the CPU hogs."""
+    results = []
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(work_dir or tmp)
+        work.mkdir(parents=True, exist_ok=True)
+        job = block_job(work, height)
+        for i in range(builds):
+            res = one_build(job, work / f"b{i}", hog=bool(i % 2), opcua=opcua)
+            results.append(res)
+            print(f"build {i + 1}/{builds} hog={res['hog']}: {res['state']} in {res['wall_s']} s"
+                  f"{' ' + str(res['alarms'][:1]) if res['state'] != 'complete' else ''}", flush=True)
+    return results
+
+
+def summarise(results: list[dict[str, Any]], opcua: bool) -> dict[str, Any]:
+    """The figures of a run of builds: outcomes, link statistics, reply times, slow replies."""
+    summary = _outcomes(results)
+    for dev in ("power_source", "cellio", "robot"):
+        summary[f"{dev}_controller_side"] = _link_summary([r["links"].get(dev, {}) for r in results])
+    summary.update(_replies(results))
+    summary["slow_replies"] = _slow_summary(results)
+    summary["opcua"] = opcua
+    if opcua:   # the client saw the build: data changes it was notified of, per build
+        summary["opcua_changes_per_build"] = sorted(r["opcua_changes"] or 0 for r in results)
+    return summary
+
+
+def _outcomes(results: list[dict[str, Any]]) -> dict[str, Any]:
+    """How the builds ended: complete, false trips, trips a host stall explains."""
+    faults = [r for r in results if r["state"] != "complete"]
+    false_trips = [r for r in faults if not host_explained(r)]
+    return {"builds": len(results), "with_hogs": sum(r["hog"] for r in results),
+            "complete": len(results) - len(faults),
+            "false_trips": len(false_trips),
+            "host_stall_trips": len(faults) - len(false_trips),
+            "watchdog_drops": sum(r["watchdog_drops"] for r in results),
+            "faults": [(r["hog"], r["alarms"][:1], r["witness_max_gap_ms"]) for r in faults]}
+
+
+def _replies(results: list[dict[str, Any]]) -> dict[str, Any]:
+    """Reply times of the power source and the cell I/O: over all builds, with and without hogs."""
+    out: dict[str, Any] = {}
+    for dev in ("power_source", "cellio"):
+        for label, sel in (("all", results), ("hog", [r for r in results if r["hog"]]),
+                           ("idle", [r for r in results if not r["hog"]])):
+            out[f"{dev}_reply_ms_{label}"] = _reply_summary([x for r in sel for x in r["reply_ms"][dev]])
+    return out
+
+
+def _link_summary(ls: list[dict[str, Any]]) -> dict[str, Any]:
+    """One device's controller-side link statistics over the builds."""
+    return {
+        "late": sum(x.get("late") or 0 for x in ls), "lost": sum(x.get("lost") or 0 for x in ls),
+        "bad": sum(x.get("bad") or 0 for x in ls),
+        "max_period_ms": max((x.get("max_period_ms") or 0 for x in ls), default=None),
+        # the controller's cycle period: median over the builds of each build's p99
+        "p99_period_ms_median": pct([x["p99_period_ms"] for x in ls if x.get("p99_period_ms")], 50)}
+
+
+def _reply_summary(xs: list[float]) -> dict[str, Any]:
+    return {"n": len(xs), "p50": round(pct(xs, 50), 2), "p99": round(pct(xs, 99), 2),
+            "max": round(max(xs), 2) if xs else None}
+
+
+def _slow_summary(results: list[dict[str, Any]]) -> dict[str, Any]:
+    """Replies over SLOW_MS, told apart by the host witness: a CPU stalled meanwhile (the machine),
+    or both CPUs ran the witness on time (the cell's own software)."""
+    slow = [x for r in results for x in r["slow_replies"]]
+    return {
+        "n": len(slow), "with_cpu_stalled": sum(1 for x in slow if x["witness"]),
+        "cpus_ran": sorted((x["device"], x["ms"]) for x in slow if not x["witness"])[-10:],
+        "longest_witness_gap_ms": max((g for r in results for g in r["witness_max_gap_ms"].values()), default=0.0)}
 
 
 if __name__ == "__main__":

@@ -52,7 +52,10 @@ def level_sim():
 
 
 async def build(job: dict, tmp: Path, table: str = "AB", scale: float = 60.0) -> tuple[object, Path]:
-    cfg = with_urls(kin_cfg(table), {}, time_scale=scale)
+    """Build `job` on the simulated CNC at `scale`, lowered to what the link can feed (issue 29)."""
+    from controller.motion.cnc5 import limit_time_scale
+
+    cfg, _note = limit_time_scale(with_urls(kin_cfg(table), {}, time_scale=scale), job)
     log = tmp / "log"
     harness = SimHarness(cfg, level_sim(), log_dir=log)
     cfg = with_urls(cfg, harness.start())
@@ -138,6 +141,78 @@ def _rotary_steps(log: Path) -> float:
     return round(worst, 3)
 
 
+def executed_moves(log: Path) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The G93 weld moves the CNC simulator executed (cnc.jsonl): (from, to) machine X Y Z A S."""
+    pos = np.zeros(5)
+    letters = "XYZ"
+    inverse, out = False, []
+    for line in (log / "cnc.jsonl").read_text().splitlines():
+        g = json.loads(line).get("line", "").replace(" ", "").upper()
+        if "G93" in g:
+            inverse = True
+        if "G94" in g:
+            inverse = False
+        words = dict(re.findall(r"([XYZABC])(-?\d+\.?\d*)", g))
+        if not words or not g.startswith(("G0", "G1")):
+            continue
+        new = pos.copy()
+        for c, v in words.items():
+            if c in "XYZ":
+                new[letters.index(c)] = float(v)
+            elif c == "A":
+                new[3] = float(v)
+            else:
+                new[4] = float(v)
+        if inverse and g.startswith("G1"):
+            out.append((pos.copy(), new.copy()))
+        pos = new
+    return out
+
+
+def executed_mid_dev(job: dict, log: Path, table: str, max_step_mm: float = 2.0) -> dict:
+    """Issue 29: the middle (and quarter points) of every executed 5-axis move, through the table's
+    forward kinematics, against the planned path (the job's weld segments, workpiece frame)."""
+    from controller.motion.kinematics import Trunnion
+    from controller.motion.post5 import tip_path
+
+    tr = Trunnion.from_config(kin_cfg(table).kinematics)
+    A, B = [], []
+    for la in job["layers"]:
+        for p in la["passes"]:
+            pts = np.asarray(weld_points(p["points"], max_step_mm))
+            A.append(pts[:-1])
+            B.append(pts[1:])
+    a, b = np.vstack(A), np.vstack(B)
+    moves = executed_moves(log)
+    mids = np.array([tip_path(tr, m0, m1, (0.5,))[0] for m0, m1 in moves])
+    quarters = np.array([q for m0, m1 in moves for q in tip_path(tr, m0, m1, (0.25, 0.75))])
+    dm, dq = _seg_dist(mids, a, b), _seg_dist(quarters, a, b)
+    return {"moves": len(moves), "max_mid_dev_mm": round(float(dm.max()), 4),
+            "max_quarter_dev_mm": round(float(dq.max()), 4)}
+
+
+def bead_gaps(log: Path, device: str = "cnc") -> dict:
+    """Issue 29: the torch standing still with the process on — gaps (process time) between
+    consecutive deposited segments of one bead (one ends where the next starts) in deposit.jsonl."""
+    import math
+
+    segs = [json.loads(s) for s in (log / "deposit.jsonl").read_text().splitlines()]
+    segs = [s for s in segs if s.get("device") == device]
+    gaps = [b["t0"] - a["t1"] for a, b in zip(segs, segs[1:])
+            if math.dist(a.get("part", a)["to"], b.get("part", b)["from"]) < 1e-3]
+    g = np.asarray(gaps or [0.0])
+    moving = sum(s["t1"] - s["t0"] for s in segs)
+    return {"segments": len(segs), "moving_s": round(moving, 3), "still_s": round(float(g.clip(0).sum()), 3),
+            "max_gap_s": round(float(g.max()), 4), "gaps_over_10ms": int((g > 0.01).sum())}
+
+
+def feed_scale(job: dict, table: str, scale: float) -> float:
+    """The time scale `build` runs `job` at (the asked one, or what the CNC link can feed)."""
+    from controller.motion.cnc5 import limit_time_scale
+
+    return float(limit_time_scale(with_urls(kin_cfg(table), {}, time_scale=scale), job)[0].cell.time_scale)
+
+
 def main(argv: list[str] | None = None) -> int:
     from bench.parts5 import cone_frustum, tilted_tube
 
@@ -145,13 +220,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--part", choices=("tube", "frustum"), default="tube")
     ap.add_argument("--table", choices=("AB", "AC"), default="AB")
     ap.add_argument("--scale", type=float, default=60.0)
+    ap.add_argument("--slow", type=float, default=1.0, help="divide the planned travel speeds by this")
     a = ap.parse_args(argv)
     mesh = tilted_tube() if a.part == "tube" else cone_frustum()
     job = plan5(mesh)
+    for la in job["layers"]:
+        for p in la["passes"]:
+            p["speed_mm_min"] = p["speed_mm_min"] / a.slow
     with tempfile.TemporaryDirectory() as tmp:
         res, log = asyncio.run(build(job, Path(tmp), a.table, a.scale))
         fig = figures(job, log)
+        fig.update(executed_mid_dev(job, log, a.table))
+        fig.update(bead_gaps(log))
     fig.update({"part": a.part, "table": a.table, "state": getattr(res, "state", None),
+                "time_scale": feed_scale(job, a.table, a.scale),
                 "passes_done": getattr(res, "passes_done", None)})
     print(json.dumps(fig))
     return 0

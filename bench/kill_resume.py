@@ -6,7 +6,11 @@ robot executed no sequence number twice. `rearc_overlap_*`: the signed overlap a
 `max_overlap_mm` is the checker's, which merges the stretches of nearby re-arcs.
 
     .venv/bin/python -m bench.kill_resume [--kills 20] [--seed 1] [--quick] [--keep DIR]
-        [--max-step 0.5] [--speed 600] [--time-scale 1]
+        [--max-step 0.5] [--speed 600] [--time-scale 1] [--kill-at 0.25,0.6] [--runs 5]
+
+`--kill-at 0.25,0.6 --runs 5` (issue 26): two kills per build, once the deposit log holds a
+quarter and 60 % of the plan, five builds; `lost_per_restart_mm` / `twice_per_restart_mm` are
+the gap / double deposit at each re-arc, judged from deposit.jsonl.
 """
 from __future__ import annotations
 
@@ -99,22 +103,12 @@ def _cell(*args: str, **kw) -> subprocess.Popen:
                             env={**os.environ, "PYTHONPATH": str(ROOT)}, start_new_session=True, **kw)
 
 
-def main(argv: list[str]) -> int:
-    ap = argparse.ArgumentParser(prog="bench.kill_resume")
-    ap.add_argument("--kills", type=int, default=20)
-    ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--layers", type=int, default=3)
-    ap.add_argument("--quick", action="store_true", help="5 kills, 2 layers")
-    ap.add_argument("--keep", default=None, metavar="DIR", help="work here and keep the logs")
-    ap.add_argument("--max-step", type=float, default=MAX_STEP_MM, help="weld move length, mm")
-    ap.add_argument("--speed", type=float, default=600.0, help="weld speed, mm/min")
-    ap.add_argument("--time-scale", type=float, default=1.0, help="process time / wall time")
-    a = ap.parse_args(argv)
-    if a.quick:
-        a.kills, a.layers = 5, 2
-    rng = random.Random(a.seed)
-    work = Path(a.keep) if a.keep else Path(tempfile.mkdtemp(prefix="kill_resume-"))
-    work.mkdir(parents=True, exist_ok=True)
+def _deposited_mm(path: Path) -> float:
+    """Length deposited so far according to the simulators' deposit log."""
+    return sum(math.dist(sg["from"], sg["to"]) for sg in read_segments(path))
+
+
+def _setup(a: argparse.Namespace, work: Path) -> tuple[Path, Path, dict]:
     cfg = yaml.safe_load((ROOT / "config" / "cell.yaml").read_text())
     cfg["cell"]["time_scale"] = a.time_scale  # 1: real time, as the watchdog and link timings are
     cfg["devices"]["robot"]["url"] = f"socket://127.0.0.1:{_free_port()}"
@@ -126,7 +120,20 @@ def main(argv: list[str]) -> int:
     job = soak_job(a.layers, a.speed)
     jobp = work / "soak.job.json"
     jobp.write_text(json.dumps(job))
+    return cfgp, jobp, job
+
+
+def build_with_kills(a: argparse.Namespace, work: Path, rng: random.Random,
+                     kill_at: list[float] | None) -> dict:
+    """One build against `cell sim up` in its own process: SIGKILL of `cell run` / `cell resume`
+    at random moments (`a.kills` of them) or, with `kill_at`, once the deposit log holds each
+    given fraction of the planned length; resumed until complete. Figures from the sims' logs."""
+    work.mkdir(parents=True, exist_ok=True)
+    cfgp, jobp, job = _setup(a, work)
     logs, runs = work / "simlog", work / "runs"
+    passes = [p["points"] for la in job["layers"] for p in la["passes"]]
+    planned_mm = sum(math.dist(p, q) for P in passes for p, q in zip(P, P[1:]))
+    n_kills = len(kill_at) if kill_at is not None else a.kills
     sim = _cell("sim", "up", "--cell-config", str(cfgp), "--log", str(logs), stdout=subprocess.PIPE,
                 stderr=subprocess.DEVNULL, text=True)
     t_start = time.monotonic()
@@ -143,7 +150,7 @@ def main(argv: list[str]) -> int:
             p = _cell(*args, "--cell-config", str(cfgp), "--runs", str(runs), "--json", "--max-step",
                       str(a.max_step), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             attempt += 1
-            if kills < a.kills:
+            if kills < n_kills:
                 started = threading.Event()
 
                 def watch(proc: subprocess.Popen = p, ev: threading.Event = started) -> None:
@@ -152,7 +159,12 @@ def main(argv: list[str]) -> int:
                             ev.set()
                 threading.Thread(target=watch, daemon=True).start()
                 started.wait(20)
-                time.sleep(rng.uniform(0.3, 4.0))  # a random moment of the build
+                if kill_at is None:
+                    time.sleep(rng.uniform(0.3, 4.0))  # a random moment of the build
+                else:  # once the deposit reaches the fraction (the arc is on)
+                    goal = kill_at[kills] * planned_mm
+                    while p.poll() is None and _deposited_mm(logs / "deposit.jsonl") < goal:
+                        time.sleep(0.01)
                 if p.poll() is None:
                     os.killpg(p.pid, signal.SIGKILL)
                     p.wait()
@@ -160,11 +172,11 @@ def main(argv: list[str]) -> int:
                     continue
             out, _err = p.communicate(timeout=600)
             if p.returncode not in (0, 1):
-                raise SystemExit(f"controller exited {p.returncode}")
+                raise SystemExit(f"controller exited {p.returncode}: {_err[-400:]}")
             final = json.loads(out.strip().splitlines()[-1])
             if final["state"] == "complete":
                 break
-            if attempt > a.kills + 10:
+            if attempt > n_kills + 10:
                 raise SystemExit(f"build does not complete: {final}")
     finally:
         try:
@@ -173,26 +185,69 @@ def main(argv: list[str]) -> int:
         except Exception:
             os.killpg(sim.pid, signal.SIGKILL)
     wall = time.monotonic() - t_start
-    passes = [p["points"] for la in job["layers"] for p in la["passes"]]
-    cov = coverage(passes, read_segments(logs / "deposit.jsonl"))
+    segs = read_segments(logs / "deposit.jsonl")
+    cov = coverage(passes, segs)
     dups = exec_log_duplicates(logs / "robot.jsonl")
-    joints = rearc_joints(passes, read_segments(logs / "deposit.jsonl"))
+    joints = rearc_joints(passes, segs)
     restarts = kills
+    # per restart: at each re-arc, deposit laid twice (positive overlap) or lost (a gap)
+    twice = [max(0.0, j) for j in joints]
+    lost = [max(0.0, -j) for j in joints]
     ok = cov.missing_mm < 0.05 and max(cov.overlaps_mm, default=0.0) <= 2.0 and dups == 0 \
         and min(joints, default=0.0) > -0.01
-    fig = {"kills": kills, "state": final["state"] if final else None, "wall_s": round(wall, 1),
-           "planned_mm": round(cov.planned_mm, 1), "deposited_mm": round(cov.deposited_mm, 2),
-           "missing_mm": round(cov.missing_mm, 3), "excess_mm": round(cov.excess_mm, 3),
-           "excess_per_restart_mm": round(cov.excess_mm / max(restarts, 1), 3),
-           "overlaps": len(cov.overlaps_mm), "max_overlap_mm": round(max(cov.overlaps_mm, default=0.0), 3),
-           "mean_overlap_mm": round(sum(cov.overlaps_mm) / max(len(cov.overlaps_mm), 1), 3),
-           "max_step_mm": a.max_step, "speed_mm_min": a.speed, "time_scale": a.time_scale,
-           "rearcs": len(joints), "rearc_overlap_max_mm": round(max(joints, default=0.0), 3),
-           "rearc_overlap_mean_mm": round(sum(joints) / max(len(joints), 1), 3),
-           "rearc_overlap_min_mm": round(min(joints, default=0.0), 3),
-           "robot_seq_duplicates": dups, "ok": ok, "logs": str(logs)}
-    print(json.dumps(fig))
-    return 0 if ok else 1
+    return {"kills": kills, "state": final["state"] if final else None, "wall_s": round(wall, 1),
+            "planned_mm": round(cov.planned_mm, 1), "deposited_mm": round(cov.deposited_mm, 2),
+            "missing_mm": round(cov.missing_mm, 3), "excess_mm": round(cov.excess_mm, 3),
+            "excess_per_restart_mm": round(cov.excess_mm / max(restarts, 1), 3),
+            "overlaps": len(cov.overlaps_mm), "max_overlap_mm": round(max(cov.overlaps_mm, default=0.0), 3),
+            "mean_overlap_mm": round(sum(cov.overlaps_mm) / max(len(cov.overlaps_mm), 1), 3),
+            "max_step_mm": a.max_step, "speed_mm_min": a.speed, "time_scale": a.time_scale,
+            "rearcs": len(joints), "rearc_overlap_max_mm": round(max(joints, default=0.0), 3),
+            "rearc_overlap_mean_mm": round(sum(joints) / max(len(joints), 1), 3),
+            "rearc_overlap_min_mm": round(min(joints, default=0.0), 3),
+            "lost_per_restart_mm": [round(v, 3) for v in lost],
+            "twice_per_restart_mm": [round(v, 3) for v in twice],
+            "robot_seq_duplicates": dups, "ok": ok, "logs": str(logs)}
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="bench.kill_resume")
+    ap.add_argument("--kills", type=int, default=20)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--layers", type=int, default=3)
+    ap.add_argument("--quick", action="store_true", help="5 kills, 2 layers")
+    ap.add_argument("--keep", default=None, metavar="DIR", help="work here and keep the logs")
+    ap.add_argument("--max-step", type=float, default=MAX_STEP_MM, help="weld move length, mm")
+    ap.add_argument("--speed", type=float, default=600.0, help="weld speed, mm/min")
+    ap.add_argument("--time-scale", type=float, default=1.0, help="process time / wall time")
+    ap.add_argument("--kill-at", default=None, metavar="F,F",
+                    help="kill once the deposit holds these fractions of the plan (e.g. 0.25,0.6) "
+                         "instead of at random moments")
+    ap.add_argument("--runs", type=int, default=1, help="repeat the whole build this many times")
+    a = ap.parse_args(argv)
+    if a.quick:
+        a.kills, a.layers = 5, 2
+    rng = random.Random(a.seed)
+    work = Path(a.keep) if a.keep else Path(tempfile.mkdtemp(prefix="kill_resume-"))
+    kill_at = [float(v) for v in a.kill_at.split(",")] if a.kill_at else None
+    figs = []
+    for r in range(a.runs):
+        fig = build_with_kills(a, work / f"run{r}" if a.runs > 1 else work, rng, kill_at)
+        figs.append(fig)
+        print(json.dumps(fig), flush=True)
+    if a.runs > 1:
+        lost = [v for f in figs for v in f["lost_per_restart_mm"]]
+        twice = [v for f in figs for v in f["twice_per_restart_mm"]]
+        print(json.dumps({"runs": a.runs, "restarts": sum(f["kills"] for f in figs),
+                          "rearcs": len(twice), "complete": sum(f["state"] == "complete" for f in figs),
+                          "lost_per_restart_max_mm": round(max(lost, default=0.0), 3),
+                          "lost_per_restart_mean_mm": round(sum(lost) / max(len(lost), 1), 3),
+                          "twice_per_restart_max_mm": round(max(twice, default=0.0), 3),
+                          "twice_per_restart_mean_mm": round(sum(twice) / max(len(twice), 1), 3),
+                          "missing_mm_max": max(f["missing_mm"] for f in figs),
+                          "excess_per_restart_mm_max": max(f["excess_per_restart_mm"] for f in figs),
+                          "ok": all(f["ok"] for f in figs)}))
+    return 0 if all(f["ok"] for f in figs) else 1
 
 
 if __name__ == "__main__":

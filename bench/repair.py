@@ -26,6 +26,43 @@ from controller.harness.repair import repair_run_sim
 from core.config import load_cell
 
 
+def worn_parts(tmp: Path, shape: str = "pocket") -> tuple[Path, Path]:
+    """The 100×100×20 block (top at z = 0) and its stock with a non-rectangular worn region
+    (issue 29): "pocket" (the demo's 20×20×4 corner pocket), "L" (an L of two 8 mm legs, 4 deep,
+    around the −X/−Y corner region), "slot" (8 × 30, 3 deep), "edge" (the −Y edge worn away in a
+    ramp: 10 mm wide, 3 deep at the edge). Each leaves the middle of the top and +X faces intact."""
+    import trimesh
+
+    from controller.job.repair_volume import _manifold, _trimesh
+
+    if shape == "pocket":
+        return make_parts(tmp)
+    cad = trimesh.creation.box(extents=(100, 100, 20))
+    cad.apply_translation((0, 0, -10))
+    cuts = []
+    if shape == "L":
+        for ext, ctr in (((30, 8, 4), (-25, -36, -2)), ((8, 30, 4), (-36, -25, -2))):
+            b = trimesh.creation.box(extents=ext)
+            b.apply_translation(ctr)
+            cuts.append(b)
+    elif shape == "slot":
+        b = trimesh.creation.box(extents=(8, 30, 3))
+        b.apply_translation((-30, 25, -1.5))
+        cuts.append(b)
+    elif shape == "edge":   # a wedge along the -Y edge: 3 mm deep at the edge, 0 at 10 mm in
+        v = np.array([[-40, -50.5, 0.5], [10, -50.5, 0.5], [-40, -40, 0.0], [10, -40, 0.0],
+                      [-40, -50.5, -3], [10, -50.5, -3], [-40, -40, 0.5], [10, -40, 0.5]], dtype=float)
+        cuts.append(trimesh.convex.convex_hull(v))
+    else:
+        raise ValueError(shape)
+    stock = _manifold(cad, "cad")
+    for k, c in enumerate(cuts):
+        stock = stock - _manifold(c, f"cut{k}")
+    cad.export(tmp / "cad.stl")
+    _trimesh(stock).export(tmp / "stock.stl")
+    return tmp / "cad.stl", tmp / "stock.stl"
+
+
 def deposit_vs_plan(job: dict, log: Path) -> dict:
     segs = [json.loads(s) for s in (log / "deposit.jsonl").read_text().splitlines()]
     segs = [s for s in segs if s.get("device") == "cnc"]
@@ -48,28 +85,44 @@ def deposit_vs_plan(job: dict, log: Path) -> dict:
             "max_lateral_mm": round(float(lat.max()), 4), "max_dz_mm": round(float(dz.max()), 4)}
 
 
-async def one(tmp: Path, pose: tuple, scale: float = 60.0) -> dict:
-    cad, stock = make_parts(tmp)
+async def one(tmp: Path, pose: tuple, scale: float = 60.0, shape: str = "pocket", faults: str = "") -> dict:
+    cad, stock = worn_parts(tmp, shape)
     assert cell_main(["repair", "plan", str(cad), "--stock", str(stock), "--width", "4", "--allowance", "0.3",
                       "--out", str(tmp / "job.json")]) == 0
     job = json.loads((tmp / "job.json").read_text())
     cell = with_urls(load_cell(), {}, time_scale=scale)
-    rep = await repair_run_sim(job, cell, posed_sim(stock, *pose), job_path=tmp / "job.json",
-                               runs_dir=tmp / "runs", log_dir=tmp / "log")
-    return {"pose": pose, "alignment": rep["alignment"], "verify": rep["verify"], **deposit_vs_plan(job, tmp / "log")}
+    sim = posed_sim(stock, *pose)
+    if faults:
+        sim = sim.model_copy(update={"faults": faults})
+    rep = await repair_run_sim(job, cell, sim, job_path=tmp / "job.json", runs_dir=tmp / "runs", log_dir=tmp / "log")
+    return {"pose": pose, "shape": shape, "alignment": rep["alignment"], "verify": rep["verify"],
+            "state": rep["state"], "time_scale": rep.get("time_scale"), "on_deposit": touches_on_deposit(job, rep),
+            **deposit_vs_plan(job, tmp / "log")}
+
+
+def touches_on_deposit(job: dict, rep: dict) -> float:
+    """Share of the verify touches (CAD frame xy) inside the planned bead footprints of the job."""
+    from shapely.geometry import LineString, Point
+    from shapely.ops import unary_union
+
+    foot = unary_union([LineString([q[:2] for q in p["points"]]).buffer(float(p["width_mm"]) / 2)
+                        for L in job["layers"] for p in L["passes"] if len(p["points"]) >= 2])
+    pts = rep["verify"].get("at") or []
+    return round(sum(1 for q in pts if foot.contains(Point(q[0], q[1]))) / max(len(pts), 1), 4)
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--poses", type=int, default=3)
     ap.add_argument("--seed", type=int, default=17)
+    ap.add_argument("--shape", choices=("pocket", "L", "slot", "edge"), default="pocket")
     a = ap.parse_args(argv)
     rng = np.random.default_rng(a.seed)
     for _ in range(a.poses):
         pose = (round(float(rng.uniform(-2, 2)), 3), round(float(rng.uniform(-2, 2)), 3),
                 round(float(rng.uniform(-5, 5)), 3), tuple(round(float(v), 3) for v in rng.uniform(-5, 5, 3)))
         with tempfile.TemporaryDirectory() as tmp:
-            print(json.dumps(asyncio.run(one(Path(tmp), pose))))
+            print(json.dumps(asyncio.run(one(Path(tmp), pose, shape=a.shape))))
     return 0
 
 

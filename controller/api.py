@@ -22,10 +22,10 @@ import dataclasses
 import json
 import os
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from core.realtime import elevate, is_realtime, quiet_gc, relax
-from controller.report.worker import write_report_elsewhere
+from controller.report.worker import record_build_end
 from controller.runtime.arc_out import RunOn
 from controller.job.check import check_job, job_material
 from controller.runtime.build import BuildOptions, BuildResult, BuildRunner
@@ -41,6 +41,9 @@ from controller.journal.store import Journal
 from controller.runtime.machine import CellMachine, State, TransitionRefused
 from controller.runtime.resume import remaining_work
 from core.errors import CellError, InputError
+
+if TYPE_CHECKING:
+    from controller.align.routine import AlignResult
 
 COMMANDS = ("open_job", "run_alignment", "start", "pause", "resume", "abort", "reset", "estop")
 
@@ -73,7 +76,8 @@ class CellController:
             time_scale=cfg.cell.time_scale, travel_speed_mm_min=cfg.limits.travel_speed_mm_min,
             interpass_limit_c=mat.interpass.max_temperature_c, interpass_dwell_s=mat.interpass.dwell_s,
             arc_efficiency=mat.arc_efficiency,
-            run_on=RunOn.from_device(cfg.devices.power_source), tolerance=mat.tolerance)
+            run_on=RunOn.from_device(cfg.devices.power_source), tolerance=mat.tolerance,
+            progress_timeout_s=cfg.cell.progress_timeout_s)
         self.machine = CellMachine()
         self.bus = EventBus()
         self.devices: Devices | None = None
@@ -304,7 +308,7 @@ class CellController:
         """
         if not self.machine.can("probe"):
             raise self._refuse("run_alignment")
-        from controller.align.routine import align, cad_mesh, plan_for_mesh, run_on_url
+        from controller.align.routine import align, cad_mesh, plan_for_mesh
 
         if plan is None:
             from core.config import load_sim
@@ -316,7 +320,7 @@ class CellController:
             if cnc is not None:
                 self.alignment = await align(cnc, self.cfg, plan)
             else:
-                self.alignment = await run_on_url(self.cfg.devices.cnc.url, self.cfg, plan)
+                self.alignment = await align_at(self.cfg.devices.cnc.url, self.cfg, plan)
         except BaseException as exc:
             if self.machine.can("fault"):
                 self.machine.send("fault", cause=f"alignment: {exc}")
@@ -371,12 +375,7 @@ class CellController:
         await asyncio.to_thread(self.journal.flush)
         assert self.run_dir is not None
         state = self.last_result.state if self.last_result is not None else None
-        try:
-            self.last_report = await write_report_elsewhere(self.run_dir, self.job, state=state)
-        except Exception:
-            if not self.journal.failed:
-                raise
-            self.last_report = None  # the disk that failed the journal holds no record either
+        self.last_report = await record_build_end(self.journal, self.bus, self.run_dir, self.job, state)
         return self.last_result
 
     def write_report(self, plots: bool = True) -> Path:
@@ -468,3 +467,14 @@ def _validated(job: dict) -> dict:
             if len(p["points"]) < 2:
                 raise InputError(f"layers[{li}].passes[{pi}]: a pass needs at least 2 points")
     return job
+
+
+async def align_at(url: str, cell: CellConfig, plan: Any, *, settings: Any = None,
+                   on_point: Callable[[Any], None] | None = None, no_level: bool = False) -> "AlignResult":
+    """Probe and align on the CNC at `url` outside a build session (the link is opened and closed
+    here): `cell align run`, the demo's probe on the CNC and the TUI's Align screen come in here,
+    a build session through `CellController.run_alignment`."""
+    # lazy: the alignment routine (ICP, trimesh) loads only when a cell is aligned
+    from controller.align.routine import run_on_url
+
+    return await run_on_url(url, cell, plan, settings=settings, on_point=on_point, no_level=no_level)

@@ -24,15 +24,18 @@ from core.errors import CellError, InputError
 @dataclass(frozen=True)
 class VerifyResult:
     points_cad: np.ndarray        # (n, 3) probed, CAD frame
-    planned_top_mm: float
+    planned_top_mm: float         # the highest planned layer
     nominal_top_mm: float         # CAD + allowance
     tolerance_mm: float
+    planned_z: np.ndarray | None = None   # (n,) the planned top under each touch (None: planned_top_mm)
+    kinds: tuple[str, ...] = ()           # per touch: "inside" or "edge"
 
     def as_dict(self) -> dict:
         z = self.points_cad[:, 2]
-        err = z - self.planned_top_mm
-        nom = z - self.nominal_top_mm
-        flat = float(z.max() - z.min())
+        planned = self.planned_z if self.planned_z is not None else np.full(len(z), self.planned_top_mm)
+        err = z - planned
+        nom = z - np.minimum(self.nominal_top_mm, planned + self.tolerance_mm)
+        flat = float(err.max() - err.min())  # peak to valley against the planned top under each touch
         defects = []
         if float(np.abs(err).max()) > self.tolerance_mm:
             k = int(np.argmax(np.abs(err)))
@@ -47,7 +50,9 @@ class VerifyResult:
                 "height_error_mean_mm": round(float(err.mean()), 4),
                 "height_error_max_mm": round(float(np.abs(err).max()), 4),
                 "vs_nominal_mean_mm": round(float(nom.mean()), 4), "vs_nominal_min_mm": round(float(nom.min()), 4),
-                "flatness_mm": round(flat, 4), "tolerance_mm": self.tolerance_mm, "defects": defects}
+                "flatness_mm": round(flat, 4), "tolerance_mm": self.tolerance_mm, "defects": defects,
+                "edge_points": sum(1 for k in self.kinds if k == "edge"),
+                "at": np.round(self.points_cad, 3).tolist()}
 
 
 def load_cad(job: dict, job_path: Path | None) -> Any:
@@ -58,10 +63,11 @@ def load_cad(job: dict, job_path: Path | None) -> Any:
     if not cad:
         raise InputError("job: not a repair job (no repair.cad); plan it with `cell repair plan`")
     p = Path(cad)
-    if not p.is_absolute() and not p.exists() and job_path is not None:
-        p = job_path.parent / p
+    if not p.is_absolute() and job_path is not None and (job_path.parent / p).is_file():
+        p = job_path.parent / p   # a relative CAD is relative to the job file's directory
     if not p.is_file():
-        raise InputError(f"job repair.cad {cad}: no such file; keep the CAD next to the job")
+        where = f" (looked in {job_path.parent.resolve()})" if job_path is not None and not Path(cad).is_absolute() else ""
+        raise InputError(f"job repair.cad {cad}: no such file{where}; plan the repair again or put the CAD there")
     return trimesh.load_mesh(str(p), force="mesh")
 
 
@@ -93,21 +99,87 @@ def probe_plan(cad: Any, job: dict) -> Any:
     return plan_for_mesh(cad, top_span_mm=span, side_span_mm=float(max(side, 4.0)))
 
 
+def verify_targets(job: dict, n_inside: int = 12, n_edge: int = 8) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Where to touch after the deposit, CAD frame: points on the deposit's exposed top, never on stock.
+
+    The deposit is the union of the planned bead footprints (each pass's centre line widened by
+    its width); the exposed top of a layer is its footprint minus the layers above. Touches go
+    inside it, at least half a bead (and the probe's spread) in from its boundary, spread out by
+    farthest-point sampling, and along its edges (half a bead in from the boundary, on the
+    boundary's longest stretches). Returns (n, 2) xy, (n,) planned top z under each, and kinds.
+    """
+    from shapely.geometry import LineString, Point
+    from shapely.ops import unary_union
+
+    layers = sorted(job["layers"], key=lambda L: float(L["z_mm"]))
+    foot = []
+    for L in layers:
+        shapes = []
+        for p in L.get("passes", []):
+            pts = [(float(q[0]), float(q[1])) for q in p.get("points", [])]
+            w = float(p.get("width_mm") or job["bead"]["width_mm"])
+            if len(pts) >= 2:
+                shapes.append(LineString(pts).buffer(w / 2, cap_style="flat" if pts[0] != pts[-1] else "round"))
+            elif pts:
+                shapes.append(Point(pts[0]).buffer(w / 2))
+        foot.append(unary_union(shapes) if shapes else None)
+    w = float(job["bead"]["width_mm"])
+    inset = 0.5 * w + 0.25
+    cand: list[tuple[float, float, float, str]] = []
+    for i, L in enumerate(layers):
+        if foot[i] is None or foot[i].is_empty:
+            continue
+        above = [f for f in foot[i + 1:] if f is not None]
+        top = foot[i].difference(unary_union(above)) if above else foot[i]
+        core = top.buffer(-inset)
+        if core.is_empty:
+            continue
+        z = float(L["z_mm"])
+        lo = np.array(core.bounds[:2])
+        hi = np.array(core.bounds[2:])
+        step = max(0.5, float(np.sqrt(core.area / 400.0)))
+        xs = np.arange(lo[0], hi[0] + 1e-9, step)
+        ys = np.arange(lo[1], hi[1] + 1e-9, step)
+        grid = [(x, y) for x in xs for y in ys if core.contains(Point(x, y))]
+        cand += [(x, y, z, "inside") for x, y in grid]
+        for ring in ([core.exterior] if core.geom_type == "Polygon" else [g.exterior for g in core.geoms]):
+            n = max(4, int(ring.length / max(step, 1.0)))
+            cand += [(*ring.interpolate(k / n, normalized=True).coords[0], z, "edge") for k in range(n)]
+    if not cand:
+        raise InputError("repair verify: the planned deposit leaves no top a probe can touch (narrower than a bead)")
+    xy = np.array([(c[0], c[1]) for c in cand])
+    pick: list[int] = []
+    for kind, n in (("inside", n_inside), ("edge", n_edge)):
+        idx = [i for i, c in enumerate(cand) if c[3] == kind]
+        if not idx:
+            continue
+        d = np.full(len(idx), np.inf)
+        for j in pick:
+            d = np.minimum(d, np.linalg.norm(xy[idx] - xy[j], axis=1))
+        cur = idx[int(np.argmin(np.linalg.norm(xy[idx] - xy[idx].mean(axis=0), axis=1)))] if not pick else idx[int(np.argmax(d))]
+        for _ in range(min(n, len(idx))):
+            pick.append(cur)
+            d = np.minimum(d, np.linalg.norm(xy[idx] - xy[cur], axis=1))
+            cur = idx[int(np.argmax(d))]
+    pick = list(dict.fromkeys(pick))
+    return xy[pick], np.array([cand[i][2] for i in pick]), [str(cand[i][3]) for i in pick]
+
+
 async def verify(link: Any, cell: Any, job: dict, transform: np.ndarray, grid: int = 4,
                  tolerance_mm: float = 0.1) -> VerifyResult:
-    """Probe a grid over the repaired region's top; positions read back into the CAD frame."""
+    """Probe the deposit's exposed top (inside and along its edges, `verify_targets`); positions
+    read back into the CAD frame and compared with the planned top under each touch."""
     from controller.align.probe_cycle import ProbeTarget, probe_points
 
     rep = job["repair"]
     rb = np.asarray(rep["bounds_mm"], dtype=float)
-    w = float(job["bead"]["width_mm"])
+    n_inside = grid * grid * 5 // 8
+    xy, ztop, kinds = verify_targets(job, n_inside=n_inside, n_edge=grid * grid - n_inside)
     top = max(float(L["z_mm"]) for L in job["layers"])
-    xs = np.linspace(rb[0, 0] + w, rb[1, 0] - w, grid)
-    ys = np.linspace(rb[0, 1] + w, rb[1, 1] - w, grid)
     clear = float(cell.probe.clearance_mm)
     tf = np.asarray(transform, dtype=float)
     down = tf[:3, :3] @ np.array([0.0, 0.0, -1.0])
-    starts = [tf[:3, :3] @ np.array([x, y, top + clear]) + tf[:3, 3] for x in xs for y in ys]
+    starts = [tf[:3, :3] @ np.array([x, y, top + clear]) + tf[:3, 3] for x, y in xy]
     safe = max(s[2] for s in starts) + clear
     targets = [ProbeTarget(f"verify[{i}]", tuple(map(float, s)), tuple(map(float, down)), float(safe))
                for i, s in enumerate(starts)]
@@ -116,7 +188,7 @@ async def verify(link: Any, cell: Any, job: dict, transform: np.ndarray, grid: i
     inv = np.linalg.inv(tf)
     pts = np.array([inv[:3, :3] @ p.position + inv[:3, 3] for p in got])
     nominal = float(rb[1, 2])  # the repair volume's top: CAD + allowance
-    return VerifyResult(pts, top, nominal, tolerance_mm)
+    return VerifyResult(pts, top, nominal, tolerance_mm, planned_z=ztop, kinds=tuple(kinds))
 
 
 async def repair_run(job: dict, cell: Any, *, job_path: Path | None = None, runs_dir: str | Path = "runs",
@@ -148,7 +220,14 @@ async def repair_run(job: dict, cell: Any, *, job_path: Path | None = None, runs
     finally:
         stops.detach()
         await ctl.close()
-    return {"alignment": {"level_a_deg": round(res.level_a_deg, 5), "level_b_deg": round(res.level_b_deg, 5),
+    v = ver.as_dict()
+    report = str(ctl.last_report) if getattr(ctl, "last_report", None) else None
+    return {"state": result.state, "level_a_deg": round(res.level_a_deg, 5), "level_b_deg": round(res.level_b_deg, 5),
+            "face_angle_deg": round(res.face_angle_deg, 5),
+            "transform": np.round(np.asarray(res.transform, dtype=float), 9).tolist(),
+            "passes_done": result.passes_done, "verify": v, "report": report,
+            "defects": v["defects"], "run_dir": str(ctl.run_dir),
+            # the shapes of issue 17, kept for scripts that read them
+            "alignment": {"level_a_deg": round(res.level_a_deg, 5), "level_b_deg": round(res.level_b_deg, 5),
                           "face_angle_deg": round(res.face_angle_deg, 5)},
-            "build": {"state": result.state, "passes_done": result.passes_done, "run_dir": str(ctl.run_dir)},
-            "verify": ver.as_dict()}
+            "build": {"state": result.state, "passes_done": result.passes_done, "run_dir": str(ctl.run_dir)}}

@@ -59,6 +59,10 @@ class CellInfo(_Frozen):
     time_scale: float = Field(default=1.0, gt=0.0, le=1000.0)
     material: str = "inconel718-1.0mm"
     runs_dir: str = "runs"
+    # Progress watchdog (DESIGN.md §6): process seconds a motion device may stand (no EXE, no
+    # position change) with the arc on before it is a fault; null: from the job at build start,
+    # the longest planned weld move's time x 2 + 1 s (docs/controller.md, Progress watchdog).
+    progress_timeout_s: float | None = Field(default=None, gt=0.0, le=3600.0)
 
 
 # The protocol / transport of each device kind: drivers/registry.py maps each name to its driver
@@ -175,6 +179,10 @@ class Kinematics(_Frozen):
     second_limits_deg: tuple[float, float] = (-360.0, 360.0)
     tilt_limit_deg: float = Field(default=60.0, ge=0.0, le=120.0,
                                   description="largest tool-axis tilt from the part's vertical a 5-axis plan uses")
+    chord_tolerance_mm: float = Field(
+        default=0.02, gt=0.0, le=1.0,
+        description="5-axis: the tool tip stays this close to the planned path between the points of a "
+                    "machine-linear move; moves are split until it does (docs/kinematics.md)")
 
 
 class Nozzle(_Frozen):
@@ -236,7 +244,7 @@ class Workpiece(_Frozen):
 class CncSim(_Frozen):
     workpiece: Workpiece = Workpiece()
     probe_noise_mm: float = Field(default=0.002, ge=0.0, le=1.0)
-    # the workpiece grows where metal is deposited: a bead this wide, its top at the torch tip
+    # unused since the deposit is the World's height map (sim.yaml `process:`); still accepted so older files load
     bead_width_mm: float = Field(default=4.0, gt=0.0)
     bead_depth_mm: float = Field(default=2.0, gt=0.0)
 
@@ -249,9 +257,29 @@ class ThermalSim(_Frozen):
     cooling_time_constant_s: float = Field(default=120.0, gt=0.0)
 
 
+class ProcessSim(_Frozen):
+    """The simulated world's process physics (DESIGN.md §6b, docs/process-physics.md).
+
+    Hidden truth: the controller never reads it. The bead's metal is the model's times
+    `height_gain · (1 + height_temp_coeff · (T − 100 °C)⁺) · (1 + height_noise_pct/100 · N(0, 1))`,
+    N drawn once per bead from the fault spec's seed.
+    """
+
+    height_gain: float = Field(default=1.0, gt=0.0, le=3.0, description="true bead height / model height")
+    height_temp_coeff: float = Field(default=0.0, ge=-0.01, le=0.01,
+                                     description="relative change of height per K of part temperature above 100 °C")
+    height_noise_pct: float = Field(default=0.0, ge=0.0, le=50.0, description="bead-to-bead noise, 1σ (seeded)")
+    stick_out_mm: float = Field(default=15.0, gt=0.0, le=60.0, description="nominal CTWD: the contact tip above the job's z")
+    # the world's share of resistive heating at the nominal stick-out (0.3-0.5 is typical);
+    # null: the material's (`melting.resistive_share`, or its fitted alpha/beta)
+    resistive_share: float | None = Field(default=None, ge=0.05, le=0.8)
+    cell_mm: float = Field(default=0.5, ge=0.1, le=0.5, description="height-map cell size")
+
+
 class SimConfig(_Frozen):
     cnc: CncSim = CncSim()
     thermal: ThermalSim = ThermalSim()
+    process: ProcessSim = ProcessSim()
     faults: str = ""
 
 

@@ -71,6 +71,29 @@ class ProcessTolerance(_Frozen):
         return self
 
 
+class MeltingSettings(_Frozen):
+    """Wire melting rate `WFS = α·I + β·L·I²` (core/melting.py, docs/process-physics.md).
+
+    Without `alpha`/`beta`, they are calibrated from the synergic line at `stick_out_mm`, with the
+    resistive term `resistive_share` of the melting at `reference_current_a` (default: the middle
+    of [Imin, Imax]); `cell process stickout-fit` refits them from a stick-out sweep.
+    """
+
+    stick_out_mm: float = Field(default=15.0, gt=0.0, le=60.0, description="nominal CTWD of the synergic line")
+    resistive_share: float = Field(default=0.4, ge=0.05, le=0.8)
+    reference_current_a: float | None = Field(default=None, gt=0.0, le=2000.0)
+    alpha: float | None = Field(default=None, gt=0.0, description="(m/min)/A")
+    beta: float | None = Field(default=None, gt=0.0, description="(m/min)/(A²·mm)")
+    # relative 1σ ripple of the measured current (the power source's and its simulator's)
+    current_noise_pct: float = Field(default=0.5, ge=0.0, le=20.0)
+
+    @model_validator(mode="after")
+    def _both(self) -> "MeltingSettings":
+        if (self.alpha is None) != (self.beta is None):
+            raise ValueError("give both alpha and beta (from `cell process stickout-fit`) or neither")
+        return self
+
+
 class Material(_Frozen):
     name: str = Field(min_length=1)
     process: Literal["gmaw", "cmt", "laser"] = "gmaw"
@@ -86,3 +109,6 @@ class Material(_Frozen):
     max_overhang_deg: float = Field(default=30.0, ge=0.0, lt=90.0,
                                     description="wall lean from vertical a 3-axis path may build")
     tolerance: ProcessTolerance = ProcessTolerance()
+    # exclude=True: not in `model_dump`, so a job (which carries the material's dump) is byte for
+    # byte what it was before this section existed; the controller reads it from the material file
+    melting: MeltingSettings = Field(default=MeltingSettings(), exclude=True)

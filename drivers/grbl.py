@@ -54,7 +54,7 @@ class CncLink(GrblReceiver):
                  link_timeout_s: float = 3.0, connect_timeout_s: float = 5.0, alarm_grace_s: float = 3.0,
                  ack_grace_s: float = 2.0, pace: bool = True, homing_timeout_s: float = 120.0,
                  stuck_after_s: float = 30.0, report_buffer: bool = True, hold_timeout_s: float = 10.0,
-                 reset_timeout_s: float = 5.0, verify_timeout_s: float = 5.0) -> None:
+                 reset_timeout_s: float = 5.0, verify_timeout_s: float = 5.0, line_scale: float = 1.0) -> None:
         if not 0 < status_hz <= 5.0:
             raise ValueError("status_hz must be in (0, 5]: grbl recommends at most 5 status reports a second")
         if rx_buffer_bytes < 16:
@@ -76,7 +76,10 @@ class CncLink(GrblReceiver):
         self._loop: asyncio.AbstractEventLoop | None = None
         self._jogging = False     # a `$J=` was sent and may still be running
         self._pace = pace
-        self._port = SerialPort(url, baud=baud, name="cnc", pace=pace)
+        # a simulated line at time scale k carries k times the bytes per wall second (DESIGN.md §6,
+        # sims/transport.py): pace the writes to it as the robot link does (1 on hardware)
+        self.line_scale = line_scale
+        self._port = SerialPort(url, baud=baud, name="cnc", pace=pace, pace_factor=0.98 * line_scale)
         self._last_q = 0.0
         self._send_lock = asyncio.Lock()
 
@@ -99,7 +102,8 @@ class CncLink(GrblReceiver):
         self.latest_status = None
         self._banner_event.clear()
         self._buf.clear()
-        self._port = SerialPort(self.url, baud=self.baud, name="cnc", pace=self._pace)
+        self._port = SerialPort(self.url, baud=self.baud, name="cnc", pace=self._pace,
+                                pace_factor=0.98 * self.line_scale)
         await self._port.open()
         self._last_rx = time.monotonic()
         self._loop = asyncio.get_running_loop()

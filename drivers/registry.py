@@ -76,11 +76,15 @@ def open_robot(cfg: RobotDevice, *, time_scale: float = 1.0, url: str | None = N
     return cls(url or cfg.url, baud=cfg.baud, link_timeout_s=cfg.link_timeout_s, line_scale=time_scale)
 
 
-def open_cnc(cfg: CncDevice, *, url: str | None = None) -> CncLink:
-    """The CNC link of `devices.cnc` (by its `protocol`), not yet connected; `url` overrides cfg.url."""
+def open_cnc(cfg: CncDevice, *, time_scale: float = 1.0, url: str | None = None) -> CncLink:
+    """The CNC link of `devices.cnc` (by its `protocol`), not yet connected; `url` overrides cfg.url.
+
+    `time_scale`: cell.time_scale; the link paces its writes to the simulated line's rate, as the
+    robot link does (1 on hardware).
+    """
     cls = _backend(CNC_BACKENDS, cfg.protocol, "devices.cnc.protocol", "CNC protocol")()
     return cls(url or cfg.url, baud=cfg.baud, rx_buffer_bytes=cfg.rx_buffer_bytes, status_hz=cfg.status_hz,
-               homing_timeout_s=cfg.homing_timeout_s)
+               homing_timeout_s=cfg.homing_timeout_s, line_scale=time_scale)
 
 
 def open_power_source(cfg: PowerSourceDevice, material: Material | None = None,

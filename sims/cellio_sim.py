@@ -153,12 +153,16 @@ async def serve(ctx) -> list:
     """`cell sim up`: the cell I/O coupler on cell.yaml's URL."""
     from wire.urls import parse_tcp_url
     from sims.faults import parse_fault_spec
+    from sims.process_world import attach
     from sims.up import Served
     cfg = ctx.cell.devices.cellio
     th = ctx.sim.thermal
     thermal = LumpedThermal(th.ambient_c, th.heat_capacity_j_k, th.cooling_time_constant_s)
     sim = CellIOSim(clock=ctx.clock, world=ctx.world, thermal=thermal,
                     faults=parse_fault_spec(ctx.faults or ctx.sim.faults))
+    phys = attach(ctx)
+    if phys is not None:   # the bead height's temperature term reads the pyrometer's truth
+        phys.set_temperature_source(lambda: sim.part_temperature_c)
     host, port = parse_tcp_url(cfg.url)
     url, close = await serve_modbus_tcp(sim, host, 0 if ctx.ephemeral else port, cfg.device_id)
     return [Served("cellio", url, close, sim=sim)]

@@ -15,16 +15,18 @@ import asyncio
 import json
 import math
 import re
+import time
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Callable
+from typing import IO, Any, Callable
 
 import numpy as np
 
 from wire.grbl_protocol import GrblStatus, fmt, format_probe, format_status
 from sims.clock import SimClock
 from sims.faults import parse_fault_spec
+from sims.process_world import attach
 from sims.transport import serve_serial
 from sims.workpiece import Workpiece
 
@@ -114,6 +116,8 @@ class CncSim:
         self.starved = 0          # times the planner ran empty while lines were still arriving
         self._rx = bytearray()
         self.hung = False    # a firmware whose main loop stopped reading its input (tests set it)
+        self.freeze: tuple[str, float] | None = None  # fault `freeze@t=`/`@move=`: Run, no motion
+        self._t0 = time.monotonic()
         self._line: list[str] = []
         self._overflow = False
         self._comment = 0
@@ -639,6 +643,9 @@ class CncSim:
 
     def advance(self, t: float, now: float) -> None:
         """Execute queued blocks over simulated time [t, now]."""
+        if self.freeze is not None and (time.monotonic() - self._t0 if self.freeze[0] == "t"
+                                        else self.executed_count) >= self.freeze[1]:
+            return  # fault: reports Run with lines queued, never moves
         while t < now and self._queue and not self.alarm and not (self.hold and self.hold_sub == 0):
             b = self._queue[0]
             if not b.motion:
@@ -729,17 +736,19 @@ async def serve(ctx) -> list:
     sim = CncSim(clock=ctx.clock, world=ctx.world, workpiece=wp, rx_buffer_bytes=dev.rx_buffer_bytes,
                  letters=wp.kin.letters,
                  log_path=(Path(ctx.log_dir) / "cnc.jsonl") if ctx.log_dir else None)
-    grow_workpiece(ctx.world, wp, ctx.sim.cnc.bead_width_mm, ctx.sim.cnc.bead_depth_mm)
+    for cond, v in spec.events("freeze"):
+        sim.freeze = (cond, float(v))
+    if "freeze" in spec.values:
+        sim.freeze = ("t", 0.0)
+    use_deposit_map(ctx, wp)
     return await serve_serial(sim, DEVICE, dev, ctx, spec, {"protocol": "grbl 1.1"})
 
 
-def grow_workpiece(world, wp: Workpiece, width_mm: float, depth_mm: float) -> None:
-    """Metal the CNC deposits becomes part of the workpiece, so probing after a repair sees it."""
-    if world is None or not hasattr(world, "subscribe"):
+def use_deposit_map(ctx: Any, wp: Workpiece) -> None:
+    """Metal the CNC deposits is the World's height map in the workpiece frame (its substrate the
+    workpiece mesh): the touch probe reads it, so probing after a repair sees the deposit."""
+    phys = attach(ctx)
+    if phys is None:
         return
-
-    def on_segment(seg: dict) -> None:
-        if seg.get("device") == DEVICE and "part" in seg:
-            wp.deposit(seg["part"]["from"], seg["part"]["to"], width_mm, depth_mm)
-
-    world.subscribe(on_segment)
+    phys.set_substrate(DEVICE, wp.top_z)
+    wp.deposit_map = phys.height_map(DEVICE)

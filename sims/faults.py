@@ -45,6 +45,8 @@ KEYS: dict[str, tuple[str, str]] = {
     "lie": ("dur", "ACK and EXE a sequence number never sent; when: lie@t=... / @move=N"),
     "garble": ("dur", "every reply with a bad CRC from then on; when: garble@t=... / @move=N"),
     "mute": ("dur", "no reply at all from then on; when: mute@t=... / @move=N"),
+    # a motion device that stops executing (issue 26; robot: RUN, no EXE; CNC: Run, MPos still)
+    "freeze": ("dur", "accept moves but stop executing them from then on; when: freeze@t=... / @move=N"),
     # a power source whose error stays latched across restarts (kept in its log/state dir)
     "latched_error": ("int", "power source starts with this error number latched (e.g. 50, watchdog)"),
     # device faults (power source, cell I/O), read by their simulators

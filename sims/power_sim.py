@@ -113,6 +113,7 @@ class PowerSourceSim:
         self.log: list[dict] = []            # what the source really did (t wall, t_sim, event)
         self._last_world: tuple | None = None
         self._actuals = (0.0, 0.0, 0.0)
+        self.stick_out_mm: float | None = None    # the last stick-out the current followed (truth)
         self.spec = faults
         self._rng = faults.rng("power_source") if faults is not None else np.random.default_rng(seed)
         self._ign_p = float(faults.value("ignition_fail", 0.0)) if faults is not None else 0.0
@@ -382,10 +383,11 @@ class PowerSourceSim:
         lost = self._arc_lost()
         if p in ("stabilise", "arc") and not lost:
             u, i = self.synergic(c.wfs, c.arc_trim)
-            n = self.line.noise
-            if n:
+            i = self._melting_current(c.wfs, i)
+            n, ni = self.line.noise, self.material.melting.current_noise_pct / 100.0
+            if n or ni:
                 u *= 1 + n * float(self._rng.standard_normal())
-                i *= 1 + n * float(self._rng.standard_normal())
+                i *= 1 + ni * float(self._rng.standard_normal())
             w = c.wfs
         elif p == "burnback" and not lost:
             u, i = self.synergic(c.wfs, c.arc_trim)
@@ -400,10 +402,21 @@ class PowerSourceSim:
             u, i, w = 0.0, 0.0, 0.0
         self._actuals = (u, i, w)
         stable = p in ("arc", "burnback") and not lost
-        key = (stable, round(u, 2), round(i, 1))
+        key = (stable, round(u, 2), round(i, 1), round(w, 2))
         if self.world is not None and key != self._last_world:
-            self.world.set_arc(stable, i, u, self.clock.now())
+            self.world.set_arc(stable, i, u, self.clock.now(), w)
         self._last_world = key
+
+    def _melting_current(self, wfs: float, synergic_a: float) -> float:
+        """The current at the torch's actual stick-out (the World's physics), else the synergic line's."""
+        phys = self.world.physics if self.world is not None else None
+        if phys is None:
+            return synergic_a
+        stick_out = self.world.stick_out_mm() if self.world is not None else None
+        if stick_out is None:
+            return synergic_a
+        self.stick_out_mm = stick_out
+        return max(phys.current_a(wfs, stick_out, synergic_a), 0.0)
 
     def _log(self, event: str, **kw) -> None:
         self.log.append({"t": time.monotonic(), "t_sim": self.clock.now(), "event": event, **kw})
@@ -543,8 +556,10 @@ async def serve(ctx) -> list:
     from sims.faults import parse_fault_spec
     from sims.up import Served
     cfg = ctx.cell.devices.power_source
+    from sims.process_world import attach
     material = load_material(ctx.cell.cell.material)
     spec = parse_fault_spec(ctx.faults or ctx.sim.faults)
+    attach(ctx)
     sim = PowerSourceSim(material, clock=ctx.clock, world=ctx.world, faults=spec,
                          state_path=(Path(ctx.log_dir) / "power_source.state.json") if ctx.log_dir else None)
     extra = {"transport": cfg.transport}

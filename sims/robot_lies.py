@@ -23,7 +23,7 @@ from typing import Any
 
 from wire import rlp
 
-MODES = ("flood", "lie", "garble", "mute")
+MODES = ("flood", "lie", "garble", "mute", "freeze")
 LIE_PERIOD_S = 0.5
 FLOOD_TICK_S = 0.01
 FLOOD_UNTHROTTLED_PER_S = 20000

@@ -19,6 +19,7 @@ from typing import IO, Callable
 from wire import rlp
 from sims.clock import SimClock
 from sims.faults import FaultSpec, parse_fault_spec
+from sims.process_world import attach
 from sims.robot_lies import Misbehaviour
 from sims.transport import serve_serial
 
@@ -55,6 +56,7 @@ class RobotSim:
         self.waiting = False
         self.fault = False
         self.discarding = False
+        self.held_at: float | None = None    # monotonic time of the latest !HOLD (tests: arc first)
         self.executed: list[int] | None = [] if record else None  # wire seqs, in execution order
         # counters
         self.frames_rx = self.crc_errors = self.syntax_errors = self.naks = self.duplicates = 0
@@ -175,7 +177,7 @@ class RobotSim:
 
     def _control(self, verb: str) -> None:
         if verb == "HOLD":
-            self.held = True
+            self.held, self.held_at = True, time.monotonic()
             self._stopped()
         elif verb == "GO":
             self.held = self.silence_held = False
@@ -233,6 +235,8 @@ class RobotSim:
     def advance(self, t: float, now: float) -> None:
         """Execute queued moves over simulated time [t, now]."""
         self._next_finish = None
+        if self.lies and self.lies.active("freeze"):  # fault: accepts moves, executes none (RUN)
+            return
         while t < now and self.queue and not (self.held or self.fault or self.waiting):
             m = self.queue[0]
             if m.verb == "WAIT":
@@ -314,6 +318,7 @@ async def serve(ctx) -> list:
     dev = ctx.cell.devices.robot
     lim = ctx.cell.limits
     spec = parse_fault_spec(ctx.faults)
+    attach(ctx)   # the world's process physics: the robot's substrate is the plane z = 0 of its frame
     sim = RobotSim(clock=ctx.clock, world=ctx.world, queue_slots=dev.queue_slots,
                    log_path=(Path(ctx.log_dir) / "robot.jsonl") if ctx.log_dir else None,
                    heartbeat_s=dev.heartbeat_s, link_timeout_s=dev.link_timeout_s,

@@ -11,7 +11,8 @@ Frames (all mm, right-handed):
   `R_B·R_A`, AC is `R_A·R_C`, about −P). The probe tip sits at the machine position X, Y, Z.
 
 Probe contact is a segment–mesh intersection (Möller–Trumbore, vectorised over triangles; no
-rtree needed) with Gaussian trigger noise of σ = `probe_noise_mm` along the travel direction
+rtree needed), and against the deposit's height map (sims/heightmap.py: the World's, in the
+part frame, when the simulators run with process physics), with Gaussian trigger noise of σ = `probe_noise_mm` along the travel direction
 from a seeded generator, so a run is reproducible.
 """
 from __future__ import annotations
@@ -20,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sims.heightmap import FloatArray, HeightMap
 from sims.table_kin import TableKin, rot, trans
 
 __all__ = ["Workpiece", "rot", "trans"]
@@ -50,17 +52,15 @@ class Workpiece:
         self._v0 = tri[:, 0]
         self._e1 = tri[:, 1] - tri[:, 0]
         self._e2 = tri[:, 2] - tri[:, 0]
-        self._n_base = len(tri)
         self.pose = np.asarray(pose, dtype=float)
         self.noise_mm = float(noise_mm)
         self.rng = np.random.default_rng(seed)
         self.pivot = np.asarray(pivot_mm, dtype=float)
         self.axis_a = axis_a
         self.axis_second = axis_second
-        # deposited metal: boxes (corner, inverse edge matrix), folded in lazily from _pending
-        self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-        self._bead_lo = np.zeros((0, 3))
-        self._bead_inv = np.zeros((0, 3, 3))
+        # deposited metal: the World's height map of this device, in the part frame (when served
+        # with process physics; sims/process_world.py)
+        self.deposit_map: HeightMap | None = None
         self.kin = TableKin(table, tuple(self.pivot), tuple(axis_a), tuple(axis_second), tuple(offset_mm))
         # How close to the surface the stylus counts as deflected (a real probe trips within
         # microns); wide enough that a noisy trip point still reads as tripped.
@@ -104,49 +104,24 @@ class Workpiece:
         pts = np.asarray(pts, dtype=float).reshape(-1, 3)
         return pts @ inv[:3, :3].T + inv[:3, 3]
 
-    # -- growth -----------------------------------------------------------------------------
-    def deposit(self, p0, p1, width_mm: float, depth_mm: float) -> None:
-        """Metal laid from p0 to p1 (workpiece frame): a box `width_mm` wide, its top on the segment."""
-        a, b = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
-        d = b - a
-        length = float(np.linalg.norm(d))
-        if length < 1e-6:
-            return
-        u = d / length
-        side = np.cross([0.0, 0.0, 1.0], u)
-        if np.linalg.norm(side) < 1e-9:
-            side = np.array([1.0, 0.0, 0.0])
-        side /= np.linalg.norm(side)
-        up = np.cross(u, side)
-        up = up if up[2] >= 0 else -up
-        half = width_mm / 2.0
-        lo = a - u * half - side * half - up * depth_mm  # round the ends: a bead is as long as its pool
-        ex = [u * (length + width_mm), side * width_mm, up * depth_mm]
-        corners = np.array([lo + i * ex[0] + j * ex[1] + k * ex[2] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
-        faces = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
-                          [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
-        self._pending.append((corners[faces], lo, np.array(ex)))
-
-    def _grow(self) -> None:
-        """Fold the beads deposited since the last query into the triangle and box arrays (cheap per bead)."""
-        if not self._pending:
-            return
-        tri = np.concatenate([t for t, _, _ in self._pending])
-        self._v0 = np.concatenate([self._v0, tri[:, 0]])
-        self._e1 = np.concatenate([self._e1, tri[:, 1] - tri[:, 0]])
-        self._e2 = np.concatenate([self._e2, tri[:, 2] - tri[:, 0]])
-        lo = np.array([b for _, b, _ in self._pending])
-        inv = np.linalg.inv(np.array([e.T for _, _, e in self._pending]))
-        self._bead_lo = np.concatenate([self._bead_lo, lo])
-        self._bead_inv = np.concatenate([self._bead_inv, inv])
-        self._pending = []
-
-    def _in_beads(self, q: np.ndarray) -> bool:
-        self._grow()
-        if not len(self._bead_lo):
-            return False
-        f = np.einsum("nij,nj->ni", self._bead_inv, q - self._bead_lo)
-        return bool(np.any(np.all((f >= 0) & (f <= 1), axis=1)))
+    # -- the deposit -------------------------------------------------------------------------
+    def top_z(self, xs: FloatArray, ys: FloatArray) -> FloatArray:
+        """The mesh's highest surface over each (x, y) of the part frame (NaN where none): the
+        substrate under the deposit's height map."""
+        x = np.asarray(xs, dtype=float).reshape(-1, 1)
+        y = np.asarray(ys, dtype=float).reshape(-1, 1)
+        v0, e1, e2 = self._v0, self._e1, self._e2
+        det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+        ok = np.abs(det) > _EPS
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        px, py = x - v0[:, 0], y - v0[:, 1]
+        u = (px * e2[:, 1] - py * e2[:, 0]) * inv
+        v = (py * e1[:, 0] - px * e1[:, 1]) * inv
+        hit = ok & (u >= -1e-12) & (v >= -1e-12) & (u + v <= 1 + 1e-12)
+        z = v0[:, 2] + u * e1[:, 2] + v * e2[:, 2]
+        z = np.where(hit, z, -np.inf).max(axis=1)
+        out: FloatArray = np.where(np.isfinite(z), z, np.nan)
+        return out
 
     def part_frame(self, pos5) -> tuple[np.ndarray, np.ndarray]:
         """The tool tip (machine X Y Z at rotary A, B|C) and the tool axis, in the workpiece frame."""
@@ -155,12 +130,9 @@ class Workpiece:
         return q, inv[:3, :3] @ np.array([0.0, 0.0, 1.0])
 
     # -- geometry ---------------------------------------------------------------------------
-    def _ray_hits(self, origin: np.ndarray, direction: np.ndarray, base_only: bool = False) -> np.ndarray:
+    def _ray_hits(self, origin: np.ndarray, direction: np.ndarray) -> np.ndarray:
         """Ray parameters t of every triangle the ray (origin + t·direction) crosses."""
-        if not base_only:
-            self._grow()
-        n = self._n_base if base_only else len(self._v0)
-        v0, e1, e2 = self._v0[:n], self._e1[:n], self._e2[:n]
+        v0, e1, e2 = self._v0, self._e1, self._e2
         pvec = np.cross(direction, e2)
         det = np.einsum("ij,ij->i", e1, pvec)
         ok = np.abs(det) > _EPS
@@ -180,18 +152,22 @@ class Workpiece:
         length = float(np.linalg.norm(d))
         if length < 1e-12:
             return None
-        d = d / length
-        t = self._ray_hits(q0, d)
+        t = self._ray_hits(q0, d / length)
         t = t[(t >= -1e-9) & (t <= length + 1e-9)]
-        return float(t.min()) if len(t) else None
+        best = float(t.min()) if len(t) else None
+        if self.deposit_map is not None:
+            dep = self.deposit_map.ray_hit(q0, q1)
+            if dep is not None and (best is None or dep < best):
+                best = dep
+        return best
 
     def inside(self, p, a_deg: float = 0.0, second_deg: float = 0.0) -> bool:
         """Is the machine-frame point inside the (watertight) part? Parity of ray crossings."""
         q = self._to_part(np.asarray(p, dtype=float)[:3], a_deg, second_deg)[0]
         d = np.array([0.2672612, 0.5345225, 0.8017837])  # skewed: avoids hitting edges exactly
-        if (self._pending or len(self._bead_lo)) and self._in_beads(q):
+        if self.deposit_map is not None and self.deposit_map.inside(q):
             return True
-        t = self._ray_hits(q, d, base_only=True)  # parity over the original (closed) mesh only
+        t = self._ray_hits(q, d)  # parity over the (closed) mesh
         return bool(np.count_nonzero(t > 1e-9) % 2)
 
     def probe(self, p0, p1, a_deg: float = 0.0, second_deg: float = 0.0) -> tuple[float, float, float] | None:

@@ -6,6 +6,12 @@ Metal is deposited only where the torch moves while the arc is stable: the world
 ground truth, one segment per uninterrupted stretch, to `deposit.jsonl` (DESIGN.md §6a), and
 accumulates the heat input the cell-I/O simulator's thermal model draws on.
 
+With process physics (`use_physics`, sims/process_world.py, DESIGN.md §6b) the world also knows
+the part's shape: every deposited segment pours a bead into a height map, the torch's CTWD above
+it is known at every moment (`stick_out_mm`, which the power-source simulator's current follows),
+and each deposit row adds the truth: `ctwd_mm` (mean over the segment) and `bead_height_mm` (the
+bead's rise on its centre line).
+
 Times are simulated seconds (wall time × time scale), supplied by the callers.
 """
 from __future__ import annotations
@@ -14,9 +20,13 @@ import json
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Callable
+from typing import IO, TYPE_CHECKING, Any, Callable
+
+if TYPE_CHECKING:
+    from sims.process_world import ProcessPhysics
 
 Vec3 = tuple[float, float, float]
+PartSeg = tuple[Vec3, Vec3, Vec3]   # (from, to, tool axis) in the workpiece frame
 
 
 @dataclass
@@ -28,8 +38,10 @@ class _Open:
     t0: float
     t1: float
     currents: list[float] = field(default_factory=list)
-    part: tuple | None = None   # (from, to, axis) in the workpiece frame (CNC: from its true pose)
+    part: PartSeg | None = None   # (from, to, axis) in the workpiece frame (CNC: from its true pose)
     voltages: list[float] = field(default_factory=list)
+    wfs: list[float] = field(default_factory=list)
+    ctwds: list[float] = field(default_factory=list)
 
 
 class World:
@@ -40,27 +52,43 @@ class World:
         self.arc_stable = False
         self.current_a = 0.0
         self.voltage_v = 0.0
+        self.wfs_m_min = 0.0
+        self.physics: ProcessPhysics | None = None
         self.arc_efficiency = arc_efficiency
         self.heat_j = 0.0  # total heat put into the part: η·U·I integrated over arc time
         self._heat_t: float | None = None
-        self.segments: list[dict] = []
+        self.segments: list[dict[str, Any]] = []
         self._open: _Open | None = None
-        self._listeners: list[Callable[[dict], None]] = []
+        self._listeners: list[Callable[[dict[str, Any]], None]] = []
         self._fh: IO[str] | None = None
         if log_dir is not None:
             Path(log_dir).mkdir(parents=True, exist_ok=True)
             self._fh = open(Path(log_dir) / "deposit.jsonl", "a", encoding="utf-8")
 
+    def use_physics(self, physics: ProcessPhysics) -> None:
+        """Give the world its process physics (height maps, CTWD, melting rate)."""
+        with self._lock:
+            self.physics = physics
+
     # -- power source side ----------------------------------------------------------------
-    def set_arc(self, stable: bool, current_a: float, voltage_v: float, t: float) -> None:
+    def set_arc(self, stable: bool, current_a: float, voltage_v: float, t: float,
+                wfs_m_min: float | None = None) -> None:
         """Called by the power-source simulator whenever the arc state or actuals change."""
         with self._lock:
             self._integrate_heat(t)
             if stable != self.arc_stable and self._open is not None:
                 self._flush()
+            if stable and not self.arc_stable and self.physics is not None:
+                self.physics.new_bead()
             self.arc_stable = stable
             self.current_a = current_a if stable else 0.0
             self.voltage_v = voltage_v if stable else 0.0
+            self.wfs_m_min = (wfs_m_min or 0.0) if stable else 0.0
+
+    def stick_out_mm(self) -> float | None:
+        """The torch's CTWD now (the power source's current follows it); None without physics or motion."""
+        with self._lock:
+            return self.physics.ctwd_mm() if self.physics is not None else None
 
     def _integrate_heat(self, t: float) -> None:
         if self._heat_t is not None and self.arc_stable and t > self._heat_t:
@@ -74,7 +102,7 @@ class World:
 
     # -- motion side ------------------------------------------------------------------------
     def torch_moved(self, device: str, move: object, p0: Vec3, p1: Vec3, t0: float, t1: float,
-                    part: tuple | None = None) -> None:
+                    part: PartSeg | None = None) -> None:
         """A motion simulator moved the torch from p0 (at t0) to p1 (at t1) within one move.
 
         `move` identifies the move being executed (e.g. its sequence number); a stretch of
@@ -83,6 +111,8 @@ class World:
         """
         with self._lock:
             self._integrate_heat(t1)
+            if self.physics is not None:
+                self._torch(device, p0, p1, part)
             if not self.arc_stable:
                 if self._open is not None:
                     self._flush()
@@ -100,6 +130,18 @@ class World:
                 o.part = (o.part[0], part[1], part[2])
             o.currents.append(self.current_a)
             o.voltages.append(self.voltage_v)
+            o.wfs.append(self.wfs_m_min)
+            if self.physics is not None:
+                c = self.physics.ctwd_mm()
+                if c is not None:
+                    o.ctwds.append(c)
+
+    def _torch(self, device: str, p0: Vec3, p1: Vec3, part: PartSeg | None) -> None:
+        assert self.physics is not None
+        a, b, axis = (part[0], part[1], part[2]) if part is not None else (p0, p1, (0.0, 0.0, 1.0))
+        d = (b[0] - a[0], b[1] - a[1], b[2] - a[2])
+        self.physics.torch_at(device, (float(b[0]), float(b[1]), float(b[2])),
+                              (float(axis[0]), float(axis[1]), float(axis[2])), d)
 
     def motion_stopped(self, device: str) -> None:
         """The device finished a move or stopped (hold, abort): close the open segment."""
@@ -120,7 +162,7 @@ class World:
             self._fh.close()
             self._fh = None
 
-    def subscribe(self, fn: Callable[[dict], None]) -> None:
+    def subscribe(self, fn: Callable[[dict[str, Any]], None]) -> None:
         """Call `fn(segment)` for every deposited segment (used by tests and the TUI demo)."""
         self._listeners.append(fn)
 
@@ -143,6 +185,8 @@ class World:
         if o.part is not None:
             seg["part"] = {"from": [round(float(v), 4) for v in o.part[0]], "to": [round(float(v), 4) for v in o.part[1]]}
             seg["axis"] = [round(float(v), 5) for v in o.part[2]]
+        if self.physics is not None:
+            self._lay(o, seg)
         self.segments.append(seg)
         if self._fh is not None:
             self._fh.write(json.dumps(seg) + "\n")
@@ -151,5 +195,17 @@ class World:
             fn(seg)
 
 
+    def _lay(self, o: _Open, seg: dict[str, Any]) -> None:
+        """The bead of a deposited segment into the height map; its truth into the row."""
+        assert self.physics is not None
+        q0, q1 = (o.part[0], o.part[1]) if o.part is not None else (o.start, o.end)
+        wfs = sum(o.wfs) / len(o.wfs) if o.wfs else 0.0
+        laid = self.physics.lay(o.device, q0, q1, o.t1 - o.t0, seg["current_a"], wfs)
+        if o.ctwds:
+            seg["ctwd_mm"] = round(sum(o.ctwds) / len(o.ctwds), 3)
+        if laid is not None:
+            seg["bead_height_mm"] = round(self.physics.rise_mm(o.device), 4)
+
+
 def _dist(a: Vec3, b: Vec3) -> float:
-    return sum((x - y) ** 2 for x, y in zip(a, b)) ** 0.5
+    return float(sum((x - y) ** 2 for x, y in zip(a, b)) ** 0.5)

@@ -56,3 +56,32 @@ async def test_the_repair_job_built_without_its_alignment_is_refused_before_moti
     assert not deposit.exists() or deposit.read_text() == ""  # not built in the wrong place
     moves = [json.loads(s)["line"] for s in (tmp_path / "log" / "cnc.jsonl").read_text().splitlines()]
     assert not any(m.startswith(("G0", "G1")) for m in moves)  # refused before any motion
+
+
+def test_verify_touches_land_on_the_planned_deposit_of_an_l_shaped_worn_region(tmp_path: Path, capsys):
+    """Issue 29: the verify touches come from the planned bead footprints, not the bounding box."""
+    from bench.repair import touches_on_deposit, worn_parts
+    from controller.repair import verify_targets
+
+    for shape in ("L", "slot", "edge"):
+        cad, stock = worn_parts(tmp_path, shape)
+        job = tmp_path / f"{shape}.json"
+        assert main(["repair", "plan", str(cad), "--stock", str(stock), "--width", "4", "--allowance", "0.3",
+                     "--out", str(job), "--json", "--allow-underfill", "--allow-overhang"]) == 0  # the ramp rests on the stock
+        out = json.loads(capsys.readouterr().out)
+        assert {"volume_mm3", "layers", "passes", "arc_starts", "coverage", "frame"} <= set(out)
+        d = json.loads(job.read_text())
+        assert Path(d["repair"]["cad"]).is_absolute()
+        xy, z, kinds = verify_targets(d, 10, 6)
+        rep = {"verify": {"at": [[x, y, 0.0] for x, y in xy]}}
+        assert touches_on_deposit(d, rep) == 1.0, shape
+        assert "edge" in kinds and len(xy) >= 8
+
+
+async def test_l_shaped_worn_edge_repair_verifies_on_deposit(tmp_path: Path):
+    from bench.repair import one
+
+    fig = await one(tmp_path, (1.38, -1.356, 0.577, (-1.319, -2.851, -1.142)), shape="L")
+    v = fig["verify"]
+    assert fig["state"] == "complete" and fig["on_deposit"] == 1.0, fig
+    assert v["height_error_max_mm"] < 0.1 and v["defects"] == [], v

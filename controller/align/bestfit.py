@@ -5,7 +5,7 @@ Rigid only: no scale, no reflection. Pure: arrays (and a trimesh mesh) in, froze
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -75,7 +75,7 @@ class _Surface:
             raise InputError("ICP: the CAD mesh has no triangles")
         nrm = np.cross(self._tri[:, 1] - self._tri[:, 0], self._tri[:, 2] - self._tri[:, 0])
         self.normals = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
-        self._closest = trimesh.triangles.closest_point
+        self._closest: Callable[[F, F], F] = trimesh.triangles.closest_point
         self._k = min(k, len(self._tri))
         self._tree = cKDTree(self._tri.mean(axis=1)) if len(self._tri) > 64 else None
 

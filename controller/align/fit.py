@@ -259,9 +259,10 @@ def cad_transform_321(top_normal: ArrayLike, top_point: ArrayLike, side_normal: 
     normal is made exactly perpendicular to the top, which the top defines best). Translation:
     each CAD datum face must pass through its measured point.
     """
-    def frame(z: ArrayLike, x: ArrayLike) -> F:
-        z = np.asarray(z, dtype=float) / np.linalg.norm(z)
-        x = np.asarray(x, dtype=float)
+    def frame(z_in: ArrayLike, x_in: ArrayLike) -> F:
+        z: F = np.asarray(z_in, dtype=float)
+        z = z / np.linalg.norm(z)
+        x: F = np.asarray(x_in, dtype=float)
         x = x - z * (x @ z)
         nx = np.linalg.norm(x)
         if nx < 1e-9:

@@ -121,7 +121,7 @@ class AlignResult:
     log: tuple[str, ...] = ()
     no_level: bool = False       # `--no-level`: no A/B commanded; the measured tilt is in the transform
 
-    def planes(self) -> list[dict]:
+    def planes(self) -> list[dict[str, Any]]:
         t, s = self.top, self.side
         return [
             {"name": "top", "normal": t.normal.tolist(), "point": t.point.tolist(), "rms_mm": t.rms_mm,
@@ -133,7 +133,7 @@ class AlignResult:
              "max_residual_mm": 0.0, "outliers": [], "n_points": 1},
         ]
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         return {
             "planes": self.planes(), "level_a_deg": self.level_a_deg, "level_b_deg": self.level_b_deg,
             "face_angle_deg": self.face_angle_deg, "face_angle_eq1_deg": self.face_angle_eq1_deg,
@@ -342,7 +342,7 @@ async def run_on_url(url: str, cell: Any, plan: ProbePlan, *, settings: Any = No
         await link.close()
 
 
-def alignment_record(res: "AlignResult") -> dict:
+def alignment_record(res: "AlignResult") -> dict[str, Any]:
     """The job's `alignment` (DESIGN.md §3): transform, table angles, when it was probed."""
     import time
 

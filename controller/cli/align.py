@@ -11,10 +11,11 @@ from pathlib import Path
 import numpy as np
 
 from controller.motion.kinematics import apply_to_job
-from controller.align.routine import alignment_record, cad_mesh, plan_for_mesh, run_on_url
+from controller.align.routine import alignment_record, cad_mesh, plan_for_mesh
+from controller.api import align_at
 from controller.cli import guard
 from controller.harness.align_sim import run_with_sim
-from controller.job.read import read_job
+from controller.job.read import JobJSON, read_job
 from core.config import load_cell, load_sim
 from core.errors import InputError
 
@@ -28,7 +29,7 @@ def _allow_negative(p: argparse.ArgumentParser) -> None:
     p._has_negative_number_optionals = []
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("align", help="probe, fit, level and align the workpiece on the CNC")
     s = p.add_subparsers(dest="align_command", metavar="SUBCOMMAND")
     s.required = True
@@ -84,6 +85,34 @@ def parse_triple(text: str, what: str) -> np.ndarray:
     return v
 
 
+def _header_columns(p: Path, i: int, row: list[str]) -> tuple[int, ...] | None:
+    """The x, y, z column indices named by a header row; None when the row starts with numbers."""
+    try:
+        [float(c) for c in row[:3]]
+        return None
+    except ValueError:
+        pass
+    names = [c.lower() for c in row]
+    want = []
+    for key in ("x", "y", "z"):
+        cand = [j for j, nm in enumerate(names) if nm in (key, f"{key}_mm")]
+        if not cand:
+            raise InputError(f"{p}: line {i}: header has no '{key}' column (got {', '.join(row)})")
+        want.append(cand[0])
+    return tuple(want)
+
+
+def _xyz(p: Path, i: int, row: list[str], cols: tuple[int, ...]) -> list[float]:
+    """The finite x, y, z of one data row."""
+    try:
+        vals = [float(row[c]) for c in cols]
+    except (ValueError, IndexError):
+        raise InputError(f"{p}: line {i}: expected numbers in columns x, y, z, got {','.join(row)!r}") from None
+    if not all(np.isfinite(vals)):
+        raise InputError(f"{p}: line {i}: values must be finite")
+    return vals
+
+
 def read_points_csv(path: str | Path) -> np.ndarray:
     """x, y, z rows from a CSV (a header naming x, y, z is optional); errors name file and line."""
     p = Path(path)
@@ -92,32 +121,19 @@ def read_points_csv(path: str | Path) -> np.ndarray:
     except OSError as exc:
         raise InputError(f"{p}: cannot read ({exc.strerror or exc}); check the path") from None
     rows = list(csv.reader(text.splitlines()))
-    cols = (0, 1, 2)
-    out = []
-    for i, row in enumerate(rows, start=1):
-        row = [c.strip() for c in row]
+    first = next((j for j, r in enumerate(rows, start=1) if any(c.strip() for c in r)), None)
+    cols: tuple[int, ...] = (0, 1, 2)
+    out: list[list[float]] = []
+    for i, raw in enumerate(rows, start=1):
+        row = [c.strip() for c in raw]
         if not any(row) or row[0].startswith("#"):
             continue
-        if not out and i == next(j for j, r in enumerate(rows, start=1) if any(c.strip() for c in r)):
-            try:
-                [float(c) for c in row[:3]]
-            except ValueError:
-                names = [c.lower() for c in row]
-                want = []
-                for key in ("x", "y", "z"):
-                    cand = [j for j, nm in enumerate(names) if nm in (key, f"{key}_mm")]
-                    if not cand:
-                        raise InputError(f"{p}: line {i}: header has no '{key}' column (got {', '.join(row)})") from None
-                    want.append(cand[0])
-                cols = tuple(want)
+        if not out and i == first:
+            header = _header_columns(p, i, row)
+            if header is not None:
+                cols = header
                 continue
-        try:
-            vals = [float(row[c]) for c in cols]
-        except (ValueError, IndexError):
-            raise InputError(f"{p}: line {i}: expected numbers in columns x, y, z, got {','.join(row)!r}") from None
-        if not all(np.isfinite(vals)):
-            raise InputError(f"{p}: line {i}: values must be finite")
-        out.append(vals)
+        out.append(_xyz(p, i, row, cols))
     if not out:
         raise InputError(f"{p}: no points found; expected rows of x,y,z")
     return np.array(out, dtype=float)
@@ -200,7 +216,7 @@ def _run(args: argparse.Namespace) -> int:
     return run_cli(args)
 
 
-def _read_job(path: str) -> dict:
+def _read_job(path: str) -> JobJSON:
     job = read_job(path)
     if job.get("schema") != "cell-job/1":
         raise InputError(f"{path}: not a cell-job/1 file (schema key missing or different)")
@@ -225,7 +241,7 @@ def run_cli(args: argparse.Namespace) -> int:
     if args.sim:
         res = asyncio.run(guard.run_attached(run_with_sim(cell, sim_cfg, plan, config_dir=base, no_level=no_level)))
     else:
-        res = asyncio.run(guard.run_attached(run_on_url(cell.devices.cnc.url, cell, plan, no_level=no_level)))
+        res = asyncio.run(guard.run_attached(align_at(cell.devices.cnc.url, cell, plan, no_level=no_level)))
     out = res.to_json()
     if args.report:
         from controller.align.report import write_report

@@ -3,11 +3,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
 PROFILE_COLUMNS = ("x_mm", "y_mm")
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("bead", help="bead profiles and overlap (Ding 2015)", description=__doc__)
     s = p.add_subparsers(dest="bead_command", metavar="SUBCOMMAND")
     s.required = True
@@ -38,7 +39,7 @@ def _critical(args: argparse.Namespace) -> int:
         raise InputError(f"--width must be a positive number of mm (got {args.width:g})")
     ratio = critical_ratio(args.model, args.aspect)
     flat = flat_top_ratio(args.model, args.aspect)
-    out: dict = {"ratio": ratio, "model": args.model, "overlap": "tangent", "flat_top_ratio": flat}
+    out: dict[str, Any] = {"ratio": ratio, "model": args.model, "overlap": "tangent", "flat_top_ratio": flat}
     if args.model == "arc":
         out["aspect"] = DING_ARC_ASPECT if args.aspect is None else args.aspect
     if args.width is not None:

@@ -12,7 +12,7 @@ from pathlib import Path
 from core.errors import InputError
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("journal", help="inspect a build's journal (read-only)")
     jsub = p.add_subparsers(dest="journal_command", metavar="ACTION", parser_class=type(p))
     jsub.required = True

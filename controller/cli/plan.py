@@ -5,9 +5,15 @@ import argparse
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from core.errors import CellError, ConfigError, InputError
+
+if TYPE_CHECKING:  # the planner, the config loader and tqdm are imported when `cell plan` runs (start-up time)
+    from tqdm import tqdm
+
+    from core.material import Material
+    from planner.five_axis import FiveAxisOptions
 
 LONG_PLAN_FACES = 200_000  # above this a progress bar is shown even when stderr is not a terminal
 
@@ -72,7 +78,7 @@ def register(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
-def _five_axis(enabled: bool):
+def _five_axis(enabled: bool) -> FiveAxisOptions | None:
     """FiveAxisOptions from cell.yaml (tilt limit, nozzle cone), or None for a 3-axis plan."""
     if not enabled:
         return None
@@ -88,7 +94,7 @@ def _five_axis(enabled: bool):
                            nozzle=Nozzle(nz.half_angle_deg, nz.length_mm, nz.standoff_mm))
 
 
-def _material(name: str | None):
+def _material(name: str | None) -> Material:
     from core.config import load_cell, load_material
 
     if name is None:
@@ -107,14 +113,15 @@ def _workspace() -> tuple[float, float, float] | None:
         lim = load_cell().limits
     except CellError:
         return None
-    return tuple(float(b - a) for a, b in zip(lim.workspace_min_mm, lim.workspace_max_mm))  # type: ignore[return-value]
+    lo, hi = lim.workspace_min_mm, lim.workspace_max_mm
+    return (float(hi[0] - lo[0]), float(hi[1] - lo[1]), float(hi[2] - lo[2]))
 
 
 class _Bar:
     """tqdm on stderr, only for a terminal or a long plan; never on stdout."""
 
-    def __init__(self, enabled: bool):
-        self.bar = None
+    def __init__(self, enabled: bool) -> None:
+        self.bar: tqdm | None = None
         self.enabled = enabled
 
     def __call__(self, done: int, total: int) -> None:

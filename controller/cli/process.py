@@ -1,4 +1,4 @@
-"""`cell process inverse|forward|fit`: the welding-parameter model (Ribeiro 1997) on the command line.
+"""`cell process inverse|forward|fit|stickout-fit`: the welding-parameter model (Ribeiro 1997) and the wire melting rate (Lesnewich 1958) on the command line.
 
 CSV reading lives here, at the edge (planner/ stays pure): `read_csv_columns` is shared with
 `cell bead fit`.
@@ -10,13 +10,17 @@ import csv
 import math
 import sys
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from core.errors import InputError
 
+if TYPE_CHECKING:  # the config loader is imported when a command needs it (start-up time)
+    from core.material import Material
+
 FIT_COLUMNS = ("current_a", "speed_mm_min", "width_mm", "height_mm")
+STICKOUT_COLUMNS = ("stick_out_mm", "wfs_m_min", "current_a")
 
 
 # --- CSV input -------------------------------------------------------------------------------
@@ -29,60 +33,79 @@ def read_csv_columns(path: str | Path, columns: Sequence[str], *, positive: bool
     problem is an :class:`InputError` naming the file, the line and the column.
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError:
-        raise InputError(f"{p}: not a text (UTF-8) CSV file") from None
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read ({exc.strerror or exc}); check the path") from None
+    text = _read_text(p)
     header: list[str] | None = None
     index: dict[str, int] = {}
     data: dict[str, list[float]] = {c: [] for c in columns}
-    lines = text.splitlines()
-    for lineno, line in enumerate(lines, start=1):
+    for lineno, line in enumerate(text.splitlines(), start=1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
-        try:
-            row = next(csv.reader([line]))
-        except csv.Error as exc:
-            raise InputError(f"{p}: line {lineno}: malformed CSV ({exc})") from None
-        row = [f.strip() for f in row]
+        row = _csv_row(p, lineno, line)
         if header is None:
             header = row
-            seen: set[str] = set()
-            for name in header:
-                if name in seen and name in columns:
-                    raise InputError(f"{p}: line {lineno}: column '{name}' appears twice in the header")
-                seen.add(name)
-            for c in columns:
-                if c not in header:
-                    hint = ""
-                    if all(_is_number(f) for f in header if f):
-                        hint = "; the first line must be a header naming the columns"
-                    raise InputError(
-                        f"{p}: line {lineno}: missing column '{c}' (header has: {', '.join(header) or 'nothing'}; "
-                        f"expected columns: {', '.join(columns)}){hint}"
-                    )
-                index[c] = header.index(c)
+            index = _header_index(p, lineno, header, columns)
             continue
         if len(row) != len(header):
             raise InputError(f"{p}: line {lineno}: {len(row)} fields, but the header has {len(header)}")
         for c in columns:
-            raw = row[index[c]]
-            try:
-                v = float(raw)
-            except ValueError:
-                raise InputError(f"{p}: line {lineno}, column '{c}': {raw!r} is not a number") from None
-            if not math.isfinite(v):
-                raise InputError(f"{p}: line {lineno}, column '{c}': {raw!r} is not a finite number")
-            if positive and v <= 0.0:
-                raise InputError(f"{p}: line {lineno}, column '{c}': {raw} must be positive")
-            data[c].append(v)
+            data[c].append(_cell_value(p, lineno, c, row[index[c]], positive))
     if header is None:
         raise InputError(f"{p}: empty file; expected a header line with columns {', '.join(columns)}")
     if not data[columns[0]]:
         raise InputError(f"{p}: no data rows after the header")
     return {c: np.asarray(v, dtype=np.float64) for c, v in data.items()}
+
+
+def _read_text(p: Path) -> str:
+    try:
+        return p.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError:
+        raise InputError(f"{p}: not a text (UTF-8) CSV file") from None
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read ({exc.strerror or exc}); check the path") from None
+
+
+def _csv_row(p: Path, lineno: int, line: str) -> list[str]:
+    """The stripped fields of one CSV line."""
+    try:
+        row = next(csv.reader([line]))
+    except csv.Error as exc:
+        raise InputError(f"{p}: line {lineno}: malformed CSV ({exc})") from None
+    return [f.strip() for f in row]
+
+
+def _header_index(p: Path, lineno: int, header: list[str], columns: Sequence[str]) -> dict[str, int]:
+    """Column name → field index, for the wanted columns; each must appear exactly once."""
+    seen: set[str] = set()
+    for name in header:
+        if name in seen and name in columns:
+            raise InputError(f"{p}: line {lineno}: column '{name}' appears twice in the header")
+        seen.add(name)
+    index: dict[str, int] = {}
+    for c in columns:
+        if c not in header:
+            hint = ""
+            if all(_is_number(f) for f in header if f):
+                hint = "; the first line must be a header naming the columns"
+            raise InputError(
+                f"{p}: line {lineno}: missing column '{c}' (header has: {', '.join(header) or 'nothing'}; "
+                f"expected columns: {', '.join(columns)}){hint}"
+            )
+        index[c] = header.index(c)
+    return index
+
+
+def _cell_value(p: Path, lineno: int, c: str, raw: str, positive: bool) -> float:
+    """One field as a finite number (and > 0 when `positive`)."""
+    try:
+        v = float(raw)
+    except ValueError:
+        raise InputError(f"{p}: line {lineno}, column '{c}': {raw!r} is not a number") from None
+    if not math.isfinite(v):
+        raise InputError(f"{p}: line {lineno}, column '{c}': {raw!r} is not a finite number")
+    if positive and v <= 0.0:
+        raise InputError(f"{p}: line {lineno}, column '{c}': {raw} must be positive")
+    return v
 
 
 def _is_number(s: str) -> bool:
@@ -96,7 +119,7 @@ def _is_number(s: str) -> bool:
 # --- helpers ---------------------------------------------------------------------------------
 
 
-def _material(name: str | None):
+def _material(name: str | None) -> Material:
     from core.config import load_cell, load_material
 
     return load_material(name if name else load_cell().cell.material)
@@ -112,7 +135,7 @@ def _table(rows: Sequence[tuple[str, str]]) -> None:
 # --- commands --------------------------------------------------------------------------------
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("process", help="welding-parameter model (Ribeiro 1997)", description=__doc__.splitlines()[0])
     s = p.add_subparsers(dest="process_command", metavar="SUBCOMMAND")
     s.required = True
@@ -136,6 +159,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     fit.add_argument("csv", metavar="CSV", help="columns current_a, speed_mm_min, width_mm, height_mm (header line required)")
     fit.add_argument("--json", action="store_true", help="print one JSON object")
     fit.set_defaults(func=_fit)
+
+    so = s.add_parser("stickout-fit", help="refit the melting rate WFS = α·I + β·L·I² from a stick-out sweep")
+    so.add_argument("csv", metavar="CSV", help="columns stick_out_mm, wfs_m_min, current_a (header line required)")
+    so.add_argument("--json", action="store_true", help="print one JSON object")
+    so.set_defaults(func=_stickout_fit)
 
 
 def _inverse(args: argparse.Namespace) -> int:
@@ -202,4 +230,26 @@ def _fit(args: argparse.Namespace) -> int:
         f"  k1: {res.k1:.6g}\n  k2: {res.k2:.6g}\n  k3: {res.k3:.6g}\n"
         f"  k4: {res.k4:.6g}\n  k5: {res.k5:.6g}\n  k6: {res.k6:.6g}\n"
     )
+    return 0
+
+
+def _stickout_fit(args: argparse.Namespace) -> int:
+    """α, β of the melting rate from a stick-out sweep (core/melting.py, docs/process-physics.md)."""
+    from controller.cli.main import emit_json
+    from core.melting import fit_sweep
+
+    cols = read_csv_columns(args.csv, STICKOUT_COLUMNS, positive=True)
+    try:
+        res = fit_sweep(*(cols[c] for c in STICKOUT_COLUMNS))
+    except InputError as exc:
+        raise InputError(f"{args.csv}: {exc}") from None
+    if args.json:
+        emit_json(res.to_dict())
+        return 0
+    _table([
+        ("points", str(res.n)),
+        ("melting rate", f"WFS = {res.alpha:.6g} · I + {res.beta:.6g} · L · I²   (m/min, A, mm)"),
+        ("fit", f"R² {res.r2:.4f}, RMS {res.rms:.4f} m/min, stick-out read back RMS {res.rms_stick_out_mm:.3f} mm"),
+    ])
+    sys.stdout.write(f"\nfor the material file (melting:):\n  alpha: {res.alpha:.6g}\n  beta: {res.beta:.6g}\n")
     return 0

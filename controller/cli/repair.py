@@ -7,11 +7,24 @@ from pathlib import Path
 from typing import Any
 
 from controller.cli import guard
-from core.errors import InputError
+from core.errors import CellError, InputError
+
+# `cell plan` options the planner's messages may suggest that `cell repair plan` does not have
+_NOT_OURS = {"--units": "the CAD's units (repair plans are in mm)", "--frame": "the frame (repair plans keep the CAD frame)",
+             "--perimeters": "the perimeter count", "--five-axis": "a 5-axis plan (not available for repairs)",
+             "--tilt-limit": "kinematics.tilt_limit_deg in cell.yaml"}
+
+
+def _own_options(msg: str) -> str:
+    import re
+
+    return re.sub(r"--[a-z][a-z-]*(?: (?:N\|all|MM|mm\|cm\|m\|inch|substrate\|cad))?",
+                  lambda m: _NOT_OURS.get(m.group(0).split()[0], m.group(0)) if m.group(0).split()[0] in _NOT_OURS
+                  else m.group(0), msg)
 
 
 def register(sub: Any) -> None:
-    from controller.cli.plan import _positive
+    from controller.cli.plan import _fraction, _positive
 
     p = sub.add_parser("repair", help="hybrid repair: plan the missing volume of a part, and run it",
                        description="Plan a repair: nominal CAD minus the machined stock (+ allowance), "
@@ -25,6 +38,13 @@ def register(sub: Any) -> None:
     pl.add_argument("--allowance", type=float, default=0.0, metavar="MM",
                     help="finishing allowance added on top of the repaired surfaces, mm (default 0)")
     pl.add_argument("--material", metavar="M", help="material name or YAML file (default: cell.yaml's)")
+    pl.add_argument("--layer-height", type=_positive, metavar="H", help="layer height, mm (default: the bead height)")
+    pl.add_argument("--min-coverage", type=_fraction, default=0.97, metavar="F",
+                    help="every layer at least this share covered by beads (default 0.97)")
+    pl.add_argument("--allow-overhang", action="store_true",
+                    help="plan steps out beyond the overhang rule anyway, with a warning")
+    pl.add_argument("--allow-underfill", action="store_true",
+                    help="plan a feature no legal bead fills (or a layer below 97 %% coverage) anyway, with a warning")
     pl.add_argument("--out", metavar="JOB", help="job file (default: STEM.repair.job.json here)")
     pl.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     pl.set_defaults(func=run_plan)
@@ -62,19 +82,35 @@ def run_plan(args: argparse.Namespace) -> int:
 
     cad, stock = _load(args.cad, "CAD"), _load(args.stock, "--stock")
     rv = repair_volume(cad, stock, args.allowance, cad_name=args.cad, stock_name=args.stock)
-    job = plan_part(rv.mesh, PlanOptions(width_mm=args.width, frame="cad"), _material(args.material))
+    opt = PlanOptions(width_mm=args.width, frame="cad", layer_height_mm=args.layer_height,
+                      min_coverage=args.min_coverage, allow_overhang=args.allow_overhang,
+                      allow_underfill=args.allow_underfill)
+    try:
+        job = plan_part(rv.mesh, opt, _material(args.material))
+    except CellError as exc:  # the planner's advice names `cell plan` options: only ours are named
+        try:
+            again = type(exc)(_own_options(str(exc)))
+        except TypeError:
+            again = InputError(_own_options(str(exc)))
+        raise again from None
     d = job_to_dict(job)
     d["source"]["file"] = Path(args.cad).name
-    d["repair"] = {"cad": str(args.cad), "stock": str(args.stock), "allowance_mm": args.allowance,
+    # stored resolved: `cell repair run` finds them from any directory (load_cad also tries the job's)
+    d["repair"] = {"cad": str(Path(args.cad).resolve()), "stock": str(Path(args.stock).resolve()),
+                   "allowance_mm": args.allowance,
                    "volume_mm3": round(rv.volume_mm3, 3), "bounds_mm": rv.bounds.round(4).tolist()}
     out = Path(args.out) if args.out else Path(Path(args.cad).stem + ".repair.job.json")
     try:
         out.write_text(json.dumps(d, sort_keys=True) + "\n", encoding="utf-8")
     except OSError as exc:
         raise InputError(f"--out {out}: cannot write the job file ({exc.strerror or exc})") from None
-    summary = {"job": str(out), "frame": "cad", "repair_volume_mm3": round(rv.volume_mm3, 3),
-               "bounds_mm": rv.bounds.round(3).tolist(), "layers": len(job.layers),
-               "passes": sum(len(L.passes) for L in job.layers)}
+    js = job.summary or {}
+    summary = {"volume_mm3": round(rv.volume_mm3, 3), "layers": len(job.layers),
+               "passes": sum(len(L.passes) for L in job.layers),
+               "arc_starts": int(js.get("arc_starts", sum(len(L.passes) for L in job.layers))),
+               "coverage": js.get("coverage"), "frame": "cad", "job": str(out),
+               "repair_volume_mm3": round(rv.volume_mm3, 3), "bounds_mm": rv.bounds.round(3).tolist(),
+               "warnings": list(js.get("warnings", []))}
     if args.json:
         emit_json(summary)
     else:
@@ -115,7 +151,7 @@ def run_repair(args: argparse.Namespace) -> int:
         rep = asyncio.run(repair_run(job, cell, job_path=path, runs_dir=runs, tolerance_mm=args.tolerance))
     if args.json:
         emit_json(rep)
-        return 0
+        return 1 if rep["verify"]["defects"] else 0   # docs/repair.md: a verify defect exits 1, either way
     a, v = rep["alignment"], rep["verify"]
     print(f"aligned: A {a['level_a_deg']}°, B {a['level_b_deg']}°, face angle {a['face_angle_deg']}°")
     print(f"built: {rep['build']['state']}, {rep['build']['passes_done']} passes ({rep['build']['run_dir']})")

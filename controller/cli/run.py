@@ -264,6 +264,12 @@ def _build(args: argparse.Namespace, cfg: CellConfig, job: dict, run_dir: Path |
     from controller.api import CellController
     from controller.runtime.build import BuildOptions
 
+    if args.sim:  # issue 29: the time scale the CNC link can feed (controller/motion/cnc5.py), said on stderr
+        from controller.motion.cnc5 import limit_time_scale
+
+        cfg, note = limit_time_scale(cfg, job)
+        if note:
+            _err(note)
     session = SimSession(cfg, args.sim, args.sim_config, log_dir if args.sim else None, faults)
     say = _err if args.json else _out
     try:
@@ -465,14 +471,15 @@ async def _demo_drive(ctl: Any, job: dict, session: Any, say: Callable[[str], No
 
 async def _align(session: Any, say: Callable[[str], None]) -> dict | None:
     """Probe and align the substrate over the CNC link."""
-    from controller.align.routine import cad_mesh, plan_for_mesh, run_on_url
+    from controller.align.routine import cad_mesh, plan_for_mesh
+    from controller.api import align_at
 
     cfg = session.cfg
     sim_cfg = session.harness.sim_cfg if session.harness is not None else getattr(session, "sim_cfg", None) or load_sim()
     say("probing and aligning the substrate on the CNC (touch probe, G38.2)...")
     try:
         plan = plan_for_mesh(cad_mesh(sim_cfg.cnc.workpiece))
-        res = await asyncio.wait_for(run_on_url(cfg.devices.cnc.url, cfg, plan), 60.0)
+        res = await asyncio.wait_for(align_at(cfg.devices.cnc.url, cfg, plan), 60.0)
     except (CellError, asyncio.TimeoutError) as exc:
         say(f"alignment failed: {exc or 'timed out'}; building without it")
         return {"error": str(exc) or "timed out"}

@@ -8,7 +8,7 @@ from controller.harness.sim_up import serve_until_interrupted
 from core.config import load_cell, load_sim
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("sim", help="device simulators")
     s = p.add_subparsers(dest="sim_command", metavar="SUBCOMMAND")
     s.required = True

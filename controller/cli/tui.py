@@ -7,7 +7,7 @@ from pathlib import Path
 from controller.cli import guard
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("tui", help="the operator's terminal UI (Job, Align, Build, Log, Devices)")
     p.add_argument("--sim", action="store_true", help="start the simulators in this process and connect to them")
     p.add_argument("--config", type=Path, default=None, help="cell.yaml (default: config/cell.yaml)")

@@ -9,7 +9,7 @@ Lines stay within grbl's 80-character line buffer.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -109,43 +109,60 @@ _PASS = re.compile(r"\(PASS L(\d+) P(\d+) (\w+) W([\d.]+) I([\d.]+) WFS([\d.]+)\
 def parse_gcode(lines: list[str]) -> list[ParsedPass]:
     """The passes of an exported program: the points laid with the process on, their feed, and
     (5-axis) the rotary axes; in inverse-time mode the feed is per move (see `feeds`)."""
-    pos = {k: 0.0 for k in "XYZABC"}
-    feed = 0.0
-    on = False
-    header: tuple | None = None
-    pts: list[dict[str, float]] = []
-    feeds: list[float] = []
-    seen: set[str] = set()
-    speed = 0.0
-    out: list[ParsedPass] = []
+    reader = _Reader()
     for raw in lines:
+        reader.line(raw)
+    return reader.out
+
+
+@dataclass
+class _Reader:
+    """parse_gcode's modal state between lines: position, feed, process on/off, the pass being read."""
+
+    pos: dict[str, float] = field(default_factory=lambda: {k: 0.0 for k in "XYZABC"})
+    feed: float = 0.0
+    on: bool = False
+    header: tuple[int, int, str, float, float, float] | None = None
+    pts: list[dict[str, float]] = field(default_factory=list)
+    feeds: list[float] = field(default_factory=list)
+    seen: set[str] = field(default_factory=set)
+    speed: float = 0.0
+    out: list[ParsedPass] = field(default_factory=list)
+
+    def line(self, raw: str) -> None:
         m = _PASS.fullmatch(raw.strip())
         if m:
-            header = (int(m[1]), int(m[2]), m[3], float(m[4]), float(m[5]), float(m[6]))
-            continue
+            self.header = (int(m[1]), int(m[2]), m[3], float(m[4]), float(m[5]), float(m[6]))
+            return
         code = re.sub(r"\(.*?\)|;.*", "", raw).strip().upper()
         if not code:
-            continue
+            return
         words = dict(_WORD.findall(code.replace(" ", "")))
         if "F" in words:
-            feed = float(words["F"])
+            self.feed = float(words["F"])
         if any(k in words for k in "XYZABC"):
-            pos = {k: float(words.get(k, v)) for k, v in pos.items()}
-            if on and words.get("G") in ("1", "01"):
-                seen |= {k for k in "ABC" if k in words}
-                pts.append(dict(pos))
-                feeds.append(feed)
-                speed = feed
+            self._move(words)
         if words.get("M") == "3":
-            on, pts, feeds, speed, seen = True, [dict(pos)], [], feed, set()
-        elif words.get("M") == "5" and on:
-            on = False
-            if header is None:
-                raise InputError("G-code: a process-on block has no (PASS …) header")
-            L, i, role, w, cur, wfs = header
-            rot = sorted(seen)
-            rotary = np.asarray([[q[k] for k in rot] for q in pts]) if rot else None
-            out.append(ParsedPass(L, i, role, w, cur, wfs, speed, np.asarray([[q["X"], q["Y"], q["Z"]] for q in pts]),
-                                  rotary, np.asarray(feeds)))
-            header = None
-    return out
+            self.on, self.pts, self.feeds, self.speed, self.seen = True, [dict(self.pos)], [], self.feed, set()
+        elif words.get("M") == "5" and self.on:
+            self._process_off()
+
+    def _move(self, words: dict[str, str]) -> None:
+        self.pos = {k: float(words.get(k, v)) for k, v in self.pos.items()}
+        if self.on and words.get("G") in ("1", "01"):
+            self.seen |= {k for k in "ABC" if k in words}
+            self.pts.append(dict(self.pos))
+            self.feeds.append(self.feed)
+            self.speed = self.feed
+
+    def _process_off(self) -> None:
+        self.on = False
+        if self.header is None:
+            raise InputError("G-code: a process-on block has no (PASS …) header")
+        L, i, role, w, cur, wfs = self.header
+        rot = sorted(self.seen)
+        pts = self.pts
+        rotary = np.asarray([[q[k] for k in rot] for q in pts]) if rot else None
+        self.out.append(ParsedPass(L, i, role, w, cur, wfs, self.speed, np.asarray([[q["X"], q["Y"], q["Z"]] for q in pts]),
+                                   rotary, np.asarray(self.feeds)))
+        self.header = None

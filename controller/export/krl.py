@@ -104,18 +104,18 @@ _LIN = re.compile(r"LIN (X[PAR]\d+)(?: C_DIS)?$")
 
 def parse_krl(src: list[str], dat: list[str]) -> list[RobotPass]:
     """The passes of an exported pair: the LIN targets between WELD_ON and WELD_OFF."""
-    pos = {}
+    pos: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for ln in dat:
         if m := _POS.search(ln):
             v = [float(m[i]) for i in range(2, 8)]
             pos[m[1]] = (np.array(v[:3]), kuka_tool_axis(np.array(v[3:])))
     out: list[RobotPass] = []
-    head: tuple | None = None
+    head: tuple[int, int, str, float] | None = None
     weld: tuple[float, float] | None = None
     vel = 0.0
     last: str | None = None
-    pts: list = []
-    axes: list = []
+    pts: list[np.ndarray | None] = []  # [None] while WELD_ON has no LIN target before it
+    axes: list[np.ndarray | None] = []
     for ln in (s.strip() for s in src):
         if m := _PASS.match(ln):
             head = (int(m[1]), int(m[2]), m[3], float(m[4]))

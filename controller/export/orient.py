@@ -34,7 +34,7 @@ def abb_quaternion(tool_axis: np.ndarray) -> np.ndarray:
 def abb_tool_axis(q: np.ndarray) -> np.ndarray:
     """The job's tool axis back from an ABB quaternion."""
     w, x, y, z = q
-    return -Rotation.from_quat([x, y, z, w]).as_matrix()[:, 2]
+    return -np.asarray(Rotation.from_quat([x, y, z, w]).as_matrix(), dtype=float)[:, 2]
 
 
 def kuka_abc(tool_axis: np.ndarray) -> np.ndarray:
@@ -43,12 +43,12 @@ def kuka_abc(tool_axis: np.ndarray) -> np.ndarray:
     m = np.column_stack([f[:, 2], f[:, 0], f[:, 1]])  # tool x = approach, y, z complete the frame
     with warnings.catch_warnings():  # a vertical torch is gimbal lock (B = ±90°): any A−C split is right
         warnings.simplefilter("ignore", UserWarning)
-        return Rotation.from_matrix(m).as_euler("ZYX", degrees=True)
+        return np.asarray(Rotation.from_matrix(m).as_euler("ZYX", degrees=True), dtype=float)
 
 
 def kuka_tool_axis(abc: np.ndarray) -> np.ndarray:
     """The job's tool axis back from KUKA A, B, C."""
-    return -Rotation.from_euler("ZYX", abc, degrees=True).as_matrix()[:, 0]
+    return -np.asarray(Rotation.from_euler("ZYX", abc, degrees=True).as_matrix(), dtype=float)[:, 0]
 
 
 def rigid_quaternion(m: np.ndarray) -> np.ndarray:

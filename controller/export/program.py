@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controller.job.read import JobJSON
 from core.errors import InputError
 from planner.job import load_job
 
@@ -54,7 +55,7 @@ class Program:
         return any(p.five_axis for p in self.passes)
 
 
-def alignment_matrix(job: dict) -> np.ndarray | None:
+def alignment_matrix(job: JobJSON) -> np.ndarray | None:
     """The job's part→machine transform, or None; InputError when it is not a rigid 4×4."""
     al = job.get("alignment")
     if al is None:
@@ -71,7 +72,7 @@ def alignment_matrix(job: dict) -> np.ndarray | None:
     return m
 
 
-def points_in_machine_frame(job: dict) -> bool:
+def points_in_machine_frame(job: JobJSON) -> bool:
     """Whether the job's points were already moved by its alignment (`cell align run --job`)."""
     al = job.get("alignment") or {}
     return bool(al.get("points_in_machine_frame", job.get("frame") not in ("cad", "substrate")))
@@ -89,10 +90,11 @@ def _axes(raw: object, n: int, where: str) -> np.ndarray | None:
     norm = np.linalg.norm(a, axis=1)
     if np.any(norm < 1e-9):
         raise InputError(f"job file: {where}.axes has a zero vector")
-    return a / norm[:, None]
+    unit: np.ndarray = a / norm[:, None]
+    return unit
 
 
-def build_program(job: dict, *, name: str) -> Program:
+def build_program(job: JobJSON, *, name: str) -> Program:
     """Validate the job and lay out its passes in the part frame, with the alignment beside them."""
     parsed = load_job(job)
     m = alignment_matrix(job)

@@ -97,7 +97,7 @@ def parse_rapid(lines: list[str]) -> list[RobotPass]:
     targets: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     welds: dict[str, tuple[float, float, float]] = {}
     out: list[RobotPass] = []
-    head: tuple | None = None
+    head: tuple[int, int, str, float] | None = None
     pts: list[np.ndarray] = []
     axes: list[np.ndarray] = []
     for ln in lines:

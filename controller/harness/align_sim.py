@@ -2,16 +2,21 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Awaitable, Callable, TypeVar
 
-from controller.align.routine import AlignResult, ProbePlan, run_on_url
+from controller.align.routine import AlignResult, ProbePlan
+from controller.api import align_at
+from core.config import CellConfig, SimConfig
 from sims import cnc_sim
 from sims.clock import SimClock
 from sims.up import SimContext
 from sims.world import World
 
+T = TypeVar("T")
 
-async def _with_sim(cell: Any, sim_cfg: Any, config_dir: Path | None, body: Callable[[str, Any], Any]) -> Any:
+
+async def _with_sim(cell: CellConfig, sim_cfg: SimConfig, config_dir: Path | None,
+                    body: Callable[[str, object], Awaitable[T]]) -> T:
     """Serve the CNC simulator in this loop on an ephemeral loopback port and run body(url, sim)."""
     ctx = SimContext(cell=cell, sim=sim_cfg, world=World(None), clock=SimClock(cell.cell.time_scale),
                      ephemeral=True, faults=sim_cfg.faults, config_dir=config_dir)
@@ -24,9 +29,9 @@ async def _with_sim(cell: Any, sim_cfg: Any, config_dir: Path | None, body: Call
         ctx.world.close()
 
 
-async def run_with_sim(cell: Any, sim_cfg: Any, plan: ProbePlan, *, config_dir: Path | None = None,
+async def run_with_sim(cell: CellConfig, sim_cfg: SimConfig, plan: ProbePlan, *, config_dir: Path | None = None,
                        settings: Any = None, no_level: bool = False) -> AlignResult:
-    async def body(url: str, _sim: Any) -> AlignResult:
-        return await run_on_url(url, cell, plan, settings=settings, no_level=no_level)
+    async def body(url: str, _sim: object) -> AlignResult:
+        return await align_at(url, cell, plan, settings=settings, no_level=no_level)
 
     return await _with_sim(cell, sim_cfg, config_dir, body)

@@ -13,6 +13,15 @@ async def repair_run_sim(job: dict[str, Any], cell: CellConfig, sim_cfg: SimConf
                          runs_dir: str | Path = "runs", log_dir: str | Path | None = None,
                          tolerance_mm: float = 0.1) -> dict[str, Any]:
     """repair_run against the simulators (the stock posed by `sim_cfg`), logs in `log_dir`."""
+    from controller.motion.cnc5 import limit_time_scale
+
+    if cell.cell.platform != "cnc":
+        cell = cell.model_copy(update={"cell": cell.cell.model_copy(update={"platform": "cnc"})})
+    cell, note = limit_time_scale(cell, job)  # what the CNC link can feed (issue 29)
     with simulated(cell, sim_cfg, log_dir=log_dir) as (cfg, _harness):
-        return await repair_run(job, cfg, job_path=job_path, runs_dir=runs_dir,
-                                reply_timeout_ms=SIM_REPLY_TIMEOUT_MS, tolerance_mm=tolerance_mm)
+        rep = await repair_run(job, cfg, job_path=job_path, runs_dir=runs_dir,
+                               reply_timeout_ms=SIM_REPLY_TIMEOUT_MS, tolerance_mm=tolerance_mm)
+    rep["time_scale"] = cell.cell.time_scale
+    if note:
+        rep.setdefault("notes", []).append(note)
+    return rep

@@ -11,7 +11,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from controller.runtime.devices import with_urls
+from controller.runtime.devices import with_urls as with_urls  # re-exported: `cell run --sim` and the TUI take it from here
 from core.config import CellConfig, SimConfig, load_material
 from core.realtime import SIM_RT_PRIORITY, elevate
 from sims.clock import SimClock

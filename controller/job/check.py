@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from controller.job.read import JobJSON
 from core.config import CellConfig
 from core.errors import CellError, InputError
 from core.material import Material
@@ -57,7 +58,7 @@ class JobCheckError(InputError):
         super().__init__(f"{source}: job refused before any motion: {where}{first.what}{more}")
 
 
-def _transform(job: dict) -> np.ndarray | None:
+def _transform(job: JobJSON) -> np.ndarray | None:
     al = job.get("alignment")
     if not isinstance(al, dict) or al.get("transform") is None:
         return None
@@ -70,7 +71,7 @@ def _transform(job: dict) -> np.ndarray | None:
     return t
 
 
-def _points(p: dict, li: int, pi: int) -> np.ndarray:
+def _points(p: dict[str, Any], li: int, pi: int) -> np.ndarray:
     try:
         pts = np.asarray(p.get("points"), dtype=float)
     except (TypeError, ValueError, OverflowError):
@@ -113,7 +114,7 @@ class _Checker:
         extra = int(np.count_nonzero(bad)) - 1
         self.out.extend(Violation(li, pi, None, "point outside the workspace") for _ in range(max(0, extra)))
 
-    def process(self, p: dict, li: int, pi: int) -> None:
+    def process(self, p: dict[str, Any], li: int, pi: int) -> None:
         s = _num(p.get("speed_mm_min"))
         if not (0.0 < s <= self.vmax):
             self.out.append(Violation(li, pi, None, f"speed_mm_min {s:g} is outside (0, {self.vmax:g}] mm/min "
@@ -132,7 +133,7 @@ class _Checker:
                     else f"{self.material}'s envelope [{lo:g}, {hi:g}]"
                 self.out.append(Violation(li, pi, None, f"{key} {val:g} {unit} is outside {rng}"))
 
-    def interpass(self, layer: dict, li: int) -> None:
+    def interpass(self, layer: dict[str, Any], li: int) -> None:
         ip = layer.get("interpass")
         if ip is None:
             return
@@ -145,7 +146,7 @@ class _Checker:
             self.out.append(Violation(li, None, None, f"interpass dwell_s {d:g} s is outside [0, 3600]"))
 
 
-def _counts(layers: list) -> None:
+def _counts(layers: list[Any]) -> None:
     n_pass = 0
     n_pts = 0
     for li, la in enumerate(layers):
@@ -169,7 +170,7 @@ def _counts(layers: list) -> None:
         raise InputError(f"job file: {n_pts} points, over the limit of {MAX_POINTS}")
 
 
-def violations(job: dict, cfg: CellConfig, material: Material) -> list[Violation]:
+def violations(job: JobJSON, cfg: CellConfig, material: Material) -> list[Violation]:
     """Everything in the job the cell cannot do, in job order (empty: the job may run)."""
     if not isinstance(job, dict) or not isinstance(job.get("layers"), list) or not job["layers"]:
         raise InputError("job file: no layers (not a cell-job/1 job)")
@@ -191,7 +192,7 @@ def violations(job: dict, cfg: CellConfig, material: Material) -> list[Violation
     return c.out
 
 
-def check_job(job: dict, cfg: CellConfig, material: Material, source: str = "job") -> None:
+def check_job(job: JobJSON, cfg: CellConfig, material: Material, source: str = "job") -> None:
     """Raise JobCheckError naming the first violation and how many there are; None if the job fits."""
     found = violations(job, cfg, material)
     if found:
@@ -207,7 +208,7 @@ def _material(name: str) -> Material:
     return load_material(name)
 
 
-def job_material(job: dict, cfg: CellConfig) -> Material:
+def job_material(job: JobJSON, cfg: CellConfig) -> Material:
     """The material the job was planned for (its `material.name`), else the cell's."""
     load_material = _material
     m = job.get("material") if isinstance(job, dict) else None

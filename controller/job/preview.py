@@ -8,6 +8,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.axes import Axes  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 
 from planner.job import Job  # noqa: E402
@@ -20,7 +21,7 @@ def _pick_layers(job: Job, count: int) -> list[int]:
     return sorted({int(round(x)) for x in np.linspace(0, n - 1, min(count, n))}) if n else []
 
 
-def draw_layer(ax, job: Job, index: int) -> None:
+def draw_layer(ax: Axes, job: Job, index: int) -> None:
     """Beads at their true width (in data units), arc starts as dots, travel as thin grey lines."""
     layer = job.layers[index]
     fig_scale = _points_per_mm(ax)
@@ -39,7 +40,7 @@ def draw_layer(ax, job: Job, index: int) -> None:
     ax.set_aspect("equal")
 
 
-def _points_per_mm(ax) -> float:
+def _points_per_mm(ax: Axes) -> float:
     ax.figure.canvas.draw()
     x0, x1 = ax.get_xlim()
     bbox = ax.get_window_extent()

@@ -3,11 +3,15 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any, TypeAlias
 
 from core.errors import InputError
 
+JobJSON: TypeAlias = dict[str, Any]
+"""A job file's JSON object (cell-job/1) as read, before it is checked: the values are JSON."""
 
-def read_job(path: str | Path) -> dict:
+
+def read_job(path: str | Path) -> JobJSON:
     """The JSON object of a job file; InputError naming the file if unreadable or not an object."""
     p = Path(path)
     try:

@@ -9,10 +9,15 @@ metal to machine off while the intact faces of the stock get none.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from core.errors import InputError, MeshError
+
+if TYPE_CHECKING:  # both are imported on first use: loading them costs the CLI's start-up
+    import manifold3d
+    import trimesh
 
 _MIN_VOLUME_MM3 = 1e-3
 
@@ -25,7 +30,7 @@ class RepairVolume:
     sticking_out_mm3: float     # stock outside the CAD (+ allowance): 0 for a valid stock
 
 
-def _manifold(mesh, name: str):
+def _manifold(mesh: trimesh.Trimesh, name: str) -> manifold3d.Manifold:
     import manifold3d
 
     m = manifold3d.Manifold(manifold3d.Mesh(vert_properties=np.asarray(mesh.vertices, dtype=np.float32),
@@ -35,14 +40,14 @@ def _manifold(mesh, name: str):
     return m
 
 
-def _trimesh(m):
+def _trimesh(m: manifold3d.Manifold) -> trimesh.Trimesh:
     import trimesh
 
     mm = m.to_mesh()
     return trimesh.Trimesh(np.asarray(mm.vert_properties, dtype=float)[:, :3], np.asarray(mm.tri_verts), process=True)
 
 
-def repair_volume(cad, stock, allowance_mm: float = 0.0, *, cad_name: str = "CAD", stock_name: str = "stock",
+def repair_volume(cad: trimesh.Trimesh, stock: trimesh.Trimesh, allowance_mm: float = 0.0, *, cad_name: str = "CAD", stock_name: str = "stock",
                   tolerance_mm3: float = 1.0) -> RepairVolume:
     """CAD (swept up by the allowance) minus the stock; errors when the stock sticks out or nothing is missing."""
     if not (allowance_mm >= 0 and np.isfinite(allowance_mm)):

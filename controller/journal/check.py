@@ -13,6 +13,7 @@ import json
 import sqlite3
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, TypeAlias
 from urllib.parse import quote
 
 HEADER = b"SQLite format 3\x00"
@@ -43,7 +44,14 @@ def _side(path: Path, suffix: str) -> Path:
     return path.with_name(path.name + suffix)
 
 
-def _ro_facts(path: Path) -> tuple[dict[str, int], str | None, bool | None, int | None, tuple[int, int] | None]:
+Row: TypeAlias = tuple[Any, ...]
+"""One row as sqlite3 returns it."""
+
+_Facts: TypeAlias = tuple[dict[str, int], str | None, bool | None, int | None, tuple[int, int] | None]
+"""(rows per readable table, job hash, ok, passes done, last (layer, pass)) of a journal."""
+
+
+def _ro_facts(path: Path) -> _Facts:
     readable: dict[str, int] = {}
     jh = ok = done = last = None
     db = sqlite3.connect(uri(path, "ro"), uri=True)
@@ -127,7 +135,7 @@ def inspect(path: str | Path) -> JournalHealth:
             damage = "integrity check: " + "; ".join(str(r) for r in res)[:200]
     except sqlite3.Error as exc:
         damage = str(exc)
-    facts: tuple = ({}, None, None, None, None)
+    facts: _Facts = ({}, None, None, None, None)
     try:
         facts = _ro_facts(p)
     except sqlite3.Error as exc:

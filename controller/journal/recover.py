@@ -16,6 +16,8 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from controller.job.read import JobJSON
+from controller.journal.check import Row
 from core.errors import CellError
 
 TABLES = ("job", "moves", "progress", "passes", "beads", "events", "samples")
@@ -32,13 +34,13 @@ class Recovered:
     passes_done: int
 
 
-def _rows(db: sqlite3.Connection, table: str) -> tuple[list[tuple], int, bool]:
+def _rows(db: sqlite3.Connection, table: str) -> tuple[list[Row], int, bool]:
     """(rows, chunks lost, readable at all) of a table, read by rowid ranges."""
     try:
         top = db.execute(f"SELECT max(rowid) FROM {table}").fetchone()[0] or 0
     except sqlite3.Error:
         return [], 0, False
-    rows: list[tuple] = []
+    rows: list[Row] = []
     lost = 0
     for lo in range(0, int(top) + 1, CHUNK):
         try:
@@ -49,14 +51,14 @@ def _rows(db: sqlite3.Connection, table: str) -> tuple[list[tuple], int, bool]:
     return rows, lost, True
 
 
-def _read_copy(src: Path) -> tuple[dict[str, list[tuple]], dict[str, int], set[str]]:
+def _read_copy(src: Path) -> tuple[dict[str, list[Row]], dict[str, int], set[str]]:
     with tempfile.TemporaryDirectory() as d:
         copy = Path(d) / "journal.sqlite"
         for suffix in ("", "-wal"):
             f = src.with_name(src.name + suffix)
             if f.exists():
                 shutil.copyfile(f, copy.with_name(copy.name + suffix))
-        data: dict[str, list[tuple]] = {}
+        data: dict[str, list[Row]] = {}
         lost: dict[str, int] = {}
         readable: set[str] = set()
         try:
@@ -73,7 +75,7 @@ def _read_copy(src: Path) -> tuple[dict[str, list[tuple]], dict[str, int], set[s
     return data, lost, readable
 
 
-def recover(run_dir: Path, out_dir: Path, job: dict | None) -> Recovered:
+def recover(run_dir: Path, out_dir: Path, job: JobJSON | None) -> Recovered:
     """Copy what the journal of `run_dir` proves into a new journal under `out_dir`."""
     from controller.job.identity import canonical_json, job_hash
     from controller.journal.store import SCHEMA

@@ -19,6 +19,7 @@ import json
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from controller.motion.weld_path import weld_points
 from core.errors import InputError
@@ -37,7 +38,7 @@ class JournalEstimate:
     bytes: int
 
 
-def journal_estimate(job: dict, max_step_mm: float, time_scale: float = 1.0) -> JournalEstimate:
+def journal_estimate(job: dict[str, Any], max_step_mm: float, time_scale: float = 1.0) -> JournalEstimate:
     """Bytes the runs directory needs for this job's journal and record (see the module doc)."""
     points, arc_s = 0, 0.0
     for la in job.get("layers", []):
@@ -53,7 +54,7 @@ def journal_estimate(job: dict, max_step_mm: float, time_scale: float = 1.0) -> 
     return JournalEstimate(points, arc_s, total)
 
 
-def check_free_space(runs_dir: Path, job: dict, max_step_mm: float, time_scale: float = 1.0) -> JournalEstimate:
+def check_free_space(runs_dir: Path, job: dict[str, Any], max_step_mm: float, time_scale: float = 1.0) -> JournalEstimate:
     """Refuse (InputError, exit 2) when `runs_dir` (or its nearest existing parent) has less free
     space than the job's journal estimate; the message names the path, the need and the free."""
     est = journal_estimate(job, max_step_mm, time_scale)

@@ -7,7 +7,7 @@ the journal at the last committed row, and replaying the rows gives the build's 
 - `moves`     write-ahead: every weld move's ticket and the point it reaches, before it is sent;
 - `progress`  a weld move executed while the arc was stable: (layer, pass, point index);
 - `passes`    each pass's state changes (started, arc_on, done, interrupted);
-- `beads`     per bead: arc-on/off times, current/voltage/WFS statistics, heat input;
+- `beads`     per bead: arc-on/off times, I/U/WFS statistics, heat input (+ bead_measures, bead_extra);
 - `events`    state transitions, alarms and notes, with the torch position (kind `arc`: the arc
               went unstable while depositing, which a resume must not extrapolate past);
 - `samples`   I, U, WFS and part temperature, for the report's traces.
@@ -20,6 +20,7 @@ re-arc slightly earlier (never later).
 """
 from __future__ import annotations
 
+import asyncio
 import json
 import queue
 import shutil
@@ -30,7 +31,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
-from controller.journal.check import inspect, uri
+from controller.journal.check import Row, inspect, uri
+from controller.journal.extra import BEAD_EXTRA
+from controller.journal.queries import JournalQueries
 from core.errors import CellError
 
 SCHEMA = """
@@ -55,6 +58,8 @@ CREATE TABLE IF NOT EXISTS samples (t REAL NOT NULL, current_a REAL, voltage_v R
     temperature_c REAL, layer INTEGER, pass INTEGER);
 CREATE TABLE IF NOT EXISTS defects (id INTEGER PRIMARY KEY, layer INTEGER NOT NULL, pass INTEGER NOT NULL,
     run INTEGER NOT NULL, t REAL NOT NULL, reason TEXT NOT NULL, x REAL, y REAL, z REAL, measured_mm REAL);
+CREATE TABLE IF NOT EXISTS bead_extra (id INTEGER PRIMARY KEY, layer INTEGER NOT NULL, pass INTEGER NOT NULL,
+    run INTEGER NOT NULL, info TEXT NOT NULL DEFAULT '{}');
 CREATE INDEX IF NOT EXISTS progress_lp ON progress(layer, pass);
 CREATE INDEX IF NOT EXISTS passes_lp ON passes(layer, pass);
 """
@@ -83,15 +88,16 @@ class PassResume:
     start_mm: float | None    # where the latest run that started the pass (re-)arced, along the pass
     arc_run: int | None       # the latest run that lit the arc on the pass
     arc_unstable: bool        # that run saw the arc unstable while depositing (arc loss)
+    ahead: int | None = None  # that run's robot lookahead (weld moves unexecuted; None: the window)
 
 
-class Journal:
+class Journal(JournalQueries):
     """Append-only SQLite journal of one build (all runs of it: first run and every resume)."""
 
     def __init__(self, path: str | Path, *, background: bool = False) -> None:
         self.path = Path(path)
         self._lock = threading.RLock()
-        self._q: queue.Queue | None = None
+        self._q: queue.Queue[tuple[str, Any, bool] | None] | None = None
         self._thread: threading.Thread | None = None
         self.write_errors = 0
         # a write that fails (disk full, I/O error, read-only) is a fault like a lost link
@@ -175,6 +181,13 @@ class Journal:
                 self._write_failed(exc)
                 raise
 
+    async def committed(self) -> None:
+        """Every queued row committed (waited for off the loop); JournalError naming the path and
+        its free space if a write failed: the build never ends `complete` on a partial journal."""
+        await asyncio.to_thread(self.flush)
+        if self.failed:
+            raise JournalError(self.failed)
+
     def flush(self) -> None:
         """Wait until every queued write is committed (background mode)."""
         if self._q is not None:
@@ -250,6 +263,9 @@ class Journal:
             (layer, pass_, self.run, stats.get("wfs_min"), stats.get("wfs_max"), stats.get("speed_mm_min"),
              stats.get("motion_s"), stats.get("moves"), stats.get("starved")),
         )
+        if extra := {k: stats[k] for k in BEAD_EXTRA if stats.get(k) is not None}:   # one JSON row
+            self._write("INSERT INTO bead_extra (layer, pass, run, info) VALUES (?,?,?,?)",
+                        (layer, pass_, self.run, json.dumps(extra)))
 
     def defect(self, layer: int, pass_: int, reason: str, *, pos: Sequence[float] | None = None,
                measured_mm: float | None = None) -> None:
@@ -302,6 +318,7 @@ class Journal:
             return None
         start_mm: float | None = None
         arc_run: int | None = None
+        ahead: int | None = None
         for state, run, info in rows:
             try:
                 d = json.loads(info or "{}")
@@ -311,10 +328,18 @@ class Journal:
                 start_mm = float(d["start_mm"])
             if state == "arc_on":
                 arc_run = int(run)
+                ahead = d.get("ahead")
         unstable = arc_run is not None and bool(self.query(
             "SELECT 1 FROM events WHERE kind='arc' AND layer=? AND pass=? AND run=? LIMIT 1",
             (layer, pass_, arc_run)))
-        return PassResume(rows[-1][0], int(rows[-1][1]), start_mm, arc_run, unstable)
+        return PassResume(rows[-1][0], int(rows[-1][1]), start_mm, arc_run, unstable,
+                          int(ahead) if ahead else None)
+
+    def pass_tickets(self, layer: int, pass_: int, run: int) -> tuple[int, int] | None:
+        """(first, last) ticket of the weld moves a run wrote ahead for a pass, None if none."""
+        row = self._read1("SELECT min(ticket), max(ticket) FROM moves WHERE layer=? AND pass=? AND run=?",
+                          (layer, pass_, run))
+        return (int(row[0]), int(row[1])) if row and row[0] is not None else None
 
     def run_time_scale(self, run: int) -> float | None:
         """The time scale a run was started with (its `run` event), None if not journaled."""
@@ -338,126 +363,11 @@ class Journal:
             "SELECT layer, pass, idx, kind FROM moves WHERE ticket=? ORDER BY run DESC LIMIT 1", (ticket,))
         return (int(row[0]), int(row[1]), int(row[2]), str(row[3])) if row else None
 
-    # -- read queries for the report, `cell runs`, the CLI and the TUI (the only SQL outside writes) --
-    def link_rows(self) -> list[dict[str, Any]]:
-        """Per run, the link statistics journaled at the end of its build (late / lost / bad)."""
-        out = []
-        for run, msg in self.query("SELECT run, message FROM events WHERE kind='links' ORDER BY id"):
-            try:
-                out.append({"run": run, "links": json.loads(msg)})
-            except ValueError:
-                continue
-        return out
-
-    def latest_time_scale(self) -> float:
-        """The time scale of the latest journaled run (1.0 when none was journaled)."""
-        for (msg,) in self.query("SELECT message FROM events WHERE kind='run' ORDER BY id DESC LIMIT 1"):
-            try:
-                return float(json.loads(msg).get("time_scale", 1.0))
-            except (ValueError, AttributeError, TypeError):
-                return 1.0
-        return 1.0
-
-    def done_passes(self) -> set[tuple[int, int]]:
-        """(layer, pass) of every pass whose latest state is `done`."""
-        return {(la, pa) for la, pa, st in self.query(
-            "SELECT layer, pass, state FROM passes WHERE id IN (SELECT max(id) FROM passes GROUP BY layer, pass)")
-            if st == "done"}
-
-    def bead_rows(self) -> list[dict[str, Any]]:
-        """Every bead row as a dict (column names of the `beads` table), in the order written."""
-        cols = ("layer", "pass", "run", "arc_on", "arc_off", "length_mm", "speed_mm_min", "i_mean", "i_min",
-                "i_max", "u_mean", "u_min", "u_max", "wfs_mean", "heat_input_j_mm", "interrupted")
-        rows = self.query(f"SELECT {', '.join(cols)} FROM beads ORDER BY id")
-        out = [dict(zip(cols, r)) for r in rows]
-        extra = ("wfs_min", "wfs_max", "speed_actual_mm_min", "motion_s", "moves", "starved")
-        measured = {(la, pa, run): dict(zip(extra, rest)) for la, pa, run, *rest in self.query(
-            "SELECT layer, pass, run, wfs_min, wfs_max, speed_mm_min, motion_s, moves, starved FROM bead_measures"
-            " ORDER BY id")}
-        for b in out:
-            b.update(measured.get((b["layer"], b["pass"], b["run"]), dict.fromkeys(extra)))
-        return out
-
-    def alarm_rows(self) -> list[dict[str, Any]]:
-        """Alarms with their state, layer, pass, torch position and run."""
-        return [
-            {"t": t, "message": msg, "state": st, "layer": la, "pass": pa,
-             "position": [x, y, z] if x is not None else None, "run": run}
-            for t, msg, st, la, pa, x, y, z, run in self.query(
-                "SELECT t, message, state, layer, pass, x, y, z, run FROM events WHERE kind='alarm' ORDER BY id")
-        ]
-
-    def last_build_state(self) -> str | None:
-        """The latest journaled state other than disconnected/idle."""
-        row = self._read1("SELECT state FROM events WHERE kind='transition' AND state NOT IN"
-                          " ('disconnected', 'idle') ORDER BY id DESC LIMIT 1")
-        return str(row[0]) if row else None
-
-    def run_count(self) -> int:
-        """How many runs (start plus resumes) wrote events."""
-        row = self._read1("SELECT count(DISTINCT run) FROM events")
-        return int(row[0] or 0) if row else 0
-
-    def arc_start_count(self) -> int:
-        """How many times an arc was struck on a pass."""
-        row = self._read1("SELECT count(*) FROM passes WHERE state='arc_on'")
-        return int(row[0] or 0) if row else 0
-
-    def arc_on_spans(self) -> list[tuple[int, int, float, float]]:
-        """(layer, pass, t arc_on, t next state) per arc strike, from the pass-state rows."""
-        rows = self.query("SELECT layer, pass, state, t FROM passes ORDER BY id")
-        open_: dict[tuple[int, int], float] = {}
-        out: list[tuple[int, int, float, float]] = []
-        for la, pa, st, t in rows:
-            key = (la, pa)
-            if key in open_ and st != "arc_on":
-                out.append((la, pa, open_.pop(key), t))
-            if st == "arc_on":
-                open_[key] = t
-        return out
-
-    def sample_rows(self) -> list[tuple[float, float | None, float | None, float | None, float | None,
-                                        int | None, int | None]]:
-        """(t, current, voltage, wfs, temperature, layer, pass) samples in time order."""
-        return self.query("SELECT t, current_a, voltage_v, wfs_m_min, temperature_c, layer, pass FROM samples"
-                          " ORDER BY t")
-
-    def wall_clock_span(self) -> tuple[float | None, float | None]:
-        """(first, last) wall-clock time (Unix s) of the journal's events."""
-        row = self._read1("SELECT min(t), max(t) FROM events")
-        return (row[0], row[1]) if row else (None, None)
-
-    def latest_mode(self) -> str | None:
-        """The message of the latest `mode` event (how the run was started), None if none."""
-        row = self._read1("SELECT message FROM events WHERE kind='mode' ORDER BY id DESC LIMIT 1")
-        return str(row[0]) if row else None
-
-    def max_progress_ticket(self) -> int | None:
-        """The highest ticket executed with the arc stable, None if none."""
-        row = self._read1("SELECT max(ticket) FROM progress")
-        return int(row[0]) if row and row[0] is not None else None
-
-    def events_after(self, last_id: int, limit: int = 200) -> list[tuple]:
-        """(id, t, kind, state, message, layer, pass) of events after `last_id`."""
-        return self.query("SELECT id, t, kind, state, message, layer, pass FROM events WHERE id > ? ORDER BY id"
-                          " LIMIT ?", (last_id, limit))
-
-    def defect_rows(self) -> list[dict[str, Any]]:
-        """Beads the measurements say were not deposited as planned, oldest first."""
-        return [{"t": t, "layer": la, "pass": pa, "reason": reason, "run": run, "measured_mm": mm,
-                 "position": [x, y, z] if x is not None else None}
-                for t, la, pa, reason, x, y, z, run, mm in self.query(
-                    "SELECT t, layer, pass, reason, x, y, z, run, measured_mm FROM defects ORDER BY id")]
-
-    def query(self, sql: str, params: Sequence[Any] = ()) -> list[tuple]:
+    def query(self, sql: str, params: Sequence[Any] = ()) -> list[Row]:
         """Rows of a read (after every queued write is committed)."""
         self.flush()
         with self._lock:
             return list(self.db.execute(sql, params))
-
-    def _read1(self, sql: str, params: Sequence[Any] = ()) -> tuple | None:
-        rows = self.query(sql, params)
-        return rows[0] if rows else None
 
     def close(self) -> None:
         if self._q is not None and self._thread is not None:
@@ -482,7 +392,7 @@ def write_failure_message(path: Path, exc: BaseException) -> str:
             "(free space or fix the disk, then `cell resume`)")
 
 
-def read_events_after(path: str | Path, after_id: int = 0, limit: int = 2000) -> list[tuple]:
+def read_events_after(path: str | Path, after_id: int = 0, limit: int = 2000) -> list[Row]:
     """(id, t, kind, state, message, layer, pass) after `after_id`, on a read-only connection.
 
     For a reader in another thread or process (the TUI's log): WAL lets it read mid-build without

@@ -15,7 +15,7 @@ import math
 from typing import Any, Callable
 
 from controller.ports import CncLinkPort, PowerSourcePort
-from controller.motion.cnc5 import Five
+from controller.motion.cnc5 import Five, check_feed
 from drivers.errors import DeviceError
 
 Point = tuple[float, float, float]
@@ -75,6 +75,7 @@ class CncExecutor:
         if (job.get("alignment") or {}).get("no_level"):
             self.five.level = None   # aligned without leveling: the tilt is in the transform, no A/B move
         await self.five.post_job(job, max_step_mm)
+        check_feed(job, self.five.trunnion, self.link, max_step_mm)
 
     def require_job_axes(self, job: dict) -> None:
         """The firmware's axes against the job, before homing or any motion (DESIGN.md §5):
@@ -124,17 +125,17 @@ class CncExecutor:
                    on_exec: Callable[[int, int], None]) -> "asyncio.Task[int]":
         self._release = asyncio.Event()
         lines = [f"M3 S{self.spindle_s}"]
-        if self.five.active:
+        if self.five.active:  # chord-tolerance split moves: the track maps back to the planned points
             lines += self.five.weld_lines(i0, speed)
-            track = self.five.machine_xyz()
+            track, t0, on_track = self.five.track(i0, on_exec)
         else:
             lines += [f"G1 X{_f(p[0])} Y{_f(p[1])} Z{_f(p[2])} F{speed:.0f}" for p in pts[i0 + 1:]]
-            track = pts
+            track, t0, on_track = pts, i0, on_exec
         lines.append("M5")
 
         async def run() -> int:
             await self._release.wait()
-            poll = asyncio.get_running_loop().create_task(self._track(track, i0, on_exec))
+            poll = asyncio.get_running_loop().create_task(self._track(track, t0, on_track))
             try:
                 await self.link.stream(lines)
             finally:

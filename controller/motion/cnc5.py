@@ -6,15 +6,19 @@ axis limits refuses the job, naming layer, pass and point, instead of stopping m
 """
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Callable
 
 import numpy as np
 
-from controller.motion.post5 import Post5, inverse_time, move_line, weld_axes
+from controller.motion.post5 import Post5, inverse_time, linearise, move_line, weld_axes
 from controller.motion.weld_path import weld_points
 from core.errors import InputError
 
 Point = tuple[float, float, float]
+# the G-code words carry 3 decimals (mm and degrees: up to ~2 µm at 100 mm from an axis): the
+# split keeps a fifth of the chord tolerance for that rounding
+_ROUNDING_SHARE = 0.8
 
 
 def _weld_points(points: list, max_step_mm: float) -> list[Point]:
@@ -29,6 +33,11 @@ class Five:
         self.letters = "XYZA" + (trunnion.table[1] if trunnion is not None else "B")
         self.passes: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self.cur: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        # per pass the machine moves after the chord-tolerance split: part points, axes, machine
+        # axes and the planned (journaled) point each move end lies on or after
+        self.fine: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
+        self.cur_fine: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._stream: tuple[np.ndarray, np.ndarray] | None = None  # the streamed moves: machine xyz, planned index
         self.start: np.ndarray | None = None   # machine axes of the approached start point
         self.start_part: np.ndarray | None = None
         self.level: tuple[float, float] | None = None  # the job's A/B leveling (its alignment)
@@ -75,13 +84,14 @@ class Five:
         """Every pass to machine axes; yields between passes so the links stay serviced."""
         import asyncio
 
-        self.passes = {}
+        self.passes, self.fine = {}, {}
         if not any("axes" in p for la in job.get("layers", []) for p in la.get("passes", [])):
             return
         if self.trunnion is None:
             raise InputError("job has 5-axis passes (axes) but the CNC has no kinematics; "
                              "set kinematics in cell.yaml")
         post = Post5(self.trunnion)
+        tol = float(getattr(self.trunnion, "chord_tolerance_mm", 0.02)) * _ROUNDING_SHARE
         for li, la in enumerate(job["layers"]):
             for pi, p in enumerate(la["passes"]):
                 pts = np.asarray(_weld_points(p["points"], max_step_mm))
@@ -91,10 +101,13 @@ class Five:
                 except InputError as exc:
                     raise InputError(f"job layer {li} pass {pi} {exc}") from None
                 self.passes[(li, pi)] = (pts, axes, m)
+                self.fine[(li, pi)] = linearise(post, pts, axes, m, tol)
                 await asyncio.sleep(0)
 
     def use(self, layer: int, pass_: int) -> None:
         self.cur = self.passes.get((layer, pass_))
+        self.cur_fine = self.fine.get((layer, pass_))
+        self._stream = None
 
     def _machine_at(self, p: Point) -> tuple[int, np.ndarray]:
         """Index of the segment start nearest to p and the machine axes at p (a resume may start mid-move)."""
@@ -120,16 +133,58 @@ class Five:
                 f"G1 Z{m[2]:.3f} F{speed:.0f}"]
 
     def weld_lines(self, i0: int, speed: float) -> list[str]:
-        """G93 inverse-time moves from the approached start to the end of the pass, then G94."""
-        pts, _, m = self.cur  # type: ignore[misc]
+        """G93 inverse-time moves from the approached start to the end of the pass, then G94.
+
+        The moves are the pass's chord-tolerance split (post5.linearise); a start inside a planned
+        move (a resume) has its first move split afresh. F = speed / part-frame length of each move.
+        """
+        pts, axes, m = self.cur  # type: ignore[misc]
+        fp, fa, fm, fs = self.cur_fine if self.cur_fine is not None else (pts, axes, m, np.arange(len(pts)))
+        post = Post5(self.trunnion)
+        tol = float(getattr(self.trunnion, "chord_tolerance_mm", 0.02)) * _ROUNDING_SHARE
         start_part = self.start_part if self.start_part is not None else pts[i0]
-        part = np.vstack([start_part, pts[i0 + 1:]])
+        start_m = self.start if self.start is not None else m[i0]
+        # fs: the planned point k is the first entry k, the split points of move k → k+1 follow it
+        j0 = int(np.searchsorted(fs, i0, side="left")) + 1  # the first move end past planned point i0
+        if np.linalg.norm(start_part - pts[i0]) < 1e-6:
+            head_p, head_m, head_s = np.empty((0, 3)), np.empty((0, 5)), np.empty(0, dtype=int)
+        else:  # resumed inside move i0 → i0+1: split start → (the next planned point) afresh
+            f = float(np.clip((start_part - pts[i0]) @ (pts[i0 + 1] - pts[i0])
+                              / max(float(np.sum((pts[i0 + 1] - pts[i0]) ** 2)), 1e-12), 0.0, 1.0))
+            a_start = axes[i0] + (axes[i0 + 1] - axes[i0]) * f
+            a_start = a_start / np.linalg.norm(a_start)
+            hp, _, hm, hs = linearise(post, np.vstack([start_part, pts[i0 + 1]]),
+                                      np.vstack([a_start, axes[i0 + 1]]), np.vstack([start_m, m[i0 + 1]]), tol)
+            head_p, head_m, head_s = hp[1:], hm[1:], np.where(hs[1:] == 1, i0 + 1, i0)
+            j0 = int(np.searchsorted(fs, i0 + 1, side="left")) + 1
+        part = np.vstack([start_part, head_p, fp[j0:]])
+        mach = np.vstack([start_m, head_m, fm[j0:]])
+        self._stream = (mach[:, :3], np.r_[i0, head_s, fs[j0:]])
         feeds = inverse_time(part, speed)
-        lines = ["G93"] + [move_line(m[k], self.letters, float(feeds[k - i0 - 1])) for k in range(i0 + 1, len(m))]
+        lines = ["G93"] + [move_line(mach[k], self.letters, float(feeds[k - 1])) for k in range(1, len(mach))]
         return lines + ["G94"]
 
     def machine_xyz(self) -> list[Point]:
-        return [tuple(float(v) for v in r[:3]) for r in self.cur[2]]  # type: ignore[index]
+        """The machine X Y Z of the streamed moves (after weld_lines): the path the status reports follow."""
+        if self._stream is None:
+            return [tuple(float(v) for v in r[:3]) for r in self.cur[2]]  # type: ignore[index]
+        return [tuple(float(v) for v in r) for r in self._stream[0]]
+
+    def track(self, i0: int, on_exec: Callable[[int, int], None]) -> tuple[list[Point], int, Callable[[int, int], None]]:
+        """For the executor's progress: the streamed path, its first index, and on_exec taking
+        indices into it back to the job's planned (journaled) points, each reported once."""
+        if self._stream is None:
+            return self.machine_xyz(), i0, on_exec
+        planned = self._stream[1]
+        done = [i0]
+
+        def cb(j: int, _k: int) -> None:
+            k = int(planned[min(j, len(planned) - 1)])
+            if k > done[0]:
+                done[0] = k
+                on_exec(k, k)
+
+        return self.machine_xyz(), 0, cb
 
     def part_point(self, mpos: Any) -> Point:
         """Where the tool tip is on the part, from a status report's X Y Z A B|C."""
@@ -137,3 +192,111 @@ class Five:
         inv = np.linalg.inv(self.trunnion.matrix(a, s))
         q = inv[:3, :3] @ np.array([x, y, z]) + inv[:3, 3]
         return (float(q[0]), float(q[1]), float(q[2]))
+
+
+# --- what the CNC link can feed (issue 29, DESIGN.md §6 "Simulated time") ---------------------------
+# The simulated serial line keeps its baud in simulated time on both sides (sims/transport.py and
+# CncLink(line_scale=time_scale)); what it cannot keep is the host: the in-process driver and grbl
+# simulator handle a streamed line in up to ~1–2 ms of wall time (measured on the 2-core build
+# host: 0 gaps at 1.5 ms per line, gaps of 0.1 s at 0.9 ms). A bead whose moves are shorter than
+# that at the time scale would stand still with the process on between moves, which the machine
+# would not: the time scale is limited to what the host can feed, and the build says so.
+HOST_LINE_WALL_S = 3.0e-3
+_WINDOW = 8   # moves averaged: the grbl planner (15 blocks) rides over a short burst of shorter ones
+
+
+@dataclass(frozen=True)
+class FeedLimit:
+    time_scale: float          # the largest time scale the host can feed every bead at
+    link_scale: float          # the same for the serial line at its baud (< 1: it starves on the machine too)
+    layer: int
+    pass_: int
+    move_s: float              # the shortest planned move (process time) of that bead, averaged
+
+    def message(self, time_scale: float) -> str:
+        return (f"cnc: at time scale {time_scale:g} the link cannot feed layer {self.layer} pass {self.pass_} "
+                f"(its moves take {self.move_s * 1000:.1f} ms of process time, {self.move_s / time_scale * 1000:.2f} ms "
+                f"of wall time; a streamed line takes up to {HOST_LINE_WALL_S * 1000:.1f} ms on this host): the torch "
+                f"would stand still with the process on between moves; time scale limited to {self.time_scale:g}")
+
+
+def _pass_moves(five: Five, post: Post5 | None, p: dict, max_step_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """(process seconds, bytes) per streamed weld line of one pass, as the executor sends them."""
+    speed = float(p.get("speed_mm_min") or 0.0) / 60.0
+    if post is not None and "axes" in p:
+        pts = np.asarray(_weld_points(p["points"], max_step_mm))
+        axes = np.asarray(weld_axes(p["points"], p.get("axes"), max_step_mm))
+        tol = float(getattr(five.trunnion, "chord_tolerance_mm", 0.02)) * _ROUNDING_SHARE
+        fp, _, fm, _ = linearise(post, pts, axes, post.machine(pts, axes), tol)
+        length = np.linalg.norm(np.diff(fp, axis=0), axis=1)
+        nbytes = np.array([len(move_line(r, five.letters, 1000.0)) + 1 for r in fm[1:]], dtype=float)
+    else:
+        pts = np.asarray(_weld_points(p["points"], max_step_mm))
+        length = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        nbytes = np.array([len(f"G1 X{x:.3f} Y{y:.3f} Z{z:.3f} F{speed * 60:.0f}") + 1 for x, y, z in pts[1:]],
+                          dtype=float)
+    return length / max(speed, 1e-9), nbytes
+
+
+def feed_limit(job: dict, trunnion: Any, baud: int = 115200, max_step_mm: float = 2.0) -> FeedLimit | None:
+    """The largest time scale at which the CNC link can feed every bead of `job` (None: no beads)."""
+    five = Five(trunnion)
+    post = Post5(trunnion) if trunnion is not None else None
+    best: FeedLimit | None = None
+    for li, la in enumerate(job.get("layers", [])):
+        for pi, p in enumerate(la.get("passes", [])):
+            if len(p.get("points", [])) < 2:
+                continue
+            try:
+                t, nb = _pass_moves(five, post, p, max_step_mm)
+            except InputError:
+                continue  # post_job names it before any motion
+            if len(t) == 0:
+                continue
+            w = min(_WINDOW, len(t))
+            k = np.ones(w) / w
+            tw, bw = np.convolve(t, k, mode="valid"), np.convolve(nb, k, mode="valid")
+            i = int(np.argmin(tw))
+            host = float(tw[i]) / HOST_LINE_WALL_S
+            link = float((tw / (bw / (baud / 10.0))).min())
+            if best is None or host < best.time_scale:
+                best = FeedLimit(host, link, li, pi, float(tw[i]))
+    if best is None:
+        return None
+    return FeedLimit(_round_down(best.time_scale), best.link_scale, best.layer, best.pass_, best.move_s)
+
+
+def _round_down(k: float) -> float:
+    """A time scale people can read: 1, 2, 5, 10, 20, 40, 60 … at most k (never below 1)."""
+    for v in (1000, 600, 400, 200, 120, 100, 60, 40, 30, 20, 15, 10, 8, 5, 4, 3, 2):
+        if v <= k:
+            return float(v)
+    return 1.0
+
+
+def limit_time_scale(cfg: Any, job: dict, max_step_mm: float = 2.0) -> tuple[Any, str | None]:
+    """cfg with cell.time_scale lowered to what the CNC link can feed for `job` (CNC cells, simulated
+    time only), and the message saying so; (cfg, None) when nothing was lowered."""
+    from controller.motion.kinematics import Trunnion
+
+    if cfg.cell.platform != "cnc" or cfg.cell.time_scale <= 1.0:
+        return cfg, None
+    lim = feed_limit(job, Trunnion.from_config(cfg.kinematics), cfg.devices.cnc.baud, max_step_mm)
+    if lim is None or lim.time_scale >= cfg.cell.time_scale:
+        return cfg, None
+    msg = lim.message(cfg.cell.time_scale)
+    return cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"time_scale": lim.time_scale})}), msg
+
+
+def check_feed(job: dict, trunnion: Any, link: Any, max_step_mm: float = 2.0) -> None:
+    """Before any motion: a simulated link (line_scale > 1) faster than the host can feed the job's
+    beads is refused, naming the time scale that can (`limit_time_scale` lowers it where the
+    simulators are started here: `cell run --sim`, `cell repair run --sim`)."""
+    scale = float(getattr(link, "line_scale", 1.0) or 1.0)
+    if scale <= 1.0:
+        return
+    lim = feed_limit(job, trunnion, int(getattr(link, "baud", 115200) or 115200), max_step_mm)
+    if lim is not None and scale > lim.time_scale + 1e-9:
+        raise InputError(lim.message(scale).replace("; time scale limited to",
+                                                    "; run the simulators at time scale")
+                         + " or less (cell.yaml cell.time_scale)")

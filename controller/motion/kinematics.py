@@ -164,13 +164,15 @@ class Trunnion:
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # inner axis point = -P + offset
     a_limits_deg: tuple[float, float] = (-120.0, 120.0)
     second_limits_deg: tuple[float, float] = (-360.0, 360.0)
+    chord_tolerance_mm: float = 0.02              # 5-axis moves split until the tip stays this close
 
     @classmethod
     def from_config(cls, kin: Any) -> "Trunnion":
         """From core.config.Kinematics (cell.yaml `kinematics:`)."""
         return cls(table=kin.table, pivot=tuple(kin.pivot_mm), axis_a=tuple(kin.axis_a),
                    axis_second=tuple(kin.axis_second), offset=tuple(kin.offset_mm),
-                   a_limits_deg=tuple(kin.a_limits_deg), second_limits_deg=tuple(kin.second_limits_deg))
+                   a_limits_deg=tuple(kin.a_limits_deg), second_limits_deg=tuple(kin.second_limits_deg),
+                   chord_tolerance_mm=float(getattr(kin, "chord_tolerance_mm", 0.02)))
 
     # (inner axis, outer axis) as unit vectors; angles are always reported as (a, second).
     def _axes(self) -> tuple[F, F]:

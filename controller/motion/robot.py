@@ -36,6 +36,8 @@ class RobotExecutor:
         self.min_ahead: int | None = None       # fewest weld moves queued ahead at an EXE inside a bead
         self._lost_cbs: list[Callable[[Any], None]] = []
         self.stopped_at: Point | None = None    # where prepare() found the robot stopped (queue flushed)
+        self.record: Any = None                 # the robot's STA before prepare() flushed or reset it
+        self.ahead: int | None = None           # weld moves left unexecuted at most (None: the window)
         self._axes: dict[tuple[int, int], list[Point]] = {}
         self._cur_axes: list[Point] | None = None  # the planned tool axis per weld point (5-axis)
         self._pts: dict[tuple[int, int], list[Point]] = {}
@@ -99,7 +101,7 @@ class RobotExecutor:
 
     async def prepare(self) -> None:
         """Before a run: an empty, released queue (after a crash the robot may hold old moves)."""
-        st = await self.link.status()
+        st = self.record = await self.link.status()
         if st.state == "FAULT" or getattr(self.link, "protocol_fault", None):
             # a robot fault (workspace) or a latched protocol fault (a robot that lied) needs
             # !RESET; the sequence numbers restart at 0001
@@ -138,8 +140,12 @@ class RobotExecutor:
 
         async def stream() -> int:
             last = 0
+            sent: list[int] = []
             for i in range(i0 + 1, len(pts)):
+                if self.ahead is not None and len(sent) >= self.ahead:  # runs dry if the host dies
+                    await self.link.wait_executed(sent[-self.ahead])
                 last = await self.link.send_move("MOVL", *pts[i], *self._axis(i), speed)
+                sent.append(last)
                 self._weld[last] = i
                 self._sent_last = last
             self._all_sent = True

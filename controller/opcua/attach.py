@@ -15,6 +15,7 @@ from typing import Any
 
 from controller.opcua.child import run as child_run
 from controller.opcua.endpoint import PUBLISH_PERIOD_S, Identification, check_endpoint
+from core.config import OpcUaSettings
 from core.errors import CellError
 
 START_TIMEOUT_S = 30.0   # the child imports asyncua and binds the endpoint: seconds on a loaded host
@@ -47,7 +48,7 @@ def software_revision() -> str:
 class OpcuaProcess:
     """The OPC UA server's process, fed from `bus`; `start()` returns once clients can connect."""
 
-    def __init__(self, opcua: Any, *, cell_name: str, identification: Identification, bus: Any,
+    def __init__(self, opcua: OpcUaSettings, *, cell_name: str, identification: Identification, bus: Any,
                  control: LoopControl | None) -> None:
         check_endpoint(opcua)   # a bad endpoint is named here, before a process is started
         self.cfg, self.cell_name, self.ident, self.bus = opcua, cell_name, identification, bus

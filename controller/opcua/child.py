@@ -19,6 +19,7 @@ import threading
 from typing import Any
 
 from controller.runtime.events import EventBus, Snapshot
+from core.config import OpcUaSettings
 from core.errors import CellError
 
 CALL_TIMEOUT_S = 10.0
@@ -65,7 +66,7 @@ class PipeControl:
         self._call("abort")
 
 
-def run(snaps: Any, control: Any, opcua: Any, cell_name: str, ident: Any, initial: Snapshot) -> None:
+def run(snaps: Any, control: Any, opcua: OpcUaSettings, cell_name: str, ident: Any, initial: Snapshot) -> None:
     """Child entry point: serve until the controller says stop or its pipe closes."""
     import os
 

@@ -8,9 +8,9 @@ import hashlib
 import ipaddress
 import socket
 from dataclasses import dataclass
-from typing import Any
 from urllib.parse import urlparse
 
+from core.config import OpcUaSettings
 from core.errors import ConfigError
 
 PUBLISH_PERIOD_S = 0.05   # process values at 20 Hz at least; any snapshot change wakes it sooner
@@ -50,7 +50,7 @@ def password_hash(password: str) -> str:
     return "sha256:" + hashlib.sha256(password.encode()).hexdigest()
 
 
-def check_endpoint(opcua: Any) -> bool:
+def check_endpoint(opcua: OpcUaSettings) -> bool:
     """Whether the endpoint is secured; ConfigError when it leaves the host unsecured."""
     secured = bool(opcua.certificate and opcua.private_key and opcua.users)
     host, _port = endpoint_host(opcua.endpoint)

@@ -25,6 +25,7 @@ from asyncua import Server, ua
 from controller.runtime.events import Alarm, EventBus, Snapshot
 from controller.opcua.endpoint import PUBLISH_PERIOD_S, Identification, check_endpoint
 from controller.opcua.security import PasswordUsers
+from core.config import OpcUaSettings
 from core.errors import CellError
 
 NAMESPACE = "urn:cell-controller:machines"
@@ -77,7 +78,7 @@ def _value(snap: Snapshot, field: str, vtype: ua.VariantType) -> Any:
 class FactoryServer:
     """Serve one cell's snapshots over OPC UA; `start()` returns once clients can connect."""
 
-    def __init__(self, opcua: Any, *, cell_name: str, identification: Identification, bus: EventBus,
+    def __init__(self, opcua: OpcUaSettings, *, cell_name: str, identification: Identification, bus: EventBus,
                  control: ControlPort | None) -> None:
         self.cfg = opcua
         self.cell_name = cell_name
@@ -144,8 +145,10 @@ class FactoryServer:
         server.set_endpoint(self.endpoint)
         server.set_server_name(f"cell controller {self.cell_name}")
         if self._secured:
-            await server.load_certificate(self.cfg.certificate)
-            await server.load_private_key(self.cfg.private_key)
+            cert, key = self.cfg.certificate, self.cfg.private_key
+            assert cert is not None and key is not None  # check_endpoint: secured means both are set
+            await server.load_certificate(cert)
+            await server.load_private_key(key)
             server.set_security_policy([ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt])
             server.set_identity_tokens([ua.UserNameIdentityToken])
         else:
@@ -174,7 +177,7 @@ class FactoryServer:
             [("Kind", ua.VariantType.String), ("Layer", ua.VariantType.Int32), ("Pass", ua.VariantType.Int32),
              ("PositionX", ua.VariantType.Double), ("PositionY", ua.VariantType.Double),
              ("PositionZ", ua.VariantType.Double)])
-        self._events = await server.get_event_generator(etype, self.machine)
+        self._events = await server.get_event_generator(etype, self.machine.nodeid)
         if self.control is not None:
             for name in ("Pause", "Resume", "Abort"):
                 await self.machine.add_method(idx, name, self._method(name.lower()), [], [])
@@ -191,7 +194,8 @@ class FactoryServer:
                 await asyncio.get_running_loop().run_in_executor(None, fn)
             except CellError as exc:
                 log.info("OPC UA %s refused: %s", command, exc)
-                raise ua.UaStatusCodeError(ua.StatusCodes.BadInvalidState) from None
+                # asyncua leaves UaStatusCodeError's constructor unannotated
+                raise ua.UaStatusCodeError(ua.StatusCodes.BadInvalidState) from None  # type: ignore[no-untyped-call]
             return []
 
         return call

@@ -55,20 +55,9 @@ def plot_report(journal: Journal, out: Path, job: dict | None, summary: dict) ->
     t0 = rows[0][0] if rows else 0.0
     scale = summary.get("time_scale") or 1.0
     t = [(r[0] - t0) * scale for r in rows]
-    tt, (cur, volt, wfs, temp) = _with_gaps(t, [[r[1] for r in rows], [r[2] for r in rows],
-                                                 [r[3] for r in rows], [r[4] for r in rows]])
+    tt, (temp,) = _with_gaps(t, [[r[4] for r in rows]])
     marks = _layer_marks(rows, t)
-    fig, ax = plt.subplots(3, 1, figsize=(12, 8), sharex=True)
-    for a, ys, lab, col in ((ax[0], cur, "current [A]", "tab:orange"), (ax[1], volt, "voltage [V]", "tab:green"),
-                            (ax[2], wfs, "wire feed [m/min]", "tab:purple")):
-        a.plot(tt, ys, lw=0.6, color=col)
-        a.set_ylabel(lab)
-        for x in marks:
-            a.axvline(x, color="0.8", lw=0.5, zorder=0)
-    ax[2].set_xlabel("process time [s] (grey lines: layer starts; breaks: pauses and resumes)")
-    fig.suptitle("Current, voltage and wire feed")
-    paths.append(_save(fig, out / "process.png"))
-
+    paths.append(_process_per_bead(plt, out, summary))
     fig, ax = plt.subplots(figsize=(12, 4))
     ax.plot(tt, temp, lw=0.8, color="tab:red", label="part temperature")
     limits = [la.get("interpass_limit_c") for la in summary.get("layers", []) if la.get("interpass_limit_c")]
@@ -82,6 +71,81 @@ def plot_report(journal: Journal, out: Path, job: dict | None, summary: dict) ->
     paths.append(_save(fig, out / "temperature.png"))
     paths.append(_defects(plt, out, job, summary))
     return paths
+
+
+# (signal, mean, p5, p95, min, max, planned, label, colour) per panel of process.png
+_SIGNALS = (
+    ("current", "current_mean_a", "current_p5_a", "current_p95_a", "current_min_a", "current_max_a",
+     "current_planned_a", "current [A]", "tab:orange"),
+    ("voltage", "voltage_mean_v", "voltage_p5_v", "voltage_p95_v", "voltage_min_v", "voltage_max_v",
+     None, "voltage [V]", "tab:green"),
+    ("wfs", "wfs_mean_m_min", "wfs_p5_m_min", "wfs_p95_m_min", "wfs_min_m_min", "wfs_max_m_min",
+     "wfs_planned_m_min", "wire feed [m/min]", "tab:purple"),
+    ("speed", "speed_measured_mm_min", None, None, None, None, "speed_planned_mm_min", "travel speed [mm/min]",
+     "tab:blue"),
+)
+
+
+def _process_per_bead(plt: Any, out: Path, summary: dict) -> Path:
+    """process.png: per bead (x: beads in build order), each signal's mean (dot) and 5-95 %
+    spread (bar), min/max (thin ticks), against the plan (black steps) and its tolerance band
+    (grey); beads with a defect shaded red, layer starts as grey lines: the weld-monitoring view
+    of a build, bead by bead, instead of a trace over hours."""
+    beads = [b for b in summary.get("beads", []) if b.get("status") != "not built"]
+    tol = summary.get("tolerance") or {}
+    n = len(beads)
+    x = list(range(1, n + 1))
+    fig, axes = plt.subplots(len(_SIGNALS), 1, figsize=(max(10.0, min(24.0, 6 + n * 0.06)), 11), sharex=True)
+    layer_starts = [i + 1 for i, b in enumerate(beads) if i == 0 or b["layer"] != beads[i - 1]["layer"]]
+    bad = [i + 1 for i, b in enumerate(beads) if b.get("defects_count")]
+    pct = {"current": tol.get("current_pct"), "wfs": tol.get("wfs_pct"), "speed": tol.get("speed_pct")}
+    for ax, (name, mean, p5, p95, lo, hi, plan, label, colour) in zip(axes, _SIGNALS):
+        for xb in bad:
+            ax.axvspan(xb - 0.5, xb + 0.5, color="red", alpha=0.15, lw=0, zorder=0)
+        for xl in layer_starts[1:]:
+            ax.axvline(xl - 0.5, color="0.85", lw=0.6, zorder=0)
+        if plan is not None:
+            ps = [b.get(plan) for b in beads]
+            ax.step(x, [float("nan") if v is None else v for v in ps], where="mid", color="k", lw=0.8,
+                    label="plan")
+            band = pct.get(name)
+            if band:
+                f = float(band) / 100.0
+                ax.fill_between(x, [float("nan") if v is None else v * (1 - f) for v in ps],
+                                [float("nan") if v is None else v * (1 + f) for v in ps], step="mid",
+                                color="0.6", alpha=0.25, lw=0, label=f"±{band:g} %")
+        elif name == "voltage" and tol.get("voltage_min_v") is not None:
+            ax.axhspan(tol["voltage_min_v"], tol["voltage_max_v"], color="0.6", alpha=0.15, lw=0,
+                       label=f"window {tol['voltage_min_v']:g}-{tol['voltage_max_v']:g} V")
+        ys = [b.get(mean) for b in beads]
+        xs = [xi for xi, y in zip(x, ys) if y is not None]
+        ym = [y for y in ys if y is not None]
+        if p5 is not None:
+            lo_err = [max(0.0, y - (b.get(p5) if b.get(p5) is not None else y)) for b, y in zip(beads, ys) if y is not None]
+            hi_err = [max(0.0, (b.get(p95) if b.get(p95) is not None else y) - y) for b, y in zip(beads, ys)
+                      if y is not None]
+            ax.errorbar(xs, ym, yerr=[lo_err, hi_err], fmt="o", ms=2.5, color=colour, ecolor=colour, elinewidth=1.2,
+                        capsize=0, label="mean, 5-95 %")
+            mins = [b.get(lo) for b in beads if b.get(mean) is not None]
+            maxs = [b.get(hi) for b in beads if b.get(mean) is not None]
+            ax.plot(xs, [float("nan") if v is None else v for v in mins], "_", color=colour, ms=4, alpha=0.6,
+                    label="min / max")
+            ax.plot(xs, [float("nan") if v is None else v for v in maxs], "_", color=colour, ms=4, alpha=0.6)
+        else:
+            ax.plot(xs, ym, "o", ms=2.5, color=colour, label="measured")
+        if bad:
+            yd = [b.get(mean) for b in beads if b.get("defects_count")]
+            xd = [xb for xb, y in zip(bad, yd) if y is not None]
+            ax.plot(xd, [y for y in yd if y is not None], "x", color="red", ms=6, mew=1.5, label="defect")
+        ax.set_ylabel(label)
+        ax.legend(loc="upper right", fontsize=7, ncol=5, framealpha=0.7)
+    axes[-1].set_xlabel("bead (in build order; grey lines: layer starts; red: beads with a defect)")
+    axes[-1].set_xlim(0.5, max(n, 1) + 0.5)
+    from matplotlib.ticker import MaxNLocator
+
+    axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
+    fig.suptitle(f"Process per bead: {n} beads, {len(bad)} with a defect")
+    return _save(fig, out / "process.png")
 
 
 def _layer_marks(rows: list[tuple], t: list[float]) -> list[float]:

@@ -13,12 +13,20 @@ from typing import Any
 
 from controller.journal.store import Journal
 
+# One row per planned bead (DESIGN.md §7); every name carries its unit. How each figure is
+# measured: docs/build-record.md "Per bead". There is no planned voltage: the job carries none and
+# the material has no voltage line (the synergic source sets the voltage from the wire feed); the
+# voltage is judged against the material's absolute window, given as voltage_window_*_v.
 CSV_COLUMNS = (
-    "layer", "pass", "run", "role", "interrupted", "arc_time_s", "length_mm",
-    "planned_current_a", "current_mean_a", "current_min_a", "current_max_a",
-    "planned_voltage_v", "voltage_mean_v", "voltage_min_v", "voltage_max_v",
-    "planned_wfs_m_min", "wfs_mean_m_min", "wfs_min_m_min", "wfs_max_m_min",
-    "planned_speed_mm_min", "actual_speed_mm_min", "motion_time_s", "starved", "heat_input_j_mm", "defects",
+    "layer", "pass", "role", "status", "runs",
+    "arc_time_s", "motion_time_s", "still_time_s", "still_count", "still_max_s",
+    "length_planned_mm", "length_measured_mm",
+    "current_planned_a", "current_mean_a", "current_p5_a", "current_p95_a", "current_min_a", "current_max_a",
+    "voltage_window_min_v", "voltage_window_max_v",
+    "voltage_mean_v", "voltage_p5_v", "voltage_p95_v", "voltage_min_v", "voltage_max_v",
+    "wfs_planned_m_min", "wfs_mean_m_min", "wfs_p5_m_min", "wfs_p95_m_min", "wfs_min_m_min", "wfs_max_m_min",
+    "speed_planned_mm_min", "speed_measured_mm_min", "starved_count", "heat_input_j_mm", "defects_count",
+    "defect_reasons",
 )
 ARC_TIME_TOLERANCE = 0.02  # the three arc-time figures must agree within 2 %
 
@@ -48,39 +56,107 @@ def _r(x: float | None, nd: int = 2) -> float | None:
     return None if x is None else round(float(x), nd)
 
 
-def bead_records(journal: Journal, job: dict | None, scale: float, defects: list[dict]) -> list[dict[str, Any]]:
-    """One record per journaled bead: planned against measured.
+def _sum(rows: list[dict], key: str) -> float | None:
+    vals = [r[key] for r in rows if r.get(key) is not None]
+    return sum(vals) if vals else None
 
-    `arc_time_s` is the source's arc-on span (arc stable seen, to arc stable gone), known to one
-    bus cycle; `motion_time_s` and `actual_speed_mm_min` come from the robot's EXE reports while
-    the arc was stable (controller/runtime/bead_measure.py)."""
+
+def _wmean(rows: list[dict], key: str, weight: str) -> float | None:
+    """Mean of `key` over the runs of a bead, weighted by `weight` (arc time)."""
+    pairs = [(r[key], r.get(weight) or 0.0) for r in rows if r.get(key) is not None]
+    if not pairs:
+        return None
+    w = sum(x for _, x in pairs)
+    return sum(v * x for v, x in pairs) / w if w > 0 else sum(v for v, _ in pairs) / len(pairs)
+
+
+def _ext(rows: list[dict], key: str, fn: Any) -> float | None:
+    vals = [r[key] for r in rows if r.get(key) is not None]
+    return fn(vals) if vals else None
+
+
+def _bead_run(b: dict, plan: dict, scale: float, samples: list[tuple]) -> dict[str, Any]:
+    """One journaled bead row (one run of a planned bead) in the record's units."""
+    if b.get("wfs_min") is not None:   # every bus cycle of the bead (the samples are thinned)
+        w_mean, w_min, w_max = b["wfs_mean"], b["wfs_min"], b["wfs_max"]
+    else:
+        w_mean, w_min, w_max = _wfs_stats(samples, b["arc_on"], b["arc_off"], b["layer"], b["pass"])
+        w_mean = w_mean if w_mean is not None else b["wfs_mean"]
+    # arc time: the source's arc stable while the torch moved (bead_measure.Pace.arc_time); a
+    # journal from before it was measured gives the source's whole arc-on span instead
+    arc = b.get("arc_s")
+    if arc is None:
+        arc = max(0.0, b["arc_off"] - b["arc_on"]) * scale
+    return {"run": b["run"], "interrupted": bool(b["interrupted"]), "arc_s": arc, "motion_s": b.get("motion_s"),
+            "still_s": b.get("still_s"), "still_n": b.get("still_n"), "still_max_s": b.get("still_max_s"),
+            "length_mm": b["length_mm"], "i_mean": b["i_mean"], "i_min": b["i_min"], "i_max": b["i_max"],
+            "i_p5": b.get("i_p5"), "i_p95": b.get("i_p95"), "u_mean": b["u_mean"], "u_min": b["u_min"],
+            "u_max": b["u_max"], "u_p5": b.get("u_p5"), "u_p95": b.get("u_p95"), "w_mean": w_mean,
+            "w_min": w_min, "w_max": w_max, "w_p5": b.get("wfs_p5"), "w_p95": b.get("wfs_p95"),
+            "speed": b.get("speed_actual_mm_min"), "starved": b.get("starved"), "heat": b["heat_input_j_mm"],
+            "speed_plan": plan.get("speed_mm_min", b["speed_mm_min"])}
+
+
+def bead_records(journal: Journal, job: dict | None, scale: float, defects: list[dict],
+                 tolerance: Any = None) -> list[dict[str, Any]]:
+    """One record per planned bead (every pass of the job, built or not): planned against measured.
+
+    A bead deposited in several runs (cut by a stop, finished by `cell resume`) is one row: its
+    lengths and times add up, its means are weighted by arc time, its extremes and percentiles
+    are the widest of the runs. Without the job (a journal alone), one row per journaled bead."""
     samples = journal.sample_rows()
-    out = []
+    runs: dict[tuple[int, int], list[dict]] = {}
     for b in journal.bead_rows():
-        la, pa = b["layer"], b["pass"]
+        key = (b["layer"], b["pass"])
+        s = journal.run_time_scale(b["run"]) or scale
+        runs.setdefault(key, []).append(_bead_run(b, _planned(job, *key), s, samples))
+    if job:
+        keys = [(li, pi) for li, la in enumerate(job["layers"]) for pi in range(len(la["passes"]))]
+    else:
+        keys = sorted(runs)
+    done = journal.done_passes()
+    out = []
+    for la, pa in keys:
         plan = _planned(job, la, pa)
-        arc_s = max(0.0, b["arc_off"] - b["arc_on"]) * scale
-        if b.get("wfs_min") is not None:   # every bus cycle of the bead (the samples are thinned)
-            w_mean, w_min, w_max = _r(b["wfs_mean"], 3), _r(b["wfs_min"], 3), _r(b["wfs_max"], 3)
-        else:
-            w_mean, w_min, w_max = _wfs_stats(samples, b["arc_on"], b["arc_off"], la, pa)
-            w_mean = w_mean if w_mean is not None else _r(b["wfs_mean"], 3)
+        rows = runs.get((la, pa), [])
+        mine = [d for d in defects if d.get("layer") == la and d.get("pass") == pa]
+        arc = _sum(rows, "arc_s")
+        motion = _sum(rows, "motion_s")
+        length = _sum(rows, "length_mm")
+        speed = None
+        if motion and length:
+            speed = length / motion * 60.0         # the pace the device kept while depositing
+        elif len(rows) == 1:
+            speed = rows[0]["speed"]
+        i_mean, u_mean = _wmean(rows, "i_mean", "arc_s"), _wmean(rows, "u_mean", "arc_s")
+        status = "done" if (la, pa) in done else ("interrupted" if rows else "not built")
+        if mine and status == "done":
+            status = "defect"
         out.append({
-            "layer": la, "pass": pa, "run": b["run"], "role": plan.get("role"),
-            "interrupted": bool(b["interrupted"]), "arc_time_s": round(arc_s, 3),
-            "length_mm": round(b["length_mm"], 2),
-            "planned_current_a": plan.get("current_a"), "current_mean_a": _r(b["i_mean"]),
-            "current_min_a": _r(b["i_min"]), "current_max_a": _r(b["i_max"]),
-            "planned_voltage_v": plan.get("voltage_v"), "voltage_mean_v": _r(b["u_mean"]),
-            "voltage_min_v": _r(b["u_min"]), "voltage_max_v": _r(b["u_max"]),
-            "planned_wfs_m_min": plan.get("wfs_m_min"), "wfs_mean_m_min": w_mean,
-            "wfs_min_m_min": w_min, "wfs_max_m_min": w_max,
-            "planned_speed_mm_min": plan.get("speed_mm_min", b["speed_mm_min"]),
-            "actual_speed_mm_min": _r(b.get("speed_actual_mm_min"), 1),
-            "motion_time_s": _r(b.get("motion_s"), 3),
-            "starved": b.get("starved"),
-            "heat_input_j_mm": _r(b["heat_input_j_mm"]),
-            "defects": sum(1 for d in defects if d.get("layer") == la and d.get("pass") == pa),
+            "layer": la, "pass": pa, "role": plan.get("role"), "status": status,
+            "runs": "+".join(str(r["run"]) for r in rows),
+            "arc_time_s": _r(arc, 3), "motion_time_s": _r(motion, 3),
+            "still_time_s": _r(_sum(rows, "still_s"), 3), "still_count": _sum(rows, "still_n"),
+            "still_max_s": _r(_ext(rows, "still_max_s", max), 3),
+            "length_planned_mm": _r(_polyline_mm(plan["points"]), 2) if plan.get("points") else None,
+            "length_measured_mm": _r(length, 2),
+            "current_planned_a": plan.get("current_a"), "current_mean_a": _r(i_mean),
+            "current_p5_a": _r(_ext(rows, "i_p5", min)), "current_p95_a": _r(_ext(rows, "i_p95", max)),
+            "current_min_a": _r(_ext(rows, "i_min", min)), "current_max_a": _r(_ext(rows, "i_max", max)),
+            "voltage_window_min_v": getattr(tolerance, "voltage_min_v", None),
+            "voltage_window_max_v": getattr(tolerance, "voltage_max_v", None),
+            "voltage_mean_v": _r(u_mean),
+            "voltage_p5_v": _r(_ext(rows, "u_p5", min)), "voltage_p95_v": _r(_ext(rows, "u_p95", max)),
+            "voltage_min_v": _r(_ext(rows, "u_min", min)), "voltage_max_v": _r(_ext(rows, "u_max", max)),
+            "wfs_planned_m_min": plan.get("wfs_m_min"), "wfs_mean_m_min": _r(_wmean(rows, "w_mean", "arc_s"), 3),
+            "wfs_p5_m_min": _r(_ext(rows, "w_p5", min), 3), "wfs_p95_m_min": _r(_ext(rows, "w_p95", max), 3),
+            "wfs_min_m_min": _r(_ext(rows, "w_min", min), 3), "wfs_max_m_min": _r(_ext(rows, "w_max", max), 3),
+            "speed_planned_mm_min": plan.get("speed_mm_min", rows[0]["speed_plan"] if rows else None),
+            "speed_measured_mm_min": _r(speed, 1),
+            "starved_count": _sum(rows, "starved"),
+            "heat_input_j_mm": _r(_wmean(rows, "heat", "length_mm")),
+            "defects_count": len(mine),
+            "defect_reasons": "; ".join(str(d.get("message")) for d in mine),
         })
     return out
 
@@ -117,64 +193,67 @@ def planned_arc_s(job: dict | None, beads: list[dict[str, Any]]) -> float:
     """The plan's arc time of the passes these beads belong to (whole passes, planned speed)."""
     if not job:
         return 0.0
-    seen = set()
     total = 0.0
     for b in beads:
-        key = (b["layer"], b["pass"])
-        if key in seen:
+        if b.get("status") == "not built":
             continue
-        seen.add(key)
-        p = _planned(job, *key)
+        p = _planned(job, b["layer"], b["pass"])
         if p.get("points") and p.get("speed_mm_min"):
             total += _polyline_mm(p["points"]) / float(p["speed_mm_min"]) * 60.0
     return total
 
 
 def arc_time_figures(journal: Journal, job: dict | None, scale: float, beads: list[dict]) -> dict[str, Any]:
-    """Three arc times that must agree within 2 %, and the source's arc-on time beside them.
+    """Three arc times that must agree within 2 %, and the measured arc time beside them.
 
     plan_s: the job's passes that were built, at their planned length and speed (the figure
-    `cell plan` and the demo print); planned_s: the length each bead actually deposited (robot
-    EXEs with the arc stable), at its planned speed; measured_s: that length at the speed the
-    robot actually kept. arc_on_s (the source's arc-stable span) also holds ignition and crater
-    and is known to one 10 ms bus cycle, that is time_scale x 10 ms of process time per edge:
-    reported, and its excess over measured_s given per bead, but not part of the agreement.
+    `cell plan` and the demo print); planned_s: the length each bead actually deposited (device
+    progress reports with the arc stable), at its planned speed; measured_s: that length at the
+    speed the device actually kept. arc_on_s: the sum of the beads' arc time (the source's arc
+    stable while the torch moved, from the release to the last move: bead_measure.Pace.arc_time),
+    which the simulators' deposit log confirms; it exceeds measured_s by the time the torch stood
+    still with the arc on (`arc_on_excess_per_bead_s`).
     """
+    del journal
     plan = planned_arc_s(job, beads)
-    planned = sum(b["length_mm"] / b["planned_speed_mm_min"] * 60.0 for b in beads if b["planned_speed_mm_min"])
-    measured = sum(b["motion_time_s"] for b in beads if b.get("motion_time_s") is not None)
-    arc_on = sum(b["arc_time_s"] for b in beads)
+    built = [b for b in beads if b.get("status") != "not built"]
+    planned = sum((b["length_measured_mm"] or 0.0) / b["speed_planned_mm_min"] * 60.0
+                  for b in built if b.get("speed_planned_mm_min"))
+    measured = sum(b["motion_time_s"] for b in built if b.get("motion_time_s") is not None)
+    arc_on = sum(b["arc_time_s"] or 0.0 for b in built)
     figs: dict[str, Any] = {"plan_s": round(plan, 1), "planned_s": round(planned, 1),
                             "measured_s": round(measured, 1), "arc_on_s": round(arc_on, 1)}
     vals = [v for v in (plan, planned, measured) if v > 0]
     spread = (max(vals) - min(vals)) / max(vals) if vals else 0.0
     figs["spread"] = round(spread, 4)
     figs["agree"] = spread <= ARC_TIME_TOLERANCE and len(vals) == 3
-    n = sum(1 for b in beads if b.get("motion_time_s") is not None)
+    n = sum(1 for b in built if b.get("motion_time_s") is not None)
     figs["arc_on_excess_per_bead_s"] = round((arc_on - measured) / n, 3) if n else None
     figs["bus_cycle_process_s"] = round(0.010 * scale, 3)
     if not figs["agree"]:
         figs["note"] = ("arc times disagree by more than 2 %: beads short of their plan, or travel speed "
-                        "differs from plan (see length_mm and actual_speed_mm_min per bead)")
+                        "differs from plan (see length_measured_mm and speed_measured_mm_min per bead)")
     return figs
 
 
 def travel_speed_summary(beads: list[dict[str, Any]], job: dict | None = None) -> dict[str, Any]:
-    """How far the robot's measured travel speed strayed from the plan, the beads outside the
-    material's `tolerance.speed_pct` (flagged, not defects), and the starved beads."""
+    """How far the measured travel speed strayed from the plan, the beads outside the material's
+    `tolerance.speed_pct` (flagged, not defects), the starved beads and the stand-stills."""
     try:
         pct = float(((job or {}).get("material") or {}).get("tolerance", {}).get("speed_pct", 10.0))
     except (AttributeError, TypeError, ValueError):
         pct = 10.0
-    devs = [(b["actual_speed_mm_min"] / b["planned_speed_mm_min"] - 1.0, b) for b in beads
-            if b.get("actual_speed_mm_min") and b.get("planned_speed_mm_min")]
+    devs = [(b["speed_measured_mm_min"] / b["speed_planned_mm_min"] - 1.0, b) for b in beads
+            if b.get("speed_measured_mm_min") and b.get("speed_planned_mm_min")]
     worst = max((d for d, _ in devs), key=abs) if devs else None
     return {"beads_measured": len(devs), "worst_deviation": _r(worst, 4),
             "within_2pct": bool(devs) and all(abs(d) <= 0.02 for d, _ in devs),
             "tolerance_pct": pct,
             "off_speed_beads": [[b["layer"], b["pass"], round(d, 4)] for d, b in devs if abs(d) * 100 > pct],
-            "starved_beads": sum(1 for b in beads if b.get("starved")),
-            "starvations": sum(b.get("starved") or 0 for b in beads)}
+            "starved_beads": sum(1 for b in beads if b.get("starved_count")),
+            "starvations": sum(b.get("starved_count") or 0 for b in beads),
+            "still_beads": sum(1 for b in beads if b.get("still_count")),
+            "still_s": round(sum(b.get("still_time_s") or 0.0 for b in beads), 3)}
 
 
 def write_csv(beads: list[dict[str, Any]], path: str | Path) -> Path:

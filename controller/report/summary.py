@@ -42,19 +42,21 @@ def summarize(journal: Journal, job: dict | None = None, state: str | None = Non
                 layers_done += 1
             else:
                 break
-    per_layer: dict[int, dict[str, float]] = {}
-    for b in journal.bead_rows():
-        d = per_layer.setdefault(b["layer"], {"arc_time_s": 0.0, "heat_j": 0.0, "length_mm": 0.0})
-        d["arc_time_s"] += max(0.0, b["arc_off"] - b["arc_on"]) * scale
-        d["length_mm"] += b["length_mm"]
-        d["heat_j"] += (b["heat_input_j_mm"] or 0.0) * b["length_mm"]
     alarms = journal.alarm_rows()
     defects = [a for a in alarms if a["position"] is not None]
     # beads the measurements say were not deposited as planned (controller/runtime/bead_check.py)
     defects += [{"t": d["t"], "message": f"defect: {d['reason']}", "state": "defect", "layer": d["layer"],
                  "pass": d["pass"], "position": d["position"], "run": d["run"], "measured_mm": d["measured_mm"]}
                 for d in journal.defect_rows()]
-    beads = bead_records(journal, job, scale, defects)
+    beads = bead_records(journal, job, scale, defects, _tolerance(job))
+    per_layer: dict[int, dict[str, float]] = {}
+    for b in beads:
+        if b["status"] == "not built":
+            continue
+        d = per_layer.setdefault(b["layer"], {"arc_time_s": 0.0, "heat_j": 0.0, "length_mm": 0.0})
+        d["arc_time_s"] += b["arc_time_s"] or 0.0
+        d["length_mm"] += b["length_measured_mm"] or 0.0
+        d["heat_j"] += (b["heat_input_j_mm"] or 0.0) * (b["length_measured_mm"] or 0.0)
     started, ended = journal.wall_clock_span()
     return {
         "job": {"name": meta.get("name"), "hash": meta.get("hash"), "platform": meta.get("platform")},
@@ -84,7 +86,28 @@ def summarize(journal: Journal, job: dict | None = None, state: str | None = Non
         "alarms": alarms,
         "defects": defects,
         "bead_defects": sum(1 for d in defects if d["state"] == "defect"),
+        "tolerance": _tolerance_dict(job),
     }
+
+
+def _tolerance(job: dict | None) -> Any:
+    """The process tolerance of the job's material (None when the cell no longer knows it)."""
+    mat = (job or {}).get("material")
+    name = mat.get("name") if isinstance(mat, dict) else mat
+    if not name:
+        return None
+    try:
+        return load_material(str(name)).tolerance
+    except CellError:
+        return None
+
+
+def _tolerance_dict(job: dict | None) -> dict[str, Any] | None:
+    tol = _tolerance(job)
+    if tol is None:
+        return None
+    return {k: getattr(tol, k) for k in ("current_pct", "wfs_pct", "speed_pct", "voltage_min_v", "voltage_max_v")
+            if hasattr(tol, k)}
 
 
 def _provenance(job: dict | None, operator: str | None) -> dict[str, Any]:

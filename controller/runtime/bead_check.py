@@ -22,6 +22,12 @@ def judge(stats: dict[str, float | None], planned_i: float, planned_wfs: float, 
     if starved > 0:
         # the robot's queue ran empty with the arc on: the torch stopped on the bead (a blob)
         out.append(f"motion queue ran empty {starved:g} time(s) inside the bead")
+    still = stats.get("still_n") or 0
+    if still > 0:
+        # the device's progress reports show the torch standing still with the arc on for longer
+        # than one bus cycle (controller/runtime/bead_measure.py Pace.standstill)
+        out.append(f"torch stood still with the arc on {still:g} time(s), {stats.get('still_s') or 0:.2f} s in "
+                   f"total (longest {stats.get('still_max_s') or 0:.2f} s)")
     # The measured travel speed is not judged here: it is timed from EXE arrivals, and at a high
     # time scale on a loaded host their jitter (k x a few ms of process time) would make false
     # defects. The record flags beads outside `tolerance.speed_pct` instead (travel_speed).

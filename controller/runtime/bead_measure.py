@@ -16,10 +16,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+BUS_CYCLE_S = 0.010   # the power source's bus cycle (wall): how finely the controller sees the process
+
 
 @dataclass
 class BeadStats:
-    """Current / voltage / WFS seen while the arc burned on one bead."""
+    """Current / voltage / WFS seen while the arc burned on one bead (every bus cycle: the
+    record gives each signal's mean, min/max and its 5th/95th percentiles per bead)."""
 
     arc_on: float = 0.0
     arc_off: float = 0.0
@@ -33,8 +36,10 @@ class BeadStats:
     i_max: float = -math.inf
     u_min: float = math.inf
     u_max: float = -math.inf
+    values: list[tuple[float, float, float]] = field(default_factory=list)
 
     def add(self, i: float, u: float, w: float) -> None:
+        self.values.append((i, u, w))
         self.n += 1
         self.i_sum += i
         self.u_sum += u
@@ -48,7 +53,28 @@ class BeadStats:
             return {}
         return {"i_mean": self.i_sum / self.n, "i_min": self.i_min, "i_max": self.i_max,
                 "u_mean": self.u_sum / self.n, "u_min": self.u_min, "u_max": self.u_max,
-                "wfs_mean": self.w_sum / self.n, "wfs_min": self.w_min, "wfs_max": self.w_max}
+                "wfs_mean": self.w_sum / self.n, "wfs_min": self.w_min, "wfs_max": self.w_max,
+                **self.spread()}
+
+    def spread(self) -> dict[str, float]:
+        """The 5th and 95th percentiles of current, voltage and wire feed over the bead."""
+        out: dict[str, float] = {}
+        for k, name in enumerate(("i", "u", "wfs")):
+            vals = sorted(v[k] for v in self.values)
+            if vals:
+                out[f"{name}_p5"] = percentile(vals, 5.0)
+                out[f"{name}_p95"] = percentile(vals, 95.0)
+        return out
+
+
+def percentile(sorted_vals: list[float], q: float) -> float:
+    """The q-th percentile of sorted values (linear between the two nearest ranks)."""
+    if len(sorted_vals) == 1:
+        return sorted_vals[0]
+    x = (len(sorted_vals) - 1) * q / 100.0
+    lo = int(math.floor(x))
+    hi = min(lo + 1, len(sorted_vals) - 1)
+    return sorted_vals[lo] + (sorted_vals[hi] - sorted_vals[lo]) * (x - lo)
 
 
 @dataclass
@@ -59,6 +85,14 @@ class Pace:
     s_release: float                      # length along the pass where the bead started, mm
     points: list[tuple[float, float]] = field(default_factory=list)
     starved: int = 0                      # times the robot's queue ran empty inside the bead
+    t_arc_lost: float | None = None       # wall time the source first reported the arc not stable
+    planned_mm_min: float | None = None   # the pass's planned travel speed (process mm/min)
+    speed_tol: float = 0.10               # the material's tolerance.speed_pct as a fraction
+
+    def arc_lost(self, t: float) -> None:
+        """The source's arc-stable bit fell at wall time `t` (the first fall counts)."""
+        if self.t_arc_lost is None:
+            self.t_arc_lost = t
 
     def reached(self, t: float, s: float) -> None:
         if self.points and t == self.points[-1][0]:   # the same (cumulative) EXE: its farthest move
@@ -84,13 +118,87 @@ class Pace:
 
     def figures(self, time_scale: float, length_mm: float) -> dict[str, float | int | None]:
         """Actual travel speed (process mm/min), the motion time that deposited `length_mm`
-        (process s), the moves counted and the starvations."""
+        (process s), the arc time (process s), the moves counted, the starvations and the
+        torch's stand-stills with the arc on."""
+        out: dict[str, float | int | None] = {"moves": len(self.points), "starved": self.starved,
+                                              **self.arc_time(time_scale), **self.standstill(time_scale)}
         v = self.speed_mm_s()
         if v is None:
-            return {"speed_mm_min": None, "motion_s": None, "moves": len(self.points), "starved": self.starved}
+            return {"speed_mm_min": None, "motion_s": None, **out}
         v_process = v / time_scale                # wall mm/s -> process mm/s
         return {"speed_mm_min": v_process * 60.0, "motion_s": length_mm / v_process if length_mm > 0 else 0.0,
-                "moves": len(self.points), "starved": self.starved}
+                **out}
+
+    def motion_start(self, time_scale: float) -> float:
+        """Wall time the torch started along the bead: the release, or later when the device
+        took a while to start (a robot starts its first move some milliseconds after `!GO`).
+
+        Each report bounds the start from below: the torch reached s_i by t_i, so at most at
+        the pace v it left s_release at t_i - (s_i - s_release) / v or later; the latest of those
+        bounds over the bead's first reports (before any stand-still) is where it set off."""
+        v = self._wall_speed(time_scale)
+        if v is None or not self.points:
+            return self.t_release
+        est = min(t - max(0.0, s - self.s_release) / v for t, s in self.points)
+        return max(self.t_release, est)
+
+    def _wall_speed(self, time_scale: float) -> float | None:
+        """The faster of the measured pace and the plan: a stand-still mid-bead lowers the
+        measured pace, which would push the start estimate early; a device faster than its plan
+        would do the same with the planned pace."""
+        vs = [v for v in (self.speed_mm_s(),
+                          self.planned_mm_min / 60.0 * time_scale if self.planned_mm_min else None) if v]
+        return max(vs) if vs else None
+
+    def arc_time(self, time_scale: float) -> dict[str, float | None]:
+        """The bead's arc time in process seconds: from the torch setting off along the bead
+        (after the release, which waits for the source's arc-stable edge: `motion_start`) to the
+        end of the last move executed with the arc stable, cut at the source's falling
+        arc-stable edge when the arc was lost before. Ignition and the wait for the motion
+        before the first move, and the crater after the last, are not in it."""
+        if not self.points:
+            return {"arc_s": 0.0 if self.t_arc_lost is not None else None}
+        t_end = self.points[-1][0]
+        if self.t_arc_lost is not None:
+            t_end = min(t_end, self.t_arc_lost)
+        return {"arc_s": max(0.0, t_end - self.motion_start(time_scale)) * time_scale}
+
+    def standstill(self, time_scale: float, cycle_s: float = BUS_CYCLE_S) -> dict[str, float | int | None]:
+        """The torch standing still with the arc on, from the device's own progress reports.
+
+        Each report (an EXE, a CNC status position) says the torch had reached length s by wall
+        time t; at the planned speed it needs (s' - s) / v between two reports. A report can only
+        be late, never early, so the suffix minimum of the delays t - s / v is where the torch
+        really was behind its pace: it rises only when the torch stood still (or crawled), and a
+        late report that the next ones make up for leaves it flat. A rise between two reports
+        larger than the speed tolerance of that stretch plus one bus cycle (`cycle_s` wall, the
+        resolution at which the controller sees the process) is a stand-still. Returned in
+        process seconds: `still_n` stand-stills, `still_s` their total, `still_max_s` the longest;
+        `lag_s` is how much longer the whole bead took than its length at the planned speed.
+        """
+        if not self.planned_mm_min or not self.points:
+            return {"still_n": None, "still_s": None, "still_max_s": None, "lag_s": None}
+        v = self.planned_mm_min / 60.0 * time_scale   # wall mm/s
+        t0 = self.motion_start(time_scale)
+        pts = [(t0, self.s_release)] + sorted(self.points)
+        if self.t_arc_lost is not None:
+            pts = [p for p in pts if p[0] <= self.t_arc_lost] or pts[:1]
+        d = [t - s / v for t, s in pts]
+        suffix = d[:]
+        for k in range(len(d) - 2, -1, -1):
+            suffix[k] = min(suffix[k], suffix[k + 1])
+        n, total, longest = 0, 0.0, 0.0
+        for k in range(len(pts) - 1):
+            rise = suffix[k + 1] - suffix[k]
+            allowed = self.speed_tol * max(0.0, pts[k + 1][1] - pts[k][1]) / v + cycle_s
+            if rise > allowed:
+                n += 1
+                total += rise
+                longest = max(longest, rise)
+        t_end, s_end = pts[-1]
+        lag = (t_end - t0) - max(0.0, s_end - self.s_release) / v
+        return {"still_n": n, "still_s": total * time_scale, "still_max_s": longest * time_scale,
+                "lag_s": lag * time_scale}
 
 
 def envelope_speed(points: list[tuple[float, float]]) -> float | None:

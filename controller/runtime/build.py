@@ -20,12 +20,14 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 from controller.runtime.arc_handshake import ArcHandshake
-from controller.runtime.arc_out import RunOn, arc_lengths, arc_out_lower_bound, point_at, project
+from controller.runtime.arc_out import RunOn, arc_lengths, point_at, project
 from controller.runtime.bead_check import judge
 from controller.runtime.bead_measure import BeadStats, Pace
 from controller.runtime.events import EventBus
 from controller.journal.store import Journal
 from controller.runtime.machine import CellMachine, State
+from controller.runtime.device_record import crash_rearc, dry_lookahead
+from controller.runtime.progress import ProgressWatchdog, progress_timeout_s
 from controller.motion.weld_path import Point, weld_points
 from controller.ports import ArcControl, CellIOPort, MotionExecutor, PowerSourcePort
 from core.errors import CellError
@@ -60,6 +62,7 @@ class BuildOptions:
     run_on: RunOn = RunOn()             # how long the arc burns on after a crash (resume estimate)
     tolerance: Any = None               # planner.material.ProcessTolerance (None: its defaults)
     reset_errors: bool = False          # readiness may clear a latched power-source error (journaled)
+    progress_timeout_s: float | None = None  # process s standing with the arc on (None: from the job)
 
 
 @dataclass
@@ -103,6 +106,7 @@ class BuildRunner:
         self._pts: list[Point] = []           # the current pass's weld points
         self._cum: Sequence[float] = []
         self._start_mm = 0.0
+        self._acct_idx = 0                    # the last point index a progress report reached
         self._t_exe = 0.0                     # monotonic time of the last EXE with the arc stable
         self._t_exe_rx = 0.0                  # ... as its bytes arrived (reader thread)
         self.closing: asyncio.Task | None = None  # an interrupted bead's close (awaits the held position)
@@ -124,6 +128,8 @@ class BuildRunner:
         # to be committed (fsync), which would stall the device cycles at the end of the build
         self._defects_before = journal.defect_count()
         self._defects_new = 0
+        self.progress_s = progress_timeout_s(job, self.o.max_step_mm, self.o.progress_timeout_s)
+        self.watchdog: ProgressWatchdog | None = None
 
     # -- operator requests (honoured at the end of the current bead) -------------------------
     def request_pause(self) -> None:
@@ -185,10 +191,7 @@ class BuildRunner:
                         return self._result()
                     self.m.send("resume")
                     prev_layer = None if work[k + 1].layer != item.layer else prev_layer
-            # never `complete` with the journal incomplete: every row committed first (off the loop)
-            await asyncio.to_thread(self.journal.flush)
-            if getattr(self.journal, "failed", None):
-                raise BuildError(str(self.journal.failed))
+            await self.journal.committed()  # never `complete` with the journal incomplete
             if self.m.can("complete"):
                 self.m.send("complete", cause="every pass done")
             return self._result()
@@ -279,16 +282,10 @@ class BuildRunner:
         if hist is not None and hist.start_mm is not None:
             s = max(s, min(hist.start_mm, cum[-1]))
         if first and hist is not None and hist.state == "arc_on" and not hist.arc_unstable:
-            # the controller died while this bead was depositing: the arc ran on after `s`
-            stopped = getattr(self.ex, "stopped_at", None)
-            s_robot = project(pts, cum, stopped, s) if stopped is not None else None
-            scale = self.journal.run_time_scale(hist.run) or self.o.time_scale
-            s_new = arc_out_lower_bound(s, speed, scale, self.o.run_on, s_robot, cum[-1])
-            self.journal.event("info", f"resume: arc of run {hist.run} went out at or after "
-                                       f"{s_new:.2f} mm along the pass (last known {s:.2f} mm, robot stopped at "
-                                       f"{'?' if s_robot is None else f'{s_robot:.2f}'} mm)",
-                               layer=item.layer, pass_=item.pass_)
-            s = s_new
+            # the controller died while this bead was depositing: the device's record decides
+            s, line = crash_rearc(self.ex, self.journal, item.layer, item.pass_, hist, pts, cum, s, speed,
+                                  self.o.time_scale, self.o.run_on)
+            self.journal.event("info", line, layer=item.layer, pass_=item.pass_)
         if s >= cum[-1] - 1e-6:
             return len(pts) - 1, pts[-1], cum[-1]
         k, pt = point_at(pts, cum, s)
@@ -300,13 +297,15 @@ class BuildRunner:
         pts = weld_points(p["points"], self.o.max_step_mm)
         speed = float(p["speed_mm_min"])
         start_idx, start_pt, start_mm = self._start_point(item, pts, speed)
-        self.current, self.cur_idx = item, start_idx
+        self.current, self.cur_idx, self._acct_idx = item, start_idx, start_idx
         self._pts, self._measured_mm, self._faltered, self._defect_at = pts, 0.0, False, None
         self._cum, self._start_mm = arc_lengths(pts), start_mm
         self.bus.update(layer=la, pass_=pa, passes_in_layer=len(self.layers[la]["passes"]))
         if start_idx >= len(pts) - 1:  # nothing left of this bead (it stopped on its last point)
             self._pass_done(la, pa)
             return
+        # the robot's lookahead: set on the executor, journaled with the arc (device_record.py)
+        lookahead = dry_lookahead(self.ex, pts, start_idx, speed, self.o.time_scale, self.o.run_on.watchdog_s)
         if hasattr(self.ex, "use_pass"):
             self.ex.use_pass(la, pa)  # the executor's tool axes for this pass
         self.m.send("travel")
@@ -327,13 +326,15 @@ class BuildRunner:
         self._unstable_noted = False
         self._unstable_since_exe = False
         self._bead = BeadStats(arc_on=time.time())
-        self.journal.pass_state(la, pa, "arc_on", idx=start_idx, start_mm=round(start_mm, 4))
+        self.journal.pass_state(la, pa, "arc_on", idx=start_idx, start_mm=round(start_mm, 4), ahead=lookahead)
         self.bus.update(arc_starts=self.bus.latest.arc_starts + 1, travel_speed_mm_min=speed)
         self.m.send("arc_on")
         self._t_exe = time.monotonic()
-        self._pace = Pace(self._t_exe, start_mm, starved=-getattr(self.ex, "starved", 0))
+        self._pace = Pace(self._t_exe, start_mm, starved=-getattr(self.ex, "starved", 0), planned_mm_min=speed, speed_tol=self._tolerance().speed_pct / 100)
         self.ex.release()
-        await self.ex.weld_done(await tickets)
+        self.watchdog = ProgressWatchdog.of(self.ex, self.power, self.progress_s, self.o.time_scale,
+                                            lambda: f"layer {la} pass {pa} point {self.cur_idx} of {len(pts) - 1}")
+        await self.watchdog.guard(self.ex.weld_done, tickets)  # a stall: StallFault, arc first
         self.m.send("arc_end")
         self._arc_lit = False  # before the arc end: its falling arc-stable is no arc loss
         await self.arc.stop()
@@ -394,6 +395,7 @@ class BuildRunner:
         item = self.current
         st = self.power.status
         faltered, self._unstable_since_exe = self._unstable_since_exe, False
+        prev, self._acct_idx = self._acct_idx, max(self._acct_idx, idx)  # a CNC status may pass several points
         if item is None or st is None or not st.arc_stable or not self._arc_lit:
             return
         if time.monotonic() - st.t > STALE_STATUS_S:
@@ -401,7 +403,7 @@ class BuildRunner:
             # since; the move is not counted as deposited (never report metal that was not)
             faltered = True
         if not faltered and self._pts and 0 < idx < len(self._pts):
-            self._measured_mm += max(0.0, self._cum[idx] - max(self._cum[idx - 1], self._start_mm))
+            self._measured_mm += max(0.0, self._cum[idx] - max(self._cum[min(prev, idx)], self._start_mm))
         self._t_exe = time.monotonic()
         # when the robot's report arrived (the port's reader thread), else now
         self._t_exe_rx = getattr(self.ex, "exe_t", 0.0) or self._t_exe
@@ -415,6 +417,7 @@ class BuildRunner:
             self._bead.add(st.current_a, st.voltage_v, st.wfs_m_min)
         if self._arc_lit and not st.arc_stable:
             self._unstable_since_exe = True
+            self._pace.arc_lost(st.t) if self._pace is not None else None  # the falling edge ends the arc time
             if not self._faltered and self._pts and self.cur_idx is not None:
                 self._defect_at = self._pts[min(self.cur_idx, len(self._pts) - 1)]
             self._faltered = True
@@ -461,7 +464,6 @@ class BuildRunner:
         if item is not None:
             self.journal.pass_state(item.layer, item.pass_, "interrupted", reason=message,
                                     idx=self.cur_idx if self.cur_idx is not None else -1)
-
 
     async def _close_interrupted(self, la: int, pa: int, pts: list[Point], i0: int, i1: int, speed: float) -> None:
         """Close a bead a trip cut: the torch went on from the last executed move to where the

@@ -85,7 +85,7 @@ class Devices:
                 d.opened.append(d.robot)
             else:
                 c = cfg.devices.cnc
-                d.cnc = open_cnc(c)
+                d.cnc = open_cnc(c, time_scale=cfg.cell.time_scale)
                 await _connect("cnc", c.url, d.cnc.connect())
                 d.opened.append(d.cnc)
             ps = cfg.devices.power_source

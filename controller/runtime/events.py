@@ -69,6 +69,7 @@ class Snapshot:
     alarms: tuple[Alarm, ...] = ()
     allowed_commands: tuple[str, ...] = ()
     message: str = ""                # the latest progress line
+    record_path: str | None = None   # the build record (report.json) of the last build that ended
 
     @property
     def progress(self) -> float:

@@ -22,7 +22,7 @@ from textual.screen import ModalScreen
 from textual.widgets import Button, Footer, Input, Label, Static, TabbedContent, TabPane
 
 from controller.tui.align import AlignPane
-from controller.tui.build import BuildPane, state_style
+from controller.tui.build import END_STATES, BuildPane, build_end_line, record_line, state_style
 from controller.tui.devices import DevicesPane
 from controller.tui.job import JobPane
 from controller.tui.log import LogPane
@@ -201,6 +201,8 @@ class CellApp(App[int]):
         self._abort_confirmed = False
         self._quitting = False
         self.pending: set[concurrent.futures.Future] = set()
+        self._prev_state: str | None = None   # to say the build's end on the message line, once
+        self._record_msg = ""                 # the record line last said
 
     # -- layout ---------------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
@@ -233,6 +235,7 @@ class CellApp(App[int]):
         self.view = v
         self.renders += 1
         s = v.snap
+        self._say_build_end(s)
         sim = " [reverse] SIM [/]" if v.sim else ""
         job = f"  job {s.job_name}" if s.job_name else ""
         busy = f"  [yellow]{v.busy}…[/]" if v.busy else ""
@@ -247,6 +250,16 @@ class CellApp(App[int]):
         if key != self._allowed_key:
             self._allowed_key = key
             self.refresh_bindings()
+
+    def _say_build_end(self, s: Any) -> None:
+        """The message line follows the build to its end: the end state, then where the record is."""
+        prev, self._prev_state = self._prev_state, s.state
+        if s.state in END_STATES and prev is not None and (prev.startswith("running_") or prev == "paused"):
+            self.say(build_end_line(s))
+        line = record_line(s)
+        if line and line != self._record_msg:
+            self._record_msg = line
+            self.say(line, error="no record" in line)
 
     def poll_log(self) -> None:
         try:
@@ -349,7 +362,10 @@ class CellApp(App[int]):
             except Exception as exc:
                 self.say(f"{name} refused: {exc}" if "not allowed" in str(exc) else f"{name}: {exc}", error=True)
             else:
-                self.say(f"{name}: done" if name != "start" else "start: build under way")
+                if name != "start":
+                    self.say(f"{name}: done")
+                elif self.view.snap.state.startswith("running_") or self.view.snap.state == "paused":
+                    self.say("start: build under way")   # (a build that already ended says so itself)
             finally:
                 self.pending.discard(fut)
                 self.tick()

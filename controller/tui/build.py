@@ -25,6 +25,7 @@ class BuildPane(Vertical):
 
     DEFAULT_CSS = """
     BuildPane #build-state { height: 1; }
+    BuildPane #build-record { height: 1; color: $text-muted; }
     BuildPane .bar-row { height: 1; }
     BuildPane .bar-row > Label { width: 14; }
     BuildPane .bar-row > .bar-text { width: 22; }
@@ -41,6 +42,7 @@ class BuildPane(Vertical):
 
     def compose(self) -> ComposeResult:
         yield Static("", id="build-state")
+        yield Static("", id="build-record")
         with Horizontal():
             with Vertical(id="build-left"):
                 with Horizontal(classes="bar-row"):
@@ -78,6 +80,7 @@ class BuildPane(Vertical):
         self.query_one("#build-state", Static).update(
             f"[{state_style(s.state)}] {s.state.upper().replace('_', ' ')} [/] {arc_lamp(s)}"
             f"  job {s.job_name or '—'}  arc starts {s.arc_starts}{where}{msg}")
+        self.query_one("#build-record", Static).update(record_where(s))
         self._bar("passes", s.passes_done, s.passes_total)
         self._bar("layers", s.layers_done, s.layers_total)
         in_layer = (s.pass_ or 0) if s.layer is not None else 0
@@ -110,6 +113,30 @@ class BuildPane(Vertical):
     def _bar(self, name: str, done: int, total: int) -> None:
         self.query_one(f"#{name}-text", Label).update(f"{done} / {total}")
         self.query_one(f"#{name}-bar", ProgressBar).update(total=max(total, 1), progress=min(done, max(total, 1)))
+
+
+END_STATES = ("complete", "fault", "estop", "aborted")
+
+
+def build_end_line(s: Snapshot) -> str:
+    """The message line when a build ends: its end state and progress (the record follows)."""
+    return (f"build {s.state.upper()}: {s.passes_done}/{s.passes_total} passes, {s.layers_done}/{s.layers_total} "
+            f"layers; writing the record in {s.run_dir or 'the run directory'}…")
+
+
+def record_line(s: Snapshot) -> str:
+    """The record writer's own line (controller/report/worker.py), once it is written or failed."""
+    m = s.message or ""
+    return m if (": record in " in m or ": no record written" in m) else ""
+
+
+def record_where(s: Snapshot) -> str:
+    """Where this build's record is (or will be): the run directory, and report.json once written."""
+    if s.record_path and (not s.run_dir or s.record_path.startswith(s.run_dir)):
+        return f"record: {s.record_path} (beads.csv, process.png … beside it)"
+    if s.run_dir:
+        return f"run dir: {s.run_dir} (the record is written there when the build ends)"
+    return ""
 
 
 # States in which the source's last reading is not a live weld reading: the display blanks it

@@ -67,7 +67,7 @@ class LogPane(Vertical):
             if matches(r, flt):
                 self._add(t, r)
 
-    def _add(self, t: DataTable, r: LogRow) -> None:
+    def _add(self, t: DataTable[str], r: LogRow) -> None:
         st = KIND_STYLE.get(r.kind, "")
         stamp = time.strftime("%H:%M:%S", time.gmtime(r.t)) + f".{int(r.t * 10) % 10}"
         where = f"L{r.layer + 1}" + (f" P{r.pass_ + 1}" if r.pass_ is not None else "") if r.layer is not None else ""

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import concurrent.futures
 from pathlib import Path
+from typing import Any
 
 from controller.tui.view import LogRow, View
 from core.errors import CellError
@@ -16,8 +17,8 @@ class ReplaySession:
         self._log = list(log or [])
         self.refused: list[str] = []
 
-    def start(self) -> concurrent.futures.Future:
-        f: concurrent.futures.Future = concurrent.futures.Future()
+    def start(self) -> concurrent.futures.Future[None]:
+        f: concurrent.futures.Future[None] = concurrent.futures.Future()
         f.set_result(None)
         return f
 
@@ -30,29 +31,29 @@ class ReplaySession:
     def ui_log(self) -> list[LogRow]:
         return []
 
-    def _refuse(self, what: str) -> concurrent.futures.Future:
+    def _refuse(self, what: str) -> concurrent.futures.Future[Any]:
         self.refused.append(what)
-        f: concurrent.futures.Future = concurrent.futures.Future()
+        f: concurrent.futures.Future[Any] = concurrent.futures.Future()
         f.set_exception(CellError(f"'{what}' is not available in a recorded view"))
         return f
 
-    def command(self, name: str) -> concurrent.futures.Future:
+    def command(self, name: str) -> concurrent.futures.Future[Any]:
         return self._refuse(name)
 
-    def choose_file(self, path: str | Path, width_mm: float | None = None) -> concurrent.futures.Future:
+    def choose_file(self, path: str | Path, width_mm: float | None = None) -> concurrent.futures.Future[Any]:
         return self._refuse("open")
 
-    def plan(self, width_mm: float | None = None) -> concurrent.futures.Future:
+    def plan(self, width_mm: float | None = None) -> concurrent.futures.Future[Any]:
         return self._refuse("plan")
 
-    def connect(self) -> concurrent.futures.Future:
+    def connect(self) -> concurrent.futures.Future[Any]:
         return self._refuse("connect")
 
-    def apply_alignment(self) -> concurrent.futures.Future:
+    def apply_alignment(self) -> concurrent.futures.Future[Any]:
         return self._refuse("apply_alignment")
 
-    def stop_safely(self) -> concurrent.futures.Future:
-        f: concurrent.futures.Future = concurrent.futures.Future()
+    def stop_safely(self) -> concurrent.futures.Future[bool]:
+        f: concurrent.futures.Future[bool] = concurrent.futures.Future()
         f.set_result(False)
         return f
 

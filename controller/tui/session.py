@@ -175,6 +175,13 @@ class CellSession:
             self.stop_safely().result(timeout)
         except Exception:
             pass
+        if self._build is not None:
+            # the build's end writes its record (controller/api.py): let it finish before the
+            # loop stops, so quitting mid-build still leaves report.json, beads.csv and the plots
+            try:
+                self._build.result(max(timeout, 60.0))
+            except Exception:
+                pass
         if self.ctl is not None:
             try:
                 self._submit(self.ctl.close).result(timeout)
@@ -406,7 +413,8 @@ class CellSession:
         return self._submit(_do)
 
     def _align_on_cnc_link(self) -> Any:
-        from controller.align.routine import cad_mesh, plan_for_mesh, run_on_url
+        from controller.align.routine import cad_mesh, plan_for_mesh
+        from controller.api import align_at
         from core.config import load_sim
 
         plan = plan_for_mesh(cad_mesh((self.sim_cfg or load_sim()).cnc.workpiece))
@@ -417,7 +425,7 @@ class CellSession:
             self._probed = self._probed + [(str(pp.name), pos, float(pp.spread_mm))]  # type: ignore[list-item]
 
         async def run() -> Any:
-            return await asyncio.wait_for(run_on_url(dev.url, self.cfg, plan, on_point=on_point), 120.0)
+            return await asyncio.wait_for(align_at(dev.url, self.cfg, plan, on_point=on_point), 120.0)
         try:
             return asyncio.run(run())
         except asyncio.TimeoutError:

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from controller.job.read import JobJSON
 from controller.runtime.events import Snapshot
 
 HISTORY_LEN = 300          # samples kept for the live plots (30 s at 10 Hz)
@@ -50,8 +51,8 @@ class JobInfo:
     source: str
     layers: int
     passes: int
-    bead: dict
-    summary: dict
+    bead: dict[str, Any]
+    summary: dict[str, Any]
     roles: tuple[RoleParams, ...]
     # per layer: tuple of (role, ((x, y), ...)) for the terminal preview
     layer_paths: tuple[tuple[tuple[str, tuple[tuple[float, float], ...]], ...], ...] = ()
@@ -99,7 +100,7 @@ class View:
     history: tuple[Sample, ...] = ()
     plan: PlanStatus = PlanStatus()
     job: JobInfo | None = None
-    alignment: dict | None = None  # planes, level_a_deg, level_b_deg, face_angle_deg, transform
+    alignment: dict[str, Any] | None = None  # planes, level_a_deg, level_b_deg, face_angle_deg, transform
     alignment_applied: bool = False  # the job open now is the aligned one: `y` is spent
     probe_plan: tuple[tuple[str, tuple[float, float, float]], ...] = ()
     probed: tuple[tuple[str, tuple[float, float, float], float], ...] = ()  # (name, xyz, spread) as they arrive
@@ -113,29 +114,42 @@ class View:
     def allowed(self, command: str) -> bool:
         """Whether a command may be sent now (the controller's allowed_commands, plus UI steps)."""
         if command == "plan":  # planning needs no cell; the job opens when the devices answer
-            return self.plan.state in ("loaded", "error", "done") and self.plan.file is not None \
-                and self.plan.file.lower().endswith((".stl", ".obj", ".3mf")) and self.busy is None \
-                and (self.snap.state == "disconnected" or "open_job" in self.snap.allowed_commands)
+            return self._may_plan()
         if command == "apply_alignment":
-            return (self.alignment is not None and self.job is not None and not self.alignment_applied
-                    and "open_job" in self.snap.allowed_commands)
+            return self._may_apply_alignment()
         if command == "connect":  # (re)connect: at start, or after a link loss latched a fault
             return self.snap.state in ("disconnected", "fault") and self.busy is None
         if command == "open":
-            return self.busy is None and (self.snap.state == "disconnected" or "open_job" in self.snap.allowed_commands)
+            return self.busy is None and self._job_may_open()
         if command == "run_alignment":
-            if self.busy is not None or not self.can_probe:
-                return False
-            return "run_alignment" in self.snap.allowed_commands or self.snap.state in PROBE_STATES
+            return self._may_probe()
         return command in self.snap.allowed_commands
+
+    def _job_may_open(self) -> bool:
+        """No cell yet (the job opens when the devices answer), or the controller takes a job now."""
+        return self.snap.state == "disconnected" or "open_job" in self.snap.allowed_commands
+
+    def _may_plan(self) -> bool:
+        file = self.plan.file
+        return self.plan.state in ("loaded", "error", "done") and file is not None \
+            and file.lower().endswith((".stl", ".obj", ".3mf")) and self.busy is None and self._job_may_open()
+
+    def _may_apply_alignment(self) -> bool:
+        return (self.alignment is not None and self.job is not None and not self.alignment_applied
+                and "open_job" in self.snap.allowed_commands)
+
+    def _may_probe(self) -> bool:
+        if self.busy is not None or not self.can_probe:
+            return False
+        return "run_alignment" in self.snap.allowed_commands or self.snap.state in PROBE_STATES
 
 
 # -- job helpers (pure) --------------------------------------------------------------------------
 
 
-def job_info(job: dict, name: str | None = None) -> JobInfo:
+def job_info(job: JobJSON, name: str | None = None) -> JobInfo:
     """The summary, per-role parameters and 2-D layer paths of a `cell-job/1` dict."""
-    per: dict[str, list[dict]] = {}
+    per: dict[str, list[dict[str, Any]]] = {}
     layer_paths = []
     for la in job["layers"]:
         paths = []
@@ -145,7 +159,7 @@ def job_info(job: dict, name: str | None = None) -> JobInfo:
             paths.append((p.get("role", "?"), pts))
         layer_paths.append(tuple(paths))
 
-    def rng(ps: list[dict], key: str) -> tuple[float, float]:
+    def rng(ps: list[dict[str, Any]], key: str) -> tuple[float, float]:
         vals = [float(p[key]) for p in ps if key in p]
         return (min(vals), max(vals)) if vals else (math.nan, math.nan)
 
@@ -161,7 +175,7 @@ def job_info(job: dict, name: str | None = None) -> JobInfo:
                    summary=dict(job.get("summary") or {}), roles=roles, layer_paths=tuple(layer_paths))
 
 
-def alignment_dict(result: Any) -> dict | None:
+def alignment_dict(result: Any) -> dict[str, Any] | None:
     """An alignment result (AlignResult.to_json(), a dict, a dataclass) as plain values for the view.
 
     Each plane gets its probed points and their residuals (signed distance along the normal)
@@ -169,27 +183,35 @@ def alignment_dict(result: Any) -> dict | None:
     """
     if result is None:
         return None
-    if isinstance(result, dict):
-        d = dict(result)
-    elif hasattr(result, "to_json"):
-        d = dict(result.to_json())
-    elif hasattr(result, "__dataclass_fields__"):
-        d = {k: getattr(result, k) for k in result.__dataclass_fields__}
-    else:
-        d = {k: v for k, v in vars(result).items() if not k.startswith("_")}
-    d = _plain(d)
-    pts = d.get("points") if isinstance(d.get("points"), dict) else {}
+    d: dict[str, Any] = _plain(_fields(result))
+    raw_pts = d.get("points")
+    pts: dict[str, Any] = raw_pts if isinstance(raw_pts, dict) else {}
     planes = d.get("planes") or []
     for pl in planes if isinstance(planes, list) else []:
-        if not isinstance(pl, dict):
-            continue
-        name = pl.get("name")
-        if "points" not in pl and name in pts:
-            pl["points"] = pts[name]
-        n, c = pl.get("normal"), pl.get("point")
-        if "residuals" not in pl and pl.get("points") and n and c:
-            pl["residuals"] = [sum((p[i] - c[i]) * n[i] for i in range(3)) for p in pl["points"]]
+        if isinstance(pl, dict):
+            _add_residuals(pl, pts)
     return d
+
+
+def _fields(result: Any) -> dict[str, Any]:
+    """The fields of a result given as a dict, an object with to_json(), a dataclass or any object."""
+    if isinstance(result, dict):
+        return dict(result)
+    if hasattr(result, "to_json"):
+        return dict(result.to_json())
+    if hasattr(result, "__dataclass_fields__"):
+        return {k: getattr(result, k) for k in result.__dataclass_fields__}
+    return {k: v for k, v in vars(result).items() if not k.startswith("_")}
+
+
+def _add_residuals(pl: dict[str, Any], pts: dict[str, Any]) -> None:
+    """Give a plane its probed points (from the result's `points`) and their signed residuals."""
+    name = pl.get("name")
+    if "points" not in pl and name in pts:
+        pl["points"] = pts[name]
+    n, c = pl.get("normal"), pl.get("point")
+    if "residuals" not in pl and pl.get("points") and n and c:
+        pl["residuals"] = [sum((p[i] - c[i]) * n[i] for i in range(3)) for p in pl["points"]]
 
 
 def _plain(v: Any) -> Any:

@@ -110,7 +110,7 @@ class LayerPreview(Static):
 
     def __init__(self, *, id: str | None = None) -> None:
         super().__init__("", id=id)
-        self._key: tuple | None = None
+        self._key: tuple[int, int | None, int, int, int, str] | None = None
 
     def show(self, layers: Sequence[Sequence[tuple[str, Path2]]], layer: int | None, done: int = 0,
              title: str = "") -> None:

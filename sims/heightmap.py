@@ -1,0 +1,278 @@
+"""The deposit's shape: a height map in the substrate frame (docs/process-physics.md).
+
+A dense grid of square cells (`cell_mm`, at most 0.5 mm) that grows as metal lands further out.
+Each cell holds the top z of the deposit (NaN where nothing was deposited); under it lies the
+substrate, whose top comes from a callback (the robot's plane z = 0, the CNC's workpiece mesh).
+
+A bead is laid along a segment in chunks of about 1 mm. Each chunk pours its metal (area × chunk
+length; nothing is lost or counted twice) into the cells of its footprint (distance to the
+segment ≤ w/2, the chunk by the cell's projection on the segment).
+The liquid fills the lowest cells first up to a level `c` and is held by Ding's parabola of the
+bead's width (its distance d to the segment: round ends; where the footprints of consecutive
+segments overlap, the max keeps the metal from counting twice), resting on the surface at the
+centre line:
+
+    new = max(old, min(c, base + H·(1 − (2d/w)²)))   with H = 1.5·area/w
+
+On a flat plate this is exactly Ding's parabola of that area; next to a bead of the same layer
+the metal first fills the valley (the tangent-overlap idea), so overlapped beads build a flat
+layer whose thickness is the metal over the step-over, and a stacked wall rises area/w a layer.
+Cells touched by the bead being laid keep their surface from before it (`surface_before`), so
+the torch sees the ground it rests on, not its own bead.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+Substrate = Callable[[FloatArray, FloatArray], FloatArray]
+CHUNK_MM = 1.0
+_GROW = 64          # cells of margin added on every side when the grid grows
+
+
+def flat_substrate(xs: FloatArray, ys: FloatArray) -> FloatArray:
+    """The robot's substrate: the plane z = 0 of its frame."""
+    return np.zeros(np.shape(xs))
+
+
+@dataclass
+class Laid:
+    """What one segment's bead did: its rise on the centre line where the pool has passed
+    (w/2 behind the segment's end; None that close to the bead's start), metal not placed."""
+
+    rise_mm: float | None
+    lost_mm3: float
+
+
+def pour_level(old: FloatArray, env: FloatArray, need: float) -> float:
+    """The level c at which Σ clip(c − old, 0, env − old) = need (cells' height sum); inf when full."""
+    m = env > old
+    o, e = old[m], env[m]
+    if o.size == 0 or need >= float(np.sum(e - o)):
+        return math.inf
+    bp = np.concatenate([o, e])
+    ds = np.concatenate([np.ones(o.size), -np.ones(e.size)])
+    idx = np.argsort(bp, kind="stable")
+    bp, ds = bp[idx], ds[idx]
+    slope = np.cumsum(ds)
+    val = np.concatenate([[0.0], np.cumsum(slope[:-1] * np.diff(bp))])
+    k = int(np.searchsorted(val, need, side="right")) - 1
+    k = min(max(k, 0), bp.size - 1)
+    while k < bp.size - 1 and slope[k] <= 0:
+        k += 1
+    return float(bp[k] + (need - val[k]) / slope[k])
+
+
+class HeightMap:
+    """Top of the deposit per cell over a substrate; grows to wherever metal lands."""
+
+    def __init__(self, cell_mm: float = 0.5, substrate: Substrate | None = None) -> None:
+        if not 0.0 < cell_mm <= 0.5:
+            raise ValueError(f"height-map cells must be at most 0.5 mm (got {cell_mm})")
+        self.cell = float(cell_mm)
+        self.substrate = substrate or flat_substrate
+        self._i0 = self._j0 = 0                 # cell index of [0, 0]
+        self.top: FloatArray = np.full((0, 0), np.nan)     # [j, i]: y rows, x columns
+        self._base: FloatArray = np.full((0, 0), np.nan)   # substrate top (NaN: not asked yet)
+        self._stamp = np.zeros((0, 0), dtype=np.int64)     # bead that last raised the cell
+        self._before: FloatArray = np.full((0, 0), np.nan)  # its surface before that bead
+        self.bead = 0
+        self.volume_mm3 = 0.0
+        self._trail: deque[tuple[float, int, int]] = deque()   # (path mm, centre cell) of this bead
+        self._path = 0.0
+
+    # -- grid ----------------------------------------------------------------------------------
+    def _ensure(self, i_lo: int, i_hi: int, j_lo: int, j_hi: int) -> None:
+        ny, nx = self.top.shape
+        if nx and i_lo >= self._i0 and i_hi < self._i0 + nx and j_lo >= self._j0 and j_hi < self._j0 + ny:
+            return
+        if nx:
+            i_lo, i_hi = min(i_lo, self._i0), max(i_hi, self._i0 + nx - 1)
+            j_lo, j_hi = min(j_lo, self._j0), max(j_hi, self._j0 + ny - 1)
+        i0, j0 = i_lo - _GROW, j_lo - _GROW
+        shape = (j_hi + _GROW - j0 + 1, i_hi + _GROW - i0 + 1)
+        rows = slice(self._j0 - j0, self._j0 - j0 + ny)
+        cols = slice(self._i0 - i0, self._i0 - i0 + nx)
+
+        def grown(old: FloatArray) -> FloatArray:
+            new = np.full(shape, np.nan)
+            new[rows, cols] = old
+            return new
+
+        stamp = np.zeros(shape, dtype=np.int64)
+        stamp[rows, cols] = self._stamp
+        self.top, self._base, self._before, self._stamp = grown(self.top), grown(self._base), grown(self._before), stamp
+        self._i0, self._j0 = i0, j0
+
+    def index(self, x: float, y: float) -> tuple[int, int]:
+        return math.floor(x / self.cell), math.floor(y / self.cell)
+
+    def _base_at(self, ii: NDArray[np.int64], jj: NDArray[np.int64]) -> FloatArray:
+        """Substrate top under cells (absolute indices, inside the grid), asked once per cell."""
+        r, c = jj - self._j0, ii - self._i0
+        b = self._base[r, c]
+        todo = np.isnan(b)
+        if np.any(todo):
+            xs = (ii[todo] + 0.5) * self.cell
+            ys = (jj[todo] + 0.5) * self.cell
+            got = np.asarray(self.substrate(xs.astype(float), ys.astype(float)), dtype=float)
+            got = np.where(np.isfinite(got), got, -1e9)  # nothing under it: metal falls off the part
+            self._base[r[todo], c[todo]] = got
+            b = self._base[r, c]
+        return b
+
+    def _surface_idx(self, ii: NDArray[np.int64], jj: NDArray[np.int64]) -> FloatArray:
+        return np.fmax(self.top[jj - self._j0, ii - self._i0], self._base_at(ii, jj))
+
+    # -- queries -------------------------------------------------------------------------------
+    def deposit_top(self, x: float, y: float) -> float | None:
+        """Top of the deposit at (x, y), or None where nothing was deposited."""
+        i, j = self.index(x, y)
+        ny, nx = self.top.shape
+        if not (0 <= i - self._i0 < nx and 0 <= j - self._j0 < ny):
+            return None
+        v = float(self.top[j - self._j0, i - self._i0])
+        return None if math.isnan(v) else v
+
+    def surface(self, x: float, y: float, *, before_bead: bool = False) -> float:
+        """The surface at (x, y): deposit or substrate; `before_bead`: as it was before the current bead."""
+        i, j = self.index(x, y)
+        self._ensure(i, i, j, j)
+        r, c = j - self._j0, i - self._i0
+        if before_bead and self._stamp[r, c] == self.bead and self.bead:
+            return float(self._before[r, c])
+        ii, jj = np.array([i]), np.array([j])
+        return float(self._surface_idx(ii, jj)[0])
+
+    def deposit_tops(self, xs: FloatArray, ys: FloatArray) -> FloatArray:
+        """Vectorised `deposit_top` (NaN where nothing was deposited or outside the grid)."""
+        ii = np.floor(np.asarray(xs) / self.cell).astype(np.int64) - self._i0
+        jj = np.floor(np.asarray(ys) / self.cell).astype(np.int64) - self._j0
+        ny, nx = self.top.shape
+        ok = (ii >= 0) & (ii < nx) & (jj >= 0) & (jj < ny)
+        out = np.full(np.shape(ii), np.nan)
+        out[ok] = self.top[jj[ok], ii[ok]]
+        return out
+
+    def inside(self, q: FloatArray) -> bool:
+        """Is the point inside deposited metal (below the deposit's top in a deposited cell)?"""
+        t = self.deposit_tops(np.array([q[0]]), np.array([q[1]]))[0]
+        return bool(np.isfinite(t) and q[2] <= t)
+
+    def ray_hit(self, q0: FloatArray, q1: FloatArray) -> float | None:
+        """Distance along q0→q1 to the first point inside deposited metal, or None."""
+        d = np.asarray(q1, dtype=float) - np.asarray(q0, dtype=float)
+        length = float(np.linalg.norm(d))
+        if length < 1e-12 or not self.top.size or np.all(np.isnan(self.top)):
+            return None
+        n = max(2, int(math.ceil(length / (self.cell / 8.0))) + 1)
+        s = np.linspace(0.0, length, n)
+        pts = np.asarray(q0, dtype=float)[None, :] + s[:, None] * (d / length)[None, :]
+        tops = self.deposit_tops(pts[:, 0], pts[:, 1])
+        hit = np.isfinite(tops) & (pts[:, 2] <= tops)
+        if not np.any(hit):
+            return None
+        k = int(np.argmax(hit))
+        if k == 0:
+            return 0.0
+        # between samples k-1 (outside) and k (inside): the top is flat over a cell, so linear is exact
+        z0, z1 = pts[k - 1, 2], pts[k, 2]
+        t1 = tops[k]
+        if np.isfinite(tops[k - 1]) and abs(tops[k - 1] - t1) < 1e-12 and z0 != z1:
+            f = (z0 - t1) / (z0 - z1)
+            return float(s[k - 1] + f * (s[k] - s[k - 1]))
+        return float(s[k])
+
+    # -- deposition ----------------------------------------------------------------------------
+    def new_bead(self) -> int:
+        self.bead += 1
+        self._trail.clear()
+        self._path = 0.0
+        return self.bead
+
+    def lay(self, p0: tuple[float, float], p1: tuple[float, float], width_mm: float, area_mm2: float) -> Laid:
+        """Pour a bead of `area_mm2` metal per mm, `width_mm` wide, along p0→p1 (substrate xy)."""
+        a, b = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
+        d = b - a
+        length = float(np.hypot(d[0], d[1]))
+        if length < 1e-9 or width_mm <= 0 or area_mm2 <= 0:
+            return Laid(None, 0.0)
+        u = d / length
+        nrm = np.array([-u[1], u[0]])
+        half = width_mm / 2.0
+        lo, hi = np.minimum(a, b) - half, np.maximum(a, b) + half
+        i_lo, j_lo = self.index(float(lo[0]), float(lo[1]))
+        i_hi, j_hi = self.index(float(hi[0]), float(hi[1]))
+        self._ensure(i_lo, i_hi, j_lo, j_hi)
+        gi, gj = np.meshgrid(np.arange(i_lo, i_hi + 1, dtype=np.int64), np.arange(j_lo, j_hi + 1, dtype=np.int64))
+        ii, jj = gi.ravel(), gj.ravel()
+        cx, cy = (ii + 0.5) * self.cell - a[0], (jj + 0.5) * self.cell - a[1]
+        t = cx * u[0] + cy * u[1]
+        s = cx * nrm[0] + cy * nrm[1]
+        tc = np.clip(t, 0.0, length)
+        s = np.hypot(t - tc, s)       # distance to the segment: round ends, as a pool is
+        m = s <= half
+        ii, jj, t, s = ii[m], jj[m], tc[m], s[m]
+        n_chunks = max(1, math.ceil(length / CHUNK_MM))
+        step = length / n_chunks
+        chunk = np.minimum((t / step).astype(np.int64), n_chunks - 1)
+        peak = 1.5 * area_mm2 / width_mm
+        cell2 = self.cell * self.cell
+        carry, lost = 0.0, 0.0
+        centres: list[tuple[int, int]] = []
+        for k in range(n_chunks):
+            sel = chunk == k
+            need = area_mm2 * step / cell2 + carry
+            if not np.any(sel):
+                carry = need
+                continue
+            carry = 0.0
+            mid = a + u * (k + 0.5) * step
+            centres.append(self.index(float(mid[0]), float(mid[1])))
+            lost += self._pour(ii[sel], jj[sel], s[sel], centres[-1], width_mm, peak, need) * cell2
+        lost += carry * cell2
+        self.volume_mm3 += area_mm2 * length - lost
+        for k, cell in enumerate(centres):
+            self._trail.append((self._path + (k + 0.5) * step, cell[0], cell[1]))
+        self._path += length
+        return Laid(self._settled_rise(half + self.cell), lost)
+
+    def _settled_rise(self, behind_mm: float) -> float | None:
+        """The bead's rise on its centre line where the pool has passed (`behind_mm` back along
+        the path): the metal of later chunks no longer reaches it. None near the bead's start."""
+        while len(self._trail) > 1 and self._trail[1][0] <= self._path - behind_mm:
+            self._trail.popleft()
+        if not self._trail or self._trail[0][0] > self._path - behind_mm:
+            return None
+        _, i, j = self._trail[0]
+        r, c = j - self._j0, i - self._i0
+        if self._stamp[r, c] != self.bead:
+            return None
+        return float(self._surface_idx(np.array([i]), np.array([j]))[0] - self._before[r, c])
+
+    def _pour(self, ii: NDArray[np.int64], jj: NDArray[np.int64], s: FloatArray, centre: tuple[int, int],
+              width_mm: float, peak: float, need: float) -> float:
+        """One chunk: pour `need` (cell-heights) into its cells, held by the parabola on the surface
+        at its centre-line cell (as it was before this bead); returns what did not fit."""
+        r, c = jj - self._j0, ii - self._i0
+        old = self._surface_idx(ii, jj)
+        cr, cc = centre[1] - self._j0, centre[0] - self._i0
+        if self._stamp[cr, cc] == self.bead and self.bead:
+            base = float(self._before[cr, cc])
+        else:
+            base = float(self._surface_idx(np.array([centre[0]]), np.array([centre[1]]))[0])
+        env = base + peak * (1.0 - (2.0 * s / width_mm) ** 2)
+        level = pour_level(old, env, need)
+        new = np.maximum(old, np.minimum(level, env))
+        fresh = self._stamp[r, c] != self.bead
+        self._before[r[fresh], c[fresh]] = old[fresh]
+        self._stamp[r, c] = self.bead
+        raised = new > old
+        self.top[r[raised], c[raised]] = new[raised]
+        return max(need - float(np.sum(new - old)), 0.0)

@@ -1,0 +1,146 @@
+"""The simulated world's process physics: bead geometry, stick-out and the melting rate (§6b).
+
+`ProcessPhysics` belongs to the World (sims/world.py) when the simulators are served with a
+material and sim.yaml's `process:` section (`attach(ctx)`, called by every simulator's `serve`):
+
+- one height map (sims/heightmap.py) per motion device, in its substrate frame: the robot's
+  own frame (substrate z = 0), the CNC's workpiece frame (the workpiece mesh under it);
+- each deposited segment pours a bead: width from Ribeiro's forward model at the segment's
+  actual current and travel speed, metal = the wire fed (π·D²/4 · WFS / S) times
+  `k = height_gain · (1 + height_temp_coeff · (T − 100 °C)⁺) · (1 + height_noise_pct/100 · N)`,
+  N drawn once per bead (seeded), T the cell-I/O thermal model's part temperature;
+- the CTWD of the torch: the contact tip sits `stick_out_mm` above the tool point along the tool
+  axis; CTWD = stick_out_mm + (tool z − (surface before this bead + the bead's rise)) / axis z;
+- the melting-rate relation (core/melting.py) the power-source simulator follows at that CTWD.
+
+Conventions and figures: docs/process-physics.md.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Callable
+
+import numpy as np
+
+from core.bead_model import ribeiro_forward, wire_area_mm2
+from core.config import ProcessSim
+from core.material import Material
+from core.melting import MeltingRelation, current_at, relation_for, stick_out_factor
+from sims.heightmap import HeightMap, Laid, Substrate
+
+Vec3 = tuple[float, float, float]
+REF_TEMP_C = 100.0
+MIN_AXIS_Z = 0.2
+
+
+class ProcessPhysics:
+    """Height maps, CTWD and the melting-rate truth of one simulated cell (not thread-safe: the World locks)."""
+
+    def __init__(self, material: Material, cfg: ProcessSim | None = None, *, seed: int = 0) -> None:
+        self.material = material
+        self.cfg = cfg if cfg is not None else ProcessSim()
+        self.melting: MeltingRelation = relation_for(material, self.cfg.stick_out_mm, self.cfg.resistive_share)
+        self.maps: dict[str, HeightMap] = {}
+        self._substrates: dict[str, Substrate] = {}
+        self._rng = np.random.default_rng([int(seed), 27])
+        self._temperature: Callable[[], float] | None = None
+        self._torch: tuple[str, Vec3, Vec3, Vec3] | None = None    # device, tool point, axis, direction
+        self._rise: dict[str, float] = {}
+        self._noise = 1.0
+
+    # -- wiring --------------------------------------------------------------------------------
+    def set_substrate(self, device: str, substrate: Substrate) -> None:
+        """The substrate under a device's height map (before its first deposit)."""
+        self._substrates[device] = substrate
+        if device in self.maps:
+            self.maps[device].substrate = substrate
+
+    def set_temperature_source(self, fn: Callable[[], float]) -> None:
+        """Where the part temperature comes from (the cell-I/O simulator's thermal model)."""
+        self._temperature = fn
+
+    def height_map(self, device: str) -> HeightMap:
+        hm = self.maps.get(device)
+        if hm is None:
+            hm = self.maps[device] = HeightMap(self.cfg.cell_mm, self._substrates.get(device))
+        return hm
+
+    # -- beads ---------------------------------------------------------------------------------
+    def new_bead(self) -> None:
+        """The arc became stable: a new bead (its noise drawn now, the same for all its segments)."""
+        pct = self.cfg.height_noise_pct
+        self._noise = 1.0 + pct / 100.0 * float(self._rng.standard_normal()) if pct else 1.0
+        for hm in self.maps.values():
+            hm.new_bead()
+
+    def part_temperature_c(self) -> float:
+        return float(self._temperature()) if self._temperature is not None else 20.0
+
+    def height_factor(self) -> float:
+        """k: the true metal (height at the model's width) over the model's."""
+        c = self.cfg
+        hot = max(self.part_temperature_c() - REF_TEMP_C, 0.0)
+        return max(c.height_gain * (1.0 + c.height_temp_coeff * hot) * self._noise, 0.05)
+
+    def lay(self, device: str, q0: Vec3, q1: Vec3, duration_s: float, current_a: float,
+            wfs_m_min: float) -> Laid | None:
+        """The bead of one deposited segment (substrate frame); None when it lays no metal."""
+        length = math.dist(q0[:2], q1[:2])
+        if length < 1e-9 or duration_s <= 0 or current_a <= 0 or wfs_m_min <= 0:
+            return None
+        speed = length / duration_s * 60.0
+        width, _ = ribeiro_forward(self.material.ribeiro, current_a, speed)
+        area = wire_area_mm2(self.material.wire_diameter_mm, wfs_m_min, speed) * self.height_factor()
+        hm = self.height_map(device)
+        if hm.bead == 0:
+            hm.new_bead()
+        laid = hm.lay((q0[0], q0[1]), (q1[0], q1[1]), width, area)
+        if laid.rise_mm is not None:
+            self._rise[device] = laid.rise_mm
+        return laid
+
+    def rise_mm(self, device: str) -> float:
+        """The latest settled rise of a device's bead on its centre line (0 before any)."""
+        return self._rise.get(device, 0.0)
+
+    # -- the torch -----------------------------------------------------------------------------
+    def torch_at(self, device: str, tool: Vec3, axis: Vec3, direction: Vec3) -> None:
+        """The torch's tool point and axis (substrate frame) and its direction of travel."""
+        self._torch = (device, tool, axis, direction)
+
+    def ctwd_mm(self) -> float | None:
+        """CTWD of the torch now (mm), or None before any torch motion."""
+        if self._torch is None:
+            return None
+        device, q, axis, _ = self._torch
+        hm = self.height_map(device)
+        ground = hm.surface(q[0], q[1], before_bead=True)
+        top = ground + self._rise.get(device, 0.0)
+        az = max(abs(axis[2]), MIN_AXIS_Z)
+        return self.cfg.stick_out_mm + (q[2] - top) / az
+
+    def current_a(self, wfs_m_min: float, stick_out_mm: float, synergic_a: float | None = None) -> float:
+        """The source's current at a wire feed and stick-out (the melting-rate truth).
+
+        `synergic_a`: the source's own synergic current at that feed (scaled, so the nominal
+        stick-out gives it bit for bit); else the material's line.
+        """
+        if synergic_a is None:
+            return current_at(self.melting, self.material.ribeiro, wfs_m_min, stick_out_mm)
+        return synergic_a * stick_out_factor(self.melting, wfs_m_min, stick_out_mm)
+
+
+def attach(ctx: Any) -> ProcessPhysics | None:
+    """Give `ctx.world` its process physics once (every simulator's `serve` calls this)."""
+    world = ctx.world
+    if world is None or not hasattr(world, "use_physics"):
+        return None
+    if world.physics is None:
+        from core.config import load_material
+        from sims.faults import parse_fault_spec
+
+        material = load_material(ctx.cell.cell.material)
+        seed = parse_fault_spec(ctx.faults or ctx.sim.faults).seed
+        world.use_physics(ProcessPhysics(material, ctx.sim.process, seed=seed))
+    phys: ProcessPhysics = world.physics
+    return phys
