@@ -9,6 +9,7 @@ Per run: `cell run` of a small job as a subprocess, a stop at a random moment of
   (robot: no EXE later than 0.5 s after the signal; CNC: the safe stop verified in the journal);
 - CNC: status read from the simulator after the stop (`?`): state, spindle (FS) and Bf: queue;
 - the cause in the journal (an alarm naming the signal / the journal path), never `complete`;
+- path `journal`: the runs directory is a 16 MB tmpfs of its own (root), filled to ENOSPC mid-bead;
 - resume: lost / twice mm from deposit.jsonl (bench/_coverage.py).
 
     .venv/bin/python -m bench.stops [--runs 5] [--paths sigint,sigterm,sighup,second,journal]
@@ -17,6 +18,7 @@ Per run: `cell run` of a small job as a subprocess, a stop at a random moment of
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import random
@@ -31,6 +33,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterator
 
 import yaml
 
@@ -230,7 +233,10 @@ def one_stop(c: SimCell, jobp: Path, path: str, rng: random.Random) -> dict:
     time.sleep(rng.uniform(2.5, 8.0))        # a random moment of the bead (arc on from ~1.5 s to ~13 s)
     sig = SIGNALS.get(path, signal.SIGTERM)
     t_sig = time.monotonic()
-    os.kill(p.pid, sig)
+    if path == "journal":                    # the runs directory (a tmpfs of its own) fills up
+        filler = fill(c.runs)
+    else:
+        os.kill(p.pid, sig)
     if path == "second":
         time.sleep(0.05)
         os.kill(p.pid, signal.SIGINT)        # noted, not obeyed
@@ -245,7 +251,8 @@ def one_stop(c: SimCell, jobp: Path, path: str, rng: random.Random) -> dict:
     states = journal_rows(run_dir, "SELECT state FROM events WHERE kind='transition'") if run_dir.is_dir() else []
     fig = {"path": path, "exit": p.returncode, "state": res.get("state"),
            "weld_start_drop_ms": _ms(watch.drop_after(t_sig)), "exit_after_s": round(t_exit - t_sig, 2),
-           "cause_journaled": any(signal.Signals(sig).name in m for (m,) in alarms),
+           "cause_journaled": any((signal.Signals(sig).name if path != "journal" else "a write failed") in m
+                                  for (m,) in alarms + [(a["message"],) for a in res.get("alarms", [])]),
            "complete_journaled": any(s == "complete" for (s,) in states),
            "second_noted": any("noted, not obeyed" in ln for ln in lines) if path == "second" else None}
     if c.platform == "cnc":
@@ -255,11 +262,40 @@ def one_stop(c: SimCell, jobp: Path, path: str, rng: random.Random) -> dict:
     else:   # the held position comes from the robot's own STA in HOLD (interlocks._record)
         held = journal_rows(run_dir, "SELECT x FROM events WHERE kind='alarm' AND x IS NOT NULL")
         fig["robot_hold_confirmed"] = bool(held)
+    if path == "journal":
+        filler.unlink()                      # space freed: the operator's `cell resume`
     r = c.run("resume", str(run_dir))
     rout, rerr = r.communicate(timeout=600)
     fig["resume_exit"] = r.returncode
     fig["resume_state"] = (json.loads(rout.strip().splitlines()[-1]) if rout.strip() else {}).get("state")
     return fig
+
+
+def fill(where: Path) -> Path:
+    """Fill the file system of `where` to the last byte (ENOSPC)."""
+    filler = where / "filler"
+    with open(filler, "wb") as fh:
+        try:
+            while True:
+                fh.write(b"\0" * (1 << 20))
+                fh.flush()
+        except OSError:
+            pass
+    return filler
+
+
+@contextlib.contextmanager
+def small_fs(where: Path, size: str = "16m") -> Iterator[Path]:
+    """A tmpfs of `size` mounted at `where` (root; RuntimeError where mounting is not allowed)."""
+    where.mkdir(parents=True, exist_ok=True)
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"cannot mount a tmpfs at {where}: {r.stderr.strip()}")
+    try:
+        yield where
+    finally:
+        subprocess.run(["umount", "-l", str(where)], check=False)
 
 
 def _ms(v: float | None) -> float | None:
@@ -276,7 +312,7 @@ def judge(c: SimCell, job_d: dict) -> dict:
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="bench.stops")
     ap.add_argument("--runs", type=int, default=5)
-    ap.add_argument("--paths", default="sigint,sigterm,sighup,second")
+    ap.add_argument("--paths", default="sigint,sigterm,sighup,second,journal")
     ap.add_argument("--platform", default="robot", choices=("robot", "cnc"))
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--keep", default=None, metavar="DIR")
@@ -291,7 +327,8 @@ def main(argv: list[str]) -> int:
                 jd = job(1)
                 jobp = c.work / "job.json"
                 jobp.write_text(json.dumps(jd))
-                fig = one_stop(c, jobp, path, rng)
+                with (small_fs(c.runs) if path == "journal" else contextlib.nullcontext()):
+                    fig = one_stop(c, jobp, path, rng)
                 fig.update(judge(c, jd))
             finally:
                 c.down()
