@@ -9,7 +9,8 @@
 
 Exit status: 0 when the build completed, 1 when it stopped (fault, E-stop, abort), 2 on bad
 input or an unreachable device (one `error:` line), 3 when it completed with defects (beads the
-devices' measurements say were not deposited as planned: docs/controller.md).
+devices' measurements say were not deposited as planned: docs/controller.md), 130 / 143 / 129 when
+SIGINT / SIGTERM / SIGHUP stopped it on the fault path (controller/cli/guard.py).
 """
 from __future__ import annotations
 
