@@ -9,10 +9,13 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import pty
+import select
 import signal
 import sqlite3
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -332,3 +335,39 @@ def test_align_no_level_measures_the_tilt_and_commands_no_ab(tmp_path):
     a = corners @ np.array(flat["transform"]).T
     b = corners @ np.array(lev["transform_table"]).T
     assert np.abs(a - b).max() < 0.05, np.abs(a - b).max()
+
+
+def test_the_tui_holds_the_lock_and_a_signal_ends_it_on_the_fault_path(tmp_path):
+    cfgp = SimCell(tmp_path / "cell", time_scale=60.0).cfg_path
+    master, slave = pty.openpty()
+    env = dict(os.environ, PYTHONPATH=str(ROOT), TERM="xterm-256color", COLUMNS="120", LINES="40")
+    tui = subprocess.Popen([sys.executable, "-m", "controller.cli.main", "tui", "--sim", "--config", str(cfgp),
+                            "--runs", str(tmp_path / "runs")], cwd=ROOT, env=env, stdin=slave, stdout=slave,
+                           stderr=slave, start_new_session=True)
+    os.close(slave)
+    try:
+        deadline = time.monotonic() + 60
+        seen = b""
+        while time.monotonic() < deadline and b"Devices" not in seen:   # the UI is up
+            if select.select([master], [], [], 0.5)[0]:
+                with contextlib.suppress(OSError):
+                    seen += os.read(master, 65536)
+        assert b"Devices" in seen, seen[-500:]
+
+        def drain() -> None:   # a terminal nobody reads blocks the UI's writes
+            with contextlib.suppress(OSError):
+                while os.read(master, 65536):
+                    pass
+        threading.Thread(target=drain, daemon=True).start()
+        r = cell("run", str(tmp_path / "none.json"), "--cell-config", str(cfgp), stdout=subprocess.PIPE,
+                 stderr=subprocess.PIPE)
+        _, err = r.communicate(timeout=60)
+        assert r.returncode == 2 and f"is in use by PID {tui.pid} (" in err, err
+        os.kill(tui.pid, signal.SIGTERM)
+        assert tui.wait(60) == 143
+    finally:
+        if tui.poll() is None:
+            tui.kill()
+            tui.wait()
+        with contextlib.suppress(OSError):
+            os.close(master)
