@@ -103,10 +103,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     # planner's one `error:` line instead
     logging.getLogger("trimesh").setLevel(logging.CRITICAL)
     try:
-        early_lock(argv)  # one controller per cell: refused before the heavy imports
-        parser = build_parser(argv)
-        args = parser.parse_args(argv)
-        return int(args.func(args) or 0)
+        with early_lock(argv):  # one controller per cell: refused before the heavy imports
+            parser = build_parser(argv)
+            args = parser.parse_args(argv)
+            return int(args.func(args) or 0)
     except CellError as exc:
         sys.stderr.write(f"error: {exc}\n")
         return 2

@@ -19,6 +19,7 @@ and the next command takes it over; the stale text is overwritten.
 """
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import hashlib
 import json
@@ -115,15 +116,16 @@ def acquire(cell_name: str, config_path: str | Path | None, command: str | None 
 _held: dict[Path, CellLock] = {}   # the locks this process holds
 
 
-def early(argv: list[str]) -> CellLock | None:
-    """`cell run|resume|demo|tui|align run|repair run`: take the cell's lock first thing, before
+def early(argv: list[str]) -> CellLock | contextlib.nullcontext[None]:
+    """`cell run|resume|demo|tui|align run|repair run`: take the cell's lock first thing (held in a
+    `with` for the command's life; nothing to hold for other commands), before
     the heavy imports (pydantic, numpy), so a second controller is refused within a second. The
     cell name is read with plain YAML; anything unreadable is left to the command (which takes the
     lock again, re-entrantly, once its config is validated)."""
     words = [a for a in argv if not a.startswith("-")]
     cmd = words[:2] if words[:1] in (["align"], ["repair"]) else words[:1]
     if cmd not in (["run"], ["resume"], ["demo"], ["tui"], ["align", "run"], ["repair", "run"]):
-        return None
+        return contextlib.nullcontext()
     config = None
     for i, a in enumerate(argv):
         if a in ("--cell-config", "--config" if cmd == ["tui"] else "--cell-config") and i + 1 < len(argv):
@@ -136,7 +138,7 @@ def early(argv: list[str]) -> CellLock | None:
         data = yaml.safe_load(Path(config or DEFAULT_CONFIG).read_text(encoding="utf-8"))
         name = str(data["cell"].get("name", "cell")) if isinstance(data.get("cell"), dict) else "cell"
     except Exception:
-        return None
+        return contextlib.nullcontext()
     return acquire(name, config)
 
 
