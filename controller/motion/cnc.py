@@ -41,6 +41,7 @@ class CncExecutor:
         self._lost_cbs: list[Callable[[Any], None]] = []
         self.stopping: asyncio.Task | None = None   # the safe stop of the latest hold_now()
         self.stop_result: Any = None                # its SafeStopResult (drivers/grbl_stop.py)
+        self.accel_mm_s2 = 10.0                     # the hold's deceleration bound (grbl default)
 
     def on_link_lost(self, fn: Callable[[Any], None]) -> None:
         self._lost_cbs.append(fn)
@@ -178,11 +179,17 @@ class CncExecutor:
         self.stopping.add_done_callback(lambda f: f.cancelled() or f.exception())
 
     async def _safe_stop(self, reason: str) -> Any:
-        """The one call of the CNC stop sequence: CncLink.safe_stop where the driver has it."""
+        """The one call of the CNC stop sequence: CncLink.safe_stop where the driver has it.
+
+        The hold is given the time to decelerate from the reported feed at `accel_mm_s2` (grbl's
+        default $120-$122) plus 0.5 s: a firmware still in `Hold:1` after that is not slowing down
+        (it reports Run without moving) and is reset, process off, rather than left at M3."""
         stop = getattr(self.link, "safe_stop", None)
         if stop is None:
             return await self.process_off()
-        self.stop_result = await stop(reason)
+        st = getattr(self.link, "latest_status", None)
+        feed = float(getattr(st, "feed", 0.0) or 0.0)
+        self.stop_result = await stop(reason, hold_timeout_s=0.5 + feed / 60.0 / self.accel_mm_s2)
         return self.stop_result
 
     async def held_position(self) -> Point:
