@@ -32,6 +32,7 @@ def _job() -> dict:
 
 
 def _stl_ascii() -> bytes:
+    # lazy: only this benchmark's path needs it
     import trimesh
 
     m = trimesh.creation.box(extents=(20, 20, 6))
@@ -40,6 +41,7 @@ def _stl_ascii() -> bytes:
 
 
 def _mesh(kind: str) -> bytes:
+    # lazy: only this benchmark's path needs it
     import trimesh
 
     m = trimesh.creation.box(extents=(20, 20, 6))
@@ -49,6 +51,7 @@ def _mesh(kind: str) -> bytes:
 
 def seeds(tmp: Path) -> dict[str, bytes]:
     """One valid file of each kind the CLI reads."""
+    # lazy: only this benchmark's path needs it
     from controller.job.identity import canonical_json, job_hash
 
     job = _job()
@@ -178,6 +181,7 @@ class ContractBroken(AssertionError):
 
 def run_case(case: Case, data: bytes, tmp: Path, time_limit_s: float = 30.0) -> tuple[int, str, str]:
     """Run one subcommand in-process on `data`; ContractBroken if it breaks the CLI contract."""
+    # lazy: only this benchmark's path needs it
     from controller.cli.main import main
 
     f = tmp / f"input{case.suffix}"

@@ -43,6 +43,7 @@ def _configs(sigma: float, seed: int = 12345):
 
 
 async def _monte_carlo(runs: int, sigma: float, seed: int) -> dict:
+    # lazy: only this benchmark's path needs it
     from drivers.grbl import CncLink
 
     cell, sim, wp = _configs(sigma, seed)

@@ -73,6 +73,7 @@ def robot_starvation(log: Path) -> tuple[int, int, float]:
 
 
 async def one(cfgp: Path, scale: float, length: float, runs: Path) -> dict:
+    # lazy: only this benchmark's path needs it
     from controller.api import CellController
     from controller.runtime.build import BuildOptions
     from core.config import load_cell

@@ -70,6 +70,7 @@ class CpuHogs:
 
 def block_job(work: Path, height_mm: float = 8.0) -> Path:
     """Plan the 80 x 50 x `height_mm` block with 6 mm beads."""
+    # lazy: only this benchmark's path needs it
     import trimesh
 
     stl = work / "block.stl"
@@ -86,6 +87,7 @@ def block_job(work: Path, height_mm: float = 8.0) -> Path:
 
 def cell_yaml(work: Path, opcua: bool = False) -> Path:
     """config/cell.yaml with free loopback ports (time scale as in the file: 60)."""
+    # lazy: only this benchmark's path needs it
     import socket
 
     socks = [socket.socket() for _ in range(4)]
@@ -130,6 +132,7 @@ def sim_up(cfg_path: Path, log_dir: Path) -> subprocess.Popen:
 
 
 def stop(proc: subprocess.Popen) -> None:
+    # lazy: only this benchmark's path needs it
     import signal
 
     proc.send_signal(signal.SIGINT)
@@ -175,13 +178,16 @@ class Prober(_LoopThread):
         super().__init__()
 
     async def _run(self) -> None:
+        # lazy: only this benchmark's path needs it
         from pymodbus.client import AsyncModbusTcpClient
 
+        # lazy: only this benchmark's path needs it
         from core.realtime import elevate
 
         # the measuring client must not be what is late: it gets the priority the cell gets
         elevate("false_trips prober")
 
+        # lazy: only this benchmark's path needs it
         from wire.cellio_map import INPUTS
         from wire.power_registers import POWER_MAP
         from wire.urls import parse_tcp_url
@@ -236,8 +242,10 @@ class OpcClient(_LoopThread):
         self.changes += 1
 
     async def _run(self) -> None:
+        # lazy: only this benchmark's path needs it
         import logging
 
+        # lazy: only this benchmark's path needs it
         from asyncua import Client
 
         # the server goes away with `cell run` at the end of each build: the client's reconnect

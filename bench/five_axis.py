@@ -53,6 +53,7 @@ def level_sim():
 
 async def build(job: dict, tmp: Path, table: str = "AB", scale: float = 60.0) -> tuple[object, Path]:
     """Build `job` on the simulated CNC at `scale`, lowered to what the link can feed (issue 29)."""
+    # lazy: only this benchmark's path needs it
     from controller.motion.cnc5 import limit_time_scale
 
     cfg, _note = limit_time_scale(with_urls(kin_cfg(table), {}, time_scale=scale), job)
@@ -172,6 +173,7 @@ def executed_moves(log: Path) -> list[tuple[np.ndarray, np.ndarray]]:
 def executed_mid_dev(job: dict, log: Path, table: str, max_step_mm: float = 2.0) -> dict:
     """Issue 29: the middle (and quarter points) of every executed 5-axis move, through the table's
     forward kinematics, against the planned path (the job's weld segments, workpiece frame)."""
+    # lazy: only this benchmark's path needs it
     from controller.motion.kinematics import Trunnion
     from controller.motion.post5 import tip_path
 
@@ -194,6 +196,7 @@ def executed_mid_dev(job: dict, log: Path, table: str, max_step_mm: float = 2.0)
 def bead_gaps(log: Path, device: str = "cnc") -> dict:
     """Issue 29: the torch standing still with the process on — gaps (process time) between
     consecutive deposited segments of one bead (one ends where the next starts) in deposit.jsonl."""
+    # lazy: only this benchmark's path needs it
     import math
 
     segs = [json.loads(s) for s in (log / "deposit.jsonl").read_text().splitlines()]
@@ -208,12 +211,14 @@ def bead_gaps(log: Path, device: str = "cnc") -> dict:
 
 def feed_scale(job: dict, table: str, scale: float) -> float:
     """The time scale `build` runs `job` at (the asked one, or what the CNC link can feed)."""
+    # lazy: only this benchmark's path needs it
     from controller.motion.cnc5 import limit_time_scale
 
     return float(limit_time_scale(with_urls(kin_cfg(table), {}, time_scale=scale), job)[0].cell.time_scale)
 
 
 def main(argv: list[str] | None = None) -> int:
+    # lazy: only this benchmark's path needs it
     from bench.parts5 import cone_frustum, tilted_tube
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -26,6 +26,7 @@ from bench.kill_resume import soak_job  # noqa: E402
 
 
 async def run(trials: int, seed: int) -> dict:
+    # lazy: only this benchmark's path needs it
     from controller.api import CellController
     from controller.harness.sim import SimHarness, with_urls
     from controller.defaults import SIM_REPLY_TIMEOUT_MS
@@ -86,6 +87,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--hog", action="store_true", help="two CPU-bound processes beside the cell")
     a = ap.parse_args(argv)
     if a.hog:
+        # lazy: only this benchmark's path needs it
         from bench.false_trips import CpuHogs
 
         with CpuHogs(2):

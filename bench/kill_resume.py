@@ -123,68 +123,62 @@ def _setup(a: argparse.Namespace, work: Path) -> tuple[Path, Path, dict]:
     return cfgp, jobp, job
 
 
-def build_with_kills(a: argparse.Namespace, work: Path, rng: random.Random,
-                     kill_at: list[float] | None) -> dict:
-    """One build against `cell sim up` in its own process: SIGKILL of `cell run` / `cell resume`
-    at random moments (`a.kills` of them) or, with `kill_at`, once the deposit log holds each
-    given fraction of the planned length; resumed until complete. Figures from the sims' logs."""
-    work.mkdir(parents=True, exist_ok=True)
-    cfgp, jobp, job = _setup(a, work)
-    logs, runs = work / "simlog", work / "runs"
-    passes = [p["points"] for la in job["layers"] for p in la["passes"]]
-    planned_mm = sum(math.dist(p, q) for P in passes for p, q in zip(P, P[1:]))
-    n_kills = len(kill_at) if kill_at is not None else a.kills
-    sim = _cell("sim", "up", "--cell-config", str(cfgp), "--log", str(logs), stdout=subprocess.PIPE,
-                stderr=subprocess.DEVNULL, text=True)
-    t_start = time.monotonic()
+def _kill_when_due(p: subprocess.Popen, rng: random.Random, kill_at: list[float] | None, kills: int,
+                   planned_mm: float, logs: Path) -> bool:
+    """Once `cell run` / `cell resume` is building, wait for the moment to kill it: a random one,
+    or (with `kill_at`) until the deposit log holds the next fraction of the plan. SIGKILL it if
+    it is still running then; True when it was killed."""
+    started = threading.Event()
+
+    def watch(proc: subprocess.Popen = p, ev: threading.Event = started) -> None:
+        for line in proc.stderr:
+            if "passes done" in line or "building" in line:
+                ev.set()
+    threading.Thread(target=watch, daemon=True).start()
+    started.wait(20)
+    if kill_at is None:
+        time.sleep(rng.uniform(0.3, 4.0))  # a random moment of the build
+    else:  # once the deposit reaches the fraction (the arc is on)
+        goal = kill_at[kills] * planned_mm
+        while p.poll() is None and _deposited_mm(logs / "deposit.jsonl") < goal:
+            time.sleep(0.01)
+    if p.poll() is None:
+        os.killpg(p.pid, signal.SIGKILL)
+        p.wait()
+        return True
+    return False
+
+
+def _run_until_complete(a: argparse.Namespace, cfgp: Path, jobp: Path, runs: Path, logs: Path,
+                        rng: random.Random, kill_at: list[float] | None, n_kills: int,
+                        planned_mm: float) -> tuple[int, dict | None]:
+    """`cell run`, then `cell resume` after each kill, until the build completes: (kills, the
+    last run's JSON summary)."""
     kills = 0
     final: dict | None = None
-    try:
-        for _ in range(4):  # one JSON line per simulator
-            if not sim.stdout.readline():
-                raise SystemExit("cell sim up did not start")
-        time.sleep(0.3)
-        attempt = 0
-        while True:
-            args = ["run", str(jobp)] if attempt == 0 else ["resume"]
-            p = _cell(*args, "--cell-config", str(cfgp), "--runs", str(runs), "--json", "--max-step",
-                      str(a.max_step), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-            attempt += 1
-            if kills < n_kills:
-                started = threading.Event()
+    attempt = 0
+    while True:
+        args = ["run", str(jobp)] if attempt == 0 else ["resume"]
+        p = _cell(*args, "--cell-config", str(cfgp), "--runs", str(runs), "--json", "--max-step",
+                  str(a.max_step), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        attempt += 1
+        if kills < n_kills and _kill_when_due(p, rng, kill_at, kills, planned_mm, logs):
+            kills += 1
+            continue
+        out, _err = p.communicate(timeout=600)
+        if p.returncode not in (0, 1):
+            raise SystemExit(f"controller exited {p.returncode}: {_err[-400:]}")
+        final = json.loads(out.strip().splitlines()[-1])
+        if final["state"] == "complete":
+            break
+        if attempt > n_kills + 10:
+            raise SystemExit(f"build does not complete: {final}")
+    return kills, final
 
-                def watch(proc: subprocess.Popen = p, ev: threading.Event = started) -> None:
-                    for line in proc.stderr:
-                        if "passes done" in line or "building" in line:
-                            ev.set()
-                threading.Thread(target=watch, daemon=True).start()
-                started.wait(20)
-                if kill_at is None:
-                    time.sleep(rng.uniform(0.3, 4.0))  # a random moment of the build
-                else:  # once the deposit reaches the fraction (the arc is on)
-                    goal = kill_at[kills] * planned_mm
-                    while p.poll() is None and _deposited_mm(logs / "deposit.jsonl") < goal:
-                        time.sleep(0.01)
-                if p.poll() is None:
-                    os.killpg(p.pid, signal.SIGKILL)
-                    p.wait()
-                    kills += 1
-                    continue
-            out, _err = p.communicate(timeout=600)
-            if p.returncode not in (0, 1):
-                raise SystemExit(f"controller exited {p.returncode}: {_err[-400:]}")
-            final = json.loads(out.strip().splitlines()[-1])
-            if final["state"] == "complete":
-                break
-            if attempt > n_kills + 10:
-                raise SystemExit(f"build does not complete: {final}")
-    finally:
-        try:
-            os.killpg(sim.pid, signal.SIGINT)
-            sim.wait(10)
-        except Exception:
-            os.killpg(sim.pid, signal.SIGKILL)
-    wall = time.monotonic() - t_start
+
+def _kill_figures(a: argparse.Namespace, passes: list, logs: Path, kills: int, final: dict | None,
+                  wall: float) -> dict:
+    """The build's figures from the simulators' deposit and robot logs."""
     segs = read_segments(logs / "deposit.jsonl")
     cov = coverage(passes, segs)
     dups = exec_log_duplicates(logs / "robot.jsonl")
@@ -208,6 +202,38 @@ def build_with_kills(a: argparse.Namespace, work: Path, rng: random.Random,
             "lost_per_restart_mm": [round(v, 3) for v in lost],
             "twice_per_restart_mm": [round(v, 3) for v in twice],
             "robot_seq_duplicates": dups, "ok": ok, "logs": str(logs)}
+
+
+def build_with_kills(a: argparse.Namespace, work: Path, rng: random.Random,
+                     kill_at: list[float] | None) -> dict:
+    """One build against `cell sim up` in its own process: SIGKILL of `cell run` / `cell resume`
+    at random moments (`a.kills` of them) or, with `kill_at`, once the deposit log holds each
+    given fraction of the planned length; resumed until complete. Figures from the sims' logs."""
+    work.mkdir(parents=True, exist_ok=True)
+    cfgp, jobp, job = _setup(a, work)
+    logs, runs = work / "simlog", work / "runs"
+    passes = [p["points"] for la in job["layers"] for p in la["passes"]]
+    planned_mm = sum(math.dist(p, q) for P in passes for p, q in zip(P, P[1:]))
+    n_kills = len(kill_at) if kill_at is not None else a.kills
+    sim = _cell("sim", "up", "--cell-config", str(cfgp), "--log", str(logs), stdout=subprocess.PIPE,
+                stderr=subprocess.DEVNULL, text=True)
+    t_start = time.monotonic()
+    kills = 0
+    final: dict | None = None
+    try:
+        for _ in range(4):  # one JSON line per simulator
+            if not sim.stdout.readline():
+                raise SystemExit("cell sim up did not start")
+        time.sleep(0.3)
+        kills, final = _run_until_complete(a, cfgp, jobp, runs, logs, rng, kill_at, n_kills, planned_mm)
+    finally:
+        try:
+            os.killpg(sim.pid, signal.SIGINT)
+            sim.wait(10)
+        except Exception:
+            os.killpg(sim.pid, signal.SIGKILL)
+    wall = time.monotonic() - t_start
+    return _kill_figures(a, passes, logs, kills, final, wall)
 
 
 def main(argv: list[str]) -> int:

@@ -79,6 +79,7 @@ def _started(log: Path, mode: str) -> float | None:
 
 
 async def _build(tmp: Path, spec: str, scale: float, reset_errors: bool = False) -> dict[str, Any]:
+    # lazy: only this benchmark's path needs it
     from controller.api import CellController
     from controller.harness.sim import SimHarness, with_urls
     from core.config import load_cell, load_sim

@@ -60,6 +60,7 @@ async def _rig(th: SimThread, transport: str, can_interface: str, time_scale: fl
 
 async def _proc_rig(transport: str):
     """The simulator in a child process, as a separate device; CAN then runs over udp_multicast."""
+    # lazy: only this benchmark's path needs it
     import subprocess
     import sys
     proc = subprocess.Popen([sys.executable, "-m", "bench._power_sim_proc", transport], stdin=subprocess.PIPE,
@@ -214,6 +215,7 @@ def _line(name: str, xs: list[float], target: float) -> str:
 
 def _realtime(enable: bool) -> str:
     """Run the bench (and its child simulator) under SCHED_FIFO when allowed, as a cell PC would."""
+    # lazy: only this benchmark's path needs it
     import os
     if enable and hasattr(os, "sched_setscheduler"):
         try:
@@ -252,6 +254,7 @@ async def amain(args) -> int:
 
 
 def _restore_scheduling(policy: int | None, param) -> None:
+    # lazy: only this benchmark's path needs it
     import os
     if policy is not None:
         try:
@@ -269,6 +272,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--in-process", action="store_true",
                     help="cycle test with the simulator on a thread of this process (default: a child process)")
     ap.add_argument("--can-interface", default="virtual", choices=["virtual", "udp_multicast"])
+    # lazy: only this benchmark's path needs it
     import os
     # `python -m bench` runs every benchmark in one process: give the scheduling back after ours
     saved = (os.sched_getscheduler(0), os.sched_getparam(0)) if hasattr(os, "sched_getscheduler") else (None, None)

@@ -16,6 +16,9 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import trimesh
+from shapely.geometry import LineString, Point
+from shapely.ops import unary_union
 
 from bench.five_axis import _seg_dist
 from controller.motion.weld_path import weld_points
@@ -23,6 +26,7 @@ from controller.runtime.devices import with_urls
 from controller.cli.main import main as cell_main
 from controller.harness.repair_parts import make_parts, posed_sim  # noqa: F401  (bench API)
 from controller.harness.repair import repair_run_sim
+from controller.job.repair_volume import _manifold, _trimesh
 from core.config import load_cell
 
 
@@ -31,10 +35,6 @@ def worn_parts(tmp: Path, shape: str = "pocket") -> tuple[Path, Path]:
     (issue 29): "pocket" (the demo's 20×20×4 corner pocket), "L" (an L of two 8 mm legs, 4 deep,
     around the −X/−Y corner region), "slot" (8 × 30, 3 deep), "edge" (the −Y edge worn away in a
     ramp: 10 mm wide, 3 deep at the edge). Each leaves the middle of the top and +X faces intact."""
-    import trimesh
-
-    from controller.job.repair_volume import _manifold, _trimesh
-
     if shape == "pocket":
         return make_parts(tmp)
     cad = trimesh.creation.box(extents=(100, 100, 20))
@@ -102,9 +102,6 @@ async def one(tmp: Path, pose: tuple, scale: float = 60.0, shape: str = "pocket"
 
 def touches_on_deposit(job: dict, rep: dict) -> float:
     """Share of the verify touches (CAD frame xy) inside the planned bead footprints of the job."""
-    from shapely.geometry import LineString, Point
-    from shapely.ops import unary_union
-
     foot = unary_union([LineString([q[:2] for q in p["points"]]).buffer(float(p["width_mm"]) / 2)
                         for L in job["layers"] for p in L["passes"] if len(p["points"]) >= 2])
     pts = rep["verify"].get("at") or []

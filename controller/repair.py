@@ -99,55 +99,60 @@ def probe_plan(cad: Any, job: dict) -> Any:
     return plan_for_mesh(cad, top_span_mm=span, side_span_mm=float(max(side, 4.0)))
 
 
-def verify_targets(job: dict, n_inside: int = 12, n_edge: int = 8) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """Where to touch after the deposit, CAD frame: points on the deposit's exposed top, never on stock.
-
-    The deposit is the union of the planned bead footprints (each pass's centre line widened by
-    its width); the exposed top of a layer is its footprint minus the layers above. Touches go
-    inside it, at least half a bead (and the probe's spread) in from its boundary, spread out by
-    farthest-point sampling, and along its edges (half a bead in from the boundary, on the
-    boundary's longest stretches). Returns (n, 2) xy, (n,) planned top z under each, and kinds.
-    """
+def _layer_footprint(L: dict, job: dict) -> Any:
+    """One layer's planned deposit: the union of its passes' centre lines widened by their width
+    (None: the layer has no pass with a point)."""
     from shapely.geometry import LineString, Point
     from shapely.ops import unary_union
 
-    layers = sorted(job["layers"], key=lambda L: float(L["z_mm"]))
-    foot = []
-    for L in layers:
-        shapes = []
-        for p in L.get("passes", []):
-            pts = [(float(q[0]), float(q[1])) for q in p.get("points", [])]
-            w = float(p.get("width_mm") or job["bead"]["width_mm"])
-            if len(pts) >= 2:
-                shapes.append(LineString(pts).buffer(w / 2, cap_style="flat" if pts[0] != pts[-1] else "round"))
-            elif pts:
-                shapes.append(Point(pts[0]).buffer(w / 2))
-        foot.append(unary_union(shapes) if shapes else None)
-    w = float(job["bead"]["width_mm"])
-    inset = 0.5 * w + 0.25
-    cand: list[tuple[float, float, float, str]] = []
-    for i, L in enumerate(layers):
-        if foot[i] is None or foot[i].is_empty:
-            continue
-        above = [f for f in foot[i + 1:] if f is not None]
-        top = foot[i].difference(unary_union(above)) if above else foot[i]
-        core = top.buffer(-inset)
-        if core.is_empty:
-            continue
-        z = float(L["z_mm"])
-        lo = np.array(core.bounds[:2])
-        hi = np.array(core.bounds[2:])
-        step = max(0.5, float(np.sqrt(core.area / 400.0)))
-        xs = np.arange(lo[0], hi[0] + 1e-9, step)
-        ys = np.arange(lo[1], hi[1] + 1e-9, step)
-        grid = [(x, y) for x in xs for y in ys if core.contains(Point(x, y))]
-        cand += [(x, y, z, "inside") for x, y in grid]
-        for ring in ([core.exterior] if core.geom_type == "Polygon" else [g.exterior for g in core.geoms]):
-            n = max(4, int(ring.length / max(step, 1.0)))
-            cand += [(*ring.interpolate(k / n, normalized=True).coords[0], z, "edge") for k in range(n)]
-    if not cand:
-        raise InputError("repair verify: the planned deposit leaves no top a probe can touch (narrower than a bead)")
-    xy = np.array([(c[0], c[1]) for c in cand])
+    shapes = []
+    for p in L.get("passes", []):
+        pts = [(float(q[0]), float(q[1])) for q in p.get("points", [])]
+        w = float(p.get("width_mm") or job["bead"]["width_mm"])
+        if len(pts) >= 2:
+            shapes.append(LineString(pts).buffer(w / 2, cap_style="flat" if pts[0] != pts[-1] else "round"))
+        elif pts:
+            shapes.append(Point(pts[0]).buffer(w / 2))
+    return unary_union(shapes) if shapes else None
+
+
+def _core_candidates(core: Any, z: float) -> list[tuple[float, float, float, str]]:
+    """Touch candidates on one layer's inset exposed top at height z: a grid inside it, and points
+    spread along its edges."""
+    from shapely.geometry import Point
+
+    lo = np.array(core.bounds[:2])
+    hi = np.array(core.bounds[2:])
+    step = max(0.5, float(np.sqrt(core.area / 400.0)))
+    xs = np.arange(lo[0], hi[0] + 1e-9, step)
+    ys = np.arange(lo[1], hi[1] + 1e-9, step)
+    grid = [(x, y) for x in xs for y in ys if core.contains(Point(x, y))]
+    cand: list[tuple[float, float, float, str]] = [(x, y, z, "inside") for x, y in grid]
+    for ring in ([core.exterior] if core.geom_type == "Polygon" else [g.exterior for g in core.geoms]):
+        n = max(4, int(ring.length / max(step, 1.0)))
+        cand += [(*ring.interpolate(k / n, normalized=True).coords[0], z, "edge") for k in range(n)]
+    return cand
+
+
+def _layer_candidates(foot: list[Any], i: int, z: float, inset: float) -> list[tuple[float, float, float, str]]:
+    """Touch candidates on layer i's exposed top (its footprint minus the layers above), `inset` in
+    from its boundary; none when nothing of it is exposed that wide."""
+    from shapely.ops import unary_union
+
+    if foot[i] is None or foot[i].is_empty:
+        return []
+    above = [f for f in foot[i + 1:] if f is not None]
+    top = foot[i].difference(unary_union(above)) if above else foot[i]
+    core = top.buffer(-inset)
+    if core.is_empty:
+        return []
+    return _core_candidates(core, z)
+
+
+def _spread_pick(cand: list[tuple[float, float, float, str]], xy: np.ndarray,
+                 n_inside: int, n_edge: int) -> list[int]:
+    """Indices into cand: n_inside "inside" then n_edge "edge" touches by farthest-point sampling
+    (the first inside one nearest their centre), each kind kept away from all picked before."""
     pick: list[int] = []
     for kind, n in (("inside", n_inside), ("edge", n_edge)):
         idx = [i for i, c in enumerate(cand) if c[3] == kind]
@@ -161,7 +166,29 @@ def verify_targets(job: dict, n_inside: int = 12, n_edge: int = 8) -> tuple[np.n
             pick.append(cur)
             d = np.minimum(d, np.linalg.norm(xy[idx] - xy[cur], axis=1))
             cur = idx[int(np.argmax(d))]
-    pick = list(dict.fromkeys(pick))
+    return list(dict.fromkeys(pick))
+
+
+def verify_targets(job: dict, n_inside: int = 12, n_edge: int = 8) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Where to touch after the deposit, CAD frame: points on the deposit's exposed top, never on stock.
+
+    The deposit is the union of the planned bead footprints (each pass's centre line widened by
+    its width); the exposed top of a layer is its footprint minus the layers above. Touches go
+    inside it, at least half a bead (and the probe's spread) in from its boundary, spread out by
+    farthest-point sampling, and along its edges (half a bead in from the boundary, on the
+    boundary's longest stretches). Returns (n, 2) xy, (n,) planned top z under each, and kinds.
+    """
+    layers = sorted(job["layers"], key=lambda L: float(L["z_mm"]))
+    foot = [_layer_footprint(L, job) for L in layers]
+    w = float(job["bead"]["width_mm"])
+    inset = 0.5 * w + 0.25
+    cand: list[tuple[float, float, float, str]] = []
+    for i, L in enumerate(layers):
+        cand += _layer_candidates(foot, i, float(L["z_mm"]), inset)
+    if not cand:
+        raise InputError("repair verify: the planned deposit leaves no top a probe can touch (narrower than a bead)")
+    xy = np.array([(c[0], c[1]) for c in cand])
+    pick = _spread_pick(cand, xy, n_inside, n_edge)
     return xy[pick], np.array([cand[i][2] for i in pick]), [str(cand[i][3]) for i in pick]
 
 

@@ -108,6 +108,8 @@ class Material(_Frozen):
                                              description="shortest pass; default 2 bead widths")
     max_overhang_deg: float = Field(default=30.0, ge=0.0, lt=90.0,
                                     description="wall lean from vertical a 3-axis path may build")
+    machining_allowance_mm: float | None = Field(default=None, ge=0.0, le=100.0,
+                                                 description="near-net stock per face; default 0 (net shape)")
     tolerance: ProcessTolerance = ProcessTolerance()
     # exclude=True: not in `model_dump`, so a job (which carries the material's dump) is byte for
     # byte what it was before this section existed; the controller reads it from the material file

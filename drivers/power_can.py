@@ -20,6 +20,7 @@ from core.material import Material
 from drivers.errors import DeviceError, LinkLost
 from drivers.power import PowerCommand, PowerSource
 from wire.can_codec import DEFAULT_DBC, CanCodec, dbc_path
+from wire.can_net import check_channel, open_bus
 
 
 class CanPowerSource(PowerSource):
@@ -32,6 +33,7 @@ class CanPowerSource(PowerSource):
                  allow_network: bool = False, lost_after_cycles: int = 3, **bus_kwargs: Any) -> None:
         super().__init__(f"can://{interface}/{channel}?node={node}", material, cycle_ms=cycle_ms,
                          timeout_ms=timeout_ms, lost_after_cycles=lost_after_cycles)
+        # lazy: cantools loads only when this path runs (start-up time)
         import cantools
         try:
             db = cantools.database.load_file(str(dbc))
@@ -40,7 +42,6 @@ class CanPowerSource(PowerSource):
         self.codec = CanCodec(db, node)
         self.interface, self.channel, self.node = interface, channel, node
         self.allow_network = allow_network
-        from wire.can_net import check_channel
 
         check_channel(interface, channel, allow_network, self.where())  # refused before any I/O
         self.bus_kwargs = bus_kwargs
@@ -62,9 +63,9 @@ class CanPowerSource(PowerSource):
         return f"power source (CAN node {self.node}) on {self.interface} channel {self.channel}"
 
     async def _open(self) -> None:
+        # lazy: python-can loads only when this path runs (start-up time)
         import can
         try:
-            from wire.can_net import open_bus
 
             self._bus = open_bus(self.interface, self.channel, allow_network=self.allow_network,
                                  device=self.where(), **self.bus_kwargs)
@@ -105,6 +106,7 @@ class CanPowerSource(PowerSource):
             fut.set_result(got)
 
     async def _exchange(self, cmd: PowerCommand, counter: int) -> dict[str, Any]:
+        # lazy: python-can loads only when this path runs (start-up time)
         import can
         if self._bus is None:
             raise LinkLost(f"{self.where()}: not connected")

@@ -8,12 +8,8 @@ an adaptive timeout (Jacobson/Karn), sends control frames ahead of the queue, wa
 heartbeat (link lost after `link_timeout_s` of silence or when the port closes), and after a
 reconnect resynchronises from the robot's last received / last executed sequence numbers.
 
-Usage (the controller's build executor):
-    link = RobotLink(url)
-    st = await link.connect(resume_ticket=journaled_ticket_or_None)
-    t = await link.send_move("MOVL", x, y, z, i, j, k, v)   # back-pressure: waits for window space
-    await link.wait_executed(t)
-Waiters get LinkLost (naming the device and URL) when the link drops; with auto_reconnect the
+Usage: `open_robot(cfg)` (drivers/registry.py), `connect(resume_ticket=...)`, `send_move(...)`
+(back-pressure: waits for window space), `wait_executed(ticket)`. Waiters get LinkLost (naming the device and URL) when the link drops; with auto_reconnect the
 link reconnects in the background and emits `link_restored` (motion held by the robot's silence
 rule stays held until `go()`).
 """
@@ -89,6 +85,11 @@ class RobotLink(LinkLiveness[LinkStats]):
         self.hold_tx: deque[float] = deque(maxlen=16)
 
     # -- public properties ---------------------------------------------------------------------
+    @property
+    def max_sent(self) -> int:
+        """The highest ticket ever transmitted (the last weld move the robot can have executed)."""
+        return self._w.max_sent
+
     @property
     def link_timeout_s(self) -> float:
         """Lost after this long without a valid frame (LinkLiveness.lost_after_s)."""

@@ -8,6 +8,14 @@ travel speed is solved for the balance.
 from __future__ import annotations
 
 import math
+from typing import Sequence
+
+import numpy as np
+import shapely
+import shapely.errors
+from shapely.geometry import Polygon
+
+from planner.path2d import Path2D
 
 
 def laid_area_mm2(wire_diameter_mm: float, wfs_m_min: float, speed_mm_min: float) -> float:
@@ -23,3 +31,86 @@ def balanced_speed(wire_diameter_mm: float, wfs_m_min: float, filled_mm2: float)
 def balance_error(wire_diameter_mm: float, wfs_m_min: float, speed_mm_min: float, filled_mm2: float) -> float:
     """|laid − filled| / filled for the numbers as written in the job."""
     return abs(laid_area_mm2(wire_diameter_mm, wfs_m_min, speed_mm_min) - filled_mm2) / filled_mm2
+
+
+def partition_shares(island: Polygon, beads: Sequence[Path2D], width: float) -> np.ndarray:
+    """The width of the strip each bead fills (mm): the island's area nearest to its centre line
+    divided by its length (DESIGN.md §3.7, docs/planner.md "Mass balance").
+
+    The island is split among its beads by nearest centre line: the Voronoi diagram of points
+    every w/8 along the beads, cells gathered by bead and clipped to the island. The shares add
+    up to the island's area exactly: a lone bead fills its wall's whole section, an outermost
+    loop the half step-over plus the edge, a pocket bead its pocket. Deterministic.
+    """
+    n = len(beads)
+    lengths = np.array([b.length for b in beads])
+    area = float(island.area)
+    if n == 0 or area <= 0.0:
+        return np.zeros(n)
+    if n == 1:
+        return np.array([area / max(float(lengths[0]), 1e-9)])
+    pts, owner = _samples(beads, width / 6.0)
+    # A ring of far points around the island: the unbounded cells are theirs, not a bead's (GEOS
+    # leaves hull cells clipped to an envelope self-intersecting; bounded ones come out right).
+    frame = _frame(island, width)
+    allp = np.vstack([pts, frame])
+    cells = shapely.get_parts(shapely.voronoi_polygons(shapely.multipoints(allp), ordered=True))
+    if len(cells) != len(allp):  # degenerate input (GEOS merged points): share by length
+        return np.full(n, area / max(float(lengths.sum()), 1e-12))
+    cells = cells[:len(pts)]
+    bad = ~shapely.is_valid(cells)  # GEOS can leave a sliver cell self-intersecting
+    cells[bad] = shapely.make_valid(cells[bad])
+    try:
+        areas = _clipped_areas(cells, island, 4.0 * width)
+    except shapely.errors.GEOSException:  # a topology conflict of nearly coincident edges: snap both
+        areas = _clipped_areas(shapely.make_valid(shapely.set_precision(cells, 1e-6)),
+                               shapely.make_valid(shapely.set_precision(island, 1e-6)), 4.0 * width)
+    near = np.bincount(owner, weights=areas, minlength=n).astype(np.float64)
+    near = near * (area / max(float(near.sum()), 1e-12))  # the cells tile the island: rounding only
+    out: np.ndarray = near / np.maximum(lengths, 1e-9)
+    return out
+
+
+def _frame(island: Polygon, width: float) -> np.ndarray:
+    """Points on a circle 2 w beyond the island's bounding box, about w apart."""
+    minx, miny, maxx, maxy = island.bounds
+    r = 0.5 * float(np.hypot(maxx - minx, maxy - miny)) + 2.0 * width
+    k = int(2.0 * np.pi * r / width) + 8
+    ang = np.arange(k) * (2.0 * np.pi / k)
+    return np.column_stack([0.5 * (minx + maxx) + r * np.cos(ang), 0.5 * (miny + maxy) + r * np.sin(ang)])
+
+
+def _clipped_areas(cells: np.ndarray, island: shapely.Geometry, tile_mm: float) -> np.ndarray:
+    """Area of each cell inside the island. Cells wholly inside are not clipped; the others are
+    clipped against tiles of the island (a grid of squares about `tile_mm` wide): each overlay
+    then sees a few island edges, not all of them."""
+    shapely.prepare(island)
+    areas = np.asarray(shapely.area(cells), dtype=np.float64)
+    edge = np.flatnonzero(~shapely.contains(island, cells))
+    if len(edge) == 0:
+        return areas
+    minx, miny, maxx, maxy = island.bounds
+    xs = np.arange(minx, maxx + tile_mm, tile_mm)
+    ys = np.arange(miny, maxy + tile_mm, tile_mm)
+    gx, gy = np.meshgrid(xs[:-1], ys[:-1])
+    boxes = shapely.box(gx.ravel(), gy.ravel(), gx.ravel() + tile_mm, gy.ravel() + tile_mm)
+    tiles = shapely.intersection(boxes, island)
+    tiles = tiles[~shapely.is_empty(tiles)]
+    ci, ti = shapely.STRtree(tiles).query(cells[edge], predicate="intersects")
+    part = shapely.area(shapely.intersection(cells[edge][ci], tiles[ti]))
+    areas[edge] = np.bincount(ci, weights=part, minlength=len(edge))
+    return areas
+
+
+def _samples(beads: Sequence[Path2D], spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points evenly along each bead by arc length, about `spacing` apart (ends included), and
+    their bead; points of different beads closer than spacing/4 are kept once (a junction)."""
+    lines = np.array([shapely.linestrings(b.points) for b in beads], dtype=object)
+    lengths = shapely.length(lines)
+    counts = np.maximum(np.ceil(lengths / spacing).astype(np.int64), 1) + 1
+    owner = np.repeat(np.arange(len(beads)), counts)
+    frac = np.concatenate([np.linspace(0.0, 1.0, int(k)) for k in counts])
+    pts = shapely.get_coordinates(shapely.line_interpolate_point(lines[owner], frac, normalized=True))
+    _, first = np.unique(np.round(pts / (0.25 * spacing)), axis=0, return_index=True)
+    first.sort()
+    return pts[first], owner[first]

@@ -1,6 +1,8 @@
 """Prism meshes from shapely polygons (demo and test parts), without a triangulation engine."""
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import shapely
 import trimesh
@@ -23,15 +25,19 @@ def extrude(poly: Polygon, height: float, z0: float = 0.0) -> trimesh.Trimesh:
     for ring in (poly.exterior, *poly.interiors):
         c = np.asarray(ring.coords)[:, :2]
         a, b = c[:-1], c[1:]
-        lo = lambda p: np.column_stack([p, np.full(len(p), z0)])  # noqa: E731
-        hi = lambda p: np.column_stack([p, np.full(len(p), z0 + height)])  # noqa: E731
-        walls.append(np.stack([lo(a), lo(b), hi(b)], axis=1))
-        walls.append(np.stack([lo(a), hi(b), hi(a)], axis=1))
+        walls.append(np.stack([_at(a, z0), _at(b, z0), _at(b, z0 + height)], axis=1))
+        walls.append(np.stack([_at(a, z0), _at(b, z0 + height), _at(a, z0 + height)], axis=1))
     triangles = np.concatenate([top, bottom, *walls])
-    mesh = trimesh.Trimesh(**trimesh.triangles.to_kwargs(triangles), process=True)
-    return mesh
+    tri: Any = trimesh.triangles  # trimesh's functions are not annotated
+    return trimesh.Trimesh(**tri.to_kwargs(triangles), process=True)
+
+
+def _at(p: np.ndarray, z: float) -> np.ndarray:
+    return np.column_stack([p, np.full(len(p), z)])
 
 
 def stack(*meshes: trimesh.Trimesh) -> trimesh.Trimesh:
     """Several disjoint solids as one mesh."""
-    return trimesh.util.concatenate(meshes)
+    util: Any = trimesh.util
+    out: trimesh.Trimesh = util.concatenate(meshes)
+    return out

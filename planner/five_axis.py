@@ -21,6 +21,7 @@ docs/planner.md "5-axis"):
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 from dataclasses import dataclass
 
 import numpy as np
@@ -100,7 +101,7 @@ def _layer_directions(job: Job) -> list[np.ndarray]:
 
 def _raw_axes(p: Pass, layer_dir: np.ndarray) -> np.ndarray:
     ax = np.tile(layer_dir, (len(p.points), 1))
-    if p.normals is None or p.role != "perimeter":
+    if p.normals is None:  # boundary beads (perimeters, lone beads of a single-bead wall) carry normals
         return ax
     n = _unit_rows(np.asarray(p.normals, dtype=float))
     g = np.cross(n, _tangents(p.points))
@@ -177,11 +178,11 @@ def _material(layer: Layer) -> shapely.Geometry:
 def _signed(region: shapely.Geometry, xy: np.ndarray) -> np.ndarray:
     """Signed distance of points to a region's outline: negative inside."""
     d = shapely.distance(region.boundary, shapely.points(xy))
-    return np.where(shapely.contains_xy(region, xy[:, 0], xy[:, 1]), -d, d)
+    return np.asarray(np.where(shapely.contains_xy(region, xy[:, 0], xy[:, 1]), -d, d))
 
 
 def overhangs(job: Job, max_overhang_deg: float = 30.0,
-              regions: list[shapely.Geometry] | None = None) -> list[dict]:
+              regions: list[shapely.Geometry] | None = None) -> list[dict[str, Any]]:
     """Layers whose outline steps out beyond the rule on the job's path (its `axes`, vertical if absent).
 
     The step out at a perimeter point p is how much farther out the layer's outline lies than the
@@ -197,9 +198,10 @@ def overhangs(job: Job, max_overhang_deg: float = 30.0,
         dz = float(layer.z_mm - below.z_mm)
         w = max(p.width_mm for p in layer.passes)
         limit = min(w / 2.0, dz * np.tan(np.radians(max_overhang_deg)))
-        worst, where = 0.0, None
+        worst: float = 0.0
+        where: np.ndarray | None = None
         for p in layer.passes:
-            if p.role != "perimeter":  # the part's boundary is what steps out; infill lies inside it
+            if p.role != "perimeter" and p.normals is None:  # the boundary steps out (loops, lone beads)
                 continue
             ax = p.axes if p.axes is not None else np.tile(Z, (len(p.points), 1))
             foot = p.points - ax * (dz / np.maximum(ax[:, 2:3], 1e-6))
@@ -208,14 +210,14 @@ def overhangs(job: Job, max_overhang_deg: float = 30.0,
             i = int(np.argmax(step))
             if step[i] > worst:
                 worst, where = float(step[i]), p.points[i]
-        if worst > limit + _TOL_MM:
+        if where is not None and worst > limit + _TOL_MM:
             out.append({"layer": layer.index, "z_mm": round(float(layer.z_mm), 3),
                         "step_out_mm": round(worst, 3), "limit_mm": round(float(limit), 3),
                         "at": [round(float(v), 2) for v in where]})
     return out
 
 
-def overhang_message(found: list[dict]) -> str:
+def overhang_message(found: list[dict[str, Any]]) -> str:
     head = "; ".join(f"layer {f['layer']} (z {f['z_mm']} mm) steps out {f['step_out_mm']} mm at "
                      f"({f['at'][0]}, {f['at'][1]}) > {f['limit_mm']} mm" for f in found[:6])
     more = f"; and {len(found) - 6} more" if len(found) > 6 else ""
@@ -232,13 +234,13 @@ def _sample(points: np.ndarray, step: float) -> np.ndarray:
     return np.vstack(out)
 
 
-def collisions(job: Job, nozzle: Nozzle, first_only: bool = True) -> list[dict]:
+def collisions(job: Job, nozzle: Nozzle, first_only: bool = True) -> list[dict[str, Any]]:
     """Points where the nozzle cone would hit the part built so far (bead centre lines)."""
-    from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree  # lazy: only a 5-axis plan with a nozzle loads scipy (start-up time)
 
     tan_h = np.tan(np.radians(nozzle.half_angle_deg))
     built: list[np.ndarray] = []
-    hits: list[dict] = []
+    hits: list[dict[str, Any]] = []
     for layer in job.layers:
         for pi, p in enumerate(layer.passes):
             if built:
@@ -264,7 +266,7 @@ def collisions(job: Job, nozzle: Nozzle, first_only: bool = True) -> list[dict]:
     return hits
 
 
-def collision_message(hit: dict) -> str:
+def collision_message(hit: dict[str, Any]) -> str:
     return (f"the nozzle would hit the part: layer {hit['layer']} pass {hit['pass']} point {hit['point']} at "
             f"({hit['at'][0]}, {hit['at'][1]}, {hit['at'][2]}) touches the bead at ({hit['hits'][0]}, "
             f"{hit['hits'][1]}, {hit['hits'][2]}); lower --tilt-limit, change the part's orientation or the nozzle")
@@ -297,7 +299,8 @@ def apply(job: Job, opt: FiveAxisOptions | None, allow_overhang: bool = False,
         hit = collisions(out, opt.nozzle)
         if hit:
             raise CollisionError(collision_message(hit[0]))
-    tilts = [float(np.degrees(np.arccos(np.clip(p.axes[:, 2], -1, 1))).max()) for L in out.layers for p in L.passes]
+    tilts = [float(np.degrees(np.arccos(np.clip(p.axes[:, 2], -1, 1))).max()) for L in out.layers for p in L.passes
+             if p.axes is not None]
     summary["overhang"] = rule
     summary["five_axis"] = {"tilt_limit_deg": opt.tilt_limit_deg, "max_tilt_deg": round(max(tilts, default=0.0), 2)}
     return dataclasses.replace(out, summary=summary)

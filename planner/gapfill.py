@@ -48,7 +48,7 @@ def pocket_line(poly: Polygon, width: float, min_width: float) -> list[Path2D]:
 
 
 @lru_cache(maxsize=4096)
-def _centre_lines(key: bytes, width: float, min_width: float, depth: int) -> tuple:
+def _centre_lines(key: bytes, width: float, min_width: float, depth: int) -> tuple[tuple[np.ndarray, float, bool], ...]:
     out = []
     todo = [shapely.from_wkb(key)]
     for _ in range(depth):
@@ -66,7 +66,7 @@ def _centre_lines(key: bytes, width: float, min_width: float, depth: int) -> tup
     return tuple(out)
 
 
-def _axis_graph(poly: Polygon, width: float):
+def _axis_graph(poly: Polygon, width: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
     """Voronoi edges of the densified boundary inside the polygon, as (nodes, i, j, lengths)."""
     dense = shapely.segmentize(poly, width / 4.0)
     pts = shapely.get_coordinates(dense.boundary)
@@ -108,17 +108,17 @@ def _axis_beads(poly: Polygon, width: float, min_width: float) -> list[tuple[np.
     for members in sorted(_components(adj), key=len, reverse=True):
         if len(members) < 2:
             continue
-        path, closed = _longest(adj, members, i, j)
-        if len(path) < 2:
+        order, closed = _longest(adj, members, i, j)
+        if len(order) < 2:
             continue
-        path = nodes[path]
+        path = nodes[order]
         # Local width: twice the distance from the axis to the boundary (the inscribed circles).
         radii = shapely.distance(shapely.points(path), boundary)
         r_med = float(np.median(radii))
         if not closed:
             # The axis runs out into the corners where the inscribed circle shrinks to nothing:
             # the bead stops where the circle is still nearly the typical one (its cap fills the end).
-            keep = np.flatnonzero(radii >= 0.9 * r_med)
+            keep = np.flatnonzero(radii >= 0.97 * r_med)
             path = path[keep[0]:keep[-1] + 1]
         if len(path) < 2:
             continue
@@ -170,7 +170,8 @@ def _dijkstra(adj: dict[int, list[tuple[int, float]]], src: int) -> tuple[dict[i
     return dist, pred
 
 
-def _longest(adj, members: list[int], i: np.ndarray, j: np.ndarray) -> tuple[list, bool]:
+def _longest(adj: dict[int, list[tuple[int, float]]], members: list[int], i: np.ndarray,
+             j: np.ndarray) -> tuple[list[int], bool]:
     """The cycle if the axis is a ring (its 2-core), else the tree's diameter path."""
     inside = set(members)
     e_in = np.array([a in inside for a in i.tolist()], dtype=bool)
@@ -188,7 +189,7 @@ def _longest(adj, members: list[int], i: np.ndarray, j: np.ndarray) -> tuple[lis
     return path[::-1], False
 
 
-def _cycle(members: np.ndarray, i: np.ndarray, j: np.ndarray) -> list | None:
+def _cycle(members: np.ndarray, i: np.ndarray, j: np.ndarray) -> list[int] | None:
     """The single cycle left after pruning the axis's leaves; None if it is not one simple cycle."""
     ei, ej = i.copy(), j.copy()
     while len(ei):

@@ -1,6 +1,8 @@
 """Scan-line infill linked zigzag into continuous beads (Fang 2019 §1.5, Kerschbaumer 2004)."""
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import shapely
 from shapely import affinity
@@ -23,7 +25,7 @@ def row_count(span: float, step: float, min_spacing: float, max_spacing: float) 
     return k + 1, span / k
 
 
-def scan_fill(region, step: float, width: float, angle_deg: float, min_spacing: float | None = None) -> list[Path2D]:
+def scan_fill(region: shapely.Geometry, step: float, width: float, angle_deg: float, min_spacing: float | None = None) -> list[Path2D]:
     """Fill `region` (bead centres may go anywhere in it) with scan lines near `step`, linked zigzag."""
     out: list[Path2D] = []
     lo = step if min_spacing is None else min_spacing
@@ -63,8 +65,8 @@ def _zigzag(poly: Polygon, step: float, spacing: float, n: int) -> list[list[tup
     """Link each row's segments to an overlapping segment of the next row at the same side."""
     corridor = poly.buffer(0.6 * step)
     shapely.prepare(corridor)
-    chains: list[dict] = []
-    active: list[dict] = []
+    chains: list[dict[str, Any]] = []
+    active: list[dict[str, Any]] = []
     prev_y = None
     for y, segs in _rows(poly, n):
         used = [False] * len(segs)

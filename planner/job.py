@@ -42,6 +42,7 @@ class Pass:
     points: np.ndarray  # (n, 3) mm
     normals: np.ndarray | None = None  # (n, 3) unit facet normals (perimeters), optional
     axes: np.ndarray | None = None     # (n, 3) unit tool axes in the part frame (5-axis plans)
+    inside_envelope: bool = True       # False only under --allow-outside (written only then)
 
     @property
     def length_mm(self) -> float:
@@ -80,9 +81,10 @@ def _num(x: float, nd: int) -> float:
     return 0.0 if v == 0 else v  # no "-0.0" in the file
 
 
-def _arr(a: np.ndarray, nd: int) -> list:
+def _arr(a: np.ndarray, nd: int) -> list[Any]:
     r = np.round(np.asarray(a, dtype=np.float64), nd) + 0.0
-    return r.tolist()
+    out: list[Any] = r.tolist()
+    return out
 
 
 def job_to_dict(job: Job) -> dict[str, Any]:
@@ -97,6 +99,8 @@ def job_to_dict(job: Job) -> dict[str, Any]:
                 d["normals"] = _arr(p.normals, 4)
             if p.axes is not None:
                 d["axes"] = _arr(p.axes, 5)
+            if not p.inside_envelope:
+                d["inside_envelope"] = False
             passes.append(d)
         ld: dict[str, Any] = {"index": L.index, "z_mm": _num(L.z_mm, 4), "height_mm": _num(L.height_mm, 4),
                               "passes": passes}
@@ -127,7 +131,7 @@ def _get(d: Any, key: str, where: str) -> Any:
     return d[key]
 
 
-def _number(d: dict, key: str, where: str, positive: bool = False) -> float:
+def _number(d: dict[str, Any], key: str, where: str, positive: bool = False) -> float:
     v = _get(d, key, where)
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
         raise InputError(f"job file: {where}.{key} must be a number, got {v!r}")
@@ -146,7 +150,7 @@ def _points(v: Any, where: str) -> np.ndarray:
     return a
 
 
-def _axes(p: dict, pw: str, n: int) -> np.ndarray | None:
+def _axes(p: dict[str, Any], pw: str, n: int) -> np.ndarray | None:
     if "axes" not in p:
         return None
     ax = _points(p["axes"], f"{pw}.axes")
@@ -155,6 +159,27 @@ def _axes(p: dict, pw: str, n: int) -> np.ndarray | None:
     if not np.allclose(np.linalg.norm(ax, axis=1), 1.0, atol=1e-3):
         raise InputError(f"job file: {pw}.axes must be unit vectors [i, j, k]")
     return ax
+
+
+def _pass(p: Any, pw: str) -> Pass:
+    role = _get(p, "role", pw)
+    if role not in ROLES:
+        raise InputError(f"job file: {pw}.role is {role!r}, expected one of {', '.join(ROLES)}")
+    pts = _points(_get(p, "points", pw), f"{pw}.points")
+    if len(pts) < 2:
+        raise InputError(f"job file: {pw}.points needs at least 2 points")
+    normals = None
+    if "normals" in p:
+        normals = _points(p["normals"], f"{pw}.normals")
+        if len(normals) != len(pts):
+            raise InputError(f"job file: {pw}.normals has {len(normals)} rows for {len(pts)} points")
+    axes = _axes(p, pw, len(pts))
+    inside = p.get("inside_envelope", True)
+    if not isinstance(inside, bool):
+        raise InputError(f"job file: {pw}.inside_envelope must be true or false")
+    return Pass(role, _number(p, "width_mm", pw, True), _number(p, "current_a", pw, True),
+                _number(p, "speed_mm_min", pw, True), _number(p, "wfs_m_min", pw, True),
+                pts, normals, axes, inside)
 
 
 def load_job(d: Any) -> Job:
@@ -183,24 +208,7 @@ def load_job(d: Any) -> Job:
         raw_passes = _get(L, "passes", w)
         if not isinstance(raw_passes, list):
             raise InputError(f"job file: {w}.passes must be a list")
-        passes = []
-        for j, p in enumerate(raw_passes):
-            pw = f"{w}.passes[{j}]"
-            role = _get(p, "role", pw)
-            if role not in ROLES:
-                raise InputError(f"job file: {pw}.role is {role!r}, expected one of {', '.join(ROLES)}")
-            pts = _points(_get(p, "points", pw), f"{pw}.points")
-            if len(pts) < 2:
-                raise InputError(f"job file: {pw}.points needs at least 2 points")
-            normals = None
-            if "normals" in p:
-                normals = _points(p["normals"], f"{pw}.normals")
-                if len(normals) != len(pts):
-                    raise InputError(f"job file: {pw}.normals has {len(normals)} rows for {len(pts)} points")
-            axes = _axes(p, pw, len(pts))
-            passes.append(Pass(role, _number(p, "width_mm", pw, True), _number(p, "current_a", pw, True),
-                               _number(p, "speed_mm_min", pw, True), _number(p, "wfs_m_min", pw, True),
-                               pts, normals, axes))
+        passes = [_pass(p, f"{w}.passes[{j}]") for j, p in enumerate(raw_passes)]
         ip = None
         if "interpass" in L:
             ip = Interpass(_number(L["interpass"], "max_temperature_c", f"{w}.interpass"),

@@ -8,14 +8,21 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
+from planner.balance import partition_shares
+from planner.nearnet import allowance_for
 from planner.gapfill import centre_lines, pocket_line
 from planner.infill import scan_fill
 from planner.ordering import join_chains, link_into_loops, order_passes, seam_at
 from planner.path2d import Path2D
 from planner.perimeters import perimeter_loops, split_thin
+from planner.reach import reach_fill
 from planner.regions import polygons_of
-from planner.stubs import no_stubs
+from planner.stubs import drop_short, no_stubs
 from planner.thin import Widths, layout, thin_beads, wall_width
+
+
+ALLOWANCE_HINT = "buildable with --machining-allowance"
+Groups = list[list[Path2D]]  # an island's beads: [perimeters, infill, gaps]
 
 
 @dataclass(frozen=True)
@@ -29,18 +36,20 @@ class LayerCtx:
     widths: Widths
     lone_share: float  # profile area / (w·h): what a lone bead fills
     min_length: float
+    allowance: float = 0.0  # machining allowance the islands were grown by (mm)
+    min_coverage: float = 0.97  # an island covered less gets narrower legal beads where they fit
 
 
 @dataclass
 class LayerPlan:
-    region: object
+    region: shapely.Geometry
     paths: list[Path2D]
     end: np.ndarray
     travel_mm: float
-    stats: dict = field(default_factory=dict)
+    stats: dict[str, int] = field(default_factory=dict)
     issues: list[str] = field(default_factory=list)  # underfill: for the plan's verdict
     stubs: list[str] = field(default_factory=list)  # short beads dropped (no neighbour to merge into)
-    groups: list = field(default_factory=list)  # per island: [perimeters, infill, gaps], before ordering
+    groups: list[Groups] = field(default_factory=list)  # per island: [perimeters, infill, gaps], before ordering
 
 
 def plan_layer(polys: list[Polygon], index: int, ctx: LayerCtx, pos: np.ndarray) -> LayerPlan:
@@ -53,19 +62,23 @@ def plan_layer(polys: list[Polygon], index: int, ctx: LayerCtx, pos: np.ndarray)
     per_island = []
     for poly in polys:
         groups = _island(poly, index, angle, ctx, stats, issues)
+        groups[2] += reach_fill(poly, [b for g in groups for b in g], ctx.widths, ctx.min_coverage, ctx.min_length)
         groups = no_stubs(groups, ctx.min_length, poly, index, stubs, 1.5 * ctx.width)
+        # two stubs welded together can still be short: dropped before the shares are drawn
+        groups = [drop_short(g, ctx.min_length, index, stubs) for g in groups]
         if not any(groups) and poly.area > 0.05 * ctx.width ** 2:
             c = poly.representative_point()
             b = poly.bounds
             issues.append(f"layer {index}: feature at ({c.x:.1f}, {c.y:.1f}), {b[2] - b[0]:.2f} x {b[3] - b[1]:.2f} mm, "
                           f"gets no bead of at least {ctx.min_length:.1f} mm (min_bead_length_mm)")
-        _balance_island(groups, poly)
+        _balance_island(groups, poly, ctx.width, ctx.widths.lo)
         per_island.append(groups)
     ordered, pos, travel = order_islands(per_island, pos)
     return LayerPlan(region, ordered, pos, travel, stats, issues, stubs, per_island)
 
 
-def _island(poly: Polygon, index: int, angle: float, ctx: LayerCtx, stats: dict, issues: list[str]):
+def _island(poly: Polygon, index: int, angle: float, ctx: LayerCtx, stats: dict[str, int],
+            issues: list[str]) -> Groups:
     w = ctx.width
     thick, thin = split_thin(poly, w)
     # A piece narrower than two perimeters a side (w + 3 d*) gets the thin layout too: perimeters
@@ -77,31 +90,46 @@ def _island(poly: Polygon, index: int, angle: float, ctx: LayerCtx, stats: dict,
         if not n:
             _thick(t, index, angle, ctx, groups, stats)
     for t in thin:
-        W = wall_width(t, 0.02 * w)
-        lay = layout(W, ctx.widths)
-        c = t.representative_point()
-        if lay is None:
-            issues.append(f"layer {index}: feature at ({c.x:.1f}, {c.y:.1f}) is {W:.2f} mm wide, narrower than "
-                          f"the smallest legal bead ({ctx.widths.lo:.2f} mm)")
-            continue
-        beads, wide = thin_beads(t, lay, ctx.lone_share, ctx.widths, W)
-        if wide or (lay.n > 1 and lay.filled < 0.97 * W):
-            Wn = max(wide, default=W)
-            issues.append(f"layer {index}: wall at ({c.x:.1f}, {c.y:.1f}) is {Wn:.2f} mm wide: no count of legal "
-                          f"beads ({ctx.widths.lo:.2f}-{ctx.widths.hi:.2f} mm) fills it; {ctx.widths.hi:.2f} mm filled")
-        stats["regions"] += sum(1 for b in beads if not b.closed) or bool(beads)
-        stats["loops"] += sum(1 for b in beads if b.closed)
-        groups[0] += [seam_at(b, index) if b.closed else b for b in beads if b.role == "perimeter"]
-        groups[2] += [seam_at(b, index) if b.closed else b for b in beads if b.role != "perimeter"]
+        _thin(t, index, ctx, groups, stats, issues)
     return groups
 
 
-def _thick(t: Polygon, index: int, angle: float, ctx: LayerCtx, groups: list[list[Path2D]], stats: dict) -> None:
+def _thin(t: Polygon, index: int, ctx: LayerCtx, groups: Groups, stats: dict[str, int], issues: list[str]) -> None:
+    """A thin piece: its width from the process (planner.thin), or an issue naming it."""
+    W = wall_width(t, 0.02 * ctx.width)
+    lay = layout(W, ctx.widths)
+    c = t.representative_point()
+    if lay is None:
+        issues.append(f"layer {index}: feature at ({c.x:.1f}, {c.y:.1f}) is {W:.2f} mm wide, narrower than "
+                      f"the smallest legal bead ({ctx.widths.lo:.2f} mm)" + _hint(W, ctx))
+        return
+    beads, wide = thin_beads(t, lay, ctx.lone_share, ctx.widths, W)
+    if wide or (lay.n > 1 and lay.filled < 0.97 * W):
+        Wn = max(wide, default=W)
+        issues.append(f"layer {index}: wall at ({c.x:.1f}, {c.y:.1f}) is {Wn:.2f} mm wide: no count of legal "
+                      f"beads ({ctx.widths.lo:.2f}-{ctx.widths.hi:.2f} mm) fills it; {ctx.widths.hi:.2f} mm filled"
+                      + _hint(Wn, ctx))
+    stats["regions"] += sum(1 for b in beads if not b.closed) or bool(beads)
+    stats["loops"] += sum(1 for b in beads if b.closed)
+    groups[0] += [seam_at(b, index) if b.closed else b for b in beads if b.role == "perimeter"]
+    groups[2] += [seam_at(b, index) if b.closed else b for b in beads if b.role != "perimeter"]
+
+
+def _hint(W: float, ctx: LayerCtx) -> str:
+    """What machining allowance would make a refused feature buildable (near-net, DESIGN §3.9)."""
+    extra = allowance_for(W, ctx.widths, 2.0 * ctx.width)
+    if extra is None:
+        return ""
+    return f" ({ALLOWANCE_HINT} {ctx.allowance + extra:.2f} mm)"
+
+
+def _thick(t: Polygon, index: int, angle: float, ctx: LayerCtx, groups: Groups, stats: dict[str, int]) -> None:
     w, step = ctx.width, ctx.step
     min_sp = ctx.widths.r_lo * w
     slivers: list[Polygon] = []
     if ctx.perimeters == 0:
-        loops, inset = [], 0.5 * w - step  # infill centres from half a bead inside
+        loops: list[list[Path2D]] = []
+        inset = 0.5 * w - step  # infill centres from half a bead inside
     else:
         loops, inset, slivers = perimeter_loops(t, w, step, ctx.perimeters, min_spacing=min_sp)
     stats["loops"] += sum(len(lv) for lv in loops)
@@ -124,56 +152,73 @@ def _thick(t: Polygon, index: int, angle: float, ctx: LayerCtx, groups: list[lis
         rest = t.buffer(-(inset + 0.5 * w))
     else:
         rest = t
-    # What neither the perimeters nor the scan lines reach gets centre-line gap beads.
-    reach = filled + gaps
+    gaps += _pockets(rest, filled + gaps, w, stats)
+    stats["regions"] += len(gaps) and 1
+    groups[2] += [seam_at(b, index) if b.closed else b for b in gaps]
+
+
+def _pockets(rest: shapely.Geometry, reach: list[Path2D], w: float, stats: dict[str, int]) -> list[Path2D]:
+    """Centre-line gap beads for what neither the perimeters nor the scan lines reach."""
     if reach and not rest.is_empty:
         lines = np.array([shapely.linestrings(c.points) for c in reach], dtype=object)
         rest = rest.difference(shapely.union_all(shapely.buffer(lines, 0.5 * w, quad_segs=4)))
+    out: list[Path2D] = []
     for piece in polygons_of(rest):
         if piece.area > 0.2 * w * w:
             # A small pocket (a lune at a row's end) is nearly straight: no medial axis needed.
             small = piece.area < 2.0 * w * w and len(piece.interiors) == 0
             beads = pocket_line(piece, w, 0.2 * w) if small else centre_lines(piece, w, min_width=0.2 * w)
             stats["regions"] += bool(beads)
-            gaps += beads
-    stats["regions"] += len(gaps) and 1
-    groups[2] += [seam_at(b, index) if b.closed else b for b in gaps]
+            out += beads
+    return out
 
 
-def _balance_island(groups: list[list[Path2D]], poly: Polygon) -> None:
-    """Scale the shares of overlapped beads so the island's metal fills its area (lone beads keep theirs)."""
-    beads = [b for g in groups for b in g]
-    if not beads or any(b.lone for b in beads):
-        return
-    planned = sum(b.share_mm * b.length for b in beads)
-    if planned <= 0:
-        return
-    # Round caps and joins make the strips a little approximate: the scale is bounded.
-    k = float(np.clip(poly.area / planned, 0.8, 1.25))
+def _balance_island(groups: list[list[Path2D]], poly: Polygon, width: float, narrowest: float) -> None:
+    """Each bead's share: the part of the island nearest to it (planner.balance.partition_shares),
+    so the island's beads lay its area × h exactly, lone beads their wall's whole section.
+
+    A gap bead left less than a quarter of its width (at least the narrowest legal bead's: it is
+    welded at least that wide) lies on its neighbours: there is nothing for it to fill and the cell
+    could not weld so little; it is removed and the island shared again.
+    """
+    for attempt in range(3):
+        beads = [b for g in groups for b in g]
+        if not beads:
+            return
+        shares = partition_shares(poly, beads, width).tolist()
+        idle = {id(b) for b, s in zip(beads, shares) if b.role == "gap" and s < 0.25 * max(b.width_mm, narrowest)}
+        if not idle or len(idle) == len(beads) or attempt == 2:
+            break
+        for g in groups:
+            g[:] = [b for b in g if id(b) not in idle]
+    it = iter(shares)
     for g in groups:
-        g[:] = [Path2D(b.role, b.points, b.width_mm, b.closed, b.share_mm * k, b.lone) for b in g]
+        g[:] = [Path2D(b.role, b.points, b.width_mm, b.closed, next(it), b.lone) for b in g]
 
 
 def reseamed(lp: LayerPlan, index: int, pos: np.ndarray) -> LayerPlan:
     """The same layer plan for another layer index: seams moved on, beads ordered from `pos`."""
     groups = [[[seam_at(p, index) if p.closed else p for p in g] for g in isl] for isl in lp.groups]
     ordered, end, travel = order_islands(groups, pos)
-    relayer = lambda m: re.sub(r"^layer \d+:", f"layer {index}:", m)  # noqa: E731
+    tag = f"layer {index}:"
     return replace(lp, paths=ordered, end=end, travel_mm=travel, groups=groups,
-                   issues=[relayer(m) for m in lp.issues], stubs=[relayer(m) for m in lp.stubs])
+                   issues=[re.sub(r"^layer \d+:", tag, m) for m in lp.issues],
+                   stubs=[re.sub(r"^layer \d+:", tag, m) for m in lp.stubs])
 
 
-def order_islands(per_island: list[list[list[Path2D]]], pos: np.ndarray) -> tuple[list[Path2D], np.ndarray, float]:
+def _nearest_end(ends: np.ndarray, pos: np.ndarray) -> float:
+    return float(np.min(np.hypot(*(ends - pos).T))) if len(ends) else float("inf")
+
+
+def order_islands(per_island: list[Groups], pos: np.ndarray) -> tuple[list[Path2D], np.ndarray, float]:
     """Islands nearest first from `pos`, each ordered by `order_passes`; (beads, end, travel)."""
     ordered: list[Path2D] = []
     travel = 0.0
     todo = list(range(len(per_island)))
+    ends = [np.array([p.points[k] for g in isl for p in g for k in (0, -1)]).reshape(-1, 2) for isl in per_island]
     while todo:
         # Next island: the one whose nearest bead end is closest to where the torch is.
-        def near(i: int) -> float:
-            ends = [p.points[k] for g in per_island[i] for p in g for k in (0, -1)]
-            return min((float(np.hypot(*(e - pos))) for e in ends), default=np.inf)
-        i = min(todo, key=near)
+        i = min(todo, key=lambda k: _nearest_end(ends[k], pos))
         todo.remove(i)
         seq, end = order_passes(per_island[i], pos)
         for p in seq:

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import hashlib
 import io
+from typing import Any
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -66,7 +67,7 @@ def read_mesh(path: str | Path, units: str = "mm") -> PreparedMesh:
         fast = _prepare_clean(vertices, faces, units, source)
         if fast is not None:
             return fast
-        import trimesh
+        import trimesh  # lazy: the fast binary-STL path never loads trimesh (start-up time)
 
         return prepare_mesh(trimesh.Trimesh(vertices, faces, process=False), units, source)
     return prepare_mesh(_parse(data, ext, p), units, source)
@@ -150,8 +151,8 @@ def _prepare_clean(vertices: np.ndarray, faces: np.ndarray, units: str, source: 
     return PreparedMesh(vertices, np.ascontiguousarray(f, dtype=np.int64), normals, tuple(repairs), True, source, z0)
 
 
-def _parse(data: bytes, ext: str, p: Path):
-    import trimesh
+def _parse(data: bytes, ext: str, p: Path) -> Any:
+    import trimesh  # lazy: the fast binary-STL path never loads trimesh (start-up time)
 
     try:
         loaded = trimesh.load(io.BytesIO(data), file_type=ext, force="mesh", process=False)
@@ -166,9 +167,9 @@ def _parse(data: bytes, ext: str, p: Path):
     return loaded
 
 
-def prepare_mesh(mesh, units: str = "mm", source: MeshSource | None = None) -> PreparedMesh:
+def prepare_mesh(mesh: Any, units: str = "mm", source: MeshSource | None = None) -> PreparedMesh:
     """Scale to mm, merge, drop degenerate/duplicate faces, fix winding, fill small holes, z0 = 0."""
-    import trimesh
+    import trimesh  # lazy: the fast binary-STL path never loads trimesh (start-up time)
 
     name = source.file if source else "mesh"
     if len(mesh.faces) == 0:
@@ -192,7 +193,8 @@ def prepare_mesh(mesh, units: str = "mm", source: MeshSource | None = None) -> P
     if len(mesh.faces) == 0:
         raise MeshError(f"{name}: every triangle is degenerate (zero area); export the part again")
     if not mesh.is_winding_consistent:
-        trimesh.repair.fix_winding(mesh)
+        repair: Any = trimesh.repair  # trimesh's functions are not annotated
+        repair.fix_winding(mesh)
         repairs.append("fixed inconsistent face winding")
     if not mesh.is_watertight:
         before = len(mesh.faces)

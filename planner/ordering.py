@@ -1,9 +1,12 @@
 """Seams, linking infill into perimeter loops, and bead order (nearest neighbour) within a layer."""
 from __future__ import annotations
 
+from typing import Any
+
 import math
 
 import numpy as np
+import shapely
 
 from planner.path2d import Path2D
 
@@ -100,30 +103,38 @@ def order_passes(groups: list[list[Path2D]], start: np.ndarray) -> tuple[list[Pa
     return out, pos
 
 
-def join_chains(chains: list[Path2D], reach: float, corridor) -> list[Path2D]:
-    """Join open beads whose ends lie within `reach` through `corridor`: fewer arc starts."""
-    import shapely
+def _closest_ends(chains: list[Path2D], tags: list[int], rejected: set[tuple[int, int, bool, bool]],
+                  reach: float) -> tuple[float, int, int, bool, bool] | None:
+    """The nearest (end of a, start of b) pair within reach not refused yet: (d, i, j, ra, rb);
+    the first in (i, j, ra, rb) order among equals."""
+    first = np.array([c.points[0] for c in chains])
+    last = np.array([c.points[-1] for c in chains])
+    pa = np.stack([last, first], axis=1)  # [i, ra]: where a ends when run forward / reversed
+    pb = np.stack([first, last], axis=1)  # [j, rb]: where b starts
+    d = np.linalg.norm(pa[:, None, :, None, :] - pb[None, :, None, :, :], axis=-1)  # [i, j, ra, rb]
+    n = len(chains)
+    d[np.arange(n), np.arange(n)] = np.inf
+    index = {t: k for k, t in enumerate(tags)}
+    for ti, tj, rev_a, rev_b in rejected:
+        if ti in index and tj in index:
+            d[index[ti], index[tj], int(rev_a), int(rev_b)] = np.inf
+    k = int(np.argmin(d))
+    i, j, ra, rb = np.unravel_index(k, d.shape)
+    best = float(d[i, j, ra, rb])
+    if not best <= reach:
+        return None
+    return best, int(i), int(j), bool(ra), bool(rb)
 
+
+def join_chains(chains: list[Path2D], reach: float, corridor: Any) -> list[Path2D]:
+    """Join open beads whose ends lie within `reach` through `corridor`: fewer arc starts."""
     chains = list(chains)
     tags = list(range(len(chains)))  # stable names for pairs already refused (never id())
     serial = len(chains)
     shapely.prepare(corridor)
     rejected: set[tuple[int, int, bool, bool]] = set()
     while len(chains) > 1:
-        best = None
-        for i, a in enumerate(chains):
-            for j, b in enumerate(chains):
-                if i == j:
-                    continue
-                for ra in (False, True):
-                    for rb in (False, True):
-                        if (tags[i], tags[j], ra, rb) in rejected:
-                            continue
-                        pa = a.points[0] if ra else a.points[-1]  # where a ends (run reversed if ra)
-                        pb = b.points[-1] if rb else b.points[0]  # where b starts
-                        d = float(np.hypot(*(pb - pa)))
-                        if d <= reach and (best is None or d < best[0]):
-                            best = (d, i, j, ra, rb)
+        best = _closest_ends(chains, tags, rejected, reach)
         if best is None:
             break
         _, i, j, ra, rb = best

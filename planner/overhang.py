@@ -35,7 +35,7 @@ def overhang_limit_mm(dz_mm: float, width_mm: float, max_overhang_deg: float, ti
     return min(dz_mm * math.tan(math.radians(lean)), cap)
 
 
-def check_overhang(below, layer, dz_mm: float, width_mm: float, max_overhang_deg: float,
+def check_overhang(below: shapely.Geometry | None, layer: shapely.Geometry, dz_mm: float, width_mm: float, max_overhang_deg: float,
                    tilt_deg: float = 0.0) -> OverhangCheck:
     """`layer` (a shapely region) against `below` (None: it rests on the substrate)."""
     limit = overhang_limit_mm(dz_mm, width_mm, max_overhang_deg, tilt_deg)

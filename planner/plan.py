@@ -2,96 +2,40 @@
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
+import shapely
+from shapely.geometry import Polygon
 
 from planner import limits
-from core.errors import EnvelopeError, InputError, MeshError
+from core.errors import MeshError
 from core.material import Material
 from planner import five_axis
-from planner.balance import balance_error, balanced_speed
+from planner.balance import laid_area_mm2
 from planner.bead import area_factor, step_over
 from planner.ding import close_share
-from planner.five_axis import FiveAxisOptions
-from planner.job import BeadInfo, Interpass, Job, Layer, Pass, Source
-from planner.layer import LayerCtx, plan_layer, reseamed
+from planner.job import BeadInfo, Interpass, Job, Layer, Source
+from planner.layer import LayerCtx, LayerPlan, plan_layer, reseamed
+from planner.nearnet import grow, layer_count
 from planner.mesh import PreparedMesh, check_size, prepare_mesh, read_mesh
-from planner.path2d import Path2D
-from planner.process import ProcessPoint, inverse
+from planner.process import inverse
 from planner.regions import islands
+from planner.path2d import Path2D
 from planner.slicer import LayerSlice, slice_levels, slice_mesh
+from planner.stubs import drop_short
 from planner.summary import ARC_START_S, TRAVEL_MM_MIN, LayerQuality, layer_quality, summarise
 from planner.thin import legal_widths
+from planner.options import PlanOptions
 from planner.verdict import Verdict
+from planner.weld import Process, as_welded, weld_passes
 
 Progress = Callable[[int, int], None]
 
-
-@dataclass(frozen=True)
-class PlanOptions:
-    width_mm: float
-    layer_height_mm: float | None = None  # default: the bead height of the process model
-    perimeters: int | str | None = 2  # None or "all": offset until the loops meet
-    units: str = "mm"
-    allow_outside: bool = False  # accept welding points outside the material's envelope
-    infill_angle_deg: float = 0.0  # scan direction of layer 0; +90° every layer
-    allow_underfill: bool = False  # features no legal bead fills, layers below min_coverage: warnings
-    allow_overhang: bool = False  # steps out beyond the overhang rule: warnings
-    min_coverage: float = 0.97  # every layer at least this share covered by beads
-    workspace_mm: tuple[float, float, float] | None = None  # the cell's room: a larger part is refused
-    five_axis: FiveAxisOptions | None = None  # tool axes per point (planner/five_axis.py)
-    frame: str = "substrate"  # substrate: lowest point on z = 0; cad: keep the CAD coordinates (repair)
-
-    def __post_init__(self) -> None:
-        if isinstance(self.perimeters, str):  # "all" or "3", as on the command line
-            p = self.perimeters.strip().lower()
-            if p != "all" and not p.isdigit():
-                raise InputError(f"--perimeters: '{self.perimeters}' is not a number of perimeters or 'all'")
-            object.__setattr__(self, "perimeters", None if p == "all" else int(p))
-        if not (self.width_mm > 0 and np.isfinite(self.width_mm)):
-            raise InputError(f"--width: must be a positive number of mm, got {self.width_mm}")
-        if self.layer_height_mm is not None and not (0 < self.layer_height_mm < self.width_mm * 5):
-            raise InputError(f"--layer-height: must be > 0 mm and sensible for a {self.width_mm} mm bead, "
-                             f"got {self.layer_height_mm}")
-        if self.frame not in ("substrate", "cad"):
-            raise InputError(f"--frame: '{self.frame}' is not substrate or cad")
-        if not (0.0 <= self.min_coverage <= 1.0):
-            raise InputError(f"--min-coverage: must be between 0 and 1, got {self.min_coverage}")
-        if self.perimeters is not None and not (0 <= self.perimeters <= 1000):
-            raise InputError(f"--perimeters: must be 0..1000 or 'all', got {self.perimeters}")
+__all__ = ["PlanOptions", "Progress", "in_frame", "plan_part"]
 
 
-class _Process:
-    """Welding points per bead width at the layer height, cached."""
-
-    def __init__(self, material: Material, height: float, allow_outside: bool, nominal: float):
-        self.material, self.height, self.allow, self.nominal = material, height, allow_outside, nominal
-        self.cache: dict[float, ProcessPoint] = {}
-
-    def point(self, width: float) -> ProcessPoint:
-        w = round(float(width), 3)
-        if w not in self.cache:
-            self.cache[w] = self._solve(w)
-        return self.cache[w]
-
-    def _solve(self, w: float) -> ProcessPoint:
-        try:
-            return inverse(self.material, w, self.height, allow_outside=self.allow)
-        except EnvelopeError:
-            if w == round(self.nominal, 3):
-                raise
-        # A gap bead whose width the envelope cannot weld: the nearest weldable width toward nominal.
-        for cand in np.linspace(w, self.nominal, 9)[1:]:
-            try:
-                return inverse(self.material, round(float(cand), 3), self.height)
-            except EnvelopeError:
-                continue
-        return inverse(self.material, self.nominal, self.height, allow_outside=self.allow)
-
-
-def plan_part(mesh_or_path, options: PlanOptions,
+def plan_part(mesh_or_path: Any, options: PlanOptions,
               material: Material, progress: Progress | None = None) -> Job:
     """Plan a part (a path, a trimesh.Trimesh or a PreparedMesh) into a `cell-job/1` Job.
 
@@ -104,71 +48,103 @@ def plan_part(mesh_or_path, options: PlanOptions,
     height = options.layer_height_mm or nominal.height_mm
     check_size(mesh, w, height)
     limits.check_before_slicing(mesh.source.file, mesh.vertices, mesh.faces, height, options.workspace_mm)
-    step = step_over(w, overlap_model=material.bead.overlap_model, profile=material.bead.profile)
-    proc = _Process(material, height, options.allow_outside, w)
-    ctx = LayerCtx(w, step, options.perimeters, options.infill_angle_deg,
-                   legal_widths(material, height, w, step / w, options.allow_outside),
-                   area_factor(material.bead.profile), material.min_bead_length_mm or 2.0 * w)
-    levels = slice_levels(float(mesh.extents[2]), height)
+    run = _Run(options, material, height)
+    top_z = float(mesh.extents[2])
     gap_tols = (1e-6, 0.01 * w, 0.1 * w, 0.5 * w)
-    slices = slice_mesh(mesh.vertices, mesh.faces, mesh.face_normals, levels, gap_tols)
+    slices = slice_mesh(mesh.vertices, mesh.faces, mesh.face_normals, slice_levels(top_z, height), gap_tols)
     _fail_on_open(slices, mesh.source.file, w)
-    verdict = Verdict(options, material, ctx)
+    n_net = len(slices)
+    slices = _with_top(slices, layer_count(top_z, height, run.ctx.allowance, n_net), height)
     layers: list[Layer] = []
-    qualities: list[LayerQuality] = []
-    pos = np.zeros(2)
-    time_s = 0.0
-    arc_time_s = 0.0          # the beads alone, at their planned speed (the record compares it)
-    n_passes = 0
-    interpass = Interpass(material.interpass.max_temperature_c, material.interpass.dwell_s)
-    below = None
-    regions = []  # each layer's outline, for the 5-axis overhang rule
-    memo = _LayerMemo()
     for sl in slices:
-        polys = islands([c.points for c in sl.contours if c.closed], simplify_mm=0.005 * w)
-        hit = memo.get(polys, sl.index, pos, proc)
-        if hit is None:
-            lp = plan_layer(polys, sl.index, ctx, pos)
-            paths = [_as_welded(p, proc) for p in lp.paths]
-            q = layer_quality(lp.region, paths, w, height)
-            close = close_share(paths, material.bead.min_step_over_ratio, w)
-            memo.put(polys, sl.index, lp, (q, close))
-        else:
-            lp, paths, (q, close) = hit
-        verdict.ding(sl.index, close)
-        pos = lp.end
-        qualities.append(q)
-        verdict.layer(sl.index, lp, q, below, height)
-        below = lp.region
-        regions.append(lp.region)
-        z = float((sl.index + 1) * height)
-        passes = _passes(paths, sl, z, proc, verdict)
-        n_passes += len(passes)
-        time_s += lp.travel_mm / TRAVEL_MM_MIN * 60.0 + len(passes) * ARC_START_S
-        arc_s = sum(p.length_mm / p.speed_mm_min * 60.0 for p in passes)
-        time_s += arc_s
-        arc_time_s += arc_s
-        if sl.index > 0:
-            time_s += material.interpass.dwell_s
-        layers.append(Layer(sl.index, z, height, tuple(passes), interpass,
-                            {"area_mm2": round(q.area_mm2, 2), "coverage": round(q.coverage, 5),
-                             "perimeter_loops": lp.stats["loops"], "fill_regions": lp.stats["regions"]}))
+        layers.append(run.layer(sl, sl.index >= n_net))
         if progress is not None:
             progress(sl.index + 1, len(slices))
-    summary = summarise(qualities, n_passes, time_s)
-    summary["arc_time_s"] = round(arc_time_s, 1)
-    summary.update(verdict.finish(mesh.source.file, qualities))
+    summary = summarise(run.qualities, run.n_passes, run.time_s)
+    summary["arc_time_s"] = round(run.arc_time_s, 1)
+    summary.update(run.verdict.finish(mesh.source.file, run.qualities))
+    summary["machining"] = _machining(run.ctx.allowance, run.qualities, len(slices) * height - top_z, len(slices) - n_net)
     summary["repairs"] = list(mesh.repairs)
     summary["open_contours"] = []
     summary["closed_gaps"] = sum(1 for sl in slices for c in sl.contours if c.gap_mm > 1e-6)
     mat = material.model_dump(mode="json")
-    bead = BeadInfo(w, height, step, f"{material.bead.profile}/{material.bead.overlap_model}")
+    bead = BeadInfo(w, height, run.ctx.step, f"{material.bead.profile}/{material.bead.overlap_model}")
     src = Source(mesh.source.file, mesh.source.sha256, mesh.source.units)
     job = Job(src, mat, bead, tuple(layers), summary)
     if options.five_axis is not None:  # the tool tilts to bring the overhangs within the rule
         fa = dataclasses.replace(options.five_axis, max_overhang_deg=material.max_overhang_deg)
-        job = five_axis.apply(job, fa, options.allow_overhang, regions)
+        job = five_axis.apply(job, fa, options.allow_overhang, run.regions)
     return in_frame(job, options.frame, mesh.z_shift_mm)
+
+
+class _Run:
+    """One plan's state carried from layer to layer: the torch position, the verdict, the totals."""
+
+    def __init__(self, options: PlanOptions, material: Material, height: float) -> None:
+        w = options.width_mm
+        step = step_over(w, overlap_model=material.bead.overlap_model, profile=material.bead.profile)
+        perimeters = options.perimeters if not isinstance(options.perimeters, str) else None
+        self.ctx = LayerCtx(w, step, perimeters, options.infill_angle_deg,
+                            legal_widths(material, height, w, step / w, options.allow_outside),
+                            area_factor(material.bead.profile), material.min_bead_length_mm or 2.0 * w,
+                            _allowance(options, material), options.min_coverage)
+        self.options, self.material, self.height = options, material, height
+        self.proc = Process(material, height, options.allow_outside, w)
+        self.verdict = Verdict(options, material, self.ctx)
+        self.interpass = Interpass(material.interpass.max_temperature_c, material.interpass.dwell_s)
+        self.memo = _LayerMemo()
+        self.pos = np.zeros(2)
+        self.below: shapely.Geometry | None = None
+        self.regions: list[shapely.Geometry] = []  # each layer's outline, for the 5-axis overhang rule
+        self.qualities: list[LayerQuality] = []
+        self.time_s = 0.0
+        self.arc_time_s = 0.0  # the beads alone, at their planned speed (the record compares it)
+        self.n_passes = 0
+
+    def _plan(self, sl: LayerSlice, top: bool) -> tuple[LayerPlan, list[Path2D], LayerQuality, float]:
+        """The layer's beads (from the memo when a layer below had the same islands)."""
+        w, allowance = self.ctx.width, self.ctx.allowance
+        net = islands([c.points for c in sl.contours if c.closed], simplify_mm=0.005 * w)
+        polys = grow(net, allowance)
+        hit = self.memo.get(polys, sl.index, self.pos, self.proc, top)
+        if hit is not None:
+            return hit
+        lp = plan_layer(polys, sl.index, self.ctx, self.pos)
+        paths = [as_welded(p, self.proc) for p in lp.paths]
+        stock_of = shapely.union_all(net) if allowance > 0 and not top and net else None
+        q = layer_quality(lp.region, paths, w, self.height, stock_of)
+        close = close_share(paths, self.material.bead.min_step_over_ratio, w)
+        self.memo.put(polys, sl.index, lp, (q, close), top)
+        return lp, paths, q, close
+
+    def layer(self, sl: LayerSlice, top: bool) -> Layer:
+        """Plan, weld and judge one layer (`top`: a layer of the top's near-net stock)."""
+        lp, paths, q, close = self._plan(sl, top)
+        v, h = self.verdict, self.height
+        paths = drop_short(paths, self.ctx.min_length, sl.index, v.stubs)
+        v.ding(sl.index, close)
+        self.pos = lp.end
+        self.qualities.append(q)
+        v.layer(sl.index, lp, q, self.below, h)
+        self.below = lp.region
+        self.regions.append(lp.region)
+        z = float((sl.index + 1) * h)
+        passes, worst, adjusted = weld_passes(paths, sl, z, self.proc, self.options.cell_limits, v.limits)
+        v.balance(worst)
+        v.wfs_adjusted += adjusted
+        if q.area_mm2 > 0 and passes:  # the layer's metal against its section x h (DESIGN §3.7)
+            laid = sum(laid_area_mm2(self.material.wire_diameter_mm, p.wfs_m_min, p.speed_mm_min) * p.length_mm
+                       for p in passes)
+            v.layer_balance(abs(laid - q.area_mm2 * h) / (q.area_mm2 * h))
+        self.n_passes += len(passes)
+        arc_s = sum(p.length_mm / p.speed_mm_min * 60.0 for p in passes)
+        self.time_s += lp.travel_mm / TRAVEL_MM_MIN * 60.0 + len(passes) * ARC_START_S + arc_s
+        self.arc_time_s += arc_s
+        if sl.index > 0:
+            self.time_s += self.material.interpass.dwell_s
+        return Layer(sl.index, z, h, tuple(passes), self.interpass,
+                     {"area_mm2": round(q.area_mm2, 2), "coverage": round(q.coverage, 5),
+                      "perimeter_loops": lp.stats["loops"], "fill_regions": lp.stats["regions"]})
 
 
 def in_frame(job: Job, frame: str, z_shift_mm: float) -> Job:
@@ -185,30 +161,58 @@ class _LayerMemo:
     is planned the same; its seams move on and its beads are ordered from where the torch is."""
 
     def __init__(self) -> None:
-        self.seen: dict[tuple, tuple] = {}
+        self.seen: dict[tuple[bytes, int, bool], tuple[LayerPlan, tuple[LayerQuality, float]]] = {}
 
     @staticmethod
-    def _key(polys: list, index: int) -> tuple:
-        import shapely
-
+    def _key(polys: list[Polygon], index: int, tag: bool) -> tuple[bytes, int, bool]:
         norm = shapely.normalize(shapely.set_precision(np.asarray(polys, dtype=object), 1e-6))
-        return (b"".join(shapely.to_wkb(norm).tolist()), index % 2)
+        return (b"".join(shapely.to_wkb(norm).tolist()), index % 2, tag)
 
-    def get(self, polys: list, index: int, pos: np.ndarray, proc: "_Process"):
-        hit = self.seen.get(self._key(polys, index))
+    def get(self, polys: list[Polygon], index: int, pos: np.ndarray, proc: Process,
+            tag: bool = False) -> tuple[LayerPlan, list[Path2D], LayerQuality, float] | None:
+        hit = self.seen.get(self._key(polys, index, tag))
         if hit is None:
             return None
-        lp, q = hit
+        lp, (q, close) = hit
         lp = reseamed(lp, index, pos)
-        return lp, [_as_welded(p, proc) for p in lp.paths], q
+        return lp, [as_welded(p, proc) for p in lp.paths], q, close
 
-    def put(self, polys: list, index: int, lp, q) -> None:
+    def put(self, polys: list[Polygon], index: int, lp: LayerPlan, q: tuple[LayerQuality, float],
+            tag: bool = False) -> None:
         if len(self.seen) >= 64:  # bounded: a prism repeats the layer just below
             self.seen.clear()
-        self.seen[self._key(polys, index)] = (lp, q)
+        self.seen[self._key(polys, index, tag)] = (lp, q)
 
 
-def _mesh(m, units: str) -> PreparedMesh:
+def _allowance(options: PlanOptions, material: Material) -> float:
+    """The machining allowance: the option's, else the material's, else 0 (net shape)."""
+    if options.machining_allowance_mm is not None:
+        return float(options.machining_allowance_mm)
+    return float(material.machining_allowance_mm or 0.0)
+
+
+def _with_top(slices: list[LayerSlice], count: int, height: float) -> list[LayerSlice]:
+    """The slices, and layers repeating the top one's contours up to `count` (the top's stock)."""
+    if count <= len(slices) or not slices:
+        return slices
+    top = slices[-1]
+    return slices + [LayerSlice(i, (i + 0.5) * height, top.contours) for i in range(len(slices), count)]
+
+
+def _machining(allowance: float, qualities: list[LayerQuality], top_mm: float, added: int) -> dict[str, Any]:
+    """The summary's near-net record: allowance, stock left to machine per face, layers added on top."""
+    out: dict[str, Any] = {"allowance_mm": round(allowance, 3)}
+    if allowance <= 0:
+        return out
+    st = [q.stock for q in qualities if q.stock is not None]
+    out["stock_mm"] = {"side_min": round(min((s[0] for s in st), default=0.0), 3),
+                       "side_max": round(max((s[1] for s in st), default=0.0), 3),
+                       "top": round(top_mm, 3), "bottom": 0.0}
+    out["top_layers_added"] = added
+    return out
+
+
+def _mesh(m: Any, units: str) -> PreparedMesh:
     if isinstance(m, PreparedMesh):
         return m
     if hasattr(m, "faces") and hasattr(m, "vertices"):  # a trimesh.Trimesh
@@ -229,44 +233,3 @@ def _fail_on_open(slices: list[LayerSlice], name: str, w: float) -> None:
     more = f"; and {len(bad) - 8} more" if len(bad) > 8 else ""
     raise MeshError(f"{name}: {len(bad)} open contour(s) wider than the gap tolerance ({0.5 * w:g} mm): "
                     + "; ".join(lines) + more + "; close the mesh (e.g. in a mesh repair tool) and plan again")
-
-
-def _as_welded(p: Path2D, proc: _Process) -> Path2D:
-    """The bead as the process will weld it: a gap bead may come out wider than its pocket."""
-    w = proc.point(p.width_mm).width_mm
-    if abs(w - p.width_mm) < 1e-9:
-        return p
-    share = p.share_mm * w / p.width_mm if p.lone else p.share_mm
-    return Path2D(p.role, p.points, w, p.closed, share, p.lone)
-
-
-def _passes(paths: list[Path2D], sl: LayerSlice, z: float, proc: _Process, verdict: Verdict) -> list[Pass]:
-    closed = [c for c in sl.contours if c.closed]
-    nrm = np.vstack([c.normals for c in closed]) if closed else None
-    per = [p for p in paths if p.role == "perimeter"]
-    near = iter(())
-    if per and closed:  # one nearest-point query for every perimeter point of the layer
-        idx = _nearest(np.vstack([p.points for p in per]), np.vstack([c.points for c in closed]))
-        near = iter(np.split(idx, np.cumsum([len(p.points) for p in per])[:-1]))
-    out = []
-    for p in paths:
-        pp = proc.point(p.width_mm)
-        pts = np.column_stack([p.points, np.full(len(p.points), z)])
-        normals = nrm[next(near)] if p.role == "perimeter" and closed else None
-        # Mass balance: the speed at which this pass lays the cross-section it fills.
-        filled = max(p.share_mm, 0.05 * p.width_mm) * proc.height
-        speed = round(balanced_speed(proc.material.wire_diameter_mm, pp.wfs_m_min, filled), 1)
-        verdict.balance(balance_error(proc.material.wire_diameter_mm, round(pp.wfs_m_min, 3), speed, filled))
-        out.append(Pass(p.role, pp.width_mm, pp.current_a, speed, pp.wfs_m_min, pts, normals))
-    return out
-
-
-def _nearest(q: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Index of the nearest contour point for each query point (shapely's STRtree: no scipy import)."""
-    import shapely
-
-    tree = shapely.STRtree(shapely.points(pts))
-    hit = tree.query_nearest(shapely.points(q), all_matches=False)
-    out = np.zeros(len(q), dtype=np.int64)
-    out[hit[0]] = hit[1]
-    return out

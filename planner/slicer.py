@@ -7,6 +7,8 @@ open, reported.
 """
 from __future__ import annotations
 
+from typing import Any
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,7 +55,7 @@ def slice_mesh(vertices: np.ndarray, faces: np.ndarray, face_normals: np.ndarray
     return slices
 
 
-def _segments(vertices, faces, levels):
+def _segments(vertices: np.ndarray, faces: np.ndarray, levels: np.ndarray) -> Any:
     fz = vertices[:, 2][faces]
     zmin, zmax = fz.min(axis=1), fz.max(axis=1)
     # A vertex on a plane counts as above it, so every crossing face has exactly one "up" edge.
@@ -74,7 +76,7 @@ def _segments(vertices, faces, levels):
     fv = faces[face]
     rows = np.arange(total)
 
-    def cut(j):
+    def cut(j: int) -> Any:
         ia, ib = fv[rows, j], fv[rows, nxt[j]]
         a, b = vertices[ia], vertices[ib]
         t = (z - a[:, 2]) / (b[:, 2] - a[:, 2])
@@ -90,7 +92,8 @@ def _segments(vertices, faces, levels):
     return layer, pa, pb, face, ka, kb
 
 
-def _assemble(pa, pb, normals, ks, ke, tolerances):
+def _assemble(pa: np.ndarray, pb: np.ndarray, normals: np.ndarray, ks: np.ndarray, ke: np.ndarray,
+              tolerances: tuple[float, ...]) -> list[Contour]:
     n = len(pa)
     if n == 0:
         return []
@@ -133,7 +136,7 @@ def _assemble(pa, pb, normals, ks, ke, tolerances):
     return [c for c in contours if len(c.points) >= 3 or not c.closed]
 
 
-def _contour(pa, pb, normals, idx, closed, gap):
+def _contour(pa: np.ndarray, pb: np.ndarray, normals: np.ndarray, idx: Any, closed: bool, gap: float) -> Contour:
     idx = np.asarray(idx)
     pts = pa[idx]
     nrm = normals[idx]
@@ -149,7 +152,8 @@ def _contour(pa, pb, normals, idx, closed, gap):
     return Contour(pts[keep], nrm[keep], closed, gap)
 
 
-def _close_gaps(pa, pb, normals, chains, tolerances):
+def _close_gaps(pa: np.ndarray, pb: np.ndarray, normals: np.ndarray, chains: list[Any],
+                tolerances: tuple[float, ...]) -> list[Contour]:
     """Join open chains end-to-start (or a chain to itself) with growing tolerances."""
     pieces = [list(c) for c in chains]
     gaps = [0.0] * len(pieces)

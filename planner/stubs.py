@@ -68,3 +68,16 @@ def _merge(stub: Path2D, groups: list[list[Path2D]], island: Polygon, reach: flo
             groups[gi] = [q for q in g if not q.closed] + merged
             return True
     return False
+
+
+def drop_short(paths: list[Path2D], min_len: float, layer: int, dropped: list[str]) -> list[Path2D]:
+    """The last guard: a pass still shorter than the minimum (whatever made it) is dropped and named."""
+    keep = []
+    for p in paths:
+        if p.length >= min_len - 1e-9:
+            keep.append(p)
+            continue
+        c = p.points.mean(axis=0)
+        dropped.append(f"layer {layer}: {p.role} bead at ({c[0]:.1f}, {c[1]:.1f}) of {p.length:.1f} mm, "
+                       f"shorter than {min_len:.1f} mm")
+    return keep

@@ -13,11 +13,18 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Awaitable, Callable
+from typing import TYPE_CHECKING
 
 from sims.clock import SimClock
+from sims.faults import FaultSpec
 from sims.thermal import LumpedThermal
 from sims.world import World
 from wire.cellio_map import COILS, INPUTS, to_register
+from wire.urls import parse_tcp_url
+
+if TYPE_CHECKING:
+    from sims.up import Served, SimContext
 
 GAS_FLOW_L_MIN = 15.0
 TICK_S = 0.010
@@ -27,7 +34,7 @@ class CellIOSim:
     """The coupler's state, the part's temperature and scheduled operator actions."""
 
     def __init__(self, *, clock: SimClock | None = None, world: World | None = None,
-                 thermal: LumpedThermal | None = None, faults=None) -> None:
+                 thermal: LumpedThermal | None = None, faults: FaultSpec | None = None) -> None:
         self.clock = clock or SimClock(1.0)
         self.world = world
         self.thermal = thermal or LumpedThermal()
@@ -36,7 +43,7 @@ class CellIOSim:
         self._t = self.clock.now()
         self._scheduled: list[tuple[float, str, bool]] = []   # (sim t, input, value)
         self._silent_until = 0.0
-        self.log: list[dict] = []
+        self.log: list[dict[str, object]] = []
         self.reads = 0
         if faults is not None:
             for name, key in (("door_open", "door_closed"), ("estop", "estop_released")):
@@ -48,7 +55,7 @@ class CellIOSim:
                             self._scheduled.append((float(v) + float(dur), key, True))
             sil = faults.value("silence", None)
             self._silence_events = [float(v) for c, v in faults.events("silence") if c == "t"]
-            self._silence_dur = None if sil is None else float(sil)
+            self._silence_dur: float | None = None if sil is None else float(sil)
         else:
             self._silence_events, self._silence_dur = [], None
 
@@ -111,7 +118,7 @@ class CellIOSim:
         return GAS_FLOW_L_MIN if self.coils["gas_valve"] and self.inputs["gas_ok"] else 0.0
 
     # -- Modbus view -------------------------------------------------------------------------------
-    def read(self, fc: int, address: int, count: int) -> list | None:
+    def read(self, fc: int, address: int, count: int) -> list[bool] | list[int] | None:
         self.tick()
         self.reads += 1
         vals: list[bool] | list[int]
@@ -127,7 +134,7 @@ class CellIOSim:
             return None
         return vals[address:address + count]
 
-    def write(self, fc: int, address: int, values: list) -> bool:
+    def write(self, fc: int, address: int, values: list[int]) -> bool:
         if fc not in (5, 15) or address < 0 or address + len(values) > len(COILS):
             return False
         for i, v in enumerate(values):
@@ -143,15 +150,17 @@ class CellIOSim:
             await asyncio.sleep(TICK_S)
 
 
-async def serve_modbus_tcp(sim: CellIOSim, host: str = "127.0.0.1", port: int = 0, device_id: int = 1):
+async def serve_modbus_tcp(sim: CellIOSim, host: str = "127.0.0.1", port: int = 0,
+                           device_id: int = 1) -> tuple[str, Callable[[], Awaitable[None]]]:
     """Start the coupler on Modbus TCP and the model's ticking; returns (url, close)."""
+    # lazy: sims.up imports every simulator module (a cycle at import time)
     from sims.modbus_server import serve_tcp
     return await serve_tcp(sim, host, port, device_id)
 
 
-async def serve(ctx) -> list:
+async def serve(ctx: SimContext) -> list[Served]:
     """`cell sim up`: the cell I/O coupler on cell.yaml's URL."""
-    from wire.urls import parse_tcp_url
+    # lazy: sims.up imports every simulator module (a cycle at import time)
     from sims.faults import parse_fault_spec
     from sims.process_world import attach
     from sims.up import Served

@@ -20,7 +20,7 @@ import re
 import time
 import zlib
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, overload
 
 import numpy as np
 
@@ -87,10 +87,10 @@ def _parse_value(kind: str, text: str, key: str) -> float | int:
                 raise ValueError
             return v
         if kind == "prob":
-            v = float(text)
-            if not 0.0 <= v <= 1.0:
+            p = float(text)
+            if not 0.0 <= p <= 1.0:
                 raise ValueError
-            return v
+            return p
     except ValueError:
         pass
     expect = {"int": "a non-negative integer", "count": "an integer >= 1", "prob": "a probability in [0, 1]"}[kind]
@@ -108,6 +108,13 @@ class FaultSpec:
     @property
     def seed(self) -> int:
         return int(self.values.get("seed", 0))
+
+    @overload
+    def value(self, name: str) -> float | int | None: ...
+    @overload
+    def value(self, name: str, default: float) -> float | int: ...
+    @overload
+    def value(self, name: str, default: None) -> float | int | None: ...
 
     def value(self, name: str, default: float | int | None = None) -> float | int | None:
         """The plain value of `name` (e.g. corrupt=0.01), or `default` when not given."""
@@ -189,7 +196,7 @@ class FaultPipe:
         self._buf = bytearray()
         self._burst_left = 0
         self._wake = asyncio.Event()
-        self._task: asyncio.Task | None = asyncio.get_running_loop().create_task(self._run())
+        self._task: asyncio.Task[None] | None = asyncio.get_running_loop().create_task(self._run())
         self.bytes_in = self.bytes_out = self.dropped = self.corrupted = 0
         self.stalled_until = 0.0
 
@@ -230,7 +237,7 @@ class FaultPipe:
             starts = np.flatnonzero(self._rng.random(n) < self.corrupt / self.burst)
             for s in starts:
                 hit[s:s + self.burst] = True
-                self._burst_left = max(self._burst_left, s + self.burst - n)
+                self._burst_left = max(self._burst_left, int(s) + self.burst - n)
             idx = np.flatnonzero(hit)
             if len(idx):
                 a[idx] ^= (1 << self._rng.integers(0, 8, len(idx))).astype(np.uint8)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+from collections.abc import Sequence
 from typing import Awaitable, Callable, Protocol
 from urllib.parse import urlsplit
 
@@ -18,13 +19,14 @@ from pymodbus.datastore import ModbusServerContext
 from pymodbus.exceptions import NoSuchIdException
 from pymodbus.framer import FramerType
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+from pymodbus.server.base import ModbusBaseServer
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
 
 class ModbusModel(Protocol):
-    def read(self, fc: int, address: int, count: int) -> list | None: ...
-    def write(self, fc: int, address: int, values: list) -> bool: ...
+    def read(self, fc: int, address: int, count: int) -> list[int] | list[bool] | None: ...
+    def write(self, fc: int, address: int, values: list[int]) -> bool: ...
     def silent(self) -> bool: ...
 
 
@@ -48,12 +50,14 @@ class DeviceContext(ModbusServerContext):
         if device_id != self.device_id or self.model.silent():
             raise NoSuchIdException(f"device {device_id} does not answer")
 
-    async def async_getValues(self, device_id: int, func_code: int, address: int, count: int = 1):
+    async def async_getValues(self, device_id: int, func_code: int, address: int,
+                              count: int = 1) -> list[int] | list[bool] | ExcCodes:
         self._check(device_id)
         out = self.model.read(func_code, address, count)
         return ExcCodes.ILLEGAL_ADDRESS if out is None else out
 
-    async def async_setValues(self, device_id: int, func_code: int, address: int, values):
+    async def async_setValues(self, device_id: int, func_code: int, address: int,
+                              values: Sequence[int] | Sequence[bool]) -> ExcCodes | None:
         self._check(device_id)
         self.requests += 1
         ok = self.model.write(func_code, address, list(values))
@@ -99,7 +103,7 @@ async def serve_rtu(model: TickingModel, url: str = "socket://127.0.0.1:0",
     return real, _tick(model, server)
 
 
-def _tick(model: TickingModel, server) -> Callable[[], Awaitable[None]]:
+def _tick(model: TickingModel, server: ModbusBaseServer) -> Callable[[], Awaitable[None]]:
     """Start `model.run()`; the returned close stops it and the server."""
     ticker = asyncio.get_running_loop().create_task(model.run())
 
@@ -109,13 +113,13 @@ def _tick(model: TickingModel, server) -> Callable[[], Awaitable[None]]:
     return close
 
 
-def _bound_port(server, asked: int) -> int:
+def _bound_port(server: ModbusBaseServer, asked: int) -> int:
     sockets = getattr(server.transport, "sockets", None)
     if sockets:
-        return sockets[0].getsockname()[1]
+        return int(sockets[0].getsockname()[1])
     return asked
 
 
-async def stop(server) -> None:
-    await server.shutdown()
+async def stop(server: ModbusBaseServer) -> None:
+    await server.shutdown()  # type: ignore[no-untyped-call]  # pymodbus 3.16 leaves shutdown() unannotated
     await asyncio.sleep(0)

@@ -18,9 +18,11 @@ seen on the bus. Link and supervision timing (the watchdog's 100 ms, the 16 ms a
 arc-loss durations given to `inject`) is wall time, never scaled. Fault-spec events `@t=` are in
 simulated seconds (`clock.now()`), `@pass=N` on the N-th weld start.
 
-Transports: `serve_modbus_tcp`, `serve_modbus_rtu` (a serial URL; `socket://` listens on TCP
-with RTU framing) and `CanNode` on any python-can bus (`virtual` in-process, `udp_multicast`
-between processes). `serve(ctx)` starts the one that cell.yaml's `devices.power_source` names.
+Transports (sims/power_servers.py): `serve_modbus_tcp`, `serve_modbus_rtu` (a serial URL;
+`socket://` listens on TCP with RTU framing) and `CanNode` on any python-can bus (`virtual`
+in-process, `udp_multicast` between processes). `serve(ctx)` starts the one that cell.yaml's
+`devices.power_source` names. Timing constants, error numbers, the synergic line and the
+process times: sims/power_params.py.
 """
 from __future__ import annotations
 
@@ -28,67 +30,55 @@ import asyncio
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
-from wire.power_registers import (
-    COMMAND_BITS, POWER_MAP, STATUS_BITS, decode_block, pack_bits, unpack_bits, to_raw,
-)
 from core.material import Material
 from sims.clock import SimClock
+from sims.faults import FaultSpec
+from sims.power_params import (
+    ARC_HOLD_S, DEFAULT_LINE, DEFAULT_TIMES, ERR_COLLISION, ERR_GAS, ERR_NONE, ERR_WATCHDOG, ERR_WIRE_OUT, ERR_WIRE_STICK, ERROR_TEXT,
+    MIN_PHASE_WALL_S, SELF_STALL_S, TICK_S, WATCHDOG_S, PowerStatus, ProcessTimes, SynergicLine, _Cmd,
+)
+from sims.power_servers import CanNode, serve_can, serve_modbus_rtu, serve_modbus_tcp
 from sims.world import World
+from wire.urls import parse_tcp_url
+from core.errors import ConfigError
+from wire.can_codec import dbc_path
+from core.config import load_material
+import json
 
-WATCHDOG_S = 0.100          # start dropped after this long without a new counter (wall)
-ARC_HOLD_S = 0.016          # arc stable held this long before motion release (wall)
-MIN_PHASE_WALL_S = 0.020    # a scaled process phase never lasts less than 2 bus cycles
-TICK_S = 0.005              # model update period when no host cycle comes
+if TYPE_CHECKING:
+    from sims.up import Served, SimContext
 
-SELF_STALL_S = 0.030   # a tick this late (they come every 5 ms): the simulator itself stalled
-ERR_NONE, ERR_GAS, ERR_WIRE_OUT, ERR_WIRE_STICK, ERR_WATCHDOG, ERR_COLLISION = 0, 10, 20, 30, 50, 60
-ERROR_TEXT = {ERR_GAS: "gas fault", ERR_WIRE_OUT: "wire out", ERR_WIRE_STICK: "wire stick",
-              ERR_WATCHDOG: "watchdog: no new counter for 100 ms", ERR_COLLISION: "torch collision"}
-
-
-@dataclass(frozen=True)
-class SynergicLine:
-    """Voltage U = u0 + k·WFS + trim_v·arc_trim (V); current from WFS on the material's line."""
-
-    u0_v: float = 13.5
-    v_per_m_min: float = 1.2
-    v_per_trim: float = 0.3       # per unit of arc-length trim (±10 -> ±3 V)
-    noise: float = 0.005          # relative 1σ ripple of the actuals
-
-
-@dataclass(frozen=True)
-class ProcessTimes:
-    """Process-phase durations in process (simulated) seconds."""
-
-    preflow_s: float = 0.10
-    ignition_s: float = 0.05      # pre-flow end -> current flow
-    stabilise_s: float = 0.03     # current flow -> arc stable
-    burnback_s: float = 0.08
-    postflow_s: float = 0.50
+# what tests, benchmarks and `cell sim up` import from here (their home modules: power_params, power_servers)
+__all__ = ["ARC_HOLD_S", "ERROR_TEXT", "ERR_COLLISION", "ERR_GAS", "ERR_NONE", "ERR_WATCHDOG", "ERR_WIRE_OUT",
+           "ERR_WIRE_STICK", "MIN_PHASE_WALL_S", "SELF_STALL_S", "TICK_S", "WATCHDOG_S", "CanNode",
+           "PowerSourceSim", "PowerStatus", "ProcessTimes", "SynergicLine", "serve", "serve_can",
+           "serve_modbus_rtu", "serve_modbus_tcp"]
 
 
 @dataclass
-class _Cmd:
-    bits: dict = field(default_factory=lambda: {k: False for k in COMMAND_BITS})
-    mode: int = 0
-    job: int = 0
-    wfs: float = 0.0
-    arc_trim: float = 0.0
-    dynamic_trim: float = 0.0
-    counter: int = -1
+class _SpecEvent:
+    """A fault-spec event (`name@t=...` / `name@pass=N`) and whether it has fired."""
+
+    cond: str
+    at: float
+    name: str
+    duration: float | int | None
+    done: bool = False
 
 
 class PowerSourceSim:
     """The power source's behaviour; thread-unsafe, driven from one asyncio loop."""
 
     def __init__(self, material: Material, *, clock: SimClock | None = None, world: World | None = None,
-                 line: SynergicLine = SynergicLine(), times: ProcessTimes = ProcessTimes(),
-                 faults=None, seed: int = 0, state_path: str | Path | None = None) -> None:
+                 line: SynergicLine = DEFAULT_LINE, times: ProcessTimes = DEFAULT_TIMES,
+                 faults: FaultSpec | None = None, seed: int = 0, state_path: str | Path | None = None) -> None:
         self.material = material
         self.clock = clock or SimClock(1.0)
         self.world = world
@@ -110,23 +100,24 @@ class PowerSourceSim:
         self._ignition_fail_next = 0
         self._stick_next_end = False
         self.starts = 0
-        self.log: list[dict] = []            # what the source really did (t wall, t_sim, event)
-        self._last_world: tuple | None = None
+        self.log: list[dict[str, object]] = []            # what the source really did (t wall, t_sim, event)
+        self._last_world: tuple[bool, float, float, float] | None = None
         self._actuals = (0.0, 0.0, 0.0)
         self.stick_out_mm: float | None = None    # the last stick-out the current followed (truth)
         self.spec = faults
         self._rng = faults.rng("power_source") if faults is not None else np.random.default_rng(seed)
         self._ign_p = float(faults.value("ignition_fail", 0.0)) if faults is not None else 0.0
         self._events = self._spec_events(faults)
-        self._pending_at: list[tuple[float, str, dict]] = []   # (sim t, fault, kwargs) from inject(at=)
+        self._pending_at: list[tuple[float, str, float | None, int]] = []   # (sim t, fault, duration_s, count) from inject(at=)
         self.cycles = 0
-        self.history: deque = deque(maxlen=5000)   # (wall t, counter, bits) of every host cycle
+        self.history: deque[tuple[float, int, dict[str, bool]]] = deque(maxlen=5000)   # (wall t, counter, bits) of every host cycle
         self._echo_frozen: int | None = None
         # latched_error=N (issue 13): the error survives a restart of the source, kept in
         # `state_path` (the log dir's power_source.state.json) until an error reset clears it
         self._state_path = Path(state_path) if state_path is not None else None
-        if faults is not None and faults.value("latched_error", None) is not None:
-            self.error = self._persisted() or int(faults.value("latched_error"))
+        latched = faults.value("latched_error", None) if faults is not None else None
+        if latched is not None:
+            self.error = self._persisted() or int(latched)
             if self.error:
                 self._log("fault", error=self.error, text="latched at power-up (" +
                           ERROR_TEXT.get(self.error, str(self.error)) + ")")
@@ -135,7 +126,6 @@ class PowerSourceSim:
             self._state_path = None
 
     def _persisted(self) -> int:
-        import json
         if self._state_path is None or not self._state_path.exists():
             return ERR_NONE
         try:
@@ -144,7 +134,6 @@ class PowerSourceSim:
             return ERR_NONE
 
     def _persist(self) -> None:
-        import json
         if self._state_path is None:
             return
         self._state_path.parent.mkdir(parents=True, exist_ok=True)
@@ -152,15 +141,15 @@ class PowerSourceSim:
 
     # -- faults -----------------------------------------------------------------------------
     @staticmethod
-    def _spec_events(spec) -> list[list]:
-        out = []
+    def _spec_events(spec: FaultSpec | None) -> list[_SpecEvent]:
+        out: list[_SpecEvent] = []
         if spec is None:
             return out
         for name in ("arc_loss", "wire_stick", "gas_fault", "wire_out", "silence"):
             dur = spec.value(name, None)
             for cond, v in spec.events(name):
                 if cond in ("t", "pass"):
-                    out.append([cond, float(v), name, dur, False])
+                    out.append(_SpecEvent(cond, float(v), name, dur))
         return out
 
     def inject(self, fault: str, *, duration_s: float | None = None, count: int = 1,
@@ -173,7 +162,7 @@ class PowerSourceSim:
         freeze_echo (the watchdog echo stops following the counter; duration_s=0 ends it).
         """
         if at is not None and at > self.clock.now():
-            self._pending_at.append((at, fault, {"duration_s": duration_s, "count": count}))
+            self._pending_at.append((at, fault, duration_s, count))
             return
         now = time.monotonic()
         self._log("inject", fault=fault, duration_s=duration_s)
@@ -218,23 +207,23 @@ class PowerSourceSim:
         if self._pending_at:
             due = [p for p in self._pending_at if p[0] <= t]
             self._pending_at = [p for p in self._pending_at if p[0] > t]
-            for _, fault, kw in due:
-                self.inject(fault, **kw)
+            for _, fault, duration_s, count in due:
+                self.inject(fault, duration_s=duration_s, count=count)
         for ev in self._events:
-            cond, v, name, dur, done = ev
-            if done:
+            if ev.done:
                 continue
-            if (cond == "t" and t >= v) or (cond == "pass" and self.starts >= v and self.phase != "idle"):
-                ev[4] = True
-                if name == "arc_loss":
+            if (ev.cond == "t" and t >= ev.at) or (ev.cond == "pass" and self.starts >= ev.at and self.phase != "idle"):
+                ev.done = True
+                dur = ev.duration
+                if ev.name == "arc_loss":
                     self.inject("arc_loss", duration_s=0.5 if dur is None else float(dur))
-                elif name == "silence":
+                elif ev.name == "silence":
                     self.inject("silence", duration_s=None if dur is None else float(dur))
                 else:
-                    self.inject(name)
+                    self.inject(ev.name)
 
     # -- host cycle ---------------------------------------------------------------------------
-    def command(self, bits: dict, mode: int, job: int, wfs: float, arc_trim: float,
+    def command(self, bits: dict[str, bool], mode: int, job: int, wfs: float, arc_trim: float,
                 dynamic_trim: float, counter: int) -> None:
         """Take one host cycle's command (already decoded)."""
         now = time.monotonic()
@@ -259,7 +248,7 @@ class PowerSourceSim:
         for k in self.flags:
             self.flags[k] = False
 
-    def status(self) -> dict:
+    def status(self) -> PowerStatus:
         """The status of the last tick: echo, bits, error, voltage, current, wfs."""
         p = self.phase
         arc = p in ("arc", "burnback") and not self._arc_lost()
@@ -322,54 +311,69 @@ class PowerSourceSim:
             self._log("self_stall", gap_ms=round(gap * 1000, 1))
         self._poll_events()
         start = self._start_requested(now)
-        p, dt = self.phase, now - self._phase_t
-        tm = self.times
-        if p == "idle":
-            if start:
-                self.starts += 1
-                self._set_phase("preflow")
-                self._poll_events()
-        elif p == "preflow":
-            if not start:
-                self._set_phase("postflow")
-            elif dt >= self._wall(tm.preflow_s):
-                fail = self._ignition_fail_next > 0 or (self._ign_p > 0 and self._rng.random() < self._ign_p)
-                if self._ignition_fail_next > 0:
-                    self._ignition_fail_next -= 1
-                self._set_phase("ignition_failed" if fail else "ignition")
-        elif p in ("ignition", "ignition_failed"):
-            if not start:
-                self._set_phase("postflow")
-            elif p == "ignition" and dt >= self._wall(tm.ignition_s):
-                self._set_phase("stabilise")
-        elif p == "stabilise":
-            if not start:
-                self._set_phase("burnback")
-            elif dt >= self._wall(tm.stabilise_s):
-                self._set_phase("arc")
-        elif p == "arc":
-            if not start:
-                self._set_phase("burnback")
-            elif self._arc_lost():
-                self._arc_since = None
-            elif self._arc_since is None:
-                self._arc_since = now
-        elif p == "burnback":
-            if dt >= self._wall(tm.burnback_s):
-                if self._stick_next_end:
-                    self._stick_next_end = False
-                    self.flags["wire_stick"] = True
-                    self.error = self.error or ERR_WIRE_STICK
-                    self._persist()
-                    self._log("fault", error=ERR_WIRE_STICK, text="wire stick")
-                self._set_phase("postflow")
-        elif p == "postflow":
-            if start:
-                self.starts += 1
-                self._set_phase("preflow")
-            elif dt >= self._wall(tm.postflow_s):
-                self._set_phase("idle")
+        step = self._PHASE_STEPS.get(self.phase)
+        if step is not None:
+            step(self, start, now - self._phase_t, now)
         self._update_actuals()
+
+    # one step of the phase machine per phase: (start requested, seconds in the phase, wall now)
+    def _step_idle(self, start: bool, dt: float, now: float) -> None:
+        if start:
+            self.starts += 1
+            self._set_phase("preflow")
+            self._poll_events()
+
+    def _step_preflow(self, start: bool, dt: float, now: float) -> None:
+        if not start:
+            self._set_phase("postflow")
+        elif dt >= self._wall(self.times.preflow_s):
+            fail = self._ignition_fail_next > 0 or (self._ign_p > 0 and self._rng.random() < self._ign_p)
+            if self._ignition_fail_next > 0:
+                self._ignition_fail_next -= 1
+            self._set_phase("ignition_failed" if fail else "ignition")
+
+    def _step_ignition(self, start: bool, dt: float, now: float) -> None:
+        if not start:
+            self._set_phase("postflow")
+        elif self.phase == "ignition" and dt >= self._wall(self.times.ignition_s):
+            self._set_phase("stabilise")
+
+    def _step_stabilise(self, start: bool, dt: float, now: float) -> None:
+        if not start:
+            self._set_phase("burnback")
+        elif dt >= self._wall(self.times.stabilise_s):
+            self._set_phase("arc")
+
+    def _step_arc(self, start: bool, dt: float, now: float) -> None:
+        if not start:
+            self._set_phase("burnback")
+        elif self._arc_lost():
+            self._arc_since = None
+        elif self._arc_since is None:
+            self._arc_since = now
+
+    def _step_burnback(self, start: bool, dt: float, now: float) -> None:
+        if dt >= self._wall(self.times.burnback_s):
+            if self._stick_next_end:
+                self._stick_next_end = False
+                self.flags["wire_stick"] = True
+                self.error = self.error or ERR_WIRE_STICK
+                self._persist()
+                self._log("fault", error=ERR_WIRE_STICK, text="wire stick")
+            self._set_phase("postflow")
+
+    def _step_postflow(self, start: bool, dt: float, now: float) -> None:
+        if start:
+            self.starts += 1
+            self._set_phase("preflow")
+        elif dt >= self._wall(self.times.postflow_s):
+            self._set_phase("idle")
+
+    _PHASE_STEPS: ClassVar[dict[str, Callable[[PowerSourceSim, bool, float, float], None]]] = {
+        "idle": _step_idle, "preflow": _step_preflow, "ignition": _step_ignition,
+        "ignition_failed": _step_ignition, "stabilise": _step_stabilise, "arc": _step_arc,
+        "burnback": _step_burnback, "postflow": _step_postflow,
+    }
 
     def synergic(self, wfs: float, arc_trim: float) -> tuple[float, float]:
         """(voltage V, current A) on the synergic line for a wire feed and an arc-length trim."""
@@ -418,55 +422,8 @@ class PowerSourceSim:
         self.stick_out_mm = stick_out
         return max(phys.current_a(wfs, stick_out, synergic_a), 0.0)
 
-    def _log(self, event: str, **kw) -> None:
+    def _log(self, event: str, **kw: object) -> None:
         self.log.append({"t": time.monotonic(), "t_sim": self.clock.now(), "event": event, **kw})
-
-    # -- Modbus view (DESIGN.md §5 holding registers) ------------------------------------------
-    def read(self, fc: int, address: int, count: int) -> list | None:
-        m = POWER_MAP
-        if fc not in (3, 23):
-            return None
-        if m.status_start <= address and address + count <= m.status_start + m.status_count:
-            words = self._status_words()
-            return words[address - m.status_start:address - m.status_start + count]
-        if m.command_start <= address and address + count <= m.command_start + m.command_count:
-            return self._command_words()[address - m.command_start:address - m.command_start + count]
-        return None
-
-    def write(self, fc: int, address: int, values: list) -> bool:
-        m = POWER_MAP
-        if fc not in (6, 16, 23):
-            return False
-        if not (m.command_start <= address and address + len(values) <= m.command_start + m.command_count):
-            return False
-        words = self._command_words()
-        words[address - m.command_start:address - m.command_start + len(values)] = values
-        v = decode_block(words, "command")
-        self.command(unpack_bits(int(v["command_bits"]), COMMAND_BITS), int(v["mode"]), int(v["job"]),
-                     v["wfs_command"], v["arc_trim"], v["dynamic_trim"], int(v["watchdog"]))
-        return True
-
-    def _command_words(self) -> list[int]:
-        c, m = self.cmd, POWER_MAP
-        words = [0] * m.command_count
-        vals = {"watchdog": max(c.counter, 0), "command_bits": pack_bits(c.bits, COMMAND_BITS),
-                "mode": c.mode, "job": c.job, "wfs_command": c.wfs, "arc_trim": c.arc_trim,
-                "dynamic_trim": c.dynamic_trim}
-        for r in m.registers:
-            if r.direction == "command":
-                words[r.address - m.command_start] = to_raw(vals[r.name], r)
-        return words
-
-    def _status_words(self) -> list[int]:
-        s, m = self.status(), POWER_MAP
-        vals = {"watchdog_echo": s["echo"] & 0xFFFF, "status_bits": pack_bits(s["bits"], STATUS_BITS),
-                "error_number": s["error"], "voltage": min(s["voltage"], 655.35),
-                "current": min(s["current"], 6553.5), "wfs_actual": s["wfs"]}
-        words = [0] * m.status_count
-        for r in m.registers:
-            if r.direction == "status":
-                words[r.address - m.status_start] = to_raw(vals[r.name], r)
-        return words
 
     # -- background ticking (watchdog, phases) ------------------------------------------------
     async def run(self) -> None:
@@ -476,108 +433,32 @@ class PowerSourceSim:
             await asyncio.sleep(TICK_S)
 
 
-# --- CAN node ---------------------------------------------------------------------------------
-
-class CanNode:
-    """The power source as node `n` on a python-can bus: answers every WELD_CMD with
-    WELD_STATUS and WELD_ACTUALS (config/power_source.dbc)."""
-
-    def __init__(self, sim: PowerSourceSim, bus, db, node: int = 1) -> None:
-        from wire.can_codec import CanCodec
-        self.sim = sim
-        self.bus = bus
-        self.codec = CanCodec(db, node)
-        self._notifier = None
-
-    def start(self) -> None:
-        import can
-        self._notifier = can.Notifier(self.bus, [self._on_message], loop=asyncio.get_running_loop())
-
-    def _on_message(self, msg) -> None:
-        if msg.arbitration_id != self.codec.cmd_id or msg.is_extended_id:
-            return
-        try:
-            c = self.codec.decode_command(bytes(msg.data))
-        except Exception:
-            return  # a malformed frame is ignored, as a real node does
-        self.sim.command(c["bits"], c["mode"], c["job"], c["wfs"], c["arc_trim"], c["dynamic_trim"],
-                         c["counter"])
-        if self.sim.silent():
-            return
-        for m in self.codec.encode_status(self.sim.status(), c["counter"]):
-            try:
-                self.bus.send(m)
-            except Exception:
-                pass
-
-    def stop(self) -> None:
-        if self._notifier is not None:
-            self._notifier.stop(timeout=0.5)
-            self._notifier = None
-        self.bus.shutdown()
-
-
-# --- serving ----------------------------------------------------------------------------------
-
-async def serve_modbus_tcp(sim: PowerSourceSim, host: str = "127.0.0.1", port: int = 0, device_id: int = 1):
-    """Start the Modbus TCP server and the model's ticking; returns (url, close)."""
-    from sims.modbus_server import serve_tcp
-    return await serve_tcp(sim, host, port, device_id)
-
-
-async def serve_modbus_rtu(sim: PowerSourceSim, url: str = "socket://127.0.0.1:0", device_id: int = 1):
-    """Start the Modbus RTU server on a serial URL and the model's ticking; returns (url, close)."""
-    from sims.modbus_server import serve_rtu
-    return await serve_rtu(sim, url, device_id)
-
-
-async def serve_can(sim: PowerSourceSim, interface: str, channel: str, dbc: str | Path | None = None,
-                    node: int = 1, allow_network: bool = False, **bus_kwargs):
-    """Start the CAN node on a python-can bus (kept on this host unless `allow_network`);
-    returns (description, close)."""
-    import cantools
-    from wire.can_codec import DEFAULT_DBC
-    from wire.can_net import open_bus
-    db = cantools.database.load_file(str(dbc or DEFAULT_DBC))
-    bus = open_bus(interface, channel, allow_network=allow_network, device="power source simulator", **bus_kwargs)
-    node_obj = CanNode(sim, bus, db, node)
-    node_obj.start()
-    ticker = asyncio.get_running_loop().create_task(sim.run())
-
-    async def close() -> None:
-        ticker.cancel()
-        node_obj.stop()
-    return f"can://{interface}/{channel}?node={node}", close
-
-
-async def serve(ctx) -> list:
+async def serve(ctx: SimContext) -> list[Served]:
     """`cell sim up`: the power source on the transport and URL of cell.yaml."""
-    from core.config import load_material
+    # lazy: sims.up imports every simulator module (a cycle at import time)
     from sims.faults import parse_fault_spec
     from sims.up import Served
     cfg = ctx.cell.devices.power_source
+    # lazy: sims.up imports every simulator module (a cycle at import time)
     from sims.process_world import attach
     material = load_material(ctx.cell.cell.material)
     spec = parse_fault_spec(ctx.faults or ctx.sim.faults)
     attach(ctx)
     sim = PowerSourceSim(material, clock=ctx.clock, world=ctx.world, faults=spec,
                          state_path=(Path(ctx.log_dir) / "power_source.state.json") if ctx.log_dir else None)
-    extra = {"transport": cfg.transport}
+    extra: dict[str, object] = {"transport": cfg.transport}
     if cfg.transport == "modbus_tcp":
-        from wire.urls import parse_tcp_url
         host, port = parse_tcp_url(cfg.url)
         url, close = await serve_modbus_tcp(sim, host, 0 if ctx.ephemeral else port, cfg.device_id)
     elif cfg.transport == "modbus_rtu":
         u = cfg.url
         if u.startswith("tcp://"):
-            from core.errors import ConfigError
             raise ConfigError("devices.power_source.url: transport modbus_rtu needs a serial URL "
                               f"(socket://host:port, a port); got {u}")
         if ctx.ephemeral and u.startswith("socket://"):
             u = u.rsplit(":", 1)[0] + ":0"
         url, close = await serve_modbus_rtu(sim, u, cfg.device_id)
     else:
-        from wire.can_codec import dbc_path
         dbc = dbc_path(cfg.can.dbc, ctx.config_dir)
         url, close = await serve_can(sim, cfg.can.interface, cfg.can.channel, dbc, cfg.can.node,
                                      allow_network=cfg.can.allow_network)

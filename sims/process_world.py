@@ -18,7 +18,7 @@ Conventions and figures: docs/process-physics.md.
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -27,6 +27,10 @@ from core.config import ProcessSim
 from core.material import Material
 from core.melting import MeltingRelation, current_at, relation_for, stick_out_factor
 from sims.heightmap import HeightMap, Laid, Substrate
+from core.config import load_material
+
+if TYPE_CHECKING:
+    from sims.up import SimContext
 
 Vec3 = tuple[float, float, float]
 REF_TEMP_C = 100.0
@@ -130,17 +134,16 @@ class ProcessPhysics:
         return synergic_a * stick_out_factor(self.melting, wfs_m_min, stick_out_mm)
 
 
-def attach(ctx: Any) -> ProcessPhysics | None:
+def attach(ctx: SimContext) -> ProcessPhysics | None:
     """Give `ctx.world` its process physics once (every simulator's `serve` calls this)."""
     world = ctx.world
     if world is None or not hasattr(world, "use_physics"):
         return None
     if world.physics is None:
-        from core.config import load_material
+        # lazy: sims.up imports every simulator module (a cycle at import time)
         from sims.faults import parse_fault_spec
 
         material = load_material(ctx.cell.cell.material)
         seed = parse_fault_spec(ctx.faults or ctx.sim.faults).seed
         world.use_physics(ProcessPhysics(material, ctx.sim.process, seed=seed))
-    phys: ProcessPhysics = world.physics
-    return phys
+    return world.physics

@@ -19,9 +19,13 @@ import asyncio
 import json
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from wire import rlp
+from sims.faults import FaultSpec
+
+if TYPE_CHECKING:
+    from sims.robot_sim import RobotSim
 
 MODES = ("flood", "lie", "garble", "mute", "freeze")
 LIE_PERIOD_S = 0.5
@@ -32,7 +36,7 @@ FLOOD_UNTHROTTLED_PER_S = 20000
 class Misbehaviour:
     """The misbehaviour modes of one RobotSim; falsy when the spec names none."""
 
-    def __init__(self, sim: Any, spec: Any, log_path: str | Path | None, line_rate: float | None) -> None:
+    def __init__(self, sim: RobotSim, spec: FaultSpec | None, log_path: str | Path | None, line_rate: float | None) -> None:
         self.sim = sim
         self.when: dict[str, tuple[str, float]] = {}
         if spec is not None:

@@ -14,14 +14,18 @@ import json
 import time
 from collections import deque
 from pathlib import Path
-from typing import IO, Callable
+from typing import IO, TYPE_CHECKING, Callable
 
 from wire import rlp
 from sims.clock import SimClock
 from sims.faults import FaultSpec, parse_fault_spec
 from sims.process_world import attach
 from sims.robot_lies import Misbehaviour
-from sims.transport import serve_serial
+from sims.transport import SerialServer, serve_serial
+from sims.world import World
+
+if TYPE_CHECKING:
+    from sims.up import Served, SimContext
 
 DEVICE = "robot"
 ERR_WORKSPACE = 10
@@ -33,7 +37,7 @@ class RobotSim:
     IDLE_TICK_S = 0.01  # wall seconds between executor ticks while nothing can move
     MIN_TICK_S = 0.0002
 
-    def __init__(self, *, clock: SimClock, world: object | None = None, queue_slots: int = 64,
+    def __init__(self, *, clock: SimClock, world: World | None = None, queue_slots: int = 64,
                  log_path: str | Path | None = None, heartbeat_s: float = 1.0,
                  link_timeout_s: float = 3.0,
                  workspace: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None,
@@ -47,7 +51,7 @@ class RobotSim:
         self.link_timeout_s = link_timeout_s
         self.workspace = workspace
         self.tick_s = tick_s
-        self.pos = tuple(float(v) for v in home)
+        self.pos: tuple[float, float, float] = (float(home[0]), float(home[1]), float(home[2]))
         self.queue: deque[rlp.Move] = deque()
         self.last_rx = 0
         self.last_exec = 0
@@ -71,10 +75,11 @@ class RobotSim:
         self._last_heard = time.monotonic()
         self._log: IO[str] | None = None
         self._log_dirty = False
+        self.server: SerialServer | None = None   # set by serve_serial (tests pull the cable)
         if log_path is not None:
             Path(log_path).parent.mkdir(parents=True, exist_ok=True)
             self._log = open(log_path, "a", encoding="utf-8")
-        self._tasks: list[asyncio.Task] = []
+        self._tasks: list[asyncio.Task[None]] = []
         # flood / lie / garble / mute (issue 13): the robot misbehaving on the wire
         self.lies = Misbehaviour(self, faults, fault_log, line_rate)
 
@@ -247,21 +252,23 @@ class RobotSim:
                 self._send(f"MRK {m.mark}")
                 self._finish(m, t)
                 continue
-            if self._outside(m.target):
+            target, speed = m.target, m.speed
+            assert target is not None and speed is not None  # MOVJ / MOVL: parse_host sets both
+            if self._outside(target):
                 self.fault = True
                 self._stopped()
-                self._send(f"ERR {ERR_WORKSPACE} target {' '.join(rlp.fmt_mm(v) for v in m.target)} outside workspace")
+                self._send(f"ERR {ERR_WORKSPACE} target {' '.join(rlp.fmt_mm(v) for v in target)} outside workspace")
                 break
             p0 = self.pos
-            delta = [b - a for a, b in zip(p0, m.target)]
+            delta = [b - a for a, b in zip(p0, target)]
             dist = sum(d * d for d in delta) ** 0.5
-            v = m.speed / 60.0
+            v = speed / 60.0
             need = dist / v
             if t + need <= now:
-                p1, t1, done = m.target, t + need, True
+                p1, t1, done = target, t + need, True
             else:
                 f = (now - t) * v / dist
-                p1, t1, done = tuple(a + f * d for a, d in zip(p0, delta)), now, False
+                p1, t1, done = (p0[0] + f * delta[0], p0[1] + f * delta[1], p0[2] + f * delta[2]), now, False
             if self.world is not None and dist > 0:
                 self.world.torch_moved(DEVICE, m.seq, p0, p1, t, t1)
             self.pos, t = p1, t1
@@ -313,7 +320,7 @@ class RobotSim:
                 self._stopped()
 
 
-async def serve(ctx) -> list:
+async def serve(ctx: SimContext) -> list[Served]:
     """Start the robot simulator on cell.yaml's robot URL (or port 0 / a pty), per ctx."""
     dev = ctx.cell.devices.robot
     lim = ctx.cell.limits
@@ -322,7 +329,7 @@ async def serve(ctx) -> list:
     sim = RobotSim(clock=ctx.clock, world=ctx.world, queue_slots=dev.queue_slots,
                    log_path=(Path(ctx.log_dir) / "robot.jsonl") if ctx.log_dir else None,
                    heartbeat_s=dev.heartbeat_s, link_timeout_s=dev.link_timeout_s,
-                   workspace=(tuple(lim.workspace_min_mm), tuple(lim.workspace_max_mm)),
+                   workspace=(lim.workspace_min_mm, lim.workspace_max_mm),
                    faults=spec, fault_log=(Path(ctx.log_dir) / "faults.jsonl") if ctx.log_dir else None,
                    line_rate=dev.baud / 10.0)
     return await serve_serial(sim, DEVICE, dev, ctx, spec, {"protocol": "RLP/1"})

@@ -8,12 +8,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    from core.config import Kinematics
 
 
-def rot(axis: Any, deg: float) -> np.ndarray:
+def rot(axis: ArrayLike, deg: float) -> np.ndarray:
     """4x4 right-handed rotation by `deg` about the unit vector `axis` (Rodrigues)."""
     k = np.asarray(axis, dtype=float)
     k = k / np.linalg.norm(k)
@@ -24,7 +28,7 @@ def rot(axis: Any, deg: float) -> np.ndarray:
     return m
 
 
-def trans(v: Any) -> np.ndarray:
+def trans(v: ArrayLike) -> np.ndarray:
     m = np.eye(4)
     m[:3, 3] = v
     return m
@@ -41,9 +45,8 @@ class TableKin:
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @classmethod
-    def from_config(cls, kin: Any) -> "TableKin":
-        return cls(str(kin.table), tuple(kin.pivot_mm), tuple(kin.axis_a), tuple(kin.axis_second),
-                   tuple(kin.offset_mm))
+    def from_config(cls, kin: Kinematics) -> "TableKin":
+        return cls(str(kin.table), kin.pivot_mm, kin.axis_a, kin.axis_second, kin.offset_mm)
 
     @property
     def letters(self) -> str:
@@ -57,8 +60,10 @@ class TableKin:
             inner, outer = rot(self.axis_second, second_deg), rot(self.axis_a, a_deg)
         else:
             inner, outer = rot(self.axis_a, a_deg), rot(self.axis_second, second_deg)
-        return trans(c2) @ outer @ trans(-c2) @ trans(c1) @ inner @ trans(-c1)
+        m: np.ndarray = trans(c2) @ outer @ trans(-c2) @ trans(c1) @ inner @ trans(-c1)
+        return m
 
     def tool_in_table(self, a_deg: float, second_deg: float) -> np.ndarray:
         """The fixed tool axis (machine +Z) seen in the table frame."""
-        return self.matrix(a_deg, second_deg)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+        axis: np.ndarray = self.matrix(a_deg, second_deg)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+        return axis

@@ -16,12 +16,12 @@ class LumpedThermal:
     ambient_c: float = 20.0
     heat_capacity_j_k: float = 2000.0
     tau_s: float = 120.0
-    temperature_c: float | None = None
+    temperature_c: float = math.nan   # the part now; NaN (the default): starts at ambient
 
     def __post_init__(self) -> None:
         if self.heat_capacity_j_k <= 0 or self.tau_s <= 0:
             raise ValueError("heat capacity and cooling time constant must be positive")
-        if self.temperature_c is None:
+        if math.isnan(self.temperature_c):
             self.temperature_c = self.ambient_c
 
     def steady_c(self, power_w: float) -> float:

@@ -13,11 +13,15 @@ import os
 import socket
 import time
 import tty
-from typing import Callable, Protocol
+from typing import TYPE_CHECKING, Callable, Protocol
 from urllib.parse import urlparse
 
 from core.errors import ConfigError
 from sims.faults import FaultPipe, FaultSpec, bytes_per_second
+
+if TYPE_CHECKING:
+    from core.config import CncDevice, RobotDevice
+    from sims.up import Served, SimContext
 
 
 class ByteSim(Protocol):
@@ -29,6 +33,18 @@ class ByteSim(Protocol):
 
     def detach(self) -> None:
         """The peer went away (cable out); the simulator keeps its state."""
+
+
+class SerialSim(ByteSim, Protocol):
+    """A ByteSim that `serve_serial` starts, closes and hands its server (`sim.server`)."""
+
+    server: SerialServer | None
+
+    def start(self) -> None:
+        """Start the simulator's tasks on the running loop."""
+
+    async def close(self) -> None:
+        """Stop its tasks and flush its logs."""
 
 
 def tcp_address(url: str) -> tuple[str, int]:
@@ -47,8 +63,9 @@ class SerialServer:
         self.sim = sim
         self.name = name
         self.spec = spec or FaultSpec()
-        if self.spec.value("baud") is not None:
-            baud = int(self.spec.value("baud"))
+        spec_baud = self.spec.value("baud")
+        if spec_baud is not None:
+            baud = int(spec_baud)
         # The line keeps its rate in simulated time (DESIGN.md §6): at time scale k it carries k
         # times the bytes per wall second, so a time scale never starves a bead that real
         # hardware would not starve.
@@ -113,7 +130,8 @@ class SerialServer:
                 p.stall(seconds)
 
     # -- plumbing --------------------------------------------------------------------------------
-    def _make_pipes(self, to_peer: Callable[[bytes], None], alive: Callable[[], bool]) -> None:
+    def _make_pipes(self, to_peer: Callable[[bytes], None], alive: Callable[[], bool]) -> FaultPipe:
+        """The pipes of a new peer (`self.pipes`); returns the inbound one (to the simulator)."""
         n = self.connections
         self.connections += 1
 
@@ -130,6 +148,7 @@ class SerialServer:
         outbound = FaultPipe(to_wire, self.spec, stream=f"{self.name}.out.{n}", rate=self.rate, t0=t0)
         self.pipes = (inbound, outbound)
         self.sim.attach(outbound.send)
+        return inbound
 
     def _drop_current(self) -> None:
         if self._writer is not None:
@@ -150,8 +169,7 @@ class SerialServer:
         if sock is not None:
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self._writer = writer
-        self._make_pipes(writer.write, lambda: self._writer is writer)
-        inbound = self.pipes[0]
+        inbound = self._make_pipes(writer.write, lambda: self._writer is writer)
         try:
             while True:
                 data = await reader.read(4096)
@@ -190,7 +208,8 @@ class SerialServer:
         loop.add_reader(master, readable)
 
 
-async def serve_serial(sim, device: str, dev_cfg, ctx, spec: FaultSpec, extra: dict) -> list:
+async def serve_serial(sim: SerialSim, device: str, dev_cfg: RobotDevice | CncDevice, ctx: SimContext,
+                       spec: FaultSpec, extra: dict[str, object]) -> list[Served]:
     """Start `sim` and serve it on `dev_cfg.url` (or port 0 / a pty, per ctx): the tail of a
     serial simulator's `serve(ctx)`. The simulator is closed again if the server cannot start."""
     from sims.up import Served  # sims.up imports the simulator modules

@@ -41,9 +41,9 @@ class Served:
     url: str                     # what a driver connects to
     close: Callable[[], Awaitable[None]]
     sim: object = None           # the simulator object (tests reach its state, e.g. open the door)
-    extra: dict = field(default_factory=dict)
+    extra: dict[str, object] = field(default_factory=dict)
 
-    def describe(self) -> dict:
+    def describe(self) -> dict[str, object]:
         return {"device": self.device, "url": self.url, **self.extra}
 
 

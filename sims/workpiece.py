@@ -17,16 +17,25 @@ from a seeded generator, so a run is reproducible.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sims.heightmap import FloatArray, HeightMap
 from sims.table_kin import TableKin, rot, trans
 
+if TYPE_CHECKING:
+    from core.config import Kinematics, Workpiece as WorkpieceConfig
+
 __all__ = ["Workpiece", "rot", "trans"]
 
 _EPS = 1e-12
+
+
+def _vec3(v: Sequence[float] | np.ndarray) -> tuple[float, float, float]:
+    return (float(v[0]), float(v[1]), float(v[2]))
 
 
 class Workpiece:
@@ -61,16 +70,17 @@ class Workpiece:
         # deposited metal: the World's height map of this device, in the part frame (when served
         # with process physics; sims/process_world.py)
         self.deposit_map: HeightMap | None = None
-        self.kin = TableKin(table, tuple(self.pivot), tuple(axis_a), tuple(axis_second), tuple(offset_mm))
+        self.kin = TableKin(table, _vec3(self.pivot), _vec3(axis_a), _vec3(axis_second), _vec3(offset_mm))
         # How close to the surface the stylus counts as deflected (a real probe trips within
         # microns); wide enough that a noisy trip point still reads as tripped.
         self.trigger_mm = trigger_mm if trigger_mm is not None else max(0.01, 5.0 * self.noise_mm)
 
     # -- construction -----------------------------------------------------------------------
     @classmethod
-    def from_config(cls, wp, noise_mm: float, *, seed: int = 0, kinematics=None,
+    def from_config(cls, wp: WorkpieceConfig, noise_mm: float, *, seed: int = 0, kinematics: Kinematics | None = None,
                     base_dir: Path | None = None) -> "Workpiece":
         """From sim.yaml's `cnc.workpiece` (core.config.Workpiece) and cell.yaml's kinematics."""
+        # lazy: trimesh loads only when this path runs (start-up time)
         import trimesh
 
         if wp.mesh:
@@ -84,12 +94,12 @@ class Workpiece:
             mesh.apply_translation((0.0, 0.0, -sz / 2.0))  # top face at z = 0
         pose = (trans(wp.offset_mm) @ rot((0, 1, 0), wp.tilt_b_deg) @ rot((1, 0, 0), wp.tilt_a_deg)
                 @ rot((0, 0, 1), wp.rotation_c_deg))
-        kw = {}
-        if kinematics is not None:
-            kw = dict(pivot_mm=tuple(kinematics.pivot_mm), axis_a=tuple(kinematics.axis_a),
-                      axis_second=tuple(kinematics.axis_second), table=str(kinematics.table),
-                      offset_mm=tuple(kinematics.offset_mm))
-        return cls(np.asarray(mesh.triangles), pose, noise_mm=noise_mm, seed=seed, **kw)
+        if kinematics is None:
+            return cls(np.asarray(mesh.triangles), pose, noise_mm=noise_mm, seed=seed)
+        return cls(np.asarray(mesh.triangles), pose, noise_mm=noise_mm, seed=seed,
+                   pivot_mm=_vec3(kinematics.pivot_mm), axis_a=_vec3(kinematics.axis_a),
+                   axis_second=_vec3(kinematics.axis_second), table=str(kinematics.table),
+                   offset_mm=_vec3(kinematics.offset_mm))
 
     # -- frames -----------------------------------------------------------------------------
     def table_matrix(self, a_deg: float, second_deg: float) -> np.ndarray:
@@ -97,12 +107,14 @@ class Workpiece:
         return self.kin.matrix(a_deg, second_deg)
 
     def part_to_machine(self, a_deg: float = 0.0, second_deg: float = 0.0) -> np.ndarray:
-        return self.table_matrix(a_deg, second_deg) @ self.pose
+        m: np.ndarray = self.table_matrix(a_deg, second_deg) @ self.pose
+        return m
 
     def _to_part(self, pts: np.ndarray, a_deg: float, second_deg: float) -> np.ndarray:
         inv = np.linalg.inv(self.part_to_machine(a_deg, second_deg))
         pts = np.asarray(pts, dtype=float).reshape(-1, 3)
-        return pts @ inv[:3, :3].T + inv[:3, 3]
+        out: np.ndarray = pts @ inv[:3, :3].T + inv[:3, 3]
+        return out
 
     # -- the deposit -------------------------------------------------------------------------
     def top_z(self, xs: FloatArray, ys: FloatArray) -> FloatArray:
@@ -123,7 +135,7 @@ class Workpiece:
         out: FloatArray = np.where(np.isfinite(z), z, np.nan)
         return out
 
-    def part_frame(self, pos5) -> tuple[np.ndarray, np.ndarray]:
+    def part_frame(self, pos5: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
         """The tool tip (machine X Y Z at rotary A, B|C) and the tool axis, in the workpiece frame."""
         inv = np.linalg.inv(self.part_to_machine(float(pos5[3]), float(pos5[4])))
         q = inv[:3, :3] @ np.asarray(pos5[:3], dtype=float) + inv[:3, 3]
@@ -143,9 +155,10 @@ class Workpiece:
         v = (qvec @ direction) * inv
         t = np.einsum("ij,ij->i", e2, qvec) * inv
         hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1)
-        return t[hit]
+        out: np.ndarray = t[hit]
+        return out
 
-    def surface_hit(self, p0, p1, a_deg: float = 0.0, second_deg: float = 0.0) -> float | None:
+    def surface_hit(self, p0: Sequence[float], p1: Sequence[float], a_deg: float = 0.0, second_deg: float = 0.0) -> float | None:
         """Distance along p0→p1 (machine frame) to the first surface crossing, or None."""
         q0, q1 = self._to_part(np.array([p0, p1], dtype=float)[:, :3], a_deg, second_deg)
         d = q1 - q0
@@ -161,7 +174,7 @@ class Workpiece:
                 best = dep
         return best
 
-    def inside(self, p, a_deg: float = 0.0, second_deg: float = 0.0) -> bool:
+    def inside(self, p: Sequence[float], a_deg: float = 0.0, second_deg: float = 0.0) -> bool:
         """Is the machine-frame point inside the (watertight) part? Parity of ray crossings."""
         q = self._to_part(np.asarray(p, dtype=float)[:3], a_deg, second_deg)[0]
         d = np.array([0.2672612, 0.5345225, 0.8017837])  # skewed: avoids hitting edges exactly
@@ -170,7 +183,7 @@ class Workpiece:
         t = self._ray_hits(q, d)  # parity over the (closed) mesh
         return bool(np.count_nonzero(t > 1e-9) % 2)
 
-    def probe(self, p0, p1, a_deg: float = 0.0, second_deg: float = 0.0) -> tuple[float, float, float] | None:
+    def probe(self, p0: Sequence[float], p1: Sequence[float], a_deg: float = 0.0, second_deg: float = 0.0) -> tuple[float, float, float] | None:
         """Where a probe moving p0→p1 trips (with noise), or None when it reaches p1 untouched."""
         dist = self.surface_hit(p0, p1, a_deg, second_deg)
         if dist is None:

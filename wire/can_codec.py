@@ -5,6 +5,7 @@
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -88,8 +89,9 @@ class CanCodec:
                 "job": int(s["Job"]), "wfs": float(s["WFS"]), "arc_trim": float(s["ArcTrim"]),
                 "dynamic_trim": float(s["DynamicTrim"]), "counter": int(s["AliveCounter"])}
 
-    def encode_status(self, st: dict[str, Any], counter: int) -> list[Any]:
+    def encode_status(self, st: Mapping[str, Any], counter: int) -> list[Any]:
         """The status dict of the simulator -> [WELD_STATUS, WELD_ACTUALS] python-can messages."""
+        # lazy: python-can loads only when this path runs (start-up time)
         import can
         sig = {v: int(bool(st["bits"][k])) for k, v in _STATUS_BITS.items()}
         sig.update(ErrorNumber=int(st["error"]), CounterEcho=counter & 0xFF)

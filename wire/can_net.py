@@ -61,6 +61,7 @@ def confine_to_loopback(bus: Any, channel: str) -> None:
 def open_bus(interface: str, channel: str, *, allow_network: bool = False, device: str = "power source",
              **kwargs: Any) -> Any:
     """A python-can Bus, refused or confined to this host unless the network is allowed."""
+    # lazy: python-can loads only when this path runs (start-up time)
     import can
 
     check_channel(interface, channel, allow_network, device)

@@ -188,6 +188,67 @@ def _pos(text: str) -> Pos5:
     return (vals[0], vals[1], vals[2], vals[3], vals[4])
 
 
+@dataclass
+class _StatusFields:
+    """What the `|`-separated fields after the state of one status report carry."""
+
+    mpos: Pos5 | None = None
+    wpos: Pos5 | None = None
+    feed: float = 0.0
+    spindle: float = 0.0
+    pins: str = ""
+    bf_planner: int | None = None
+    bf_rx: int | None = None
+    new_wco: Pos5 | None = None
+    axes: int = 3
+    overrides: bool = False
+    acc: str | None = None
+
+    def take(self, key: str, val: str) -> None:
+        """Read one `key:val` field (unknown keys are ignored)."""
+        if key in ("MPos", "WPos"):
+            self._take_position(key, val)
+        elif key in ("FS", "F"):
+            self._take_feed(key, val)
+        elif key == "Pn":
+            self.pins = val
+        elif key == "Bf":
+            a, _, b = val.partition(",")
+            self.bf_planner, self.bf_rx = int(a), int(b)
+        elif key == "WCO":
+            self.new_wco = _pos(val)
+        elif key == "Ov":
+            self.overrides = True
+        elif key == "A":
+            self.acc = val
+
+    def _take_position(self, key: str, val: str) -> None:
+        if key == "MPos":
+            self.mpos = _pos(val)
+        else:
+            self.wpos = _pos(val)
+        self.axes = val.count(",") + 1
+
+    def _take_feed(self, key: str, val: str) -> None:
+        if key == "F":
+            self.feed = float(val)
+            return
+        parts = val.split(",")
+        self.feed = float(parts[0])
+        self.spindle = float(parts[1]) if len(parts) > 1 else 0.0
+
+
+def _status_mpos(f: _StatusFields, wco: Pos5 | None, line: str) -> Pos5:
+    """The machine position of a report: its MPos, else its WPos plus the work offset."""
+    if f.mpos is not None:
+        return f.mpos
+    if f.wpos is None:
+        raise ValueError(f"status report without a position: {line!r}")
+    use_wco = f.new_wco or wco
+    off = use_wco or (0.0,) * 5
+    return tuple(w + o for w, o in zip(f.wpos, off))  # type: ignore[return-value]
+
+
 def parse_status(line: str, wco: Pos5 | None = None) -> GrblStatus:
     """Parse `<State[:n]|MPos:…|FS:f,s|Pn:…|Bf:b,r|WCO:…>`; WPos is turned into MPos with `wco`."""
     body = line.strip()
@@ -197,51 +258,15 @@ def parse_status(line: str, wco: Pos5 | None = None) -> GrblStatus:
     head = fields[0]
     state, _, sub = head.partition(":")
     substate = int(sub) if sub.isdigit() else None
-    mpos: Pos5 | None = None
-    wpos: Pos5 | None = None
-    feed = spindle = 0.0
-    pins = ""
-    bf_planner = bf_rx = None
-    new_wco = None
-    axes = 3
-    overrides = False
-    acc: str | None = None
-    for f in fields[1:]:
-        key, _, val = f.partition(":")
-        if key == "MPos":
-            mpos = _pos(val)
-            axes = val.count(",") + 1
-        elif key == "WPos":
-            wpos = _pos(val)
-            axes = val.count(",") + 1
-        elif key == "FS":
-            parts = val.split(",")
-            feed = float(parts[0])
-            spindle = float(parts[1]) if len(parts) > 1 else 0.0
-        elif key == "F":
-            feed = float(val)
-        elif key == "Pn":
-            pins = val
-        elif key == "Bf":
-            a, _, b = val.partition(",")
-            bf_planner, bf_rx = int(a), int(b)
-        elif key == "WCO":
-            new_wco = _pos(val)
-        elif key == "Ov":
-            overrides = True
-        elif key == "A":
-            acc = val
-    use_wco = new_wco or wco
-    if mpos is None:
-        if wpos is None:
-            raise ValueError(f"status report without a position: {line!r}")
-        off = use_wco or (0.0,) * 5
-        mpos = tuple(w + o for w, o in zip(wpos, off))  # type: ignore[assignment]
-    assert mpos is not None  # set above, or raised
+    f = _StatusFields()
+    for item in fields[1:]:
+        key, _, val = item.partition(":")
+        f.take(key, val)
+    mpos = _status_mpos(f, wco, line)
     return GrblStatus(
-        state=state, mpos=mpos, feed=feed, spindle=spindle, probe_tripped="P" in pins,
-        substate=substate, pins=pins, planner_free=bf_planner, rx_free=bf_rx, wco=new_wco,
-        axes=axes, accessories=acc if acc is not None else ("" if overrides else None),
+        state=state, mpos=mpos, feed=f.feed, spindle=f.spindle, probe_tripped="P" in f.pins,
+        substate=substate, pins=f.pins, planner_free=f.bf_planner, rx_free=f.bf_rx, wco=f.new_wco,
+        axes=f.axes, accessories=f.acc if f.acc is not None else ("" if f.overrides else None),
     )
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import re
 import zlib
 from dataclasses import dataclass
+from typing import Callable
 
 SEQ_MOD = 1 << 16
 MOTION_VERBS = ("MOVJ", "MOVL")
@@ -218,27 +219,62 @@ def sta(state: str, last_rx: int, last_exec: int, queue_free: int, pos: tuple[fl
     return f"STA {state} {seq_hex(last_rx)} {seq_hex(last_exec)} {queue_free} " + " ".join(fmt_mm(p) for p in pos)
 
 
+def _reply_ack(tok: list[str]) -> Reply | None:
+    if len(tok) == 3 and _SEQ_RE.match(tok[1]):
+        return Reply("ACK", seq=int(tok[1], 16), credits=int(tok[2]))
+    return None
+
+
+def _reply_nak(tok: list[str]) -> Reply | None:
+    if len(tok) == 3 and _SEQ_RE.match(tok[1]) and tok[2] in NAK_REASONS:
+        return Reply("NAK", seq=int(tok[1], 16), reason=tok[2])
+    return None
+
+
+def _reply_exe(tok: list[str]) -> Reply | None:
+    if len(tok) == 2 and _SEQ_RE.match(tok[1]):
+        return Reply("EXE", seq=int(tok[1], 16))
+    return None
+
+
+def _reply_count(tok: list[str]) -> Reply | None:
+    """MRK n, HB n."""
+    if len(tok) == 2:
+        return Reply(tok[0], n=int(tok[1]))
+    return None
+
+
+def _reply_err(tok: list[str]) -> Reply | None:
+    if len(tok) >= 2:
+        return Reply("ERR", code=int(tok[1]), text=" ".join(tok[2:]))
+    return None
+
+
+def _reply_sta(tok: list[str]) -> Reply | None:
+    if len(tok) == 8 and tok[1] in STATES and _SEQ_RE.match(tok[2]) and _SEQ_RE.match(tok[3]):
+        return Reply("STA", state=tok[1], last_rx=int(tok[2], 16), last_exec=int(tok[3], 16),
+                     queue_free=int(tok[4]), pos=(float(tok[5]), float(tok[6]), float(tok[7])))
+    return None
+
+
+# reply kind -> its parser (None: the tokens do not make that reply)
+_REPLY_PARSERS: dict[str, Callable[[list[str]], Reply | None]] = {
+    "ACK": _reply_ack, "NAK": _reply_nak, "EXE": _reply_exe, "MRK": _reply_count, "HB": _reply_count,
+    "ERR": _reply_err, "STA": _reply_sta,
+}
+
+
 def parse_reply(body: str) -> Reply:
     """A robot body as a Reply; FrameError(SYNTAX) if it is not one."""
     tok = body.split(" ")
-    kind = tok[0]
+    parse = _REPLY_PARSERS.get(tok[0])
     try:
-        if kind == "ACK" and len(tok) == 3 and _SEQ_RE.match(tok[1]):
-            return Reply("ACK", seq=int(tok[1], 16), credits=int(tok[2]))
-        if kind == "NAK" and len(tok) == 3 and _SEQ_RE.match(tok[1]) and tok[2] in NAK_REASONS:
-            return Reply("NAK", seq=int(tok[1], 16), reason=tok[2])
-        if kind == "EXE" and len(tok) == 2 and _SEQ_RE.match(tok[1]):
-            return Reply("EXE", seq=int(tok[1], 16))
-        if kind in ("MRK", "HB") and len(tok) == 2:
-            return Reply(kind, n=int(tok[1]))
-        if kind == "ERR" and len(tok) >= 2:
-            return Reply("ERR", code=int(tok[1]), text=" ".join(tok[2:]))
-        if kind == "STA" and len(tok) == 8 and tok[1] in STATES and _SEQ_RE.match(tok[2]) and _SEQ_RE.match(tok[3]):
-            return Reply("STA", state=tok[1], last_rx=int(tok[2], 16), last_exec=int(tok[3], 16),
-                         queue_free=int(tok[4]), pos=(float(tok[5]), float(tok[6]), float(tok[7])))
+        reply = parse(tok) if parse is not None else None
     except ValueError:
-        pass
-    raise FrameError("SYNTAX", f"not a robot frame: {body!r}")
+        reply = None
+    if reply is None:
+        raise FrameError("SYNTAX", f"not a robot frame: {body!r}")
+    return reply
 
 
 class LineSplitter:

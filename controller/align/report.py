@@ -25,9 +25,11 @@ def write_report(res: Any, out_dir: str | Path, *, stem: str = "align") -> dict[
 
 def plot(res: Any, path: str | Path) -> None:
     """Three panels: the touches and fitted planes in 3-D, top residuals on the grid, side residuals."""
+    # lazy: matplotlib loads only when this path runs (start-up time)
     import matplotlib
 
     matplotlib.use("Agg")
+    # lazy: matplotlib loads only when this path runs (start-up time)
     import matplotlib.pyplot as plt
 
     top = res.points["top"]

@@ -15,6 +15,7 @@ at the table origin. Everything returned is a frozen AlignResult.
 from __future__ import annotations
 
 import dataclasses
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -27,6 +28,7 @@ from controller.align.fit import Datum, LineFit, PlaneFit, cad_transform_321, fi
 from controller.motion.kinematics import Trunnion, apply_transform, homogeneous, rotation_matrix, unit
 from controller.align.leveling import FaceAngle, Leveling, face_angle, leveling_angles
 from controller.align.probe_cycle import ProbedPoint, ProbeLog, ProbeTarget, probe_points
+from drivers.registry import open_cnc
 from wire.grbl_protocol import fmt
 from core.errors import InputError
 
@@ -78,6 +80,7 @@ def plan_for_mesh(mesh: Any, *, grid: tuple[int, int] = (3, 3), top_span_mm: flo
 
 def cad_mesh(workpiece: Any = None, cad_path: str | Path | None = None, base_dir: Path | None = None) -> Any:
     """The nominal part: `--cad FILE`, else the sim config's workpiece (mesh, or a block of size_mm, top at z = 0)."""
+    # lazy: trimesh loads only when this path runs (start-up time)
     import trimesh
 
     path = cad_path or (workpiece.mesh if workpiece is not None else None)
@@ -323,11 +326,7 @@ async def align(link: Any, cell: Any, plan: ProbePlan, *, settings: Any = None, 
 async def run_on_url(url: str, cell: Any, plan: ProbePlan, *, settings: Any = None,
                      on_point: Callable[[ProbedPoint], None] | None = None, no_level: bool = False) -> AlignResult:
     """Open the CNC link at `url`, align, close the link (also when cancelled)."""
-    from drivers.grbl import CncLink
-
-    dev = cell.devices.cnc
-    link = CncLink(url, baud=dev.baud, rx_buffer_bytes=dev.rx_buffer_bytes, status_hz=dev.status_hz,
-                   homing_timeout_s=dev.homing_timeout_s)
+    link = open_cnc(cell.devices.cnc, time_scale=cell.cell.time_scale, url=url)
     await link.connect()
     try:
         return await align(link, cell, plan, settings=settings, on_point=on_point, no_level=no_level)
@@ -344,8 +343,6 @@ async def run_on_url(url: str, cell: Any, plan: ProbePlan, *, settings: Any = No
 
 def alignment_record(res: "AlignResult") -> dict[str, Any]:
     """The job's `alignment` (DESIGN.md §3): transform, table angles, when it was probed."""
-    import time
-
     no_level = res.no_level
     return {"transform": res.transform.tolist(), "level_a_deg": res.level_a_deg, "level_b_deg": res.level_b_deg,
             **({"no_level": True, "tilt_deg": res.leveling.tilt_deg} if no_level else {}),

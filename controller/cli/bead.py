@@ -29,6 +29,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def _critical(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from planner.bead import DING_ARC_ASPECT, critical_ratio, flat_top_ratio
     from core.errors import InputError
@@ -62,6 +63,7 @@ def _critical(args: argparse.Namespace) -> int:
 
 
 def _fit(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from controller.cli.process import read_csv_columns
     from planner.bead import fit_profiles

@@ -20,6 +20,7 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from core.config import load_cell
     from controller.export import SUFFIX, export_job
@@ -29,6 +30,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_cell(args.cell_config) if args.cell_config else load_cell()
     stem = Path(args.job).name.removesuffix(".json").removesuffix(".job")
     out = Path(args.out) if args.out else Path(stem + SUFFIX[args.format])
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.motion.kinematics import Trunnion
 
     res = export_job(job, args.format, name=stem, out=out, clearance_mm=cfg.limits.clearance_mm,

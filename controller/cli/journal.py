@@ -40,6 +40,7 @@ def _journal_path(arg: str) -> Path:
 
 
 def _check(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from controller.journal.check import inspect
 
@@ -73,6 +74,7 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _recover(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from controller.job.read import read_job
     from controller.journal.recover import recover

@@ -14,6 +14,7 @@ if TYPE_CHECKING:  # the planner, the config loader and tqdm are imported when `
 
     from core.material import Material
     from planner.five_axis import FiveAxisOptions
+    from planner.weld import CellLimits
 
 LONG_PLAN_FACES = 200_000  # above this a progress bar is shown even when stderr is not a terminal
 
@@ -37,6 +38,16 @@ def _positive(value: str) -> float:
         raise argparse.ArgumentTypeError(f"'{value}' is not a number of mm") from None
     if not x > 0 or x != x or x == float("inf"):
         raise argparse.ArgumentTypeError(f"{value}: must be a positive number of mm")
+    return x
+
+
+def _allowance(value: str) -> float:
+    try:
+        x = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{value}' is not a number of mm") from None
+    if not 0.0 <= x <= 100.0:
+        raise argparse.ArgumentTypeError(f"{value}: must be between 0 and 100 mm")
     return x
 
 
@@ -70,6 +81,9 @@ def register(sub: Any) -> None:
                    help="plan layers stepping out beyond the overhang rule, with warnings")
     p.add_argument("--min-coverage", type=_fraction, default=0.97, metavar="F",
                    help="least share of every layer covered by beads (default 0.97)")
+    p.add_argument("--machining-allowance", type=_allowance, metavar="MM",
+                   help="near-net: grow every layer and the top by MM of stock to machine "
+                        "(default: the material's machining_allowance_mm, else 0)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--frame", choices=("substrate", "cad"), default="substrate",
                    help="substrate: the part's lowest point on z = 0 (default); cad: keep the CAD coordinates")
@@ -82,6 +96,7 @@ def _five_axis(enabled: bool) -> FiveAxisOptions | None:
     """FiveAxisOptions from cell.yaml (tilt limit, nozzle cone), or None for a 3-axis plan."""
     if not enabled:
         return None
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from core.config import load_cell
     from planner.five_axis import FiveAxisOptions, Nozzle
 
@@ -95,6 +110,7 @@ def _five_axis(enabled: bool) -> FiveAxisOptions | None:
 
 
 def _material(name: str | None) -> Material:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from core.config import load_cell, load_material
 
     if name is None:
@@ -105,16 +121,22 @@ def _material(name: str | None) -> Material:
     return load_material(name)
 
 
-def _workspace() -> tuple[float, float, float] | None:
-    """The cell's workspace extent (config/cell.yaml): a part larger than it is refused before slicing."""
+def _cell_limits() -> tuple[tuple[float, float, float] | None, CellLimits]:
+    """The cell's workspace extent (a part larger than it is refused before slicing) and its speed and
+    source limits (a bead outside them is refused at plan time), from config/cell.yaml; the
+    planner's defaults (cell.yaml's own) without one."""
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from core.config import load_cell
+    from planner.weld import CellLimits
 
     try:
         lim = load_cell().limits
     except CellError:
-        return None
+        return None, CellLimits()
     lo, hi = lim.workspace_min_mm, lim.workspace_max_mm
-    return (float(hi[0] - lo[0]), float(hi[1] - lo[1]), float(hi[2] - lo[2]))
+    room = (float(hi[0] - lo[0]), float(hi[1] - lo[1]), float(hi[2] - lo[2]))
+    return room, CellLimits(lim.max_speed_mm_min, lim.min_weld_speed_mm_min, lim.source_current_max_a,
+                            lim.source_wfs_max_m_min)
 
 
 class _Bar:
@@ -128,6 +150,7 @@ class _Bar:
         if not self.enabled:
             return
         if self.bar is None:
+            # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
             from tqdm import tqdm
 
             self.bar = tqdm(total=total, unit="layer", desc="planning", file=sys.stderr, leave=False)
@@ -139,6 +162,7 @@ class _Bar:
 
 
 def run(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from planner.job import job_to_json
     from planner.mesh import read_mesh
@@ -146,10 +170,12 @@ def run(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     material = _material(args.material)
+    workspace, cell_limits = _cell_limits()
     options = PlanOptions(width_mm=args.width, layer_height_mm=args.layer_height, perimeters=args.perimeters,
                           units=args.units, allow_outside=args.allow_outside,
                           allow_underfill=args.allow_underfill, allow_overhang=args.allow_overhang,
-                          min_coverage=args.min_coverage, workspace_mm=_workspace(), frame=args.frame,
+                          min_coverage=args.min_coverage, workspace_mm=workspace, cell_limits=cell_limits,
+                          machining_allowance_mm=args.machining_allowance, frame=args.frame,
                           five_axis=_five_axis(args.five_axis))
     mesh = read_mesh(args.mesh, args.units)
     bar = _Bar(sys.stderr.isatty() or len(mesh.faces) >= LONG_PLAN_FACES)
@@ -165,6 +191,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--out {out}: cannot write the job file ({exc.strerror or exc})") from exc
     previews: list[str] = []
     if args.preview:
+        # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
         from controller.job.preview import write_previews
 
         try:
@@ -182,6 +209,13 @@ def run(args: argparse.Namespace) -> int:
               f"coverage {100 * s['coverage']:.1f} % (min {100 * s['coverage_min']:.1f} % at layer "
               f"{s['coverage_min_layer']}), overfill {100 * s['overfill']:.2f} %, mass balance within "
               f"{100 * s['mass_balance_max_error']:.2f} %, about {s['est_time_s'] / 60:.0f} min")
+        mach = s.get("machining", {})
+        if mach.get("allowance_mm"):
+            st = mach["stock_mm"]
+            print(f"  near-net: {mach['allowance_mm']:g} mm allowance; stock to machine: sides "
+                  f"{st['side_min']:.2f}-{st['side_max']:.2f} mm, top {st['top']:.2f} mm, bottom {st['bottom']:.2f} mm")
+        for fx in s.get("allowance_would_fix", [])[:6]:
+            print(f"  buildable with --machining-allowance {fx['allowance_mm']:g}: {fx['feature'].split(' (buildable')[0]}")
         for r in s["repairs"]:
             print(f"  repaired: {r}")
         for wmsg in s["warnings"]:

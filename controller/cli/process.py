@@ -120,6 +120,7 @@ def _is_number(s: str) -> bool:
 
 
 def _material(name: str | None) -> Material:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from core.config import load_cell, load_material
 
     return load_material(name if name else load_cell().cell.material)
@@ -167,6 +168,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def _inverse(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from planner.process import inverse
 
@@ -190,6 +192,7 @@ def _inverse(args: argparse.Namespace) -> int:
 
 
 def _forward(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from planner.process import forward
 
@@ -209,6 +212,7 @@ def _forward(args: argparse.Namespace) -> int:
 
 
 def _fit(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from planner.process_fit import fit_coefficients
 
@@ -235,6 +239,7 @@ def _fit(args: argparse.Namespace) -> int:
 
 def _stickout_fit(args: argparse.Namespace) -> int:
     """α, β of the melting rate from a stick-out sweep (core/melting.py, docs/process-physics.md)."""
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from core.melting import fit_sweep
 

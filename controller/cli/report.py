@@ -25,6 +25,7 @@ def register(sub: Any) -> None:
 
 
 def _open(run_dir: Path) -> Any:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.journal.store import Journal
 
     path = run_dir / "journal.sqlite"
@@ -34,6 +35,7 @@ def _open(run_dir: Path) -> Any:
 
 
 def _report(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from controller.report.summary import write_report
 
@@ -67,6 +69,7 @@ def _report(args: argparse.Namespace) -> int:
 
 def run_rows(runs: Path) -> list[dict[str, Any]]:
     """dir, job, state, started, layers_done of every run directory with a journal."""
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.report.summary import summarize
     from controller.report.record import iso
 
@@ -86,6 +89,7 @@ def run_rows(runs: Path) -> list[dict[str, Any]]:
 
 
 def _runs(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from core.config import load_cell
 

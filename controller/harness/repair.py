@@ -5,6 +5,7 @@ from pathlib import Path
 from typing import Any
 
 from controller.harness.sim import SIM_REPLY_TIMEOUT_MS, simulated
+from controller.motion.cnc5 import limit_time_scale
 from controller.repair import repair_run
 from core.config import CellConfig, SimConfig
 
@@ -13,8 +14,6 @@ async def repair_run_sim(job: dict[str, Any], cell: CellConfig, sim_cfg: SimConf
                          runs_dir: str | Path = "runs", log_dir: str | Path | None = None,
                          tolerance_mm: float = 0.1) -> dict[str, Any]:
     """repair_run against the simulators (the stock posed by `sim_cfg`), logs in `log_dir`."""
-    from controller.motion.cnc5 import limit_time_scale
-
     if cell.cell.platform != "cnc":
         cell = cell.model_copy(update={"cell": cell.cell.model_copy(update={"platform": "cnc"})})
     cell, note = limit_time_scale(cell, job)  # what the CNC link can feed (issue 29)

@@ -31,6 +31,7 @@ class RepairVolume:
 
 
 def _manifold(mesh: trimesh.Trimesh, name: str) -> manifold3d.Manifold:
+    # lazy: manifold3d loads only when this path runs (start-up time)
     import manifold3d
 
     m = manifold3d.Manifold(manifold3d.Mesh(vert_properties=np.asarray(mesh.vertices, dtype=np.float32),
@@ -41,6 +42,7 @@ def _manifold(mesh: trimesh.Trimesh, name: str) -> manifold3d.Manifold:
 
 
 def _trimesh(m: manifold3d.Manifold) -> trimesh.Trimesh:
+    # lazy: trimesh loads only when this path runs (start-up time)
     import trimesh
 
     mm = m.to_mesh()

@@ -16,8 +16,10 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from controller.job.identity import canonical_json, job_hash
 from controller.job.read import JobJSON
 from controller.journal.check import Row
+from controller.journal.store import SCHEMA
 from core.errors import CellError
 
 TABLES = ("job", "moves", "progress", "passes", "beads", "events", "samples")
@@ -77,9 +79,6 @@ def _read_copy(src: Path) -> tuple[dict[str, list[Row]], dict[str, int], set[str
 
 def recover(run_dir: Path, out_dir: Path, job: JobJSON | None) -> Recovered:
     """Copy what the journal of `run_dir` proves into a new journal under `out_dir`."""
-    from controller.job.identity import canonical_json, job_hash
-    from controller.journal.store import SCHEMA
-
     src = run_dir / "journal.sqlite"
     if out_dir.exists():
         raise CellError(f"{out_dir}: already exists; recovery writes only a new run directory")

@@ -7,13 +7,16 @@ axis limits refuses the job, naming layer, pass and point, instead of stopping m
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from controller.motion.post5 import Post5, inverse_time, linearise, move_line, weld_axes
 from controller.motion.weld_path import weld_points
+from controller.job.read import JobJSON
 from core.errors import InputError
+from controller.motion.kinematics import Trunnion
+import asyncio
 
 Point = tuple[float, float, float]
 # the G-code words carry 3 decimals (mm and degrees: up to ~2 µm at 100 mm from an axis): the
@@ -21,7 +24,7 @@ Point = tuple[float, float, float]
 _ROUNDING_SHARE = 0.8
 
 
-def _weld_points(points: list, max_step_mm: float) -> list[Point]:
+def _weld_points(points: Sequence[Sequence[float]], max_step_mm: float) -> list[Point]:
     return weld_points(points, max_step_mm)  # the build's own subdivision: indices must agree
 
 
@@ -46,7 +49,7 @@ class Five:
     def active(self) -> bool:
         return self.cur is not None
 
-    def check_alignment(self, job: dict, reset_at: float) -> None:
+    def check_alignment(self, job: JobJSON, reset_at: float) -> None:
         """The job's alignment drives the table: its A/B leveling, refused when stale or missing."""
         self.level = None
         al = job.get("alignment")
@@ -80,9 +83,8 @@ class Five:
         return self.level is None or (abs(float(mpos[3]) - self.level[0]) < 0.002
                                       and abs(float(mpos[4]) - self.level[1]) < 0.002)
 
-    async def post_job(self, job: dict, max_step_mm: float) -> None:
+    async def post_job(self, job: JobJSON, max_step_mm: float) -> None:
         """Every pass to machine axes; yields between passes so the links stay serviced."""
-        import asyncio
 
         self.passes, self.fine = {}, {}
         if not any("axes" in p for la in job.get("layers", []) for p in la.get("passes", [])):
@@ -104,6 +106,10 @@ class Five:
                 self.fine[(li, pi)] = linearise(post, pts, axes, m, tol)
                 await asyncio.sleep(0)
 
+    def _current(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        assert self.cur is not None, "no 5-axis pass in use: use() it first"
+        return self.cur
+
     def use(self, layer: int, pass_: int) -> None:
         self.cur = self.passes.get((layer, pass_))
         self.cur_fine = self.fine.get((layer, pass_))
@@ -111,7 +117,7 @@ class Five:
 
     def _machine_at(self, p: Point) -> tuple[int, np.ndarray]:
         """Index of the segment start nearest to p and the machine axes at p (a resume may start mid-move)."""
-        pts, axes, m = self.cur  # type: ignore[misc]
+        pts, axes, m = self._current()
         q = np.asarray(p, dtype=float)
         k = int(np.argmin(np.linalg.norm(pts - q, axis=1)))
         if np.linalg.norm(pts[k] - q) < 1e-6:
@@ -138,7 +144,7 @@ class Five:
         The moves are the pass's chord-tolerance split (post5.linearise); a start inside a planned
         move (a resume) has its first move split afresh. F = speed / part-frame length of each move.
         """
-        pts, axes, m = self.cur  # type: ignore[misc]
+        pts, axes, m = self._current()
         fp, fa, fm, fs = self.cur_fine if self.cur_fine is not None else (pts, axes, m, np.arange(len(pts)))
         post = Post5(self.trunnion)
         tol = float(getattr(self.trunnion, "chord_tolerance_mm", 0.02)) * _ROUNDING_SHARE
@@ -167,8 +173,8 @@ class Five:
     def machine_xyz(self) -> list[Point]:
         """The machine X Y Z of the streamed moves (after weld_lines): the path the status reports follow."""
         if self._stream is None:
-            return [tuple(float(v) for v in r[:3]) for r in self.cur[2]]  # type: ignore[index]
-        return [tuple(float(v) for v in r) for r in self._stream[0]]
+            return [(float(r[0]), float(r[1]), float(r[2])) for r in self._current()[2]]
+        return [(float(r[0]), float(r[1]), float(r[2])) for r in self._stream[0]]
 
     def track(self, i0: int, on_exec: Callable[[int, int], None]) -> tuple[list[Point], int, Callable[[int, int], None]]:
         """For the executor's progress: the streamed path, its first index, and on_exec taking
@@ -220,7 +226,7 @@ class FeedLimit:
                 f"would stand still with the process on between moves; time scale limited to {self.time_scale:g}")
 
 
-def _pass_moves(five: Five, post: Post5 | None, p: dict, max_step_mm: float) -> tuple[np.ndarray, np.ndarray]:
+def _pass_moves(five: Five, post: Post5 | None, p: dict[str, Any], max_step_mm: float) -> tuple[np.ndarray, np.ndarray]:
     """(process seconds, bytes) per streamed weld line of one pass, as the executor sends them."""
     speed = float(p.get("speed_mm_min") or 0.0) / 60.0
     if post is not None and "axes" in p:
@@ -238,7 +244,7 @@ def _pass_moves(five: Five, post: Post5 | None, p: dict, max_step_mm: float) -> 
     return length / max(speed, 1e-9), nbytes
 
 
-def feed_limit(job: dict, trunnion: Any, baud: int = 115200, max_step_mm: float = 2.0) -> FeedLimit | None:
+def feed_limit(job: JobJSON, trunnion: Any, baud: int = 115200, max_step_mm: float = 2.0) -> FeedLimit | None:
     """The largest time scale at which the CNC link can feed every bead of `job` (None: no beads)."""
     five = Five(trunnion)
     post = Post5(trunnion) if trunnion is not None else None
@@ -274,11 +280,9 @@ def _round_down(k: float) -> float:
     return 1.0
 
 
-def limit_time_scale(cfg: Any, job: dict, max_step_mm: float = 2.0) -> tuple[Any, str | None]:
+def limit_time_scale(cfg: Any, job: JobJSON, max_step_mm: float = 2.0) -> tuple[Any, str | None]:
     """cfg with cell.time_scale lowered to what the CNC link can feed for `job` (CNC cells, simulated
     time only), and the message saying so; (cfg, None) when nothing was lowered."""
-    from controller.motion.kinematics import Trunnion
-
     if cfg.cell.platform != "cnc" or cfg.cell.time_scale <= 1.0:
         return cfg, None
     lim = feed_limit(job, Trunnion.from_config(cfg.kinematics), cfg.devices.cnc.baud, max_step_mm)
@@ -288,7 +292,7 @@ def limit_time_scale(cfg: Any, job: dict, max_step_mm: float = 2.0) -> tuple[Any
     return cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"time_scale": lim.time_scale})}), msg
 
 
-def check_feed(job: dict, trunnion: Any, link: Any, max_step_mm: float = 2.0) -> None:
+def check_feed(job: JobJSON, trunnion: Any, link: Any, max_step_mm: float = 2.0) -> None:
     """Before any motion: a simulated link (line_scale > 1) faster than the host can feed the job's
     beads is refused, naming the time scale that can (`limit_time_scale` lowers it where the
     simulators are started here: `cell run --sim`, `cell repair run --sim`)."""

@@ -23,6 +23,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from controller.job.read import JobJSON
 from core.errors import InputError
 
 F = NDArray[np.float64]
@@ -54,7 +55,8 @@ def rotation_matrix(axis: str | ArrayLike, angle_deg: float) -> F:
     k = axis_vector(axis)
     t = np.radians(angle_deg)
     kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(t) * kx + (1.0 - np.cos(t)) * (kx @ kx)
+    r: F = np.eye(3) + np.sin(t) * kx + (1.0 - np.cos(t)) * (kx @ kx)
+    return r
 
 
 def homogeneous(rotation: ArrayLike | None = None, translation: ArrayLike | None = None) -> F:
@@ -74,13 +76,15 @@ def apply_transform(matrix: ArrayLike, points: ArrayLike) -> F:
     """Apply a 4×4 transform to an (n, 3) array (or one 3-vector) of points."""
     m = np.asarray(matrix, dtype=float)
     p = np.asarray(points, dtype=float)
-    return p @ m[:3, :3].T + m[:3, 3]
+    out: F = p @ m[:3, :3].T + m[:3, 3]
+    return out
 
 
 def rotate_vectors(matrix: ArrayLike, vectors: ArrayLike) -> F:
     """Rotate directions (no translation) by the rotation part of a 4×4 transform."""
     m = np.asarray(matrix, dtype=float)
-    return np.asarray(vectors, dtype=float) @ m[:3, :3].T
+    out: F = np.asarray(vectors, dtype=float) @ m[:3, :3].T
+    return out
 
 
 # --- the paper's appendix ------------------------------------------------------------------------
@@ -216,7 +220,7 @@ class Trunnion:
         if not sols:
             raise InputError(
                 f"no {self.table} table angles within the limits bring direction "
-                f"{np.round(unit(direction), 6).tolist()} to {list(target)}; check kinematics in cell.yaml")
+                f"{np.round(unit(direction), 6).tolist()} to {np.asarray(target, dtype=float).tolist()}; check kinematics in cell.yaml")
         sols.sort()
         return sols[0][2], sols[0][3]
 
@@ -239,7 +243,7 @@ class Trunnion:
 # --- applying an alignment -------------------------------------------------------------------------
 
 
-def apply_to_job(job: dict, matrix: ArrayLike, record: dict | None = None) -> dict:
+def apply_to_job(job: JobJSON, matrix: ArrayLike, record: dict[str, Any] | None = None) -> JobJSON:
     """A copy of a `cell-job/1` dict moved by `matrix` (points, normals, axes), recording the alignment.
 
     A job holds at most one alignment (DESIGN.md §3): a job that already carries one is refused.

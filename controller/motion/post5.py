@@ -42,7 +42,7 @@ def weld_axes(points: Sequence[Sequence[float]], axes: Sequence[Sequence[float]]
         for k in range(1, n + 1):
             out.append(tuple(unit(a_ax + (qa - a_ax) * (k / n))))
         a_pt, a_ax = q, qa
-    return out  # type: ignore[return-value]
+    return out
 
 
 def _count(points: Sequence[Sequence[float]], max_step_mm: float) -> int:
@@ -117,8 +117,9 @@ class Post5:
             if prev is None:
                 best = min(cands, key=lambda c: (not t.within_limits(*c), max(abs(c[0]), abs(c[1]))))
             else:
-                cands = [(a, s + 360.0 * round((prev[1] - s) / 360.0)) for a, s in cands]
-                best = min(cands, key=lambda c: (max(abs(c[0] - prev[0]), abs(c[1] - prev[1])), abs(c[0]) + abs(c[1])))
+                pv = prev
+                cands = [(a, s + 360.0 * round((pv[1] - s) / 360.0)) for a, s in cands]
+                best = min(cands, key=lambda c: (max(abs(c[0] - pv[0]), abs(c[1] - pv[1])), abs(c[0]) + abs(c[1])))
             out[i] = best
             prev = best
         return self._into_limits(out, axes, first)
@@ -164,7 +165,8 @@ def _angles(v: np.ndarray, w: np.ndarray, axis: np.ndarray) -> np.ndarray:
     """Signed angles (deg) turning each v into w about axis (rows projected on its normal plane)."""
     vp = v - np.outer(v @ axis, axis)
     wp = w - np.outer(w @ axis, axis)
-    return np.degrees(np.arctan2(np.cross(vp, wp) @ axis, np.einsum("ij,ij->i", vp, wp)))
+    out: np.ndarray = np.degrees(np.arctan2(np.cross(vp, wp) @ axis, np.einsum("ij,ij->i", vp, wp)))
+    return out
 
 
 def _rot(axis: np.ndarray, deg: np.ndarray) -> np.ndarray:
@@ -172,13 +174,15 @@ def _rot(axis: np.ndarray, deg: np.ndarray) -> np.ndarray:
     k = np.asarray(axis, dtype=float)
     t = np.radians(np.asarray(deg, dtype=float))
     kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(t)[:, None, None] * kx + (1.0 - np.cos(t))[:, None, None] * (kx @ kx)
+    out: np.ndarray = np.eye(3) + np.sin(t)[:, None, None] * kx + (1.0 - np.cos(t))[:, None, None] * (kx @ kx)
+    return out
 
 
 def inverse_time(points: np.ndarray, speed_mm_min: float) -> np.ndarray:
     """G93 F per move (1/min): planned speed over the part-frame length of each move."""
     seg = np.linalg.norm(np.diff(np.asarray(points, dtype=float), axis=0), axis=1)
-    return speed_mm_min / np.maximum(seg, 1e-6)
+    out: np.ndarray = speed_mm_min / np.maximum(seg, 1e-6)
+    return out
 
 
 def _g(v: float) -> str:
@@ -186,7 +190,7 @@ def _g(v: float) -> str:
     return "0.000" if s == "-0.000" else s
 
 
-def move_line(m: Sequence[float], letters: str, feed: float | None = None, verb: str = "G1") -> str:
+def move_line(m: Sequence[float] | np.ndarray, letters: str, feed: float | None = None, verb: str = "G1") -> str:
     """One G-code motion line with the machine's letters (XYZAB or XYZAC)."""
     words = " ".join(f"{c}{_g(v)}" for c, v in zip(letters, m))
     return f"{verb} {words}" + (f" F{_feed(feed)}" if feed is not None else "")

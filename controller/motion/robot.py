@@ -13,7 +13,9 @@ from typing import Any, Callable
 
 from controller.motion.post5 import weld_axes
 from controller.motion.weld_path import weld_points
+from controller.job.read import JobJSON
 from controller.ports import RobotLinkPort
+from drivers.robot import RobotStatus
 from core.errors import InputError
 
 Point = tuple[float, float, float]
@@ -36,7 +38,7 @@ class RobotExecutor:
         self.min_ahead: int | None = None       # fewest weld moves queued ahead at an EXE inside a bead
         self._lost_cbs: list[Callable[[Any], None]] = []
         self.stopped_at: Point | None = None    # where prepare() found the robot stopped (queue flushed)
-        self.record: Any = None                 # the robot's STA before prepare() flushed or reset it
+        self.record: RobotStatus | None = None  # the robot's STA before prepare() flushed or reset it
         self.ahead: int | None = None           # weld moves left unexecuted at most (None: the window)
         self._axes: dict[tuple[int, int], list[Point]] = {}
         self._cur_axes: list[Point] | None = None  # the planned tool axis per weld point (5-axis)
@@ -44,7 +46,7 @@ class RobotExecutor:
         self._weld_pts: list[Point] | None = None
         self._subscribe()
 
-    def post_job(self, job: dict, max_step_mm: float) -> None:
+    def post_job(self, job: JobJSON, max_step_mm: float) -> None:
         """The planned tool axis per weld point of every 5-axis pass (`axes`), before any motion."""
         if job.get("frame") == "cad" and not job.get("alignment"):
 
@@ -122,9 +124,10 @@ class RobotExecutor:
 
     def _start_index(self, p: Point) -> int | None:
         """Index of the weld point nearest the approached start (a resume may start mid-pass)."""
-        if self._cur_axes is None or self._weld_pts is None:
+        wp = self._weld_pts
+        if self._cur_axes is None or wp is None:
             return None
-        return min(range(len(self._weld_pts)), key=lambda k: sum((a - b) ** 2 for a, b in zip(self._weld_pts[k], p)))
+        return min(range(len(wp)), key=lambda k: sum((a - b) ** 2 for a, b in zip(wp[k], p)))
 
     def next_tickets(self, n: int) -> list[int]:
         """The tickets the next `n` moves will get (only this executor sends moves on the link)."""

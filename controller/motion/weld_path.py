@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Sequence, cast
 
 Point = tuple[float, float, float]
 
@@ -13,7 +13,8 @@ def weld_points(points: Sequence[Sequence[float]], max_step_mm: float) -> list[P
     Point indices of this list are what the journal records, so they must not change between
     a run and its resume: they depend on the job and the step only.
     """
-    out: list[Point] = [tuple(float(v) for v in points[0][:3])]  # type: ignore[list-item]
+    # a job point is x y z (a longer one carries more: only the first three are the position)
+    out: list[Point] = [cast(Point, tuple(float(v) for v in points[0][:3]))]
     for p in points[1:]:
         q = tuple(float(v) for v in p[:3])
         a = out[-1]

@@ -21,6 +21,7 @@ from typing import Any
 from controller.runtime.events import EventBus, Snapshot
 from core.config import OpcUaSettings
 from core.errors import CellError
+import os
 
 CALL_TIMEOUT_S = 10.0
 
@@ -68,8 +69,8 @@ class PipeControl:
 
 def run(snaps: Any, control: Any, opcua: OpcUaSettings, cell_name: str, ident: Any, initial: Snapshot) -> None:
     """Child entry point: serve until the controller says stop or its pipe closes."""
-    import os
 
+    # lazy: OPC UA loads only when cell.yaml enables it
     from controller.opcua.server import FactoryServer
 
     try:

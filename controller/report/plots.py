@@ -99,46 +99,8 @@ def _process_per_bead(plt: Any, out: Path, summary: dict) -> Path:
     layer_starts = [i + 1 for i, b in enumerate(beads) if i == 0 or b["layer"] != beads[i - 1]["layer"]]
     bad = [i + 1 for i, b in enumerate(beads) if b.get("defects_count")]
     pct = {"current": tol.get("current_pct"), "wfs": tol.get("wfs_pct"), "speed": tol.get("speed_pct")}
-    for ax, (name, mean, p5, p95, lo, hi, plan, label, colour) in zip(axes, _SIGNALS):
-        for xb in bad:
-            ax.axvspan(xb - 0.5, xb + 0.5, color="red", alpha=0.15, lw=0, zorder=0)
-        for xl in layer_starts[1:]:
-            ax.axvline(xl - 0.5, color="0.85", lw=0.6, zorder=0)
-        if plan is not None:
-            ps = [b.get(plan) for b in beads]
-            ax.step(x, [float("nan") if v is None else v for v in ps], where="mid", color="k", lw=0.8,
-                    label="plan")
-            band = pct.get(name)
-            if band:
-                f = float(band) / 100.0
-                ax.fill_between(x, [float("nan") if v is None else v * (1 - f) for v in ps],
-                                [float("nan") if v is None else v * (1 + f) for v in ps], step="mid",
-                                color="0.6", alpha=0.25, lw=0, label=f"±{band:g} %")
-        elif name == "voltage" and tol.get("voltage_min_v") is not None:
-            ax.axhspan(tol["voltage_min_v"], tol["voltage_max_v"], color="0.6", alpha=0.15, lw=0,
-                       label=f"window {tol['voltage_min_v']:g}-{tol['voltage_max_v']:g} V")
-        ys = [b.get(mean) for b in beads]
-        xs = [xi for xi, y in zip(x, ys) if y is not None]
-        ym = [y for y in ys if y is not None]
-        if p5 is not None:
-            lo_err = [max(0.0, y - (b.get(p5) if b.get(p5) is not None else y)) for b, y in zip(beads, ys) if y is not None]
-            hi_err = [max(0.0, (b.get(p95) if b.get(p95) is not None else y) - y) for b, y in zip(beads, ys)
-                      if y is not None]
-            ax.errorbar(xs, ym, yerr=[lo_err, hi_err], fmt="o", ms=2.5, color=colour, ecolor=colour, elinewidth=1.2,
-                        capsize=0, label="mean, 5-95 %")
-            mins = [b.get(lo) for b in beads if b.get(mean) is not None]
-            maxs = [b.get(hi) for b in beads if b.get(mean) is not None]
-            ax.plot(xs, [float("nan") if v is None else v for v in mins], "_", color=colour, ms=4, alpha=0.6,
-                    label="min / max")
-            ax.plot(xs, [float("nan") if v is None else v for v in maxs], "_", color=colour, ms=4, alpha=0.6)
-        else:
-            ax.plot(xs, ym, "o", ms=2.5, color=colour, label="measured")
-        if bad:
-            yd = [b.get(mean) for b in beads if b.get("defects_count")]
-            xd = [xb for xb, y in zip(bad, yd) if y is not None]
-            ax.plot(xd, [y for y in yd if y is not None], "x", color="red", ms=6, mew=1.5, label="defect")
-        ax.set_ylabel(label)
-        ax.legend(loc="upper right", fontsize=7, ncol=5, framealpha=0.7)
+    for ax, signal in zip(axes, _SIGNALS):
+        _bead_panel(ax, signal, beads, x, bad, layer_starts, pct, tol)
     axes[-1].set_xlabel("bead (in build order; grey lines: layer starts; red: beads with a defect)")
     axes[-1].set_xlim(0.5, max(n, 1) + 0.5)
     from matplotlib.ticker import MaxNLocator
@@ -146,6 +108,80 @@ def _process_per_bead(plt: Any, out: Path, summary: dict) -> Path:
     axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
     fig.suptitle(f"Process per bead: {n} beads, {len(bad)} with a defect")
     return _save(fig, out / "process.png")
+
+
+def _bead_panel(ax: Any, signal: tuple[Any, ...], beads: list[dict], x: list[int], bad: list[int],
+                layer_starts: list[int], pct: dict[str, Any], tol: dict) -> None:
+    """One signal's panel of process.png: defect shading, layer starts, plan and band, the measured."""
+    name, mean, p5, p95, lo, hi, plan, label, colour = signal
+    for xb in bad:
+        ax.axvspan(xb - 0.5, xb + 0.5, color="red", alpha=0.15, lw=0, zorder=0)
+    for xl in layer_starts[1:]:
+        ax.axvline(xl - 0.5, color="0.85", lw=0.6, zorder=0)
+    _plan_and_band(ax, name, plan, beads, x, pct, tol)
+    _bead_means(ax, beads, x, mean, p5, p95, lo, hi, colour)
+    if bad:
+        _defect_marks(ax, beads, bad, mean)
+    ax.set_ylabel(label)
+    ax.legend(loc="upper right", fontsize=7, ncol=5, framealpha=0.7)
+
+
+def _plan_and_band(ax: Any, name: str, plan: str | None, beads: list[dict], x: list[int],
+                   pct: dict[str, Any], tol: dict) -> None:
+    """The plan as black steps with its ± tolerance band, or the voltage window (no planned voltage)."""
+    if plan is not None:
+        ps = [b.get(plan) for b in beads]
+        ax.step(x, [float("nan") if v is None else v for v in ps], where="mid", color="k", lw=0.8,
+                label="plan")
+        band = pct.get(name)
+        if band:
+            f = float(band) / 100.0
+            ax.fill_between(x, [float("nan") if v is None else v * (1 - f) for v in ps],
+                            [float("nan") if v is None else v * (1 + f) for v in ps], step="mid",
+                            color="0.6", alpha=0.25, lw=0, label=f"±{band:g} %")
+    elif name == "voltage" and tol.get("voltage_min_v") is not None:
+        ax.axhspan(tol["voltage_min_v"], tol["voltage_max_v"], color="0.6", alpha=0.15, lw=0,
+                   label=f"window {tol['voltage_min_v']:g}-{tol['voltage_max_v']:g} V")
+
+
+def _bead_means(ax: Any, beads: list[dict], x: list[int], mean: str, p5: str | None, p95: str | None,
+                lo: str | None, hi: str | None, colour: str) -> None:
+    """Each bead's mean: with its 5-95 % spread and min/max ticks where the signal has them."""
+    ys = [b.get(mean) for b in beads]
+    xs = [xi for xi, y in zip(x, ys) if y is not None]
+    ym = [y for y in ys if y is not None]
+    if p5 is not None:
+        _spread_bars(ax, beads, ys, xs, ym, p5, p95, colour)
+        _min_max_ticks(ax, beads, xs, mean, lo, hi, colour)
+    else:
+        ax.plot(xs, ym, "o", ms=2.5, color=colour, label="measured")
+
+
+def _spread_bars(ax: Any, beads: list[dict], ys: list[Any], xs: list[int], ym: list[Any], p5: str,
+                 p95: str | None, colour: str) -> None:
+    """The means as dots with their 5-95 % spread as error bars."""
+    lo_err = [max(0.0, y - (b.get(p5) if b.get(p5) is not None else y)) for b, y in zip(beads, ys) if y is not None]
+    hi_err = [max(0.0, (b.get(p95) if b.get(p95) is not None else y) - y) for b, y in zip(beads, ys)
+              if y is not None]
+    ax.errorbar(xs, ym, yerr=[lo_err, hi_err], fmt="o", ms=2.5, color=colour, ecolor=colour, elinewidth=1.2,
+                capsize=0, label="mean, 5-95 %")
+
+
+def _min_max_ticks(ax: Any, beads: list[dict], xs: list[int], mean: str, lo: str | None, hi: str | None,
+                   colour: str) -> None:
+    """Each measured bead's min and max as thin ticks."""
+    mins = [b.get(lo) for b in beads if b.get(mean) is not None]
+    maxs = [b.get(hi) for b in beads if b.get(mean) is not None]
+    ax.plot(xs, [float("nan") if v is None else v for v in mins], "_", color=colour, ms=4, alpha=0.6,
+            label="min / max")
+    ax.plot(xs, [float("nan") if v is None else v for v in maxs], "_", color=colour, ms=4, alpha=0.6)
+
+
+def _defect_marks(ax: Any, beads: list[dict], bad: list[int], mean: str) -> None:
+    """A red cross on the mean of each bead with a defect."""
+    yd = [b.get(mean) for b in beads if b.get("defects_count")]
+    xd = [xb for xb, y in zip(bad, yd) if y is not None]
+    ax.plot(xd, [y for y in yd if y is not None], "x", color="red", ms=6, mew=1.5, label="defect")
 
 
 def _layer_marks(rows: list[tuple], t: list[float]) -> list[float]:

@@ -97,6 +97,31 @@ def _bead_run(b: dict, plan: dict, scale: float, samples: list[tuple]) -> dict[s
             "speed_plan": plan.get("speed_mm_min", b["speed_mm_min"])}
 
 
+def _bead_keys(job: dict | None, runs: dict[tuple[int, int], list[dict]]) -> list[tuple[int, int]]:
+    """(layer, pass) of every bead to report: each pass of the job, else each journaled bead."""
+    if job:
+        return [(li, pi) for li, la in enumerate(job["layers"]) for pi in range(len(la["passes"]))]
+    return sorted(runs)
+
+
+def _bead_speed(rows: list[dict], motion: Any, length: Any) -> Any:
+    """The pace the device kept while depositing (mm/min): length over motion time, else the one run's."""
+    speed = None
+    if motion and length:
+        speed = length / motion * 60.0         # the pace the device kept while depositing
+    elif len(rows) == 1:
+        speed = rows[0]["speed"]
+    return speed
+
+
+def _bead_status(key: tuple[int, int], done: Any, rows: list[dict], mine: list[dict]) -> str:
+    """done, defect (done with a defect), interrupted (some runs, not done) or not built."""
+    status = "done" if key in done else ("interrupted" if rows else "not built")
+    if mine and status == "done":
+        status = "defect"
+    return status
+
+
 def bead_records(journal: Journal, job: dict | None, scale: float, defects: list[dict],
                  tolerance: Any = None) -> list[dict[str, Any]]:
     """One record per planned bead (every pass of the job, built or not): planned against measured.
@@ -110,10 +135,7 @@ def bead_records(journal: Journal, job: dict | None, scale: float, defects: list
         key = (b["layer"], b["pass"])
         s = journal.run_time_scale(b["run"]) or scale
         runs.setdefault(key, []).append(_bead_run(b, _planned(job, *key), s, samples))
-    if job:
-        keys = [(li, pi) for li, la in enumerate(job["layers"]) for pi in range(len(la["passes"]))]
-    else:
-        keys = sorted(runs)
+    keys = _bead_keys(job, runs)
     done = journal.done_passes()
     out = []
     for la, pa in keys:
@@ -123,15 +145,9 @@ def bead_records(journal: Journal, job: dict | None, scale: float, defects: list
         arc = _sum(rows, "arc_s")
         motion = _sum(rows, "motion_s")
         length = _sum(rows, "length_mm")
-        speed = None
-        if motion and length:
-            speed = length / motion * 60.0         # the pace the device kept while depositing
-        elif len(rows) == 1:
-            speed = rows[0]["speed"]
+        speed = _bead_speed(rows, motion, length)
         i_mean, u_mean = _wmean(rows, "i_mean", "arc_s"), _wmean(rows, "u_mean", "arc_s")
-        status = "done" if (la, pa) in done else ("interrupted" if rows else "not built")
-        if mine and status == "done":
-            status = "defect"
+        status = _bead_status((la, pa), done, rows, mine)
         out.append({
             "layer": la, "pass": pa, "role": plan.get("role"), "status": status,
             "runs": "+".join(str(r["run"]) for r in rows),
@@ -236,15 +252,26 @@ def arc_time_figures(journal: Journal, job: dict | None, scale: float, beads: li
     return figs
 
 
-def travel_speed_summary(beads: list[dict[str, Any]], job: dict | None = None) -> dict[str, Any]:
-    """How far the measured travel speed strayed from the plan, the beads outside the material's
-    `tolerance.speed_pct` (flagged, not defects), the starved beads and the stand-stills."""
+def _speed_tolerance_pct(job: dict | None) -> float:
+    """The material's `tolerance.speed_pct` of the job (10 % when it has none or a bad one)."""
     try:
         pct = float(((job or {}).get("material") or {}).get("tolerance", {}).get("speed_pct", 10.0))
     except (AttributeError, TypeError, ValueError):
         pct = 10.0
-    devs = [(b["speed_measured_mm_min"] / b["speed_planned_mm_min"] - 1.0, b) for b in beads
+    return pct
+
+
+def _speed_deviations(beads: list[dict[str, Any]]) -> list[tuple[float, dict[str, Any]]]:
+    """(measured / planned speed - 1, bead) of each bead with both speeds."""
+    return [(b["speed_measured_mm_min"] / b["speed_planned_mm_min"] - 1.0, b) for b in beads
             if b.get("speed_measured_mm_min") and b.get("speed_planned_mm_min")]
+
+
+def travel_speed_summary(beads: list[dict[str, Any]], job: dict | None = None) -> dict[str, Any]:
+    """How far the measured travel speed strayed from the plan, the beads outside the material's
+    `tolerance.speed_pct` (flagged, not defects), the starved beads and the stand-stills."""
+    pct = _speed_tolerance_pct(job)
+    devs = _speed_deviations(beads)
     worst = max((d for d, _ in devs), key=abs) if devs else None
     return {"beads_measured": len(devs), "worst_deviation": _r(worst, 4),
             "within_2pct": bool(devs) and all(abs(d) <= 0.02 for d, _ in devs),

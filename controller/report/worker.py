@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from core.errors import CellError
+import argparse
 
 TIMEOUT_S = 300.0   # a record that takes longer is abandoned (the journal keeps everything)
 
@@ -91,7 +92,6 @@ async def record_build_end(journal: Any, bus: Any, run_dir: Path, job: dict[str,
 
 def _main(argv: list[str]) -> int:
     """In the child: open the run's journal and write the record; print the path of report.json."""
-    import argparse
 
     ap = argparse.ArgumentParser(prog="controller.report.worker")
     ap.add_argument("run_dir")
@@ -100,6 +100,7 @@ def _main(argv: list[str]) -> int:
     args = ap.parse_args(argv)
     text = sys.stdin.read()
     job = json.loads(text) if text.strip() else None
+    # lazy: the report modules (matplotlib) load only when a record is written
     from controller.journal.store import Journal
     from controller.report.summary import write_report
 

@@ -32,7 +32,8 @@ from dataclasses import dataclass
 from typing import Callable
 
 from drivers.errors import DeviceError, LinkLost
-from controller.ports import PowerSourcePort
+from controller.ports import CellIOPort, PowerSourcePort
+from drivers.cellio import CellInputs
 from drivers.power import PowerStatus
 from core.errors import CellError
 
@@ -96,7 +97,7 @@ class Transition:
     to: str
     reason: str = ""
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, float | str]:
         return {"t": self.t, "unix": self.unix, "from": self.frm, "to": self.to, "reason": self.reason}
 
 
@@ -293,12 +294,13 @@ class ArcHandshake:
         self._go("idle", "error reset")
 
 
-def drop_start_on_unsafe(io, power: PowerSourcePort, on_trip: Callable[[object], None] | None = None) -> None:
+def drop_start_on_unsafe(io: CellIOPort, power: PowerSourcePort,
+                         on_trip: Callable[[CellInputs], None] | None = None) -> None:
     """Wire the cell I/O interlock: when a safety input goes bad (door open, E-stop, gas
     pressure, fume extraction), drop every start bit in the cycle the input is read; the next
     power-source cycle carries it. `io` is a `drivers.cellio.CellIO` (anything with
     `on_change(fn(prev, new))` whose readings have `safe_to_weld()`)."""
-    def _check(prev, new) -> None:
+    def _check(prev: CellInputs, new: CellInputs) -> None:
         if not new.safe_to_weld():
             power.drop_all()
             if on_trip is not None:

@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 from controller.runtime.arc_handshake import ArcHandshake
-from controller.runtime.arc_out import RunOn, arc_lengths, point_at, project
+from controller.runtime.arc_out import RunOn, arc_lengths, point_at
+from controller.runtime.bead_cut import BeadCut, run_on_after_trip
 from controller.runtime.bead_check import judge
 from controller.runtime.bead_measure import BeadStats, Pace
 from controller.runtime.events import EventBus
@@ -395,7 +396,9 @@ class BuildRunner:
         item = self.current
         st = self.power.status
         faltered, self._unstable_since_exe = self._unstable_since_exe, False
-        prev, self._acct_idx = self._acct_idx, max(self._acct_idx, idx)  # a CNC status may pass several points
+        # a CNC status report may pass several points; a robot's EXE vouches for its own move only
+        prev = self._acct_idx if getattr(self.ex, "platform", "") == "cnc" else idx - 1
+        self._acct_idx = max(self._acct_idx, idx)
         if item is None or st is None or not st.arc_stable or not self._arc_lit:
             return
         if time.monotonic() - st.t > STALE_STATUS_S:
@@ -466,38 +469,14 @@ class BuildRunner:
                                     idx=self.cur_idx if self.cur_idx is not None else -1)
 
     async def _close_interrupted(self, la: int, pa: int, pts: list[Point], i0: int, i1: int, speed: float) -> None:
-        """Close a bead a trip cut: the torch went on from the last executed move to where the
-        robot held, with the arc still on until the start dropped (the sim's deposit log shows it)."""
+        """Close a bead a trip cut, with the length the torch went on after its last EXE."""
         faltered, idx = self._unstable_since_exe, self.cur_idx
         t_trip, t_exe = time.monotonic(), (self._t_exe_rx or self._t_exe)
-        try:
-            pos = await asyncio.wait_for(self.ex.held_position(), 1.0)
-        except Exception:
-            pos = None
-        if pos is not None and not faltered and idx is not None and self._pts and len(self._pts) == len(pts):
-            from_s = max(self._cum[idx], self._start_mm)
-            s = project(pts, self._cum, pos, from_s)
-            if s is not None:
-                self._measured_mm += max(0.0, s - from_s)
-        elif pos is None and not faltered and idx is not None and self._pts and len(self._pts) == len(pts):
-            # the robot cannot say where it stopped (link lost / garbled): it went on at the
-            # planned speed from the last EXE until the link's own !HOLD or the trip
-            # the robot stopped (and the deposit with it) when the first !HOLD after the last
-            # EXE reached it: timed from when those bytes left, else from the link's own hold
-            link = getattr(self.ex, "link", None)
-            holds = [t for t in getattr(link, "hold_tx", ()) if t > t_exe]
-            held = holds[0] if holds else getattr(link, "held_at", None)
-            t_stop = min(t_trip, held) if held is not None and held > t_exe else t_trip
-            from_s = max(self._cum[idx], self._start_mm)
-            # never beyond the last weld move the robot was sent (it may have starved on the way)
-            sent = getattr(getattr(self.ex, "link", None), "_max_sent", None)
-            weld = getattr(self.ex, "_weld", {}) or {}
-            reach = max((i for tk, i in weld.items() if sent is not None and tk <= sent), default=len(pts) - 1)
-            blind = min(max(0.0, t_stop - t_exe) * speed / 60.0 * self.o.time_scale,
-                        max(0.0, self._cum[min(reach, len(pts) - 1)] - from_s))
-            self._measured_mm += blind
-            self.journal.event("info", f"bead cut with the robot unreachable: {blind:.2f} mm after the last "
-                                       "executed move estimated from the time and the planned speed",
-                               layer=la, pass_=pa)
+        if not faltered and idx is not None and self._pts and len(self._pts) == len(pts):
+            cut = BeadCut(pts, self._cum, max(self._cum[idx], self._start_mm), speed, self.o.time_scale)
+            more, note = await run_on_after_trip(self.ex, cut, t_trip, t_exe)
+            self._measured_mm += more
+            if note:
+                self.journal.event("info", note, layer=la, pass_=pa)
         self._close_bead(la, pa, pts, i0, i1, speed, interrupted=True)
 

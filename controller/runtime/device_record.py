@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from typing import Any, Sequence
 
+from controller.journal.store import Journal, PassResume
 from controller.runtime.arc_out import RunOn, arc_out_lower_bound, project
 from core.errors import CellError
 
@@ -25,6 +26,7 @@ Point = tuple[float, float, float]
 # the robot's queued motion must end this long before the power source's watchdog drops the arc
 # after the controller died (2 bus cycles, a simulator tick, line latency)
 DRY_SLACK_S = 0.03
+EXACT_RESUME_MAX_SCALE = 20.0   # above this time scale the robot's queue is not narrowed
 
 
 class ResumeRefused(CellError):
@@ -38,20 +40,27 @@ def dry_lookahead(ex: Any, pts: Sequence[Point], i0: int, speed: float, time_sca
     moves outlast that, or for an executor without the setting (CNC)."""
     if not hasattr(ex, "ahead"):
         return None
+    if time_scale > EXACT_RESUME_MAX_SCALE:
+        # the whole watchdog is a few ms of wall time per move here: a queue that short starves
+        # on any host hiccup (the torch stands still with the arc on), so the window stays whole
+        # and a crash resume falls back to the run-on estimate (docs/controller.md)
+        ex.ahead = None
+        return None
     n = 0
     if speed > 0 and len(pts) - 1 > i0:
         longest = max(math.dist(a, b) for a, b in zip(pts[i0:], pts[i0 + 1:]))
         move_wall = longest / (speed / 60.0) / time_scale
         n = int((watchdog_s - DRY_SLACK_S) / move_wall) if move_wall > 0 else 0
-    ex.ahead = n if n >= 2 else None
-    return ex.ahead
+    ahead = n if n >= 2 else None
+    ex.ahead = ahead
+    return ahead
 
 
 def _fmt(pos: Sequence[float] | None) -> str:
     return "?" if pos is None else " ".join(f"{float(v):.3f}" for v in pos[:3])
 
 
-def device_record(ex: Any, journal: Any, layer: int, pass_: int, run: int, pts: Sequence[Point],
+def device_record(ex: Any, journal: Journal, layer: int, pass_: int, run: int, pts: Sequence[Point],
                   cum: Sequence[float], s: float) -> float | None:
     """Where the robot's own record says it stopped along the pass (length), from its position
     after the flush, else its last executed sequence number; ResumeRefused when the record
@@ -83,7 +92,7 @@ def device_record(ex: Any, journal: Any, layer: int, pass_: int, run: int, pts: 
                         "cannot be told; inspect the part")
 
 
-def crash_rearc(ex: Any, journal: Any, layer: int, pass_: int, hist: Any, pts: Sequence[Point],
+def crash_rearc(ex: Any, journal: Journal, layer: int, pass_: int, hist: PassResume, pts: Sequence[Point],
                 cum: Sequence[float], s: float, speed: float, time_scale: float, run_on: RunOn) -> tuple[float, str]:
     """(re-arc length, journal line) for a bead whose controller died with the arc on; `s` is
     where the journal knows the deposit reached."""

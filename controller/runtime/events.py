@@ -10,7 +10,7 @@ import asyncio
 import threading
 import time
 from dataclasses import dataclass, field, replace
-from typing import Callable
+from typing import AsyncIterator, Callable, TypedDict, Unpack
 
 
 @dataclass(frozen=True)
@@ -76,8 +76,47 @@ class Snapshot:
         """Fraction of passes done, 0..1."""
         return self.passes_done / self.passes_total if self.passes_total else 0.0
 
-    def with_(self, **changes: object) -> "Snapshot":
+    def with_(self, **changes: Unpack[SnapshotChanges]) -> "Snapshot":
         return replace(self, t=time.time(), **changes)
+
+
+class SnapshotChanges(TypedDict, total=False):
+    """The fields of `Snapshot` an update may change (all but `t`, which the update stamps)."""
+
+    state: str
+    job_name: str | None
+    run_dir: str | None
+    layers_total: int
+    passes_total: int
+    layer: int | None
+    pass_: int | None
+    passes_in_layer: int
+    layers_done: int
+    passes_done: int
+    arc_starts: int
+    current_a: float | None
+    voltage_v: float | None
+    wfs_m_min: float | None
+    arc_on: bool | None
+    travel_speed_mm_min: float | None
+    job_hash: str | None
+    temperature_c: float | None
+    interpass_limit_c: float | None
+    interpass_remaining_s: float | None
+    position: tuple[float, float, float] | None
+    links: tuple[LinkStat, ...]
+    alarms: tuple[Alarm, ...]
+    allowed_commands: tuple[str, ...]
+    message: str
+    record_path: str | None
+
+
+class AlarmWhere(TypedDict, total=False):
+    """Where an alarm was raised (the optional fields of `Alarm`)."""
+
+    layer: int | None
+    pass_: int | None
+    position: tuple[float, float, float] | None
 
 
 Subscriber = Callable[[Snapshot], None]
@@ -101,7 +140,7 @@ class EventBus:
     def latest(self) -> Snapshot:
         return self._snap
 
-    def update(self, **changes: object) -> Snapshot:
+    def update(self, **changes: Unpack[SnapshotChanges]) -> Snapshot:
         with self._lock:
             self._snap = self._snap.with_(**changes)
             snap, subs = self._snap, list(self._subs)
@@ -123,8 +162,8 @@ class EventBus:
                 pass
         return snap
 
-    def alarm(self, kind: str, message: str, **where: object) -> Snapshot:
-        a = Alarm(t=time.time(), kind=kind, message=message, **where)  # type: ignore[arg-type]
+    def alarm(self, kind: str, message: str, **where: Unpack[AlarmWhere]) -> Snapshot:
+        a = Alarm(t=time.time(), kind=kind, message=message, **where)
         return self.update(alarms=self._snap.alarms + (a,))
 
     def subscribe(self, fn: Subscriber) -> Callable[[], None]:
@@ -139,11 +178,15 @@ class EventBus:
 
         return unsubscribe
 
-    async def updates(self):  # type: ignore[no-untyped-def]
+    async def updates(self) -> AsyncIterator[Snapshot]:
         """Async iterator of snapshots on the running loop (latest wins)."""
         loop = asyncio.get_running_loop()
         changed = asyncio.Event()
-        unsubscribe = self.subscribe(lambda _s: loop.call_soon_threadsafe(changed.set))
+
+        def wake(_s: Snapshot) -> None:
+            loop.call_soon_threadsafe(changed.set)
+
+        unsubscribe = self.subscribe(wake)
         try:
             while True:
                 await changed.wait()

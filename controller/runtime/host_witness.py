@@ -66,7 +66,7 @@ class HostWitness:
         self.cpus = sorted(os.sched_getaffinity(0))
         self._fd = -1
         self._buf: mmap.mmap | None = None
-        self._procs: list[subprocess.Popen] = []
+        self._procs: list[subprocess.Popen[bytes]] = []
 
     def start(self, timeout_s: float = 2.0) -> str:
         """Start one witness per CPU; one line for the log: what was obtained, or why not."""

@@ -95,7 +95,7 @@ def _table() -> dict[tuple[State, str], State]:
 TABLE = _table()
 EVENTS = tuple(dict.fromkeys(t.event for t in TRANSITIONS))
 
-Listener = Callable[[State, str, State, dict], None]
+Listener = Callable[[State, str, State, dict[str, object]], None]
 
 
 class CellMachine:

@@ -16,11 +16,12 @@ from __future__ import annotations
 from pathlib import Path
 
 from controller.runtime.build import WorkItem
+from controller.job.read import JobJSON
 from controller.journal.store import Journal
 from core.errors import CellError
 
 
-def remaining_work(job: dict, journal: Journal) -> list[WorkItem]:
+def remaining_work(job: JobJSON, journal: Journal) -> list[WorkItem]:
     """Every pass not yet done, in build order, each from where its bead stopped."""
     prog = journal.pass_progress()
     items: list[WorkItem] = []

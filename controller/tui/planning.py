@@ -1,8 +1,12 @@
 """Planning and probing helpers of the TUI session: the alignment routine's touches, the planner child."""
 from __future__ import annotations
 
+import json
+import sys
 from pathlib import Path
 from typing import Any
+
+from core.config import load_material, load_sim
 
 
 def probe_plan(cfg: Any, sim_cfg: Any = None) -> tuple[tuple[str, tuple[float, float, float]], ...]:
@@ -12,8 +16,8 @@ def probe_plan(cfg: Any, sim_cfg: Any = None) -> tuple[tuple[str, tuple[float, f
     workpiece); nothing on a robot cell, or when the routine is not there.
     """
     try:
+        # lazy: the alignment routine (ICP, trimesh) loads only when a cell is aligned
         from controller.align.routine import cad_mesh, plan_for_mesh
-        from core.config import load_sim
 
         wp = (sim_cfg or load_sim()).cnc.workpiece
         plan = plan_for_mesh(cad_mesh(wp))
@@ -30,12 +34,10 @@ def _plan_main(argv: list[str]) -> int:
 
     Prints `progress i n` lines, writes the job JSON to OUT, or prints `error <message>`.
     """
-    import json
-    import sys
 
     path, width, material, out = argv
     try:
-        from core.config import load_material
+        # lazy: the planner (shapely, trimesh) loads only when a part is planned
         from planner.job import job_to_dict
         from planner.plan import PlanOptions, plan_part
 

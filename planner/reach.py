@@ -1,0 +1,65 @@
+"""Variable bead width before "unplannable" (issue 28 item 2): what the nominal beads leave of an
+island under --min-coverage gets extra gap beads of a narrower legal width, each with its own
+welding point from the process model (planner.weld), where such a bead fits.
+
+A piece left uncovered is followed along its medial axis by a bead as wide as the piece (inside the
+legal widths [lo, hi] at the layer height); the bead's centre line is kept where a bead of that
+width fits inside the island (the island eroded by half the width), snapped onto that limit
+elsewhere, so a sliver along the contour is filled by a narrow bead hugging the wall. Beads
+shorter than the minimum length are not made. Pure: no I/O, no clocks.
+"""
+from __future__ import annotations
+
+import numpy as np
+import shapely
+from shapely.geometry import Polygon
+
+from planner.gapfill import centre_lines
+from planner.path2d import Path2D
+from planner.regions import polygons_of
+from planner.thin import Widths
+
+
+def footprint(beads: list[Path2D]) -> shapely.Geometry:
+    lines = np.array([shapely.linestrings(b.points) for b in beads], dtype=object)
+    widths = np.array([b.width_mm for b in beads])
+    return shapely.union_all(shapely.buffer(lines, widths / 2.0, quad_segs=4))
+
+
+def reach_fill(island: Polygon, beads: list[Path2D], wd: Widths, min_coverage: float,
+               min_length: float) -> list[Path2D]:
+    """Extra narrow beads for an island whose beads cover less than `min_coverage` of it."""
+    if not beads or island.area <= 0:
+        return []
+    rest = island.difference(footprint(beads))
+    if rest.area <= (1.0 - min_coverage) * island.area:
+        return []
+    out: list[Path2D] = []
+    for piece in polygons_of(rest):
+        if piece.area < 0.25 * wd.lo * wd.lo:
+            continue
+        for axis in centre_lines(piece, wd.lo, depth=1):
+            w = float(np.clip(axis.width_mm, wd.lo, wd.hi))
+            pts = _inside(axis.points, island, w)
+            if pts is None:
+                continue
+            bead = Path2D("gap", pts, w, axis.closed)
+            if bead.length >= min_length:
+                out.append(bead)
+    return out
+
+
+def _inside(points: np.ndarray, island: Polygon, width: float) -> np.ndarray | None:
+    """The centre line moved where a bead `width` wide stays inside the island; None if it cannot."""
+    room = island.buffer(-0.49 * width, quad_segs=8)
+    if room.is_empty:
+        return None
+    pts = np.array(points, dtype=np.float64)  # a copy: the medial-axis points are shared, read-only
+    out = ~shapely.contains_xy(room, pts[:, 0], pts[:, 1])
+    if out.any():
+        edge = room.boundary
+        at = shapely.line_locate_point(edge, shapely.points(pts[out]))
+        pts[out] = shapely.get_coordinates(shapely.line_interpolate_point(edge, at))
+    keep = np.r_[True, np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-6]
+    pts = pts[keep]
+    return pts if len(pts) >= 2 else None
