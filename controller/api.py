@@ -262,6 +262,9 @@ class CellController:
             self.devices.power_source().drop_all()
         except Exception:
             pass
+        stopping = getattr(self.executor, "stopping", None)  # a CNC safe stop ends before the link closes
+        if stopping is not None and not stopping.done():
+            await asyncio.wait([stopping], timeout=30.0)
         await self.devices.close()
         self._close_witness()
         return True
@@ -280,6 +283,9 @@ class CellController:
         job = _validated(job)
         # the whole job against the cell before it can start (the CLI checks it before connecting)
         check_job(job, self.cfg, job_material(job, self.cfg))
+        axes = getattr(self.executor, "require_job_axes", None)
+        if axes is not None:  # the firmware's axes against the job, before any motion (exit 2)
+            axes(job)
         self.job = job
         self.run_dir = Path(run_dir) if run_dir else run_dir_for(job, self.runs_dir)
         if self.journal is not None:
@@ -336,6 +342,9 @@ class CellController:
         if not self.machine.can("start"):
             raise self._refuse("start")
         assert self.devices is not None and self.interlocks is not None
+        if not self._journal_faults(self.journal, self.interlocks):
+            self.last_result = BuildResult(state=self.machine.state.value, layers_done=0, passes_done=0, arc_starts=0)
+            return self.last_result
         work = remaining_work(self.job, self.journal)
         # process_control (docs/closed-loop.md): the layers as built, restored from the journal
         control = make_control(self.cfg, self.job, self.material, self.journal, self.bus, self.executor)
@@ -398,6 +407,29 @@ class CellController:
             raise self._refuse("abort")
         self.runner.request_abort()
 
+    def stop_now(self, reason: str) -> bool:
+        """A stop from outside (a signal): the fault path, as a lost link takes it: weld start
+        dropped, motion held, Fault latched, the cause journaled. False when no device is
+        connected (nothing to stop)."""
+        if self.interlocks is None:
+            return False
+        self.interlocks.trip("fault", reason)
+        return True
+
+    def _journal_faults(self, journal: Journal, ilk: Interlocks) -> bool:
+        """A journal write that fails trips the cell (DESIGN.md §6): the writer thread's error
+        goes to this loop. A journal that already failed trips it now: False, no build."""
+        loop = asyncio.get_running_loop()
+
+        def on_error(msg: str) -> None:
+            loop.call_soon_threadsafe(ilk.fault, msg)
+
+        journal.on_error = on_error
+        if journal.failed is not None:
+            ilk.fault(journal.failed)
+            return False
+        return True
+
     def estop(self) -> None:
         if not self.machine.can("estop") or self.interlocks is None:
             raise self._refuse("estop")
@@ -442,11 +474,11 @@ def _validated(job: dict) -> dict:
 
 
 async def align_at(url: str, cell: CellConfig, plan: Any, *, settings: Any = None,
-                   on_point: Callable[[Any], None] | None = None) -> "AlignResult":
+                   on_point: Callable[[Any], None] | None = None, no_level: bool = False) -> "AlignResult":
     """Probe and align on the CNC at `url` outside a build session (the link is opened and closed
     here): `cell align run`, the demo's probe on the CNC and the TUI's Align screen come in here,
     a build session through `CellController.run_alignment`."""
     # lazy: the alignment routine (ICP, trimesh) loads only when a cell is aligned
     from controller.align.routine import run_on_url
 
-    return await run_on_url(url, cell, plan, settings=settings, on_point=on_point)
+    return await run_on_url(url, cell, plan, settings=settings, on_point=on_point, no_level=no_level)

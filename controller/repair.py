@@ -21,6 +21,7 @@ from controller.align.probe_cycle import ProbeTarget, probe_points
 from controller.align.routine import alignment_record, plan_for_mesh
 from controller.api import CellController
 from controller.motion.kinematics import apply_to_job
+from controller.runtime import stops
 from core.errors import CellError, InputError
 
 
@@ -236,6 +237,7 @@ async def repair_run(job: dict, cell: Any, *, job_path: Path | None = None, runs
     cad = load_cad(job, job_path)
     plan = probe_plan(cad, job)
     ctl = CellController(cell, runs_dir=runs_dir)
+    stops.attach(ctl)  # SIGINT / SIGTERM / SIGHUP: the fault path (when the CLI installed them)
     try:
         await ctl.connect(reply_timeout_ms=reply_timeout_ms)
         res = await ctl.run_alignment(plan)
@@ -246,6 +248,7 @@ async def repair_run(job: dict, cell: Any, *, job_path: Path | None = None, runs
             raise CellError(f"repair: the build stopped in state {result.state}; see the journal in {ctl.run_dir}")
         ver = await verify(ctl.devices.cnc, cell, job, res.transform, tolerance_mm=tolerance_mm)
     finally:
+        stops.detach()
         await ctl.close()
     v = ver.as_dict()
     report = str(ctl.last_report) if getattr(ctl, "last_report", None) else None

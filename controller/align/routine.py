@@ -14,6 +14,7 @@ at the table origin. Everything returned is a frozen AlignResult.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -121,6 +122,7 @@ class AlignResult:
     points: dict[str, F] = field(default_factory=dict)  # name → (k, 3) in the leveled machine frame
     probed: tuple[ProbedPoint, ...] = ()
     log: tuple[str, ...] = ()
+    no_level: bool = False       # `--no-level`: no A/B commanded; the measured tilt is in the transform
 
     def planes(self) -> list[dict[str, Any]]:
         t, s = self.top, self.side
@@ -140,7 +142,7 @@ class AlignResult:
             "face_angle_deg": self.face_angle_deg, "face_angle_eq1_deg": self.face_angle_eq1_deg,
             "transform": self.transform.tolist(), "transform_table": self.transform_table.tolist(),
             "residual_tilt_deg": self.residual_tilt_deg, "icp_rms_mm": self.icp_rms_mm,
-            "icp_shift_mm": self.icp_shift_mm,
+            "icp_shift_mm": self.icp_shift_mm, "no_level": self.no_level, "tilt_deg": self.leveling.tilt_deg,
             "cad_rotation_deg": self.face.signed_deg,
             "points": {k: v.tolist() for k, v in self.points.items()},
         }
@@ -248,10 +250,18 @@ def _safe_z(plan: ProbePlan, m: F, clearance: float) -> float:
 
 
 async def align(link: Any, cell: Any, plan: ProbePlan, *, settings: Any = None, verify: bool = True,
-                on_point: Callable[[ProbedPoint], None] | None = None) -> AlignResult:
-    """Run the whole routine on a connected CncLink; returns the frozen result."""
+                on_point: Callable[[ProbedPoint], None] | None = None, no_level: bool = False) -> AlignResult:
+    """Run the whole routine on a connected CncLink; returns the frozen result.
+
+    `no_level` (a 3-axis CNC, `cell align run --no-level`): the tilt is measured and carried in
+    the transform; no A/B move is commanded. Otherwise the firmware's axes are checked before
+    homing: a 3-axis firmware is refused naming what it lacks (exit 2)."""
     s = settings or cell.probe
     table = Trunnion.from_config(cell.kinematics)
+    require = getattr(link, "require_axes", None)
+    if require is not None and not no_level:
+        require("XYZ" + table.table, "alignment (it levels the table with the rotary axes; "
+                "`cell align run --no-level` measures the tilt without moving them)")
     log = ProbeLog()
     await _ensure_ready(link, log)
     st = await link.status()
@@ -269,12 +279,16 @@ async def align(link: Any, cell: Any, plan: ProbePlan, *, settings: Any = None, 
     top_fit = fit_plane(top_table, toward=Z, noise_mm=noise)
     level = leveling_angles(top_fit.normal, table)
     log.add(f"top: tilt {level.tilt_deg:.4f}°, leveling A {level.a_deg:.5f}°, B {level.second_deg:.5f}°")
+    if no_level:  # the table stays where it is: the transform carries the measured tilt
+        level = dataclasses.replace(level, a_deg=a0, second_deg=b0)
+        log.add(f"--no-level: table kept at A {a0:.5f}°, B {b0:.5f}°; the tilt is in the transform")
 
     # Level the table: retract clear of the part in both poses, then turn A and B.
     m_lev = table.matrix(level.a_deg, level.second_deg)
     safe = max(safe0, _safe_z(plan, m_lev, clear))
     await link.command(f"G90 G0 Z{fmt(safe)}")
-    await link.command(f"G0 A{fmt(level.a_deg)} B{fmt(level.second_deg)}")
+    if not no_level:
+        await link.command(f"G0 A{fmt(level.a_deg)} B{fmt(level.second_deg)}")
     await link.wait_idle()
 
     est = m_lev @ top_estimate(top_fit, plan)
@@ -300,28 +314,38 @@ async def align(link: Any, cell: Any, plan: ProbePlan, *, settings: Any = None, 
     side_pts = np.array([leveled(p) for p in got_side])
     ter_pt = leveled(got_ter[0])
     verify_pts = np.array([leveled(p) for p in got_check]) if got_check else None
-    return solve_alignment(top_table, side_pts, ter_pt, np.asarray(sides[0].direction), plan, table, level, noise,
-                           verify_pts=verify_pts, probed=tuple(got_top + got_check + got_side + got_ter),
-                           log=tuple(log.lines))
+    res = solve_alignment(top_table, side_pts, ter_pt, np.asarray(sides[0].direction), plan, table, level, noise,
+                          verify_pts=verify_pts, probed=tuple(got_top + got_check + got_side + got_ter),
+                          log=tuple(log.lines))
+    return dataclasses.replace(res, no_level=True) if no_level else res
 
 
 # --- CLI glue ------------------------------------------------------------------------------------------
 
 
 async def run_on_url(url: str, cell: Any, plan: ProbePlan, *, settings: Any = None,
-                     on_point: Callable[[ProbedPoint], None] | None = None) -> AlignResult:
+                     on_point: Callable[[ProbedPoint], None] | None = None, no_level: bool = False) -> AlignResult:
     """Open the CNC link at `url`, align, close the link (also when cancelled)."""
     link = open_cnc(cell.devices.cnc, time_scale=cell.cell.time_scale, url=url)
     await link.connect()
     try:
-        return await align(link, cell, plan, settings=settings, on_point=on_point)
+        return await align(link, cell, plan, settings=settings, on_point=on_point, no_level=no_level)
+    except BaseException as exc:
+        # any error or stop (a signal cancels the task): never leave the CNC in Hold with lines
+        # queued (DESIGN.md §6): feed hold, M5 or a soft reset, verified
+        stop = getattr(link, "safe_stop", None)
+        if stop is not None and link.connected:
+            await stop(f"alignment stopped: {exc or type(exc).__name__}")
+        raise
     finally:
         await link.close()
 
 
 def alignment_record(res: "AlignResult") -> dict[str, Any]:
     """The job's `alignment` (DESIGN.md §3): transform, table angles, when it was probed."""
+    no_level = res.no_level
     return {"transform": res.transform.tolist(), "level_a_deg": res.level_a_deg, "level_b_deg": res.level_b_deg,
+            **({"no_level": True, "tilt_deg": res.leveling.tilt_deg} if no_level else {}),
             "table_deg": {"a": res.level_a_deg, "b": res.level_b_deg}, "face_angle_deg": res.face_angle_deg,
             "probed_at": getattr(res, "probed_at", None) or time.time()}
 

@@ -13,6 +13,7 @@ import numpy as np
 from controller.motion.kinematics import apply_to_job
 from controller.align.routine import alignment_record, cad_mesh, plan_for_mesh
 from controller.api import align_at
+from controller.cli import guard
 from controller.harness.align_sim import run_with_sim
 from controller.job.read import JobJSON, read_job
 from core.config import load_cell, load_sim
@@ -61,8 +62,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     rn.add_argument("--report", default=None, metavar="DIR", help="write align.json and align.png here")
     rn.add_argument("--job", default=None, metavar="JOB", help="a cell-job/1 file (CAD frame) to carry into the machine frame")
     rn.add_argument("--job-out", default=None, metavar="FILE", help="where to write it (default JOB.aligned.json)")
+    rn.add_argument("--no-level", action="store_true",
+                    help="a 3-axis CNC: measure the tilt and carry it in the transform, command no A/B move")
     rn.add_argument("--json", action="store_true", help="print one JSON object")
-    rn.set_defaults(func=_run)
+    rn.set_defaults(func=guard.command(_run))
     _allow_negative(rn)
 
 
@@ -234,10 +237,11 @@ def run_cli(args: argparse.Namespace) -> int:
     base = sim_path.parent if sim_path else None
     mesh = cad_mesh(sim_cfg.cnc.workpiece, getattr(args, "cad", None), base)
     plan = plan_for_mesh(mesh)
+    no_level = bool(getattr(args, "no_level", False))
     if args.sim:
-        res = asyncio.run(run_with_sim(cell, sim_cfg, plan, config_dir=base))
+        res = asyncio.run(guard.run_attached(run_with_sim(cell, sim_cfg, plan, config_dir=base, no_level=no_level)))
     else:
-        res = asyncio.run(align_at(cell.devices.cnc.url, cell, plan))
+        res = asyncio.run(guard.run_attached(align_at(cell.devices.cnc.url, cell, plan, no_level=no_level)))
     out = res.to_json()
     if args.report:
         from controller.align.report import write_report

@@ -10,6 +10,7 @@ import sqlite3
 import sys
 from typing import Any, NoReturn, Sequence
 
+from controller.runtime.cell_lock import early as early_lock
 from core.errors import CellError
 
 # Subcommand modules, imported lazily so that `cell process` does not pay for Textual or
@@ -32,6 +33,17 @@ COMMANDS: dict[str, str] = {
     "report": "controller.cli.report",
     "runs": "controller.cli.report",
 }
+
+
+EPILOG = """exit status (docs/controller.md, "Exit codes"):
+  0    complete              1    stopped by a fault, E-stop or abort (a journal write that failed too)
+  2    bad input, an unreachable device, a cell in use by another controller, a firmware lacking axes
+  3    complete with defects
+  130 / 143 / 129   stopped by SIGINT / SIGTERM / SIGHUP: weld start dropped, motion held (CNC safe stop),
+                    the cause journaled; `cell resume` continues (a second signal is noted, not obeyed)
+
+one controller per cell: run, resume, demo, tui, align run and repair run hold an exclusive lock
+named after the cell ($CELL_LOCK_DIR, else $XDG_RUNTIME_DIR/cell, else /tmp/cell-UID)."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -60,7 +72,8 @@ def _finite(obj: Any) -> Any:
 
 
 def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
-    parser = _Parser(prog="cell", description="Cell controller for metal additive manufacturing.")
+    parser = _Parser(prog="cell", description="Cell controller for metal additive manufacturing.", epilog=EPILOG,
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     wanted = None
@@ -90,9 +103,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     # planner's one `error:` line instead
     logging.getLogger("trimesh").setLevel(logging.CRITICAL)
     try:
-        parser = build_parser(argv)
-        args = parser.parse_args(argv)
-        return int(args.func(args) or 0)
+        with early_lock(argv):  # one controller per cell: refused before the heavy imports
+            parser = build_parser(argv)
+            args = parser.parse_args(argv)
+            return int(args.func(args) or 0)
     except CellError as exc:
         sys.stderr.write(f"error: {exc}\n")
         return 2

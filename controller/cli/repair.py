@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from controller.cli import guard
 from core.errors import CellError, InputError
 
 # `cell plan` options the planner's messages may suggest that `cell repair plan` does not have
@@ -58,7 +59,7 @@ def register(sub: Any) -> None:
     rr.add_argument("--tolerance", type=float, default=0.1, metavar="MM",
                     help="verify: height error beyond this is a defect (default 0.1 mm)")
     rr.add_argument("--json", action="store_true", help="print the report as one JSON object")
-    rr.set_defaults(func=run_repair)
+    rr.set_defaults(func=guard.command(run_repair))
 
 
 def _load(path: str, what: str):

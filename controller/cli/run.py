@@ -9,7 +9,8 @@
 
 Exit status: 0 when the build completed, 1 when it stopped (fault, E-stop, abort), 2 on bad
 input or an unreachable device (one `error:` line), 3 when it completed with defects (beads the
-devices' measurements say were not deposited as planned: docs/controller.md).
+devices' measurements say were not deposited as planned: docs/controller.md), 130 / 143 / 129 when
+SIGINT / SIGTERM / SIGHUP stopped it on the fault path (controller/cli/guard.py).
 """
 from __future__ import annotations
 
@@ -24,8 +25,9 @@ from pathlib import Path
 from typing import Any, Callable
 
 from core.config import CellConfig, load_cell, load_sim
-from controller.cli import runargs
+from controller.cli import guard, runargs
 from controller.job.read import read_job
+from controller.journal.space import check_free_space
 from core.errors import CellError, InputError
 
 from controller.defaults import (  # noqa: F401  (the demo's figures live with the controller)
@@ -45,12 +47,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="seeded fault spec for the simulators, e.g. 'seed=7,corrupt=0.01,arc_loss@layer=3' (--sim)")
     p.add_argument("--new", action="store_true",
                    help="build the job again in a new run directory even if the runs directory holds it complete")
-    p.set_defaults(func=_run)
+    p.set_defaults(func=guard.command(_run))
     r = sub.add_parser("resume", help="continue an interrupted build from its journal")
     r.add_argument("run_dir", metavar="RUN_DIR", nargs="?", default=None,
                    help="run directory (default: the latest under runs/)")
     _common(r)
-    r.set_defaults(func=_resume)
+    r.set_defaults(func=guard.command(_resume))
     d = sub.add_parser("demo", help="the demo: simulators, plan, align, build, report")
     d.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     d.add_argument("--time-scale", type=float, default=DEMO_TIME_SCALE, help=argparse.SUPPRESS)
@@ -62,7 +64,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--repair", action="store_true",
                    help="hybrid repair instead: a block with a milled pocket, posed on the CNC table, "
                         "repaired end to end (cell repair run --sim)")
-    d.set_defaults(func=_demo)
+    d.set_defaults(func=guard.command(_demo))
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -151,6 +153,9 @@ def _result_json(ctl: Any, res: Any, report: Path | None) -> dict:
     if ctl.journal is not None:
         defects = [{"layer": d["layer"], "pass": d["pass"], "reason": d["reason"], "measured_mm": d["measured_mm"],
                     "position": d["position"]} for d in ctl.journal.defect_rows()]
+    failed = ctl.journal.failed if ctl.journal is not None else None
+    if failed and not any(a["message"] == failed for a in alarms):  # the alarm row itself may be lost
+        alarms.append({"message": failed, "kind": "fault", "layer": None, "pass": None, "position": None})
     return {"state": res.state, "layers_done": res.layers_done, "passes_done": res.passes_done,
             "complete_with_defects": res.state == "complete" and bool(defects), "defects": defects,
             "arc_starts": res.arc_starts, "alarms": alarms, "report": str(report) if report else None,
@@ -207,6 +212,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.new and (run_dir / "journal.sqlite").exists():
         run_dir = runargs.new_run_dir(run_dir)
     log_dir = Path(args.sim_log) if args.sim_log else run_dir / "sim"
+    check_free_space(run_dir, job, args.max_step, cfg.cell.time_scale)  # before any device (exit 2)
     return _build(args, cfg, job, run_dir, sim_faults, scen, log_dir, runs)
 
 
@@ -252,6 +258,7 @@ def _resume(args: argparse.Namespace) -> int:
     job = runargs.stored_job(meta, jpath)
     runargs.check_job_for_cell(job, cfg, str(jpath))
     log_dir = Path(args.sim_log) if args.sim_log else run_dir / "sim"
+    check_free_space(run_dir, job, args.max_step, cfg.cell.time_scale)  # before any device (exit 2)
     return _build(args, cfg, job, run_dir, "", [], log_dir, runs, resume=True)
 
 
@@ -291,6 +298,9 @@ EXIT_COMPLETE_WITH_DEFECTS = 3
 
 def exit_code(out: dict) -> int:
     """0 complete, 3 complete with defects, 1 stopped (fault, E-stop, abort)."""
+    stopped = guard.exit_code(out["state"])  # stopped by a signal: 130 / 143 / 129
+    if stopped is not None:
+        return stopped
     if out["state"] != "complete":
         return 1
     return EXIT_COMPLETE_WITH_DEFECTS if out.get("defects") else 0
@@ -305,6 +315,7 @@ async def _drive(ctl: Any, job: dict, run_dir: Path | None, session: Any, scen: 
         j = Journal(run_dir / "journal.sqlite")
         resume_ticket = j.max_progress_ticket() or None
         j.close()
+    guard.attach(ctl, say)  # SIGINT / SIGTERM / SIGHUP: the fault path from here on
     await ctl.connect(resume_ticket=resume_ticket, reply_timeout_ms=session.reply_timeout_ms)
     try:
         ctl.open_job(job, run_dir)
@@ -328,11 +339,24 @@ async def _drive(ctl: Any, job: dict, run_dir: Path | None, session: Any, scen: 
         for t in tasks:
             t.cancel()
         await ctl.disconnect()
-        report = ctl.last_report or ctl.write_report()
+        report = _report(ctl)
         ctl.result_json = _result_json(ctl, res, report)
         return res, report
     finally:
+        guard.detach()
         await ctl.close()
+
+
+def _report(ctl: Any) -> Path | None:
+    """The build record; none when the journal could not be written (the fault said where)."""
+    if ctl.journal is not None and ctl.journal.failed:
+        return ctl.last_report
+    try:
+        return ctl.last_report or ctl.write_report()
+    except OSError:
+        if ctl.journal is None or not ctl.journal.failed:
+            raise
+        return None
 
 
 def _print_summary(out: dict, say: Callable[[str], None]) -> None:
@@ -439,6 +463,7 @@ def _demo(args: argparse.Namespace) -> int:
 async def _demo_drive(ctl: Any, job: dict, session: Any, say: Callable[[str], None],
                       do_align: bool) -> tuple[Any, Path | None, dict | None]:
     align = None
+    guard.attach(None, say)  # a signal while aligning: cancelled, the CNC safe-stopped (run_on_url)
     if do_align:
         align = await _align(session, say)
     res, report = await _drive(ctl, job, None, session, [], say, False)

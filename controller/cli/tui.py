@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from controller.cli import guard
+
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("tui", help="the operator's terminal UI (Job, Align, Build, Log, Devices)")
@@ -23,7 +25,20 @@ def _tui(args: argparse.Namespace) -> int:
     cfg = load_cell(args.config)
     sim_cfg = load_sim(args.sim_config) if args.sim else None
     session = CellSession(cfg, sim=args.sim, sim_cfg=sim_cfg, runs_dir=args.runs, faults=args.fault)
-    try:
-        return int(CellApp(session).run() or 0)
-    finally:
-        session.close()
+    with guard.guarded(cfg, args.config) as stops:
+        app = CellApp(session)
+
+        def on_stop(reason: str) -> None:
+            # the controller runs on the session's loop (a thread): the fault path there at once
+            # (weld start dropped, motion held, journaled), then the UI ends; close() disconnects
+            ctl = session.ctl
+            if ctl is not None:
+                session.loop.call_soon_threadsafe(ctl.stop_now, reason)
+            app.exit(stops.exit_code() or 1)
+
+        stops.forward(on_stop)
+        try:
+            code = int(app.run() or 0)
+        finally:
+            session.close()
+        return stops.exit_code() or code

@@ -30,8 +30,8 @@ async def _with_sim(cell: CellConfig, sim_cfg: SimConfig, config_dir: Path | Non
 
 
 async def run_with_sim(cell: CellConfig, sim_cfg: SimConfig, plan: ProbePlan, *, config_dir: Path | None = None,
-                       settings: Any = None) -> AlignResult:
+                       settings: Any = None, no_level: bool = False) -> AlignResult:
     async def body(url: str, _sim: object) -> AlignResult:
-        return await align_at(url, cell, plan, settings=settings)
+        return await align_at(url, cell, plan, settings=settings, no_level=no_level)
 
     return await _with_sim(cell, sim_cfg, config_dir, body)

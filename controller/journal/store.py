@@ -20,14 +20,16 @@ re-arc slightly earlier (never later).
 """
 from __future__ import annotations
 
+import asyncio
 import json
 import queue
+import shutil
 import sqlite3
 import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 from controller.journal.check import Row, inspect, uri
 from controller.journal.extra import BEAD_EXTRA
@@ -98,6 +100,11 @@ class Journal(JournalQueries):
         self._q: queue.Queue[tuple[str, Any, bool] | None] | None = None
         self._thread: threading.Thread | None = None
         self.write_errors = 0
+        # a write that fails (disk full, I/O error, read-only) is a fault like a lost link
+        # (DESIGN.md §6): `failed` says why (path and free space), `on_error(message)` is called
+        # once, from the writer thread (the controller hands it to its loop: it trips the cell)
+        self.failed: str | None = None
+        self.on_error: Callable[[str], None] | None = None
         self.path.parent.mkdir(parents=True, exist_ok=True)
         # an existing journal is inspected read-only first and opened read-write only when
         # healthy: a damaged one is never overwritten, truncated or replaced (issue 14)
@@ -133,10 +140,23 @@ class Journal(JournalQueries):
                 return
             try:
                 self._do(*item)
-            except sqlite3.Error:
-                self.write_errors += 1
+            except sqlite3.Error as exc:
+                self._write_failed(exc)
             finally:
                 self._q.task_done()
+
+    def _write_failed(self, exc: BaseException) -> None:
+        """A write was lost: name the path and its free space, tell `on_error` (once)."""
+        self.write_errors += 1
+        if self.failed is not None:
+            return
+        self.failed = write_failure_message(self.path, exc)
+        cb = self.on_error
+        if cb is not None:
+            try:
+                cb(self.failed)
+            except Exception:
+                pass
 
     def _do(self, sql: str, params: Any, many: bool) -> None:
         with self._lock:
@@ -155,7 +175,18 @@ class Journal(JournalQueries):
         if self._q is not None:
             self._q.put((sql, params, many))
         else:
-            self._do(sql, params, many)
+            try:
+                self._do(sql, params, many)
+            except sqlite3.Error as exc:
+                self._write_failed(exc)
+                raise
+
+    async def committed(self) -> None:
+        """Every queued row committed (waited for off the loop); JournalError naming the path and
+        its free space if a write failed: the build never ends `complete` on a partial journal."""
+        await asyncio.to_thread(self.flush)
+        if self.failed:
+            raise JournalError(self.failed)
 
     def flush(self) -> None:
         """Wait until every queued write is committed (background mode)."""
@@ -347,6 +378,18 @@ class Journal(JournalQueries):
             self.db.close()
         except sqlite3.Error:
             pass
+
+
+def write_failure_message(path: Path, exc: BaseException) -> str:
+    """`journal PATH: a write failed (why); N MB free on DIR`: the fault of a journal that cannot
+    be written."""
+    try:
+        du = shutil.disk_usage(path.parent)
+        free = f"{du.free / 1e6:.1f} MB free of {du.total / 1e6:.1f} MB on {path.parent}"
+    except OSError as err:
+        free = f"free space on {path.parent} unknown ({err.strerror or err})"
+    return (f"journal {path}: a write failed ({exc}); {free}; the build was stopped "
+            "(free space or fix the disk, then `cell resume`)")
 
 
 def read_events_after(path: str | Path, after_id: int = 0, limit: int = 2000) -> list[Row]:

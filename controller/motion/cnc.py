@@ -39,6 +39,9 @@ class CncExecutor:
         self.exec_count = 0
         self.min_ahead: int | None = None
         self._lost_cbs: list[Callable[[Any], None]] = []
+        self.stopping: asyncio.Task | None = None   # the safe stop of the latest hold_now()
+        self.stop_result: Any = None                # its SafeStopResult (drivers/grbl_stop.py)
+        self.accel_mm_s2 = 10.0                     # the hold's deceleration bound (grbl default)
 
     def on_link_lost(self, fn: Callable[[Any], None]) -> None:
         self._lost_cbs.append(fn)
@@ -68,9 +71,20 @@ class CncExecutor:
 
     async def post_job(self, job: dict, max_step_mm: float) -> None:
         """Before any motion: every 5-axis pass to machine axes, or InputError naming the point."""
+        self.require_job_axes(job)
         self.five.check_alignment(job, float(getattr(self.link, "reset_at", 0.0)))
+        if (job.get("alignment") or {}).get("no_level"):
+            self.five.level = None   # aligned without leveling: the tilt is in the transform, no A/B move
         await self.five.post_job(job, max_step_mm)
         check_feed(job, self.five.trunnion, self.link, max_step_mm)
+
+    def require_job_axes(self, job: dict) -> None:
+        """The firmware's axes against the job, before homing or any motion (DESIGN.md §5):
+        GrblAxesMissing (exit 2) naming the firmware and the axes it lacks."""
+        why = job_axes_need(job)
+        require = getattr(self.link, "require_axes", None)
+        if why is not None and require is not None:
+            require("XYZ" + self.five.letters[3:5], why)
 
     def use_pass(self, layer: int, pass_: int) -> None:
         self.five.use(layer, pass_)
@@ -156,11 +170,31 @@ class CncExecutor:
     async def weld_done(self, _last: int) -> None:
         return None  # the stream's closing G4 P0 came back: every weld move has executed
 
-    def hold_now(self) -> None:
-        t = asyncio.get_running_loop().create_task(self.process_off())
-        t.add_done_callback(lambda f: f.cancelled() or f.exception())
+    def hold_now(self, reason: str = "hold") -> None:
+        """The CNC's safe stop at once (feed hold, then M5 or a soft reset where lines are
+        queued, each verified from the next status report): `self.stopping` until verified."""
+        if self.stopping is not None and not self.stopping.done():
+            return
+        self.stopping = asyncio.get_running_loop().create_task(self._safe_stop(reason))
+        self.stopping.add_done_callback(lambda f: f.cancelled() or f.exception())
+
+    async def _safe_stop(self, reason: str) -> Any:
+        """The one call of the CNC stop sequence: CncLink.safe_stop where the driver has it.
+
+        The hold is given the time to decelerate from the reported feed at `accel_mm_s2` (grbl's
+        default $120-$122) plus 0.5 s: a firmware still in `Hold:1` after that is not slowing down
+        (it reports Run without moving) and is reset, process off, rather than left at M3."""
+        stop = getattr(self.link, "safe_stop", None)
+        if stop is None:
+            return await self.process_off()
+        st = getattr(self.link, "latest_status", None)
+        feed = float(getattr(st, "feed", 0.0) or 0.0)
+        self.stop_result = await stop(reason, hold_timeout_s=0.5 + feed / 60.0 / self.accel_mm_s2)
+        return self.stop_result
 
     async def held_position(self) -> Point:
+        if self.stopping is not None and not self.stopping.done():
+            await asyncio.wait([self.stopping], timeout=20.0)
         st = await self.link.status()
         if self.five.active:
             return self.five.part_point(st.mpos)
@@ -168,6 +202,20 @@ class CncExecutor:
 
     async def position(self) -> Point | None:
         return await self.held_position()
+
+
+def job_axes_need(job: dict) -> str | None:
+    """Why the job needs the rotary axes (A/B), None when X/Y/Z do: 5-axis passes, or an
+    alignment that levels the table (not one made with `cell align run --no-level`)."""
+    layers = job.get("layers", [])
+    if any(p.get("axes") for la in layers for p in la.get("passes", [])):
+        return f"job '{job.get('name', '?')}' (5-axis passes with axes)"
+    al = job.get("alignment") or {}
+    if al and not al.get("no_level"):
+        t = al.get("table_deg") or {}
+        a, b = t.get("a", al.get("level_a_deg")), t.get("b", al.get("level_b_deg"))
+        return f"job '{job.get('name', '?')}' (its alignment levels the table with A {a}°, B {b}°)"
+    return None
 
 
 def _xyz(pos: tuple[float, ...]) -> Point:

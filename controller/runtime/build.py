@@ -192,6 +192,7 @@ class BuildRunner:
                         return self._result()
                     self.m.send("resume")
                     prev_layer = None if work[k + 1].layer != item.layer else prev_layer
+            await self.journal.committed()  # never `complete` with the journal incomplete
             if self.m.can("complete"):
                 self.m.send("complete", cause="every pass done")
             return self._result()
@@ -466,7 +467,6 @@ class BuildRunner:
         if item is not None:
             self.journal.pass_state(item.layer, item.pass_, "interrupted", reason=message,
                                     idx=self.cur_idx if self.cur_idx is not None else -1)
-
 
     async def _close_interrupted(self, la: int, pa: int, pts: list[Point], i0: int, i1: int, speed: float) -> None:
         """Close a bead a trip cut, with the length the torch went on after its last EXE."""
