@@ -1,11 +1,18 @@
 """Shared test fixtures."""
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
+
+# One controller per cell (controller/runtime/cell_lock.py): each test worker process gets a lock
+# directory of its own, so two test files building the demo cell at once on two workers are not
+# refused as a second controller (tests/test_stops.py checks the refusal in a directory of its own).
+os.environ["CELL_LOCK_DIR"] = tempfile.mkdtemp(prefix=f"cell-locks-{os.environ.get('PYTEST_XDIST_WORKER', 'main')}-")
 SHARED_PARTS = ROOT.parent / "shared" / "parts"
 
 
