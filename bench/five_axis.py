@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from controller.api import CellController
-from controller.motion.weld_path import weld_points
+from controller.job.weld_path import weld_points
 from controller.harness.sim import SimHarness, with_urls
 from core.config import load_cell, load_material, load_sim
 from controller.motion.post5 import weld_axes

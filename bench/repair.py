@@ -21,7 +21,7 @@ from shapely.geometry import LineString, Point
 from shapely.ops import unary_union
 
 from bench.five_axis import _seg_dist
-from controller.motion.weld_path import weld_points
+from controller.job.weld_path import weld_points
 from controller.runtime.devices import with_urls
 from controller.cli.main import main as cell_main
 from controller.harness.repair_parts import make_parts, posed_sim  # noqa: F401  (bench API)

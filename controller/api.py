@@ -42,6 +42,9 @@ from controller.journal.store import Journal
 from controller.runtime.machine import CellMachine, State, TransitionRefused
 from controller.runtime.resume import remaining_work
 from core.errors import CellError, InputError
+import importlib
+from core.config import load_sim
+from controller.runtime.arc_handshake import ArcHandshake
 
 if TYPE_CHECKING:
     from controller.align.routine import AlignResult
@@ -58,7 +61,6 @@ _PLATFORM_MODULES = {"robot": ("controller.motion.robot",),
 
 def preload_build_modules(platform: str) -> None:
     """Import the modules a build uses before any device cycle runs (no import stalls mid-build)."""
-    import importlib
 
     for name in (*_BUILD_MODULES, *_PLATFORM_MODULES.get(platform, _PLATFORM_MODULES["cnc"])):
         importlib.import_module(name)
@@ -69,6 +71,7 @@ class CellController:
 
     def __init__(self, cfg: CellConfig, *, runs_dir: str | Path | None = None,
                  options: BuildOptions | None = None) -> None:
+        self.result_json: dict[str, Any] = {}   # the command line's summary of the last build
         self.cfg = cfg
         self.material = load_material(cfg.cell.material)
         self.runs_dir = Path(runs_dir or cfg.cell.runs_dir)
@@ -165,10 +168,12 @@ class CellController:
                 if isinstance(dev, CyclicDevice):
                     dev.host_stalled_s = self.witness.stalled_s
         if self.cfg.cell.platform == "robot":
+            # lazy: only the platform's executor is loaded
             from controller.motion.robot import RobotExecutor
 
             self.executor = RobotExecutor(self.devices.robot_link())
         else:
+            # lazy: only the platform's executor is loaded
             from controller.motion.kinematics import Trunnion
             from controller.motion.cnc import CncExecutor
 
@@ -178,7 +183,6 @@ class CellController:
                                      power=self.devices.power_source(), executor=self.executor,
                                      cellio=self.devices.cellio)
         self.interlocks.arm()
-        from controller.runtime.arc_handshake import ArcHandshake
 
         ilk = self.interlocks
         self.arc = ArcHandshake(self.devices.power_source(), on_fault=lambda exc: ilk.fault(str(exc)))
@@ -187,6 +191,7 @@ class CellController:
         self.bus.update(links=self._links())
         self._stats_task = asyncio.get_running_loop().create_task(self._stats_loop())
         if self.cfg.opcua.enabled and self.opcua is None:
+            # lazy: OPC UA loads only when cell.yaml enables it
             from controller.opcua.attach import serve
 
             self.opcua = await serve(self)
@@ -309,10 +314,10 @@ class CellController:
         """
         if not self.machine.can("probe"):
             raise self._refuse("run_alignment")
+        # lazy: the alignment routine (ICP, trimesh) loads only when a cell is aligned
         from controller.align.routine import align, cad_mesh, plan_for_mesh
 
         if plan is None:
-            from core.config import load_sim
 
             plan = plan_for_mesh(cad_mesh(load_sim().cnc.workpiece))
         self.machine.send("probe")
@@ -384,6 +389,7 @@ class CellController:
 
     def write_report(self, plots: bool = True) -> Path:
         """report.json (+ PNGs) in the run directory, from the journal."""
+        # lazy: the report modules (matplotlib) load only when a record is written
         from controller.report.summary import write_report
 
         if self.journal is None or self.run_dir is None:
@@ -455,6 +461,7 @@ class CellController:
 
 def _validated(job: dict) -> dict:
     """The job, checked by planner.job.load_job (a CellError naming the field), then the fields the build reads."""
+    # lazy: the planner (shapely, trimesh) loads only when a part is planned
     from planner.job import load_job
 
     load_job(job)

@@ -20,6 +20,7 @@ _NET_SCHEMES = ("socket", "tcp", "rfc2217", "udp")
 
 def _device_url(v: str) -> str:
     """A device URL whose host and port parse (a port in 0..65535, 0: any free port), or a serial device path."""
+    # stdlib, needed only on this path
     from urllib.parse import urlsplit
 
     if not v.strip():

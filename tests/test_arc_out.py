@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from controller.runtime.arc_out import RunOn, arc_lengths, arc_out_lower_bound, point_at, project
-from controller.motion.weld_path import weld_points
+from controller.job.weld_path import weld_points
 from controller.journal.store import Journal
 
 SQUARE = [(0.0, 0.0, 1.0), (30.0, 0.0, 1.0), (30.0, 30.0, 1.0), (0.0, 30.0, 1.0), (0.0, 0.5, 1.0)]

@@ -87,7 +87,7 @@ def test_inverse_time_feed_gives_the_planned_tip_speed() -> None:
 
 
 def test_weld_axes_follow_the_build_subdivision() -> None:
-    from controller.motion.weld_path import weld_points
+    from controller.job.weld_path import weld_points
 
     pts = [[0, 0, 0], [3.0, 0, 0], [3.0, 0, 0], [3.0, 2.5, 0]]
     axes = [[0, 0, 1], [1, 0, 1], [1, 0, 1], [0, 1, 1]]

@@ -147,6 +147,7 @@ def _fmt(v: np.ndarray, nd: int = 6) -> str:
 
 
 def _plane(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.align.fit import fit_plane
     from controller.motion.kinematics import Trunnion
     from controller.align.leveling import leveling_angles
@@ -188,6 +189,7 @@ def _plane(args: argparse.Namespace) -> int:
 
 
 def _transform(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.motion.kinematics import apply_transform, parse_rotations, rotation_about_pivot
     from controller.cli.main import emit_json
 
@@ -225,6 +227,7 @@ def _read_job(path: str) -> JobJSON:
 
 def run_cli(args: argparse.Namespace) -> int:
     """`cell align run`: probe and align on the CNC (or its simulator), print or emit JSON."""
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
 
     cell = load_cell(args.cell_config)
@@ -244,6 +247,7 @@ def run_cli(args: argparse.Namespace) -> int:
         res = asyncio.run(guard.run_attached(align_at(cell.devices.cnc.url, cell, plan, no_level=no_level)))
     out = res.to_json()
     if args.report:
+        # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
         from controller.align.report import write_report
 
         paths = write_report(res, args.report)

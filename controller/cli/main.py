@@ -24,7 +24,7 @@ COMMANDS: dict[str, str] = {
     "sim": "controller.cli.sim",
     "run": "controller.cli.run",
     "resume": "controller.cli.run",
-    "demo": "controller.cli.run",
+    "demo": "controller.cli.demo",
     "tui": "controller.cli.tui",
     "docs": "controller.cli.docs",
     "export": "controller.cli.export",

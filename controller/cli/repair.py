@@ -16,6 +16,7 @@ _NOT_OURS = {"--units": "the CAD's units (repair plans are in mm)", "--frame": "
 
 
 def _own_options(msg: str) -> str:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     import re
 
     return re.sub(r"--[a-z][a-z-]*(?: (?:N\|all|MM|mm\|cm\|m\|inch|substrate\|cad))?",
@@ -24,6 +25,7 @@ def _own_options(msg: str) -> str:
 
 
 def register(sub: Any) -> None:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.plan import _fraction, _positive
 
     p = sub.add_parser("repair", help="hybrid repair: plan the missing volume of a part, and run it",
@@ -63,6 +65,7 @@ def register(sub: Any) -> None:
 
 
 def _load(path: str, what: str):
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     import trimesh
 
     if not Path(path).is_file():
@@ -74,6 +77,7 @@ def _load(path: str, what: str):
 
 
 def run_plan(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from controller.cli.plan import _material
     from controller.job.repair_volume import repair_volume
@@ -121,8 +125,10 @@ def run_plan(args: argparse.Namespace) -> int:
 
 
 def run_repair(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     import asyncio
 
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from controller.harness.repair import repair_run_sim
     from controller.repair import repair_run
@@ -164,9 +170,11 @@ def run_repair(args: argparse.Namespace) -> int:
 def demo_repair(args: argparse.Namespace) -> int:
     """`cell demo --repair`: a 100×100×20 block with a 20×20×4 pocket in one corner, mounted tilted
     1.2°/−0.8°, turned 3° and shifted; planned, aligned, deposited and verified on the simulators."""
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     import asyncio
     import time
 
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.harness.repair import repair_run_sim
     from controller.harness.repair_parts import make_parts, posed_sim
     from controller.runtime.devices import with_urls

@@ -53,18 +53,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="run directory (default: the latest under runs/)")
     _common(r)
     r.set_defaults(func=guard.command(_resume))
-    d = sub.add_parser("demo", help="the demo: simulators, plan, align, build, report")
-    d.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    d.add_argument("--time-scale", type=float, default=DEMO_TIME_SCALE, help=argparse.SUPPRESS)
-    d.add_argument("--layers", type=int, default=None, help=argparse.SUPPRESS)  # quick demo in tests
-    d.add_argument("--runs", default=None, metavar="DIR", help="runs directory (default cell.yaml's runs_dir)")
-    d.add_argument("--no-align", action="store_true", help="skip probing and aligning the substrate")
-    d.add_argument("--process-control", choices=("open", "layer"), default=None,
-                   help="closed-loop layer height for the demo (default cell.yaml's process_control.mode)")
-    d.add_argument("--repair", action="store_true",
-                   help="hybrid repair instead: a block with a milled pocket, posed on the CNC table, "
-                        "repaired end to end (cell repair run --sim)")
-    d.set_defaults(func=guard.command(_demo))
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -124,6 +112,7 @@ class Progress:
     """Progress lines on stderr (stdout stays for --json)."""
 
     def __init__(self, out: Callable[[str], None]) -> None:
+        # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
         from controller.runtime.events import ProgressPrinter
 
         self.t0 = time.monotonic()
@@ -172,6 +161,7 @@ class SimSession:
         self.harness = None
         self.cfg = cfg
         if use_sim:
+            # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
             from controller.harness.sim import SimHarness, with_urls
 
             self.harness = SimHarness(cfg, load_sim(sim_config), log_dir=log_dir, faults=faults)
@@ -194,6 +184,7 @@ class SimSession:
 
 
 def _run(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.job.identity import run_dir_for
 
     cfg = load_cell(args.cell_config)
@@ -221,6 +212,7 @@ def _already_complete(args: argparse.Namespace, run_dir: Path) -> int:
     msg = (f"{args.job}: already complete in {run_dir} (nothing built); "
            "`cell run --new` builds it again in a new run directory")
     if args.json:
+        # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
         from controller.cli.main import emit_json
 
         report = run_dir / "report.json"
@@ -234,6 +226,7 @@ def _already_complete(args: argparse.Namespace, run_dir: Path) -> int:
 
 
 def _resume(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.journal.store import Journal
     from controller.runtime.resume import latest_run_dir
 
@@ -264,6 +257,7 @@ def _resume(args: argparse.Namespace) -> int:
 
 def _build(args: argparse.Namespace, cfg: CellConfig, job: dict, run_dir: Path | None, faults: str,
            scen: list, log_dir: Path, runs: Path, resume: bool = False) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.api import CellController
     from controller.runtime.build import BuildOptions
 
@@ -285,6 +279,7 @@ def _build(args: argparse.Namespace, cfg: CellConfig, job: dict, run_dir: Path |
         session.close()
     out = ctl.result_json
     if args.json:
+        # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
         from controller.cli.main import emit_json
 
         emit_json(out)
@@ -310,6 +305,7 @@ async def _drive(ctl: Any, job: dict, run_dir: Path | None, session: Any, scen: 
                  say: Callable[[str], None], resume: bool) -> tuple[Any, Path | None]:
     resume_ticket = None
     if resume and run_dir is not None:
+        # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
         from controller.journal.store import Journal
 
         j = Journal(run_dir / "journal.sqlite")
@@ -396,99 +392,3 @@ def _say_record(report: str | None, say: Callable[[str], None]) -> None:
 
 
 # -- cell demo ------------------------------------------------------------------------------------
-
-
-def _demo(args: argparse.Namespace) -> int:
-    from controller.api import CellController
-    from controller.runtime.build import BuildOptions
-    from controller.job.identity import run_dir_for
-    from controller.runtime.devices import with_urls
-    from core.config import load_material
-    from planner.job import job_to_dict
-    from planner.plan import PlanOptions, plan_part
-
-    if getattr(args, "repair", False):
-        from controller.cli.repair import demo_repair
-
-        return demo_repair(args)
-    say = _err if args.json else _out
-    t0 = time.monotonic()
-    cfg = load_cell()
-    cfg = with_urls(cfg, {}, time_scale=args.time_scale)
-    if getattr(args, "process_control", None):  # docs/closed-loop.md
-        cfg = cfg.model_copy(update={"process_control": cfg.process_control.model_copy(update={"mode": args.process_control})})
-    mat = load_material(cfg.cell.material)
-    say(f"planning {DEMO_PART.name}: {DEMO_WIDTH_MM} mm beads of {mat.name}, perimeters until they meet (Fang 2019)")
-    job = job_to_dict(plan_part(str(DEMO_PART), PlanOptions(width_mm=DEMO_WIDTH_MM, perimeters="all"), mat))
-    job = json.loads(json.dumps(job))
-    if args.layers:
-        job["layers"] = job["layers"][: args.layers]
-    runargs.check_job_for_cell(job, cfg, f"demo job ({DEMO_PART.name})")
-    s = job["summary"]
-    say(f"  {len(job['layers'])} layers, {sum(len(la['passes']) for la in job['layers'])} beads, "
-        f"{s.get('deposit_length_mm', 0) / 1000:.1f} m of bead, {s.get('arc_time_s', 0) / 60:.1f} min of arc, "
-        f"about {s.get('est_time_s', 0) / 60:.0f} min with travel and interpass waits")
-    runs = Path(args.runs or cfg.cell.runs_dir)
-    run_dir = run_dir_for(job, runs)
-    if (run_dir / "journal.sqlite").exists():
-        # a fresh demo each time: keep the old one beside it
-        old = run_dir.with_name(run_dir.name + time.strftime("-%Y%m%d-%H%M%S"))
-        run_dir.rename(old)
-    # the simulators in a process of their own, as real devices are (`cell sim up`)
-    from controller.cli.sim_process import SimProcess
-
-    session = SimProcess(cfg, run_dir / "sim")
-    say(f"simulators up (`cell sim up`, pid {session.proc.pid}) at time scale {cfg.cell.time_scale:g} "
-        f"(process time {cfg.cell.time_scale:g}x wall time)")
-    try:
-        ctl = CellController(session.cfg, runs_dir=runs)
-        ctl.options = BuildOptions(**{**ctl.options.__dict__, "max_step_mm": DEMO_MAX_STEP_MM})
-        res, report, align = asyncio.run(_demo_drive(ctl, job, session, say, not args.no_align))
-    finally:
-        session.close()
-    out = ctl.result_json
-    out["alignment"] = align
-    out["wall_time_s"] = round(time.monotonic() - t0, 1)
-    if args.json:
-        from controller.cli.main import emit_json
-
-        emit_json(out)
-    else:
-        _print_summary(out, say)
-        say(f"run directory: {out['run_dir']} (journal.sqlite, report.json, layers.png, process.png, "
-            f"temperature.png, defects.png); {out['wall_time_s']} s wall")
-    return exit_code(out)
-
-
-async def _demo_drive(ctl: Any, job: dict, session: Any, say: Callable[[str], None],
-                      do_align: bool) -> tuple[Any, Path | None, dict | None]:
-    align = None
-    guard.attach(None, say)  # a signal while aligning: cancelled, the CNC safe-stopped (run_on_url)
-    if do_align:
-        align = await _align(session, say)
-    res, report = await _drive(ctl, job, None, session, [], say, False)
-    if align is not None:
-        rep = json.loads(report.read_text(encoding="utf-8"))
-        rep["alignment"] = align
-        report.write_text(json.dumps(rep, indent=2) + "\n", encoding="utf-8")
-    return res, report, align
-
-
-async def _align(session: Any, say: Callable[[str], None]) -> dict | None:
-    """Probe and align the substrate over the CNC link."""
-    from controller.align.routine import cad_mesh, plan_for_mesh
-    from controller.api import align_at
-
-    cfg = session.cfg
-    sim_cfg = session.harness.sim_cfg if session.harness is not None else getattr(session, "sim_cfg", None) or load_sim()
-    say("probing and aligning the substrate on the CNC (touch probe, G38.2)...")
-    try:
-        plan = plan_for_mesh(cad_mesh(sim_cfg.cnc.workpiece))
-        res = await asyncio.wait_for(align_at(cfg.devices.cnc.url, cfg, plan), 60.0)
-    except (CellError, asyncio.TimeoutError) as exc:
-        say(f"alignment failed: {exc or 'timed out'}; building without it")
-        return {"error": str(exc) or "timed out"}
-    out = {"level_a_deg": round(res.level_a_deg, 5), "level_b_deg": round(res.level_b_deg, 5),
-           "face_angle_deg": round(res.face_angle_deg, 5), "transform": res.transform.tolist()}
-    say(f"  leveling A {out['level_a_deg']}°, B {out['level_b_deg']}°, face angle {out['face_angle_deg']}°")
-    return out

@@ -40,6 +40,7 @@ def dir_arg(path: str | Path, what: str, *, must_exist: bool = False) -> Path:
 
 def check_job_for_cell(job: dict, cfg: object, source: str) -> None:
     """The job checked against the cell (controller/job/check.py); JobCheckError if it does not fit."""
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.job.check import check_job, job_material
 
     check_job(job, cfg, job_material(job, cfg), source)  # type: ignore[arg-type]
@@ -47,6 +48,7 @@ def check_job_for_cell(job: dict, cfg: object, source: str) -> None:
 
 def stored_job(meta: dict, jpath: Path) -> dict:
     """The job a journal holds, refused when it no longer matches the checksum stored beside it."""
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.job.identity import job_hash
 
     try:
@@ -62,6 +64,7 @@ def stored_job(meta: dict, jpath: Path) -> dict:
 
 def complete_in(run_dir: Path, job: dict) -> bool:
     """Whether the journal of `run_dir` says every pass of the job is done (read-only look)."""
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.journal.store import count_done_readonly
 
     total = sum(len(la.get("passes", [])) for la in job.get("layers", []))

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from controller.motion.weld_path import weld_points
+from controller.job.weld_path import weld_points
 from core.errors import InputError
 
 BYTES_PER_WELD_POINT = 160

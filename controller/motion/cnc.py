@@ -17,6 +17,7 @@ from typing import Any, Callable
 from controller.ports import CncLinkPort, PowerSourcePort
 from controller.motion.cnc5 import Five, check_feed
 from drivers.errors import DeviceError
+from core.errors import CellError
 
 Point = tuple[float, float, float]
 
@@ -64,7 +65,6 @@ class CncExecutor:
         await self.link.stream(lines)  # ends with G4 P0: the table has arrived
         st = await self.link.status()
         if not self.five.level_ok(st.mpos):
-            from core.errors import CellError
 
             raise CellError(f"cnc: the table reports A/B {st.mpos[3]:.4f}/{st.mpos[4]:.4f}°, not the job's "
                             f"leveling {self.five.level[0]:.4f}/{self.five.level[1]:.4f}°; check the rotary axes")

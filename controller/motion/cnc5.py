@@ -12,7 +12,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from controller.motion.post5 import Post5, inverse_time, linearise, move_line, weld_axes
-from controller.motion.weld_path import weld_points
+from controller.job.weld_path import weld_points
 from controller.job.read import JobJSON
 from core.errors import InputError
 from controller.motion.kinematics import Trunnion

@@ -12,7 +12,7 @@ import time
 from typing import Any, Callable
 
 from controller.motion.post5 import weld_axes
-from controller.motion.weld_path import weld_points
+from controller.job.weld_path import weld_points
 from controller.job.read import JobJSON
 from controller.ports import RobotLinkPort
 from drivers.robot import RobotStatus

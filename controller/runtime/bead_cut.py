@@ -7,7 +7,7 @@ import asyncio
 from dataclasses import dataclass
 from typing import Any, Sequence
 
-from controller.motion.weld_path import Point
+from controller.job.weld_path import Point
 from controller.runtime.arc_out import project
 
 

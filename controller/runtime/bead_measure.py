@@ -171,8 +171,9 @@ class Pace:
         be late, never early, so the suffix minimum of the delays t - s / v is where the torch
         really was behind its pace: it rises only when the torch stood still (or crawled), and a
         late report that the next ones make up for leaves it flat. A rise between two reports
-        larger than the speed tolerance of that stretch plus one bus cycle (`cycle_s` wall, the
-        resolution at which the controller sees the process) is a stand-still. Returned in
+        larger than the speed tolerance of that stretch plus two bus cycles (`cycle_s` wall, the
+        resolution at which the controller sees the process, once for the report opening the
+        stretch and once for the one closing it) is a stand-still. Returned in
         process seconds: `still_n` stand-stills, `still_s` their total, `still_max_s` the longest;
         `lag_s` is how much longer the whole bead took than its length at the planned speed.
         """
@@ -190,7 +191,8 @@ class Pace:
         n, total, longest = 0, 0.0, 0.0
         for k in range(len(pts) - 1):
             rise = suffix[k + 1] - suffix[k]
-            allowed = self.speed_tol * max(0.0, pts[k + 1][1] - pts[k][1]) / v + cycle_s
+            # the reports opening and closing the stretch are each seen to within one bus cycle
+            allowed = self.speed_tol * max(0.0, pts[k + 1][1] - pts[k][1]) / v + 2 * cycle_s
             if rise > allowed:
                 n += 1
                 total += rise

@@ -29,9 +29,11 @@ from controller.journal.store import Journal
 from controller.runtime.machine import CellMachine, State
 from controller.runtime.device_record import crash_rearc, dry_lookahead
 from controller.runtime.progress import ProgressWatchdog, progress_timeout_s
-from controller.motion.weld_path import Point, weld_points
+from controller.job.weld_path import Point, weld_points
 from controller.ports import ArcControl, CellIOPort, MotionExecutor, PowerSourcePort
 from core.errors import CellError
+from core.material import ProcessTolerance
+from controller.runtime.readiness import ensure_ready
 
 STALE_STATUS_S = 0.1  # a power-source status older than its watchdog (100 ms) does not vouch for a move
 
@@ -154,7 +156,6 @@ class BuildRunner:
                 await done
         await self._arc_out()
         await self.ex.prepare()
-        from controller.runtime.readiness import ensure_ready
 
         await ensure_ready(self.ex, self.power, self.journal, reset_errors=self.o.reset_errors, arc=self.arc)
 
@@ -349,7 +350,6 @@ class BuildRunner:
 
     def _tolerance(self) -> Any:
         if self.o.tolerance is None:
-            from core.material import ProcessTolerance
 
             self.o.tolerance = ProcessTolerance()
         return self.o.tolerance

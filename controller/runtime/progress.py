@@ -35,7 +35,7 @@ SAMPLE_TIMEOUT_S = 1.0   # a status request that takes longer is not a sample (t
 
 def longest_move_s(job: JobJSON, max_step_mm: float) -> float:
     """Process seconds of the longest weld move of the job (its polylines subdivided to at most
-    `max_step_mm`, as controller/motion/weld_path.py does), at each pass's planned speed."""
+    `max_step_mm`, as controller/job/weld_path.py does), at each pass's planned speed."""
     worst = 0.0
     for la in job.get("layers", []):
         for p in la.get("passes", []):

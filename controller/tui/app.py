@@ -28,6 +28,8 @@ from controller.tui.job import JobPane
 from controller.tui.log import LogPane
 from controller.defaults import DEMO_PART
 from controller.tui.session import View, freeze_heap
+from controller.defaults import DEMO_WIDTH_MM
+from controller.tui.help import HelpScreen, help_text
 
 TABS = (("job", "Job"), ("align", "Align"), ("build", "Build"), ("log", "Log"), ("devices", "Devices"))
 # key -> (command, footer label). Commands of the controller and the UI's own steps.
@@ -126,7 +128,6 @@ class ConfirmQuit(ModalScreen[bool]):
 
 def _demo_width_mm() -> float:
     """The demo's bead width (`cell demo`'s), offered in the open dialog."""
-    from controller.defaults import DEMO_WIDTH_MM
     return float(DEMO_WIDTH_MM)
 
 
@@ -301,8 +302,6 @@ class CellApp(App[int]):
             self.send(cmd[0])
 
     def action_help(self) -> None:
-        from controller.tui.help import HelpScreen, help_text
-
         s = self.view.snap
         allowed = tuple(c for c, _ in COMMAND_KEYS.values() if self.view.allowed(c))
         self.push_screen(HelpScreen(help_text(COMMAND_KEYS, s.state, allowed)))

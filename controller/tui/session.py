@@ -39,11 +39,15 @@ from controller.tui.view import *  # noqa: F401,F403  (the view types, re-export
 from controller.tui.view import (DEVICE_WORDS, HISTORY_LEN, PROBE_STATES, SAMPLE_PERIOD_S,
                                  DeviceInfo, JobInfo, LogRow, PlanStatus, Sample, View,
                                  alignment_dict, job_info)
+from controller.defaults import sim_reply_timeout_ms
+from core.config import load_cell, load_sim
+from controller.runtime.devices import with_urls
+from controller.journal.store import read_events_after
+from controller.motion.kinematics import apply_to_job
 
 
 def _sim_reply_timeout_ms() -> float:
     """The bus devices' reply timeout with in-process simulators: `cell run --sim`'s own figure."""
-    from controller.defaults import sim_reply_timeout_ms
     return sim_reply_timeout_ms()
 
 
@@ -64,12 +68,8 @@ class CellSession:
 
     def __init__(self, cfg: Any = None, *, sim: bool = False, sim_cfg: Any = None, runs_dir: str | Path | None = None,
                  time_scale: float | None = None, faults: str = "", sim_log_dir: str | Path | None = None) -> None:
-        from core.config import load_cell, load_sim
-
         self.cfg = cfg if cfg is not None else load_cell()
         if time_scale is not None:
-            from controller.runtime.devices import with_urls
-
             self.cfg = with_urls(self.cfg, {}, time_scale=time_scale)
         self.sim = sim
         self.sim_cfg = sim_cfg if (sim_cfg is not None or not sim) else load_sim()
@@ -135,6 +135,8 @@ class CellSession:
         self._busy = "connecting"
 
         async def _do() -> None:
+            # lazy: the controller API (drivers, the build runner) loads when the session first needs it,
+            # so `cell tui` paints before it; the TUI never imports a driver itself
             from controller.api import CellController
 
             try:
@@ -143,6 +145,7 @@ class CellSession:
                     if self._unsub:
                         self._unsub()
                 if self.sim and self.harness is None:
+                    # lazy: the simulators load only for a --sim session
                     from controller.harness.sim import SimHarness, with_urls
 
                     self.harness = SimHarness(self.cfg, self.sim_cfg, log_dir=self.sim_log_dir, faults=self.faults)
@@ -239,7 +242,6 @@ class CellSession:
         rd = self._snap.run_dir
         if not rd:
             return []
-        from controller.journal.store import read_events_after
 
         rows = read_events_after(Path(rd) / "journal.sqlite", after_id, limit)
         return [LogRow(*r) for r in rows]
@@ -347,6 +349,8 @@ class CellSession:
 
         `start` returns as soon as the build is under way (its end shows in the snapshots).
         """
+        # lazy: the controller API (drivers, the build runner) loads when the session first needs it,
+        # so `cell tui` paints before it; the TUI never imports a driver itself
         from controller.api import COMMANDS
 
         if name not in COMMANDS:
@@ -413,7 +417,10 @@ class CellSession:
         return self._submit(_do)
 
     def _align_on_cnc_link(self) -> Any:
+        # lazy: the alignment routine (ICP, trimesh) loads only when a cell is aligned
         from controller.align.routine import cad_mesh, plan_for_mesh
+        # lazy: the controller API (drivers, the build runner) loads when the session first needs it,
+        # so `cell tui` paints before it; the TUI never imports a driver itself
         from controller.api import align_at
         from core.config import load_sim
 
@@ -434,8 +441,6 @@ class CellSession:
     def apply_alignment(self) -> concurrent.futures.Future:
         """Re-open the job moved by the alignment transform (the CAD model moves, not the part)."""
         async def _do() -> None:
-            from controller.motion.kinematics import apply_to_job
-
             if self._alignment is None or self._job_dict is None:
                 raise CellError("nothing to apply: run the alignment and open a job first")
             if self._alignment_applied:
