@@ -214,7 +214,8 @@ async def verify(link: Any, cell: Any, job: dict, transform: np.ndarray, grid: i
     down = tf[:3, :3] @ np.array([0.0, 0.0, -1.0])
     starts = [tf[:3, :3] @ np.array([x, y, top + clear]) + tf[:3, 3] for x, y in xy]
     safe = max(s[2] for s in starts) + clear
-    targets = [ProbeTarget(f"verify[{i}]", tuple(map(float, s)), tuple(map(float, down)), float(safe))
+    dn = (float(down[0]), float(down[1]), float(down[2]))
+    targets = [ProbeTarget(f"verify[{i}]", (float(s[0]), float(s[1]), float(s[2])), dn, float(safe))
                for i, s in enumerate(starts)]
     got = await probe_points(link, targets, cell.probe)
     await link.command(f"G90 G0 Z{safe:.3f}")
@@ -246,6 +247,8 @@ async def repair_run(job: dict, cell: Any, *, job_path: Path | None = None, runs
         result = await ctl.start()
         if result.state != "complete":
             raise CellError(f"repair: the build stopped in state {result.state}; see the journal in {ctl.run_dir}")
+        if ctl.devices is None:
+            raise CellError("repair: the cell's devices closed before the verify probe")
         ver = await verify(ctl.devices.cnc, cell, job, res.transform, tolerance_mm=tolerance_mm)
     finally:
         stops.detach()

@@ -64,10 +64,10 @@ class CncExecutor:
             return
         await self.link.stream(lines)  # ends with G4 P0: the table has arrived
         st = await self.link.status()
-        if not self.five.level_ok(st.mpos):
-
+        level = self.five.level
+        if level is not None and not self.five.level_ok(st.mpos):
             raise CellError(f"cnc: the table reports A/B {st.mpos[3]:.4f}/{st.mpos[4]:.4f}°, not the job's "
-                            f"leveling {self.five.level[0]:.4f}/{self.five.level[1]:.4f}°; check the rotary axes")
+                            f"leveling {level[0]:.4f}/{level[1]:.4f}°; check the rotary axes")
 
     async def post_job(self, job: dict, max_step_mm: float) -> None:
         """Before any motion: every 5-axis pass to machine axes, or InputError naming the point."""

@@ -244,7 +244,9 @@ class CellApp(App[int]):
             f"[b]cell[/b]{sim}  [{state_style(s.state)}] {s.state.upper().replace('_', ' ')} [/]{job}"
             f"  {s.passes_done}/{s.passes_total} passes{busy}")
         active = self.query_one(TabbedContent).active
-        pane = {"job": JobPane, "align": AlignPane, "build": BuildPane, "devices": DevicesPane}.get(active)
+        panes: dict[str, type[JobPane | AlignPane | BuildPane | DevicesPane]] = {
+            "job": JobPane, "align": AlignPane, "build": BuildPane, "devices": DevicesPane}
+        pane = panes.get(active)
         if pane is not None:
             self.query_one(pane).refresh_view(v)
         key = tuple(sorted(c for c, _ in COMMAND_KEYS.values() if v.allowed(c)))

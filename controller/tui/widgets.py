@@ -41,7 +41,7 @@ class Trend(Horizontal):
         yield Label("—", classes="trend-value")
         yield Sparkline([], summary_function=max)
 
-    def show(self, value: float | None, history: Sequence[float]) -> None:
+    def show(self, value: float | None, history: Sequence[float | None]) -> None:
         self.query_one(".trend-value", Label).update(fmt(value, self._nd, " " + self._unit))
         data = [v for v in history if v is not None]
         spark = self.query_one(Sparkline)
