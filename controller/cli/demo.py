@@ -15,12 +15,13 @@ from typing import Any, Callable
 
 from controller.cli import guard, runargs
 from controller.cli.run import _drive, _err, _out, _print_summary, exit_code
+from controller.job.read import JobJSON
 from controller.defaults import DEMO_MAX_STEP_MM, DEMO_PART, DEMO_TIME_SCALE, DEMO_WIDTH_MM
 from core.config import load_cell, load_sim
 from core.errors import CellError
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     d = sub.add_parser("demo", help="the demo: simulators, plan, align, build, report")
     d.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     d.add_argument("--time-scale", type=float, default=DEMO_TIME_SCALE, help=argparse.SUPPRESS)
@@ -100,8 +101,8 @@ def _demo(args: argparse.Namespace) -> int:
     return exit_code(out)
 
 
-async def _demo_drive(ctl: Any, job: dict, session: Any, say: Callable[[str], None],
-                      do_align: bool) -> tuple[Any, Path | None, dict | None]:
+async def _demo_drive(ctl: Any, job: JobJSON, session: Any, say: Callable[[str], None],
+                      do_align: bool) -> tuple[Any, Path | None, dict[str, Any] | None]:
     align = None
     guard.attach(None, say)  # a signal while aligning: cancelled, the CNC safe-stopped (run_on_url)
     if do_align:
@@ -114,7 +115,7 @@ async def _demo_drive(ctl: Any, job: dict, session: Any, say: Callable[[str], No
     return res, report, align
 
 
-async def _align(session: Any, say: Callable[[str], None]) -> dict | None:
+async def _align(session: Any, say: Callable[[str], None]) -> dict[str, Any] | None:
     """Probe and align the substrate over the CNC link."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.align.routine import cad_mesh, plan_for_mesh

@@ -64,7 +64,7 @@ def register(sub: Any) -> None:
     rr.set_defaults(func=guard.command(run_repair))
 
 
-def _load(path: str, what: str):
+def _load(path: str, what: str) -> Any:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     import trimesh
 

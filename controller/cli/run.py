@@ -26,7 +26,7 @@ from typing import Any, Callable
 
 from core.config import CellConfig, load_cell, load_sim
 from controller.cli import guard, runargs
-from controller.job.read import read_job
+from controller.job.read import JobJSON, read_job
 from controller.journal.space import check_free_space
 from core.errors import CellError, InputError
 
@@ -37,7 +37,7 @@ from controller.defaults import (  # noqa: F401  (the demo's figures live with t
 SCENARIO_FAULTS = ("arc_loss", "wire_stick")  # `name@layer=N` is driven by the controller's sim harness
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("run", help="build a job on the cell (or on its simulators with --sim)")
     p.add_argument("job", metavar="JOB", help="job file (cell-job/1 JSON, from `cell plan`)")
     _common(p)
@@ -132,7 +132,7 @@ def _out(line: str) -> None:
     sys.stdout.flush()
 
 
-def _result_json(ctl: Any, res: Any, report: Path | None) -> dict:
+def _result_json(ctl: Any, res: Any, report: Path | None) -> dict[str, Any]:
     alarms = []
     if ctl.journal is not None:
         for a in ctl.journal.alarm_rows():
@@ -255,8 +255,8 @@ def _resume(args: argparse.Namespace) -> int:
     return _build(args, cfg, job, run_dir, "", [], log_dir, runs, resume=True)
 
 
-def _build(args: argparse.Namespace, cfg: CellConfig, job: dict, run_dir: Path | None, faults: str,
-           scen: list, log_dir: Path, runs: Path, resume: bool = False) -> int:
+def _build(args: argparse.Namespace, cfg: CellConfig, job: JobJSON, run_dir: Path | None, faults: str,
+           scen: list[tuple[str, int, float | None]], log_dir: Path, runs: Path, resume: bool = False) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.api import CellController
     from controller.runtime.build import BuildOptions
@@ -291,7 +291,7 @@ def _build(args: argparse.Namespace, cfg: CellConfig, job: dict, run_dir: Path |
 EXIT_COMPLETE_WITH_DEFECTS = 3
 
 
-def exit_code(out: dict) -> int:
+def exit_code(out: dict[str, Any]) -> int:
     """0 complete, 3 complete with defects, 1 stopped (fault, E-stop, abort)."""
     stopped = guard.exit_code(out["state"])  # stopped by a signal: 130 / 143 / 129
     if stopped is not None:
@@ -301,7 +301,7 @@ def exit_code(out: dict) -> int:
     return EXIT_COMPLETE_WITH_DEFECTS if out.get("defects") else 0
 
 
-async def _drive(ctl: Any, job: dict, run_dir: Path | None, session: Any, scen: list,
+async def _drive(ctl: Any, job: JobJSON, run_dir: Path | None, session: Any, scen: list[tuple[str, int, float | None]],
                  say: Callable[[str], None], resume: bool) -> tuple[Any, Path | None]:
     resume_ticket = None
     if resume and run_dir is not None:
@@ -346,16 +346,18 @@ async def _drive(ctl: Any, job: dict, run_dir: Path | None, session: Any, scen: 
 def _report(ctl: Any) -> Path | None:
     """The build record; none when the journal could not be written (the fault said where)."""
     if ctl.journal is not None and ctl.journal.failed:
-        return ctl.last_report
+        last: Path | None = ctl.last_report
+        return last
     try:
-        return ctl.last_report or ctl.write_report()
+        report: Path | None = ctl.last_report or ctl.write_report()
+        return report
     except OSError:
         if ctl.journal is None or not ctl.journal.failed:
             raise
         return None
 
 
-def _print_summary(out: dict, say: Callable[[str], None]) -> None:
+def _print_summary(out: dict[str, Any], say: Callable[[str], None]) -> None:
     defects = out.get("defects") or []
     state = out["state"] + (f" with {len(defects)} defects" if defects and out["state"] == "complete" else "")
     say(f"state {state}: {out['layers_done']} layers, {out['passes_done']} passes done, "

@@ -5,7 +5,9 @@ import argparse
 import json
 import math
 from pathlib import Path
+from typing import Any
 
+from controller.job.read import JobJSON
 from core.errors import InputError
 
 MIN_STEP_MM = 0.1      # weld-move subdivision floor: 1 m of bead is at most 10 000 moves
@@ -38,7 +40,7 @@ def dir_arg(path: str | Path, what: str, *, must_exist: bool = False) -> Path:
     return p
 
 
-def check_job_for_cell(job: dict, cfg: object, source: str) -> None:
+def check_job_for_cell(job: JobJSON, cfg: object, source: str) -> None:
     """The job checked against the cell (controller/job/check.py); JobCheckError if it does not fit."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.job.check import check_job, job_material
@@ -46,7 +48,7 @@ def check_job_for_cell(job: dict, cfg: object, source: str) -> None:
     check_job(job, cfg, job_material(job, cfg), source)  # type: ignore[arg-type]
 
 
-def stored_job(meta: dict, jpath: Path) -> dict:
+def stored_job(meta: dict[str, Any], jpath: Path) -> JobJSON:
     """The job a journal holds, refused when it no longer matches the checksum stored beside it."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.job.identity import job_hash
@@ -62,7 +64,7 @@ def stored_job(meta: dict, jpath: Path) -> dict:
     return job
 
 
-def complete_in(run_dir: Path, job: dict) -> bool:
+def complete_in(run_dir: Path, job: JobJSON) -> bool:
     """Whether the journal of `run_dir` says every pass of the job is done (read-only look)."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.journal.store import count_done_readonly

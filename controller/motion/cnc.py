@@ -16,6 +16,7 @@ from typing import Any, Callable
 
 from controller.ports import CncLinkPort, PowerSourcePort
 from controller.motion.cnc5 import Five, check_feed
+from controller.job.read import JobJSON
 from drivers.errors import DeviceError
 from core.errors import CellError
 
@@ -40,7 +41,7 @@ class CncExecutor:
         self.exec_count = 0
         self.min_ahead: int | None = None
         self._lost_cbs: list[Callable[[Any], None]] = []
-        self.stopping: asyncio.Task | None = None   # the safe stop of the latest hold_now()
+        self.stopping: asyncio.Task[Any] | None = None   # the safe stop of the latest hold_now()
         self.stop_result: Any = None                # its SafeStopResult (drivers/grbl_stop.py)
         self.accel_mm_s2 = 10.0                     # the hold's deceleration bound (grbl default)
 
@@ -69,7 +70,7 @@ class CncExecutor:
             raise CellError(f"cnc: the table reports A/B {st.mpos[3]:.4f}/{st.mpos[4]:.4f}°, not the job's "
                             f"leveling {level[0]:.4f}/{level[1]:.4f}°; check the rotary axes")
 
-    async def post_job(self, job: dict, max_step_mm: float) -> None:
+    async def post_job(self, job: JobJSON, max_step_mm: float) -> None:
         """Before any motion: every 5-axis pass to machine axes, or InputError naming the point."""
         self.require_job_axes(job)
         self.five.check_alignment(job, float(getattr(self.link, "reset_at", 0.0)))
@@ -78,7 +79,7 @@ class CncExecutor:
         await self.five.post_job(job, max_step_mm)
         check_feed(job, self.five.trunnion, self.link, max_step_mm)
 
-    def require_job_axes(self, job: dict) -> None:
+    def require_job_axes(self, job: JobJSON) -> None:
         """The firmware's axes against the job, before homing or any motion (DESIGN.md §5):
         GrblAxesMissing (exit 2) naming the firmware and the axes it lacks."""
         why = job_axes_need(job)
@@ -204,7 +205,7 @@ class CncExecutor:
         return await self.held_position()
 
 
-def job_axes_need(job: dict) -> str | None:
+def job_axes_need(job: JobJSON) -> str | None:
     """Why the job needs the rotary axes (A/B), None when X/Y/Z do: 5-axis passes, or an
     alignment that levels the table (not one made with `cell align run --no-level`)."""
     layers = job.get("layers", [])

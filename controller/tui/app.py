@@ -198,10 +198,10 @@ class CellApp(App[int]):
         self.view: View = session.view()
         self.renders = 0             # UI refreshes done (the 100 Hz test counts them)
         self.last_message = ""
-        self._allowed_key: tuple = ()
+        self._allowed_key: tuple[str, ...] = ()
         self._abort_confirmed = False
         self._quitting = False
-        self.pending: set[concurrent.futures.Future] = set()
+        self.pending: set[concurrent.futures.Future[Any]] = set()
         self._prev_state: str | None = None   # to say the build's end on the message line, once
         self._record_msg = ""                 # the record line last said
 
@@ -354,7 +354,7 @@ class CellApp(App[int]):
         self._watch(self.session.choose_file(path, width), "open")
         self.query_one(TabbedContent).active = "job"
 
-    def _watch(self, fut: concurrent.futures.Future, name: str) -> None:
+    def _watch(self, fut: concurrent.futures.Future[Any], name: str) -> None:
         self.pending.add(fut)
 
         async def wait() -> None:

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from controller.runtime.events import Snapshot
-from controller.job.read import read_job
+from controller.job.read import JobJSON, read_job
 from core.errors import CellError, InputError
 
 from controller.tui.planning import _plan_main, probe_plan  # noqa: F401  (re-exported)
@@ -87,14 +87,14 @@ class CellSession:
         self._last_sample = 0.0
         self._plan = PlanStatus()
         self._job: JobInfo | None = None
-        self._job_dict: dict | None = None
-        self._alignment: dict | None = None
+        self._job_dict: JobJSON | None = None
+        self._alignment: dict[str, Any] | None = None
         self._alignment_applied = False  # DESIGN.md §3: one alignment per job, applied once
         self._busy: str | None = None
         self._connect_error: str | None = None
         self._dev_errors: dict[str, str] = {}
         self._ui_log: list[LogRow] = []
-        self._build: concurrent.futures.Future | None = None
+        self._build: concurrent.futures.Future[Any] | None = None
         self._unsub: Callable[[], None] | None = None
         self._can_probe = self.cfg.cell.platform == "cnc" or sim
         self._probe_plan = probe_plan(self.cfg, self.sim_cfg) if self._can_probe else ()
@@ -105,7 +105,7 @@ class CellSession:
         asyncio.set_event_loop(self.loop)
         self.loop.run_forever()
 
-    def _submit(self, fn: Callable[[], Any]) -> concurrent.futures.Future:
+    def _submit(self, fn: Callable[[], Any]) -> concurrent.futures.Future[Any]:
         """Run `fn()` (a coroutine is awaited) on the controller's loop."""
         async def _do() -> Any:
             res = fn()
@@ -114,7 +114,7 @@ class CellSession:
             return res
         return asyncio.run_coroutine_threadsafe(_do(), self.loop)
 
-    def start(self) -> concurrent.futures.Future:
+    def start(self) -> concurrent.futures.Future[Any]:
         """Start the controller thread (and the simulators with --sim), then connect."""
         # Three busy threads share one GIL here (UI, controller, simulators): hand it over
         # every 2 ms rather than 5 so a device reply waits less behind a screen redraw.
@@ -126,10 +126,10 @@ class CellSession:
             self._thread.start()
         return self.connect()
 
-    def connect(self) -> concurrent.futures.Future:
+    def connect(self) -> concurrent.futures.Future[Any]:
         """(Re)connect every device of cell.yaml; a failure is shown, never raised into the UI."""
         if self.build_active():  # never drop the devices under a running build
-            fut: concurrent.futures.Future = concurrent.futures.Future()
+            fut: concurrent.futures.Future[Any] = concurrent.futures.Future()
             fut.set_exception(CellError(f"'connect' is not allowed in state {self._snap.state}: a build is running"))
             return fut
         self._busy = "connecting"
@@ -252,10 +252,10 @@ class CellSession:
             return list(self._ui_log)
 
     # -- job: open a file, plan an STL ----------------------------------------------------------
-    def choose_file(self, path: str | Path, width_mm: float | None = None) -> concurrent.futures.Future:
+    def choose_file(self, path: str | Path, width_mm: float | None = None) -> concurrent.futures.Future[Any]:
         """An STL (to plan) or a job file (opened in the controller at once)."""
         p = Path(path).expanduser()
-        fut: concurrent.futures.Future = concurrent.futures.Future()
+        fut: concurrent.futures.Future[Any] = concurrent.futures.Future()
         if not p.is_file():
             fut.set_exception(InputError(f"{p}: no such file; give the path of an STL/OBJ/3MF part or a job JSON"))
             return fut
@@ -272,7 +272,7 @@ class CellSession:
         self._alignment_applied = False  # a new job: the alignment may be applied to it once
         await self._open_dict(job)
 
-    async def _open_dict(self, job: dict, info: JobInfo | None = None) -> None:
+    async def _open_dict(self, job: JobJSON, info: JobInfo | None = None) -> None:
         info = info or job_info(job)
         if self.ctl is None or self._snap.state == "disconnected":
             # no cell yet: keep the job, it is opened when the devices connect
@@ -285,7 +285,7 @@ class CellSession:
         freeze_heap()
         self._note("info", f"job {self._job.name} open: {self._job.layers} layers, {self._job.passes} passes")
 
-    def plan(self, width_mm: float | None = None) -> concurrent.futures.Future:
+    def plan(self, width_mm: float | None = None) -> concurrent.futures.Future[Any]:
         """Plan the loaded part (worker thread, progress in the view), then open the job."""
         st = self._plan
         if st.file is None:
@@ -296,7 +296,7 @@ class CellSession:
 
         material = self.cfg.cell.material
 
-        def work() -> tuple[dict, JobInfo]:
+        def work() -> tuple[JobJSON, JobInfo]:
             # Planning is CPU-bound: in a thread it would hold the GIL long enough to starve
             # the power source's 10 ms cycle and the cell I/O poll (a link timeout, a fault).
             # It runs in a child process; progress comes back line by line on its stdout.
@@ -344,7 +344,7 @@ class CellSession:
         return self._submit(_do)
 
     # -- commands -------------------------------------------------------------------------------
-    def command(self, name: str) -> concurrent.futures.Future:
+    def command(self, name: str) -> concurrent.futures.Future[Any]:
         """Send a controller command; a refusal comes back as the controller's CellError.
 
         `start` returns as soon as the build is under way (its end shows in the snapshots).
@@ -356,7 +356,7 @@ class CellSession:
         if name not in COMMANDS:
             raise InputError(f"unknown command '{name}'")
         if self.ctl is None:
-            fut: concurrent.futures.Future = concurrent.futures.Future()
+            fut: concurrent.futures.Future[Any] = concurrent.futures.Future()
             fut.set_exception(CellError(f"'{name}' is not allowed: the cell is not connected"))
             return fut
         if name == "start":
@@ -365,8 +365,8 @@ class CellSession:
             return self._align()
         return self._submit(getattr(self.ctl, name))
 
-    def _start_build(self) -> concurrent.futures.Future:
-        started: concurrent.futures.Future = concurrent.futures.Future()
+    def _start_build(self) -> concurrent.futures.Future[Any]:
+        started: concurrent.futures.Future[Any] = concurrent.futures.Future()
 
         async def _do() -> None:
             task = asyncio.get_running_loop().create_task(self.ctl.start())
@@ -384,7 +384,7 @@ class CellSession:
         self._build = self._submit(_do)
         return started
 
-    def _align(self) -> concurrent.futures.Future:
+    def _align(self) -> concurrent.futures.Future[Any]:
         """Probe and align: the facade's `run_alignment` on a CNC cell; on a robot cell with the
         simulators, the routine on the CNC's link as `cell demo` does (the state machine stays put)."""
         self._busy = "aligning"
@@ -438,7 +438,7 @@ class CellSession:
         except asyncio.TimeoutError:
             raise CellError("alignment: the probe cycle did not finish within 120 s; check the CNC link") from None
 
-    def apply_alignment(self) -> concurrent.futures.Future:
+    def apply_alignment(self) -> concurrent.futures.Future[Any]:
         """Re-open the job moved by the alignment transform (the CAD model moves, not the part)."""
         async def _do() -> None:
             if self._alignment is None or self._job_dict is None:
@@ -462,7 +462,7 @@ class CellSession:
                 raise
         return self._submit(_do)
 
-    def stop_safely(self) -> concurrent.futures.Future:
+    def stop_safely(self) -> concurrent.futures.Future[Any]:
         """Quitting mid-build: software E-stop (weld start dropped, motion held at once).
 
         The journal keeps every executed move, so `cell resume` continues where it stopped.
