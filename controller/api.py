@@ -37,7 +37,7 @@ from drivers.cyclic import CyclicDevice
 from core.config import CellConfig, load_material
 from controller.runtime.events import EventBus, LinkStat, Snapshot
 from controller.runtime.interlocks import Interlocks
-from controller.job.read import read_job
+from controller.job.read import JobJSON, read_job
 from controller.journal.store import Journal
 from controller.runtime.machine import CellMachine, State, TransitionRefused
 from controller.runtime.resume import remaining_work
@@ -88,14 +88,14 @@ class CellController:
         self.executor: Any = None
         self.interlocks: Interlocks | None = None
         self.journal: Journal | None = None
-        self.job: dict | None = None
+        self.job: JobJSON | None = None
         self.run_dir: Path | None = None
         self.runner: BuildRunner | None = None
         self.alignment: Any = None
         self.arc: Any = None
         self.last_result: BuildResult | None = None
         self.last_report: Path | None = None
-        self._stats_task: asyncio.Task | None = None
+        self._stats_task: asyncio.Task[None] | None = None
         self.realtime = ""      # what elevate() obtained for the device cycles (a log line)
         self.witness: HostWitness | None = None   # watches this host's CPUs while connected
         self.opcua: Any = None   # controller.opcua.attach.OpcuaProcess when cell.yaml enables it
@@ -130,7 +130,7 @@ class CellController:
             out.append("estop")
         return out
 
-    def _on_transition(self, src: State, event: str, dst: State, info: dict) -> None:
+    def _on_transition(self, src: State, event: str, dst: State, info: dict[str, Any]) -> None:
         if self.journal is not None:
             cause = f" ({info['cause']})" if "cause" in info else ""
             self.journal.event("transition", f"{src.value} -> {dst.value} on {event}{cause}", state=dst.value)
@@ -280,7 +280,7 @@ class CellController:
             self.witness = None
 
     # -- commands ---------------------------------------------------------------------------------
-    def open_job(self, job: dict | str | Path, run_dir: str | Path | None = None) -> Path:
+    def open_job(self, job: JobJSON | str | Path, run_dir: str | Path | None = None) -> Path:
         if not self.machine.can("open_job"):
             raise self._refuse("open_job")
         if not isinstance(job, dict):
@@ -459,7 +459,7 @@ class CellController:
             self.journal.event("info", "reset by the operator", state=self.machine.state.value)
 
 
-def _validated(job: dict) -> dict:
+def _validated(job: JobJSON) -> dict[str, Any]:
     """The job, checked by planner.job.load_job (a CellError naming the field), then the fields the build reads."""
     # lazy: the planner (shapely, trimesh) loads only when a part is planned
     from planner.job import load_job

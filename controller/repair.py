@@ -20,6 +20,7 @@ import numpy as np
 from controller.align.probe_cycle import ProbeTarget, probe_points
 from controller.align.routine import alignment_record, plan_for_mesh
 from controller.api import CellController
+from controller.job.read import JobJSON
 from controller.motion.kinematics import apply_to_job
 from controller.runtime import stops
 from core.errors import CellError, InputError
@@ -34,7 +35,7 @@ class VerifyResult:
     planned_z: np.ndarray | None = None   # (n,) the planned top under each touch (None: planned_top_mm)
     kinds: tuple[str, ...] = ()           # per touch: "inside" or "edge"
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         z = self.points_cad[:, 2]
         planned = self.planned_z if self.planned_z is not None else np.full(len(z), self.planned_top_mm)
         err = z - planned
@@ -59,7 +60,7 @@ class VerifyResult:
                 "at": np.round(self.points_cad, 3).tolist()}
 
 
-def load_cad(job: dict, job_path: Path | None) -> Any:
+def load_cad(job: JobJSON, job_path: Path | None) -> Any:
     # lazy: trimesh loads only when this path runs (start-up time)
     import trimesh
 
@@ -76,7 +77,7 @@ def load_cad(job: dict, job_path: Path | None) -> Any:
     return trimesh.load_mesh(str(p), force="mesh")
 
 
-def probe_plan(cad: Any, job: dict) -> Any:
+def probe_plan(cad: Any, job: JobJSON) -> Any:
     """The alignment's touches on the CAD, kept 3 mm clear of the repair region (its xy bounds).
 
     Limitation (docs/repair.md): the region must leave the middle of the top face and of the +X
@@ -103,7 +104,7 @@ def probe_plan(cad: Any, job: dict) -> Any:
     return plan_for_mesh(cad, top_span_mm=span, side_span_mm=float(max(side, 4.0)))
 
 
-def _layer_footprint(L: dict, job: dict) -> Any:
+def _layer_footprint(L: dict[str, Any], job: JobJSON) -> Any:
     """One layer's planned deposit: the union of its passes' centre lines widened by their width
     (None: the layer has no pass with a point)."""
     # lazy: shapely loads only when this path runs (start-up time)
@@ -176,7 +177,7 @@ def _spread_pick(cand: list[tuple[float, float, float, str]], xy: np.ndarray,
     return list(dict.fromkeys(pick))
 
 
-def verify_targets(job: dict, n_inside: int = 12, n_edge: int = 8) -> tuple[np.ndarray, np.ndarray, list[str]]:
+def verify_targets(job: JobJSON, n_inside: int = 12, n_edge: int = 8) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Where to touch after the deposit, CAD frame: points on the deposit's exposed top, never on stock.
 
     The deposit is the union of the planned bead footprints (each pass's centre line widened by
@@ -199,7 +200,7 @@ def verify_targets(job: dict, n_inside: int = 12, n_edge: int = 8) -> tuple[np.n
     return xy[pick], np.array([cand[i][2] for i in pick]), [str(cand[i][3]) for i in pick]
 
 
-async def verify(link: Any, cell: Any, job: dict, transform: np.ndarray, grid: int = 4,
+async def verify(link: Any, cell: Any, job: JobJSON, transform: np.ndarray, grid: int = 4,
                  tolerance_mm: float = 0.1) -> VerifyResult:
     """Probe the deposit's exposed top (inside and along its edges, `verify_targets`); positions
     read back into the CAD frame and compared with the planned top under each touch."""
@@ -225,9 +226,9 @@ async def verify(link: Any, cell: Any, job: dict, transform: np.ndarray, grid: i
     return VerifyResult(pts, top, nominal, tolerance_mm, planned_z=ztop, kinds=tuple(kinds))
 
 
-async def repair_run(job: dict, cell: Any, *, job_path: Path | None = None, runs_dir: str | Path = "runs",
+async def repair_run(job: JobJSON, cell: Any, *, job_path: Path | None = None, runs_dir: str | Path = "runs",
                      reply_timeout_ms: float | None = None, apply_alignment: bool = True,
-                     tolerance_mm: float = 0.1) -> dict:
+                     tolerance_mm: float = 0.1) -> dict[str, Any]:
     """The whole chain on the CNC cell of `cell` (its device URLs: hardware, `cell sim up` or the
     in-process simulators of controller.harness); returns the report."""
 

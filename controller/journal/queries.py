@@ -3,10 +3,13 @@ outside the writes of controller/journal/store.py, whose `Journal` inherits them
 from __future__ import annotations
 
 import json
-from typing import Any, Sequence
+from typing import Any, Sequence, TypeAlias
 
 from controller.journal.check import Row
 from controller.journal.extra import BEAD_EXTRA, _extra
+
+SampleRow: TypeAlias = tuple[float, float | None, float | None, float | None, float | None, int | None, int | None]
+"""(t, current, voltage, wfs, temperature, layer, pass): one journaled process sample."""
 
 
 class JournalQueries:
@@ -100,8 +103,7 @@ class JournalQueries:
                 open_[key] = t
         return out
 
-    def sample_rows(self) -> list[tuple[float, float | None, float | None, float | None, float | None,
-                                        int | None, int | None]]:
+    def sample_rows(self) -> list[SampleRow]:
         """(t, current, voltage, wfs, temperature, layer, pass) samples in time order."""
         return self.query("SELECT t, current_a, voltage_v, wfs_m_min, temperature_c, layer, pass FROM samples"
                           " ORDER BY t")

@@ -9,6 +9,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from controller.job.read import JobJSON
+from controller.journal.queries import SampleRow
 from controller.journal.store import Journal
 
 GAP_FACTOR = 20.0  # a sample interval this many times the median breaks the line
@@ -33,7 +35,7 @@ def _with_gaps(t: list[float], cols: list[list[Any]]) -> tuple[list[float], list
     return tt, cc
 
 
-def plot_report(journal: Journal, out: Path, job: dict | None, summary: dict) -> list[Path]:
+def plot_report(journal: Journal, out: Path, job: JobJSON | None, summary: dict[str, Any]) -> list[Path]:
     """Write layers.png, process.png, temperature.png and defects.png into `out`."""
     # lazy: matplotlib loads only when this path runs (start-up time)
     import matplotlib
@@ -88,7 +90,7 @@ _SIGNALS = (
 )
 
 
-def _process_per_bead(plt: Any, out: Path, summary: dict) -> Path:
+def _process_per_bead(plt: Any, out: Path, summary: dict[str, Any]) -> Path:
     """process.png: per bead (x: beads in build order), each signal's mean (dot) and 5-95 %
     spread (bar), min/max (thin ticks), against the plan (black steps) and its tolerance band
     (grey); beads with a defect shaded red, layer starts as grey lines: the weld-monitoring view
@@ -113,8 +115,8 @@ def _process_per_bead(plt: Any, out: Path, summary: dict) -> Path:
     return _save(fig, out / "process.png")
 
 
-def _bead_panel(ax: Any, signal: tuple[Any, ...], beads: list[dict], x: list[int], bad: list[int],
-                layer_starts: list[int], pct: dict[str, Any], tol: dict) -> None:
+def _bead_panel(ax: Any, signal: tuple[Any, ...], beads: list[dict[str, Any]], x: list[int], bad: list[int],
+                layer_starts: list[int], pct: dict[str, Any], tol: dict[str, Any]) -> None:
     """One signal's panel of process.png: defect shading, layer starts, plan and band, the measured."""
     name, mean, p5, p95, lo, hi, plan, label, colour = signal
     for xb in bad:
@@ -129,8 +131,8 @@ def _bead_panel(ax: Any, signal: tuple[Any, ...], beads: list[dict], x: list[int
     ax.legend(loc="upper right", fontsize=7, ncol=5, framealpha=0.7)
 
 
-def _plan_and_band(ax: Any, name: str, plan: str | None, beads: list[dict], x: list[int],
-                   pct: dict[str, Any], tol: dict) -> None:
+def _plan_and_band(ax: Any, name: str, plan: str | None, beads: list[dict[str, Any]], x: list[int],
+                   pct: dict[str, Any], tol: dict[str, Any]) -> None:
     """The plan as black steps with its ± tolerance band, or the voltage window (no planned voltage)."""
     if plan is not None:
         ps = [b.get(plan) for b in beads]
@@ -147,7 +149,7 @@ def _plan_and_band(ax: Any, name: str, plan: str | None, beads: list[dict], x: l
                    label=f"window {tol['voltage_min_v']:g}-{tol['voltage_max_v']:g} V")
 
 
-def _bead_means(ax: Any, beads: list[dict], x: list[int], mean: str, p5: str | None, p95: str | None,
+def _bead_means(ax: Any, beads: list[dict[str, Any]], x: list[int], mean: str, p5: str | None, p95: str | None,
                 lo: str | None, hi: str | None, colour: str) -> None:
     """Each bead's mean: with its 5-95 % spread and min/max ticks where the signal has them."""
     ys = [b.get(mean) for b in beads]
@@ -160,34 +162,39 @@ def _bead_means(ax: Any, beads: list[dict], x: list[int], mean: str, p5: str | N
         ax.plot(xs, ym, "o", ms=2.5, color=colour, label="measured")
 
 
-def _spread_bars(ax: Any, beads: list[dict], ys: list[Any], xs: list[int], ym: list[Any], p5: str,
+def _field(bead: dict[str, Any], key: str | None) -> Any:
+    """The bead's value under `key`; None where the signal has no such field (key None)."""
+    return None if key is None else bead.get(key)
+
+
+def _spread_bars(ax: Any, beads: list[dict[str, Any]], ys: list[Any], xs: list[int], ym: list[Any], p5: str,
                  p95: str | None, colour: str) -> None:
     """The means as dots with their 5-95 % spread as error bars."""
     lo_err = [max(0.0, y - (b.get(p5) if b.get(p5) is not None else y)) for b, y in zip(beads, ys) if y is not None]
-    hi_err = [max(0.0, (b.get(p95) if b.get(p95) is not None else y) - y) for b, y in zip(beads, ys)
+    hi_err = [max(0.0, (_field(b, p95) if _field(b, p95) is not None else y) - y) for b, y in zip(beads, ys)
               if y is not None]
     ax.errorbar(xs, ym, yerr=[lo_err, hi_err], fmt="o", ms=2.5, color=colour, ecolor=colour, elinewidth=1.2,
                 capsize=0, label="mean, 5-95 %")
 
 
-def _min_max_ticks(ax: Any, beads: list[dict], xs: list[int], mean: str, lo: str | None, hi: str | None,
+def _min_max_ticks(ax: Any, beads: list[dict[str, Any]], xs: list[int], mean: str, lo: str | None, hi: str | None,
                    colour: str) -> None:
     """Each measured bead's min and max as thin ticks."""
-    mins = [b.get(lo) for b in beads if b.get(mean) is not None]
-    maxs = [b.get(hi) for b in beads if b.get(mean) is not None]
+    mins = [_field(b, lo) for b in beads if b.get(mean) is not None]
+    maxs = [_field(b, hi) for b in beads if b.get(mean) is not None]
     ax.plot(xs, [float("nan") if v is None else v for v in mins], "_", color=colour, ms=4, alpha=0.6,
             label="min / max")
     ax.plot(xs, [float("nan") if v is None else v for v in maxs], "_", color=colour, ms=4, alpha=0.6)
 
 
-def _defect_marks(ax: Any, beads: list[dict], bad: list[int], mean: str) -> None:
+def _defect_marks(ax: Any, beads: list[dict[str, Any]], bad: list[int], mean: str) -> None:
     """A red cross on the mean of each bead with a defect."""
     yd = [b.get(mean) for b in beads if b.get("defects_count")]
     xd = [xb for xb, y in zip(bad, yd) if y is not None]
     ax.plot(xd, [y for y in yd if y is not None], "x", color="red", ms=6, mew=1.5, label="defect")
 
 
-def _layer_marks(rows: list[tuple], t: list[float]) -> list[float]:
+def _layer_marks(rows: list[SampleRow], t: list[float]) -> list[float]:
     marks, seen = [], set()
     for r, x in zip(rows, t):
         if r[5] is not None and r[5] not in seen:
@@ -196,7 +203,7 @@ def _layer_marks(rows: list[tuple], t: list[float]) -> list[float]:
     return marks
 
 
-def _defects(plt: Any, out: Path, job: dict | None, summary: dict) -> Path:
+def _defects(plt: Any, out: Path, job: JobJSON | None, summary: dict[str, Any]) -> Path:
     fig, ax = plt.subplots(figsize=(7, 7))
     if job:
         for li, la in enumerate(job["layers"]):

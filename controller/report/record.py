@@ -9,8 +9,10 @@ from __future__ import annotations
 import csv
 import datetime as _dt
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
+from controller.job.read import JobJSON
+from controller.journal.queries import SampleRow
 from controller.journal.store import Journal
 
 # One row per planned bead (DESIGN.md §7); every name carries its unit. How each figure is
@@ -38,14 +40,15 @@ def iso(t: float | None) -> str | None:
     return _dt.datetime.fromtimestamp(t, tz=_dt.UTC).isoformat(timespec="seconds")
 
 
-def _planned(job: dict | None, layer: int, pass_: int) -> dict[str, Any]:
+def _planned(job: JobJSON | None, layer: int, pass_: int) -> dict[str, Any]:
     try:
         return dict(job["layers"][layer]["passes"][pass_]) if job else {}
     except (IndexError, KeyError, TypeError):
         return {}
 
 
-def _wfs_stats(samples: list[tuple], on: float, off: float, layer: int, pass_: int) -> tuple:
+def _wfs_stats(samples: list[SampleRow], on: float, off: float, layer: int,
+               pass_: int) -> tuple[float | None, float | None, float | None]:
     vals = [s[3] for s in samples if on <= s[0] <= off and s[5] == layer and s[6] == pass_ and s[3] is not None]
     if not vals:
         return None, None, None
@@ -56,26 +59,27 @@ def _r(x: float | None, nd: int = 2) -> float | None:
     return None if x is None else round(float(x), nd)
 
 
-def _sum(rows: list[dict], key: str) -> float | None:
+def _sum(rows: list[dict[str, Any]], key: str) -> float | None:
     vals = [r[key] for r in rows if r.get(key) is not None]
     return sum(vals) if vals else None
 
 
-def _wmean(rows: list[dict], key: str, weight: str) -> float | None:
+def _wmean(rows: list[dict[str, Any]], key: str, weight: str) -> float | None:
     """Mean of `key` over the runs of a bead, weighted by `weight` (arc time)."""
     pairs = [(r[key], r.get(weight) or 0.0) for r in rows if r.get(key) is not None]
     if not pairs:
         return None
     w = sum(x for _, x in pairs)
-    return sum(v * x for v, x in pairs) / w if w > 0 else sum(v for v, _ in pairs) / len(pairs)
+    mean: float = sum(v * x for v, x in pairs) / w if w > 0 else sum(v for v, _ in pairs) / len(pairs)
+    return mean
 
 
-def _ext(rows: list[dict], key: str, fn: Any) -> float | None:
+def _ext(rows: list[dict[str, Any]], key: str, fn: Any) -> float | None:
     vals = [r[key] for r in rows if r.get(key) is not None]
     return fn(vals) if vals else None
 
 
-def _bead_run(b: dict, plan: dict, scale: float, samples: list[tuple]) -> dict[str, Any]:
+def _bead_run(b: dict[str, Any], plan: dict[str, Any], scale: float, samples: list[SampleRow]) -> dict[str, Any]:
     """One journaled bead row (one run of a planned bead) in the record's units."""
     if b.get("wfs_min") is not None:   # every bus cycle of the bead (the samples are thinned)
         w_mean, w_min, w_max = b["wfs_mean"], b["wfs_min"], b["wfs_max"]
@@ -98,14 +102,14 @@ def _bead_run(b: dict, plan: dict, scale: float, samples: list[tuple]) -> dict[s
             "speed_plan": b["speed_mm_min"] or plan.get("speed_mm_min")}
 
 
-def _bead_keys(job: dict | None, runs: dict[tuple[int, int], list[dict]]) -> list[tuple[int, int]]:
+def _bead_keys(job: JobJSON | None, runs: dict[tuple[int, int], list[dict[str, Any]]]) -> list[tuple[int, int]]:
     """(layer, pass) of every bead to report: each pass of the job, else each journaled bead."""
     if job:
         return [(li, pi) for li, la in enumerate(job["layers"]) for pi in range(len(la["passes"]))]
     return sorted(runs)
 
 
-def _bead_speed(rows: list[dict], motion: Any, length: Any) -> Any:
+def _bead_speed(rows: list[dict[str, Any]], motion: Any, length: Any) -> Any:
     """The pace the device kept while depositing (mm/min): length over motion time, else the one run's."""
     speed = None
     if motion and length:
@@ -115,7 +119,7 @@ def _bead_speed(rows: list[dict], motion: Any, length: Any) -> Any:
     return speed
 
 
-def _bead_status(key: tuple[int, int], done: Any, rows: list[dict], mine: list[dict]) -> str:
+def _bead_status(key: tuple[int, int], done: Any, rows: list[dict[str, Any]], mine: list[dict[str, Any]]) -> str:
     """done, defect (done with a defect), interrupted (some runs, not done) or not built."""
     status = "done" if key in done else ("interrupted" if rows else "not built")
     if mine and status == "done":
@@ -123,7 +127,7 @@ def _bead_status(key: tuple[int, int], done: Any, rows: list[dict], mine: list[d
     return status
 
 
-def bead_records(journal: Journal, job: dict | None, scale: float, defects: list[dict],
+def bead_records(journal: Journal, job: JobJSON | None, scale: float, defects: list[dict[str, Any]],
                  tolerance: Any = None) -> list[dict[str, Any]]:
     """One record per planned bead (every pass of the job, built or not): planned against measured.
 
@@ -131,7 +135,7 @@ def bead_records(journal: Journal, job: dict | None, scale: float, defects: list
     lengths and times add up, its means are weighted by arc time, its extremes and percentiles
     are the widest of the runs. Without the job (a journal alone), one row per journaled bead."""
     samples = journal.sample_rows()
-    runs: dict[tuple[int, int], list[dict]] = {}
+    runs: dict[tuple[int, int], list[dict[str, Any]]] = {}
     for b in journal.bead_rows():
         key = (b["layer"], b["pass"])
         s = journal.run_time_scale(b["run"]) or scale
@@ -178,7 +182,7 @@ def bead_records(journal: Journal, job: dict | None, scale: float, defects: list
     return out
 
 
-def layer_records(journal: Journal, job: dict | None, scale: float) -> list[dict[str, Any]]:
+def layer_records(journal: Journal, job: JobJSON | None, scale: float) -> list[dict[str, Any]]:
     """Per layer: interpass temperature at its first arc strike, and the wait since the last layer."""
     beads = journal.bead_rows()
     samples = journal.sample_rows()
@@ -202,11 +206,12 @@ def layer_records(journal: Journal, job: dict | None, scale: float) -> list[dict
     return out
 
 
-def _polyline_mm(points: list) -> float:
-    return sum(sum((b - a) ** 2 for a, b in zip(p, q)) ** 0.5 for p, q in zip(points, points[1:]))
+def _polyline_mm(points: list[Sequence[float]]) -> float:
+    length: float = sum(sum((b - a) ** 2 for a, b in zip(p, q)) ** 0.5 for p, q in zip(points, points[1:]))
+    return length
 
 
-def planned_arc_s(job: dict | None, beads: list[dict[str, Any]]) -> float:
+def planned_arc_s(job: JobJSON | None, beads: list[dict[str, Any]]) -> float:
     """The plan's arc time of the passes these beads belong to (whole passes, planned speed)."""
     if not job:
         return 0.0
@@ -220,7 +225,7 @@ def planned_arc_s(job: dict | None, beads: list[dict[str, Any]]) -> float:
     return total
 
 
-def arc_time_figures(journal: Journal, job: dict | None, scale: float, beads: list[dict]) -> dict[str, Any]:
+def arc_time_figures(journal: Journal, job: JobJSON | None, scale: float, beads: list[dict[str, Any]]) -> dict[str, Any]:
     """Three arc times that must agree within 2 %, and the measured arc time beside them.
 
     plan_s: the job's passes that were built, at their planned length and speed (the figure
@@ -253,7 +258,7 @@ def arc_time_figures(journal: Journal, job: dict | None, scale: float, beads: li
     return figs
 
 
-def _speed_tolerance_pct(job: dict | None) -> float:
+def _speed_tolerance_pct(job: JobJSON | None) -> float:
     """The material's `tolerance.speed_pct` of the job (10 % when it has none or a bad one)."""
     try:
         pct = float(((job or {}).get("material") or {}).get("tolerance", {}).get("speed_pct", 10.0))
@@ -268,7 +273,7 @@ def _speed_deviations(beads: list[dict[str, Any]]) -> list[tuple[float, dict[str
             if b.get("speed_measured_mm_min") and b.get("speed_planned_mm_min")]
 
 
-def travel_speed_summary(beads: list[dict[str, Any]], job: dict | None = None) -> dict[str, Any]:
+def travel_speed_summary(beads: list[dict[str, Any]], job: JobJSON | None = None) -> dict[str, Any]:
     """How far the measured travel speed strayed from the plan, the beads outside the material's
     `tolerance.speed_pct` (flagged, not defects), the starved beads and the stand-stills."""
     pct = _speed_tolerance_pct(job)

@@ -11,6 +11,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from controller.job.read import JobJSON
 from controller.journal.store import Journal
 from controller.report.height import add_height
 from controller.report.plots import plot_report
@@ -28,7 +29,7 @@ from core.errors import CellError
 ALARM_KINDS = ("alarm",)
 
 
-def summarize(journal: Journal, job: dict | None = None, state: str | None = None,
+def summarize(journal: Journal, job: JobJSON | None = None, state: str | None = None,
               operator: str | None = None) -> dict[str, Any]:
     """The build's summary as a JSON-ready dict (times in process seconds, wall clock in ISO UTC)."""
     meta = journal.job() or {}
@@ -107,7 +108,7 @@ def _per_layer(beads: list[dict[str, Any]]) -> dict[int, dict[str, float]]:
     return per_layer
 
 
-def _tolerance(job: dict | None) -> Any:
+def _tolerance(job: JobJSON | None) -> Any:
     """The process tolerance of the job's material (None when the cell no longer knows it)."""
     mat = (job or {}).get("material")
     name = mat.get("name") if isinstance(mat, dict) else mat
@@ -119,7 +120,7 @@ def _tolerance(job: dict | None) -> Any:
         return None
 
 
-def _tolerance_dict(job: dict | None) -> dict[str, Any] | None:
+def _tolerance_dict(job: JobJSON | None) -> dict[str, Any] | None:
     tol = _tolerance(job)
     if tol is None:
         return None
@@ -127,7 +128,7 @@ def _tolerance_dict(job: dict | None) -> dict[str, Any] | None:
             if hasattr(tol, k)}
 
 
-def _provenance(job: dict | None, operator: str | None) -> dict[str, Any]:
+def _provenance(job: JobJSON | None, operator: str | None) -> dict[str, Any]:
     """Material, wire, gas, software version and operator of the build."""
     mat = (job or {}).get("material")
     name = mat.get("name") if isinstance(mat, dict) else mat
@@ -147,7 +148,7 @@ def _provenance(job: dict | None, operator: str | None) -> dict[str, Any]:
             "operator": operator or os.environ.get("CELL_OPERATOR")}
 
 
-def _outside(job: dict | None) -> list[dict[str, int]]:
+def _outside(job: JobJSON | None) -> list[dict[str, int]]:
     """Passes the planner marked as planned outside the process envelope (`--allow-outside`)."""
     out = []
     for li, la in enumerate((job or {}).get("layers", [])):
@@ -157,7 +158,7 @@ def _outside(job: dict | None) -> list[dict[str, int]]:
     return out
 
 
-def write_report(journal: Journal, out_dir: str | Path, job: dict | None = None, plots: bool = True,
+def write_report(journal: Journal, out_dir: str | Path, job: JobJSON | None = None, plots: bool = True,
                  state: str | None = None, operator: str | None = None, csv_path: str | Path | None = None) -> Path:
     """Write report.json, beads.csv (and the PNGs) into `out_dir`; returns the path of report.json."""
     out = Path(out_dir)

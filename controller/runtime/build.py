@@ -25,10 +25,12 @@ from controller.runtime.bead_cut import BeadCut, run_on_after_trip
 from controller.runtime.bead_check import judge
 from controller.runtime.bead_measure import BeadStats, Pace
 from controller.runtime.events import EventBus
+from controller.journal.queries import SampleRow
 from controller.journal.store import Journal
 from controller.runtime.machine import CellMachine, State
 from controller.runtime.device_record import crash_rearc, dry_lookahead
 from controller.runtime.progress import ProgressWatchdog, progress_timeout_s
+from controller.job.read import JobJSON
 from controller.job.weld_path import Point, weld_points
 from controller.ports import ArcControl, CellIOPort, MotionExecutor, PowerSourcePort
 from core.errors import CellError
@@ -74,7 +76,7 @@ class BuildResult:
     layers_done: int
     passes_done: int
     arc_starts: int
-    alarms: list[dict] = field(default_factory=list)
+    alarms: list[dict[str, Any]] = field(default_factory=list)
     defects: int = 0                    # beads of this job that were not deposited as planned
 
 
@@ -85,7 +87,7 @@ class Interrupted(Exception):
 class BuildRunner:
     """Runs a list of work items; one instance per run (first run or resume)."""
 
-    def __init__(self, *, job: dict, journal: Journal, machine: CellMachine, bus: EventBus,
+    def __init__(self, *, job: JobJSON, journal: Journal, machine: CellMachine, bus: EventBus,
                  executor: MotionExecutor, power: PowerSourcePort, cellio: CellIOPort | None = None,
                  options: BuildOptions | None = None, arc: ArcControl | None = None,
                  log: Callable[[str], None] | None = None) -> None:
@@ -112,15 +114,15 @@ class BuildRunner:
         self._acct_idx = 0                    # the last point index a progress report reached
         self._t_exe = 0.0                     # monotonic time of the last EXE with the arc stable
         self._t_exe_rx = 0.0                  # ... as its bytes arrived (reader thread)
-        self.closing: asyncio.Task | None = None  # an interrupted bead's close (awaits the held position)
+        self.closing: asyncio.Task[None] | None = None  # an interrupted bead's close (awaits the held position)
         self._measured_mm = 0.0               # length executed with the arc stable (this bead)
         self._faltered = False                # the arc was not stable at some point of this bead
         self._unstable_since_exe = False
         self._defect_at: Point | None = None  # where the bead first went wrong
-        self._samples: list[tuple] = []
+        self._samples: list[SampleRow] = []
         self._last_sample = 0.0
         self._unsub: list[Callable[[], None]] = []
-        self._stream: asyncio.Task | None = None
+        self._stream: asyncio.Task[int] | None = None
         self.starved = 0                      # times the motion queue ran empty inside a bead
         self.layers = job["layers"]
         self.totals = (len(self.layers), sum(len(la["passes"]) for la in self.layers))
@@ -367,7 +369,7 @@ class BuildRunner:
         self.bus.update(passes_done=len(self.done), layers_done=self._layers_done())
 
     def _close_bead(self, la: int, pa: int, pts: list[Point], i0: int, i1: int, speed: float,
-                    interrupted: bool) -> dict | None:
+                    interrupted: bool) -> dict[str, Any] | None:
         b, self._bead = self._bead, None
         if b is None:
             return None

@@ -28,6 +28,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from core.errors import CellError
 
@@ -142,7 +143,7 @@ def early(argv: list[str]) -> CellLock | contextlib.nullcontext[None]:
     return acquire(name, config)
 
 
-def _holder(fd: int, wait_s: float = 0.3) -> dict:
+def _holder(fd: int, wait_s: float = 0.3) -> dict[str, Any]:
     """What the holder wrote (it may be between taking the lock and writing: a short retry)."""
     deadline = time.monotonic() + wait_s
     while True:
@@ -156,7 +157,7 @@ def _holder(fd: int, wait_s: float = 0.3) -> dict:
         time.sleep(0.02)
 
 
-def _in_use(cell_name: str, holder: dict) -> str:
+def _in_use(cell_name: str, holder: dict[str, Any]) -> str:
     pid = holder.get("pid", "?")
     cmd = holder.get("command", "unknown command")
     since = holder.get("since")

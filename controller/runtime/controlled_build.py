@@ -12,6 +12,7 @@ from __future__ import annotations
 from typing import Any
 
 from controller.align.layer_probe import probe_layer_top, probe_spots
+from controller.job.read import JobJSON
 from controller.journal.store import Journal
 from controller.runtime.build import BuildResult, BuildRunner, WorkItem
 from controller.runtime.events import EventBus
@@ -57,7 +58,7 @@ class ControlledRunner(BuildRunner):
         super()._on_power(st)
 
     def _close_bead(self, la: int, pa: int, pts: Any, i0: int, i1: int, speed: float,
-                    interrupted: bool) -> dict | None:
+                    interrupted: bool) -> dict[str, Any] | None:
         had = self._bead is not None
         stats = super()._close_bead(la, pa, pts, i0, i1, speed, interrupted)
         if had and not interrupted:
@@ -65,14 +66,14 @@ class ControlledRunner(BuildRunner):
         return stats
 
 
-def make_control(cfg: CellConfig, job: dict, material: Material, journal: Journal, bus: EventBus | None,
+def make_control(cfg: CellConfig, job: JobJSON, material: Material, journal: Journal, bus: EventBus | None,
                  executor: Any) -> LayerControl:
     """The build's layer control (restored from the journal on a resume); the CNC's probe when it has one."""
     pc = cfg.process_control
     probe: ProbeFn | None = None
     link = getattr(executor, "link", None)
     if cfg.cell.platform == "cnc" and link is not None and hasattr(link, "probe"):
-        async def probe(la: int, layer: dict) -> list[float]:
+        async def probe(la: int, layer: dict[str, Any]) -> list[float]:
             spots = probe_spots(layer["passes"], pc.probe_points)
             return await probe_layer_top(link, cfg.probe, spots, cfg.probe.clearance_mm, name=f"layer {la} top")
     lc = LayerControl(job=job, cfg=pc, material=material, platform=cfg.cell.platform, journal=journal, bus=bus,

@@ -17,9 +17,9 @@ from __future__ import annotations
 import asyncio
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable
 
-from controller.runtime.build import BuildRunner
+from controller.runtime.build import BuildResult, BuildRunner
 from controller.runtime.events import EventBus
 from controller.journal.store import Journal
 from controller.runtime.machine import CellMachine
@@ -38,7 +38,7 @@ class TripRecord:
     pass_: int | None = None
     position: tuple[float, float, float] | None = None
     power_cycle_at_trip: int | None = None
-    extra: dict = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
 
 
 class Interlocks:
@@ -49,11 +49,11 @@ class Interlocks:
         self.m, self.journal, self.bus = machine, journal, bus
         self.power, self.ex, self.cellio = power, executor, cellio
         self.runner: BuildRunner | None = None  # the BuildRunner to stop, set while a build runs
-        self.build_task: asyncio.Task | None = None
+        self.build_task: asyncio.Task[BuildResult] | None = None
         self.trips: list[TripRecord] = []
         self.on_trip: list[Callable[[TripRecord], None]] = []
         self._unsub: list[Callable[[], None]] = []
-        self.pending: set[asyncio.Task] = set()
+        self.pending: set[asyncio.Task[None]] = set()
         self._loop: asyncio.AbstractEventLoop | None = None
 
     def arm(self) -> None:

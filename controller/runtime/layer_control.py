@@ -22,6 +22,7 @@ import json
 import math
 from typing import Any, Awaitable, Callable, Sequence
 
+from controller.job.read import JobJSON
 from controller.journal.store import Journal
 from controller.runtime.build import WorkItem
 from controller.runtime.events import EventBus
@@ -32,14 +33,14 @@ from controller.runtime.stickout import StickOutEstimator
 from core.config import ProcessControl
 from core.material import Material
 
-ProbeFn = Callable[[int, dict], Awaitable[list[float]]]   # (layer, the layer as built) -> probed tops
+ProbeFn = Callable[[int, dict[str, Any]], Awaitable[list[float]]]   # (layer, the layer as built) -> probed tops
 
 
-class BuiltLayers(list):
+class BuiltLayers(list[dict[str, Any]]):
     """The layers the runner indexes: `layers[i]` is layer i as built (LayerControl.layer); the
     list itself holds the plan's layers (planned, then added ones), iteration and slices too."""
 
-    def __init__(self, lc: "LayerControl", layers: list[dict]) -> None:
+    def __init__(self, lc: "LayerControl", layers: list[dict[str, Any]]) -> None:
         super().__init__(layers)
         self.lc = lc
 
@@ -48,7 +49,7 @@ class BuiltLayers(list):
             return self.lc.layer(i if i >= 0 else len(self) + i)
         return super().__getitem__(i)
 
-    def raw(self, i: int) -> dict:
+    def raw(self, i: int) -> dict[str, Any]:
         return list.__getitem__(self, i)
 
 
@@ -59,11 +60,11 @@ def _r(x: float | None, nd: int = 4) -> float | None:
 class LayerControl:
     """One build's layer-height control; `open` records only."""
 
-    def __init__(self, *, job: dict, cfg: ProcessControl, material: Material, platform: str, journal: Journal,
+    def __init__(self, *, job: JobJSON, cfg: ProcessControl, material: Material, platform: str, journal: Journal,
                  bus: EventBus | None = None, max_speed_mm_min: float = 1e9, probe: ProbeFn | None = None) -> None:
         self.cfg, self.platform, self.journal, self.bus, self.probe = cfg, platform, journal, bus, probe
         self.closed = cfg.mode == "layer"
-        self.job_layers: list[dict] = list(job["layers"])
+        self.job_layers: list[dict[str, Any]] = list(job["layers"])
         self.n_planned = len(self.job_layers)
         self.n_total = self.n_planned
         self.layers = BuiltLayers(self, self.job_layers)   # the runner builds this list (edited in place)
@@ -75,7 +76,7 @@ class LayerControl:
         self.k_range = (max(1.0 - trim, 0.05), max(min(1.0 + trim, max_speed_mm_min / top_speed), 1e-3))
         self.final_mm = layer_z(self.job_layers[-1])
         self.applied: dict[int, tuple[float, float]] = {}
-        self._built: dict[int, dict] = {}
+        self._built: dict[int, dict[str, Any]] = {}
         self.next_dz, self.next_k = 0.0, 1.0
         self.gain = 1.0
         first = self.job_layers[0]
@@ -83,10 +84,10 @@ class LayerControl:
         self.expected_cum = 0.0                                 # the model's rise so far (Σ h·f(k))
         self.hist: list[tuple[float, float]] = [(0.0, self.top)]  # (model rise, measured top)
         self.beads: dict[int, list[Any]] = {}
-        self.records: list[dict] = []
+        self.records: list[dict[str, Any]] = []
 
     # -- journal --------------------------------------------------------------------------------
-    def _event(self, kind: str, data: dict, layer: int | None = None) -> None:
+    def _event(self, kind: str, data: dict[str, Any], layer: int | None = None) -> None:
         self.journal.event(kind, json.dumps(data, sort_keys=True), layer=layer)
 
     def restore(self) -> None:
@@ -118,7 +119,7 @@ class LayerControl:
         return out
 
     # -- the runner's hooks ----------------------------------------------------------------------
-    def layer(self, la: int) -> dict:
+    def layer(self, la: int) -> dict[str, Any]:
         """Layer `la` as built (its z offset and trim journaled before its first bead)."""
         if not self.closed:
             return self.layers.raw(la)
@@ -135,8 +136,9 @@ class LayerControl:
             self.bus.update(z_correction_mm=dz)
         return got
 
-    def pass_for(self, la: int, pa: int) -> dict:
-        return self.layer(la)["passes"][pa]
+    def pass_for(self, la: int, pa: int) -> dict[str, Any]:
+        pass_: dict[str, Any] = self.layer(la)["passes"][pa]
+        return pass_
 
     def bead_closed(self, la: int, pa: int, currents: Sequence[float], wfs_m_min: float) -> None:
         """A bead's arc-stable current samples: its stick-out through the arc (journaled)."""
@@ -214,7 +216,7 @@ class LayerControl:
         return base + (self.final_mm - base) * sum(hs[:j + 1]) / sum(hs)
 
     def _next(self, la: int, top: float, so: float | None, vals: list[float], work: list[WorkItem],
-              k: int) -> tuple[dict, str, str | None]:
+              k: int) -> tuple[dict[str, Any], str, str | None]:
         n_max = self.n_planned + math.ceil(self.n_planned * self.cfg.max_layer_change_pct / 100.0)
         heights = [layer_height(x) for x in build_layers(self.job_layers, max(self.n_total + 1, self.n_planned))]
         d = decide(top_mm=top, final_mm=self.final_mm, heights=heights, gain=self.gain, p=self.p,

@@ -22,23 +22,24 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
+from typing import Any
 
 __all__ = ["Decision", "layer_z", "layer_height", "shift_layer", "trim_layer", "adjusted_layer",
            "extra_layer", "build_layers", "rise_factor", "speed_for", "fit_gain", "decide"]
 
 
-def layer_z(layer: dict) -> float:
+def layer_z(layer: dict[str, Any]) -> float:
     """The layer's planned top (its `z_mm`, else its first point's z)."""
     if layer.get("z_mm") is not None:
         return float(layer["z_mm"])
     return float(layer["passes"][0]["points"][0][2])
 
 
-def layer_height(layer: dict) -> float:
+def layer_height(layer: dict[str, Any]) -> float:
     return float(layer.get("height_mm") or 0.0)
 
 
-def shift_layer(layer: dict, dz: float) -> dict:
+def shift_layer(layer: dict[str, Any], dz: float) -> dict[str, Any]:
     """A copy of the layer with every point (and its z_mm) `dz` higher."""
     out = copy.deepcopy(layer)
     if out.get("z_mm") is not None:
@@ -48,7 +49,7 @@ def shift_layer(layer: dict, dz: float) -> dict:
     return out
 
 
-def trim_layer(layer: dict, speed_factor: float) -> dict:
+def trim_layer(layer: dict[str, Any], speed_factor: float) -> dict[str, Any]:
     """A copy of the layer with every pass's travel speed times `speed_factor`."""
     out = copy.deepcopy(layer)
     for p in out["passes"]:
@@ -56,13 +57,13 @@ def trim_layer(layer: dict, speed_factor: float) -> dict:
     return out
 
 
-def adjusted_layer(layer: dict, dz: float, speed_factor: float) -> dict:
+def adjusted_layer(layer: dict[str, Any], dz: float, speed_factor: float) -> dict[str, Any]:
     """The layer as built: shifted by `dz`, its travel speeds trimmed by `speed_factor`."""
     out = shift_layer(layer, dz) if dz else copy.deepcopy(layer)
     return trim_layer(out, speed_factor) if speed_factor != 1.0 else out
 
 
-def extra_layer(layers: list[dict], j: int) -> dict:
+def extra_layer(layers: list[dict[str, Any]], j: int) -> dict[str, Any]:
     """Layer j ≥ len(layers): a copy of the last layer (or of the one before, so a wall keeps
     its alternating direction) one planned layer height above the previous top."""
     n = len(layers)
@@ -80,7 +81,7 @@ def extra_layer(layers: list[dict], j: int) -> dict:
     return out
 
 
-def build_layers(layers: list[dict], n_total: int) -> list[dict]:
+def build_layers(layers: list[dict[str, Any]], n_total: int) -> list[dict[str, Any]]:
     """The layers a build lays: the planned ones, the first `n_total` of them or extra ones after."""
     if n_total <= len(layers):
         return list(layers[:n_total])
