@@ -82,6 +82,19 @@ def _seg_dist(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+def _axis_err(ax_log: np.ndarray, allax: np.ndarray, d2: np.ndarray) -> np.ndarray:
+    """Degrees between each executed tool axis and the planned axis interpolated between the two
+    planned weld points nearest to it (a move split for the chord tolerance lies between them)."""
+    two = np.argsort(d2, axis=1)[:, :2]
+    a1, a2 = allax[two[:, 0]], allax[two[:, 1]]
+    best = np.full(len(ax_log), np.inf)
+    for f in np.linspace(0.0, 1.0, 21):
+        ax = (1.0 - f) * a1 + f * a2
+        ax /= np.maximum(np.linalg.norm(ax, axis=1, keepdims=True), 1e-12)
+        best = np.minimum(best, np.degrees(np.arccos(np.clip((ax_log * ax).sum(axis=1), -1, 1))))
+    return best
+
+
 def figures(job: dict, log: Path, max_step_mm: float = 2.0) -> dict:
     """Deposit log (workpiece frame) against the plan, and the executed rotary steps."""
     segs = [json.loads(s) for s in (log / "deposit.jsonl").read_text().splitlines()]
@@ -102,9 +115,10 @@ def figures(job: dict, log: Path, max_step_mm: float = 2.0) -> dict:
     to = np.array([s["part"]["to"] for s in segs])
     mid = 0.5 * (fr + to)
     dev = np.maximum.reduce([_seg_dist(fr, a, b), _seg_dist(to, a, b), _seg_dist(mid, a, b)])
-    near = np.argmin(((to[:, None, :] - allpts[None, :, :]) ** 2).sum(axis=2), axis=1)
+    d2 = ((to[:, None, :] - allpts[None, :, :]) ** 2).sum(axis=2)
+    near = np.argmin(d2, axis=1)
     ax_log = np.array([s["axis"] for s in segs])
-    ax_err = np.degrees(np.arccos(np.clip((ax_log * allax[near]).sum(axis=1), -1, 1)))
+    ax_err = _axis_err(ax_log, allax, d2)
     length = np.linalg.norm(to - fr, axis=1)
     dt = np.array([s["t1"] - s["t0"] for s in segs])
     ok = length >= 0.5  # the log rounds t to 0.1 ms: shorter stretches cannot show 2 %

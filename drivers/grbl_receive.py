@@ -113,7 +113,13 @@ class GrblReceiver:
         the axes it has and those it lacks."""
         have = self.axis_names
         need = "".join(dict.fromkeys(c for c in names.upper() if c.isalpha()))
-        lack = "".join(c for c in need if c not in have)
+        if self.axis_letters is None or len(self.axis_letters) != self.axes:
+            # the firmware does not name its axes (grbl 1.1h, a grblHAL without [AXS]): its status
+            # report's position count is all that is known, so the 4th/5th rotary axes are judged
+            # by count (an A/C table's C is its 5th axis)
+            lack = need[self.axes:] if len(need) > self.axes else ""
+        else:
+            lack = "".join(c for c in need if c not in have)
         if not lack:
             return
         n = len(set(have) | set(need))

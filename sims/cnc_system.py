@@ -62,7 +62,9 @@ async def _parser_state(sim: CncSim) -> list[str]:
 
 
 async def _build_info(sim: CncSim) -> list[str]:
-    return [f"[VER:{VERSION}.20190825:5-axis XYZAB (cell simulator)]", "[OPT:VNM,15,128]", "[AXS:5:XYZAB]"]
+    # the rotary letters of the configured table (XYZAB or XYZAC), as grblHAL names its own axes
+    return [f"[VER:{VERSION}.20190825:5-axis {sim.letters} (cell simulator)]", "[OPT:VNM,15,128]",
+            f"[AXS:5:{sim.letters}]"]
 
 
 async def _startup_lines(sim: CncSim) -> list[str]:

@@ -209,9 +209,11 @@ def test_a_closed_loop_wall_ends_nearer_the_plan_with_the_ctwd_in_band(tmp_path:
     cl = _build(job, tmp_path / "closed", mode="layer", **kw)
     assert op.state == cl.state == "complete", (op.alarms, cl.alarms)
     assert op.height_error_mm is not None and cl.height_error_mm is not None, (op.row(), cl.row())
-    assert op.height_error_mm < -1.2, (op.row(), cl.row())  # open loop: low, the torch drifts away
+    # open loop: low, the torch drifts away (8 layers of 0.77 mm at gain 0.85: about 15 % of 6.2 mm; the
+    # planner's lone bead now lays its whole wall section, so the deficit is the gain's alone)
+    assert op.height_error_mm < -0.5, (op.row(), cl.row())
     assert abs(cl.height_error_mm) < 0.5 and abs(cl.height_error_mm) < abs(op.height_error_mm), (op.row(), cl.row())
-    assert op.ctwd_max is not None and op.ctwd_max > 17.0, (op.row(), cl.row())
+    assert op.ctwd_max is not None and cl.ctwd_max is not None and op.ctwd_max > cl.ctwd_max + 0.3, (op.row(), cl.row())
     assert cl.ctwd_min is not None and cl.ctwd_max is not None, (op.row(), cl.row())
     assert 13.5 <= cl.ctwd_min and cl.ctwd_max <= 16.5, (op.row(), cl.row())  # ±1.5 mm of nominal on every bead (its middle 80 %)
     assert cl.estimate_rms_mm is not None and cl.estimate_rms_mm < 0.5, (op.row(), cl.row())
@@ -231,7 +233,8 @@ def test_a_disturbance_out_of_range_pauses_before_the_ctwd_leaves_the_window(tmp
 
 @pytest.mark.timeout(600)
 def test_a_closed_loop_wall_on_the_cnc_probes_between_layers(tmp_path: Path):
-    o = _build(wall_job(5), tmp_path, part="wall", platform="cnc", gain=1.15, mode="layer", scale=60.0)
+    # time scale 30: at 60 this host cannot feed the wall's short moves (controller/motion/cnc5.py feed_limit)
+    o = _build(wall_job(5), tmp_path, part="wall", platform="cnc", gain=1.15, mode="layer", scale=30.0)
     assert o.state == "complete", o.alarms
     assert o.probe_err_max_mm is not None and o.probe_err_max_mm < 0.05
     assert [r["source"] for r in o.records] == ["probe"] * len(o.records)
