@@ -281,6 +281,8 @@ def fill(where: Path) -> Path:
                 fh.flush()
         except OSError:
             pass
+    with contextlib.suppress(OSError):
+        os.sync()
     return filler
 
 

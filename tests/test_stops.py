@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.stops import SimCell, WeldStartWatch, cell, cnc_status, job, judge, wait_arc
+from bench.stops import SimCell, WeldStartWatch, cell, cnc_status, fill, job, judge, wait_arc
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -218,20 +218,6 @@ def small_fs(where: Path, size: str):
         subprocess.run(["umount", "-l", str(where)], check=False)
 
 
-def _fill(where: Path) -> Path:
-    filler = where / "filler"
-    with open(filler, "wb") as fh:
-        try:
-            while True:
-                fh.write(b"\0" * (1 << 20))
-                fh.flush()
-        except OSError:
-            pass
-    with contextlib.suppress(OSError):
-        os.sync()
-    return filler
-
-
 def test_a_full_disk_mid_build_is_a_fault_naming_the_path_and_free_space(sim_cell, tmp_path):
     c = sim_cell
     jobp, jd = _write_job(c)
@@ -240,7 +226,7 @@ def test_a_full_disk_mid_build_is_a_fault_naming_the_path_and_free_space(sim_cel
                  "--max-step", "0.5", stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         wait_arc(p)
         time.sleep(3.0)
-        filler = _fill(runs)
+        filler = fill(runs)
         out, err = p.communicate(timeout=120)
         assert p.returncode == 1, err[-2000:]
         res = _last_json(out)
