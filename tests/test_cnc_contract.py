@@ -261,9 +261,11 @@ async def test_an_error_mid_stream_leaves_no_hold_with_lines_queued(target: Targ
     await _assert_stopped_clean(link, res)
 
 
+@pytest.mark.slow
 async def test_safe_stop_five_times_figures(target: Target) -> None:
     """Each stop path 5 times (mid-stream with the process on): seconds from the call to the
-    verified spindle 0 and to everything verified (printed for the docs; run with -s)."""
+    verified spindle 0 and to everything verified (the figures for the docs: `python -m bench.soak`,
+    a soak outside make test; test_safe_stop_mid_stream_holds_resets_and_verifies keeps the check)."""
     link = target.link
     await link.command("$32=1")
     off, done = [], []
