@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -72,7 +72,7 @@ def stored_job(job_json: str, stored_hash: str, journal: str | Path) -> CellJob:
     return job_from_dict(obj, f"journal {journal}: the job stored in it")
 
 
-def edited(job: CellJob, edit: Any, source: str) -> CellJob:
+def edited(job: CellJob, edit: Callable[[dict[str, Any]], dict[str, Any]], source: str) -> CellJob:
     """A new job from `edit(obj)` on a copy of `job`'s object (it returns the edited object): an
     aligned copy, a renamed one. The copy is read like a file: its own hash and checks."""
     return job_from_dict(edit(json.loads(job.json)), source)
