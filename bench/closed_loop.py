@@ -30,13 +30,16 @@ import numpy as np
 
 from controller.api import CellController
 from controller.harness.sim import SimHarness, with_urls
+from controller.job.model import CellJob
+from controller.job.read import job_from_dict
 from core.config import load_cell, load_material, load_sim
+from planner.job import Layer
 
 MATERIAL = "inconel718-1.0mm"
 WIDTH = 7.0
 
 
-def wall_job(layers: int, length: float = 40.0) -> dict:
+def wall_job(layers: int, length: float = 40.0) -> CellJob:
     """A single-bead wall: a box one bead wide, `layers` planned layers tall."""
     # lazy: only this benchmark's path needs it
     import trimesh
@@ -49,11 +52,10 @@ def wall_job(layers: int, length: float = 40.0) -> dict:
     h = 0.77
     m = trimesh.creation.box(extents=(length, WIDTH, layers * h))
     m.apply_translation((0.0, 0.0, layers * h / 2.0))
-    job = job_to_dict(plan_part(m, PlanOptions(width_mm=WIDTH, perimeters=1, allow_underfill=True), mat))
-    return job
+    return job_from_dict(job_to_dict(plan_part(m, PlanOptions(width_mm=WIDTH, perimeters=1, allow_underfill=True), mat)))
 
 
-def block_job(layers: int, size: tuple[float, float] = (40.0, 20.0)) -> dict:
+def block_job(layers: int, size: tuple[float, float] = (40.0, 20.0)) -> CellJob:
     """A multi-bead block: perimeters and fill."""
     # lazy: only this benchmark's path needs it
     import trimesh
@@ -66,7 +68,7 @@ def block_job(layers: int, size: tuple[float, float] = (40.0, 20.0)) -> dict:
     h = 0.77
     m = trimesh.creation.box(extents=(size[0], size[1], layers * h))
     m.apply_translation((0.0, 0.0, layers * h / 2.0))
-    return job_to_dict(plan_part(m, PlanOptions(width_mm=WIDTH, perimeters=1, allow_underfill=True), mat))
+    return job_from_dict(job_to_dict(plan_part(m, PlanOptions(width_mm=WIDTH, perimeters=1, allow_underfill=True), mat)))
 
 
 @dataclass
@@ -133,31 +135,31 @@ def _segments(log: Path, device: str) -> list[dict]:
     return out
 
 
-def _final_top(hm: Any, layer: dict, middle: float = 0.6) -> float | None:
+def _final_top(hm: Any, layer: Layer, middle: float = 0.6) -> float | None:
     """Mean of the height map on the layer's centre lines, over the middle of each pass."""
     # lazy: only this benchmark's path needs it
     from controller.align.layer_probe import probe_spots
 
-    spots = probe_spots(layer["passes"], 24, middle)
+    spots = probe_spots(layer.passes, 24, middle)
     vals = [hm.surface(x, y) for x, y, _z in spots]
     vals = [v for v in vals if v is not None and math.isfinite(v)]
     return float(np.mean(vals)) if vals else None
 
 
-def _bead_segments(segs: list[dict], built: list[dict]) -> dict[tuple[int, int], list[dict]]:
+def _bead_segments(segs: list[dict], built: list[Layer]) -> dict[tuple[int, int], list[dict]]:
     """The deposited segments of each bead (its layer's commanded z, on its path), in time order."""
     by_z: dict[float, list[dict]] = {}
     for s in segs:
         by_z.setdefault(round(float(s["to"][2]), 3), []).append(s)
     out: dict[tuple[int, int], list[dict]] = {}
     for la, layer in enumerate(built):
-        for pa, p in enumerate(layer["passes"]):
-            pts = p["points"]
+        for pa, p in enumerate(layer.passes):
+            pts = p.points.tolist()
             out[(la, pa)] = [s for s in by_z.get(round(float(pts[0][2]), 3), []) if _near(s, pts)]
     return out
 
 
-def bead_ctwd(segs: list[dict], built: list[dict], middle: float = 0.8) -> list[float]:
+def bead_ctwd(segs: list[dict], built: list[Layer], middle: float = 0.8) -> list[float]:
     """Each bead's CTWD truth over its middle `middle` share (the bead's ends, where a wall slumps,
     left out): the values of every bead, flattened."""
     vals: list[float] = []
@@ -170,14 +172,14 @@ def bead_ctwd(segs: list[dict], built: list[dict], middle: float = 0.8) -> list[
     return vals
 
 
-def _estimate_rms(records: list[dict], beads: list[dict], segs: list[dict], built: list[dict]) -> float | None:
+def _estimate_rms(records: list[dict], beads: list[dict], segs: list[dict], built: list[Layer]) -> float | None:
     """Per bead: the through-arc estimate against the truth (mean ctwd_mm of the bead's middle segments)."""
     errs = []
     for b in beads:
         la, pa = b["layer"], b["pass"]
         if la >= len(built):
             continue
-        pts = built[la]["passes"][pa]["points"]
+        pts = built[la].passes[pa].points.tolist()
         z = pts[0][2]
         mine = [s for s in segs if abs(s["to"][2] - z) < 1e-3 and _near(s, pts)]
         if len(mine) < 3:
@@ -200,7 +202,7 @@ def _near(seg: dict, pts: list, tol: float = 0.3) -> bool:
     return False
 
 
-async def build(job: dict, *, part: str, platform: str, gain: float, mode: str, tmp: Path, scale: float = 60.0,
+async def build(job: CellJob, *, part: str, platform: str, gain: float, mode: str, tmp: Path, scale: float = 60.0,
                 temp_coeff: float = 0.0, noise_pct: float = 0.0, heat_capacity: float = 2000.0,
                 timeout_s: float = 900.0, pc: dict | None = None) -> Outcome:
     """One build on the simulators; the outcome judged from the world's truth."""
@@ -230,7 +232,7 @@ async def build(job: dict, *, part: str, platform: str, gain: float, mode: str, 
     ctwd = bead_ctwd(segs, built)          # the truth on every bead's steady part
     raw = [s["ctwd_mm"] for s in segs]     # and on every deposited segment, ends included
     return Outcome(part, platform, gain, temp_coeff, mode, ("paused, then " if paused else "") + res.state,
-                   len(job["layers"]), res.layers_done, float(job["layers"][-1]["z_mm"]),
+                   len(job.layers), res.layers_done, job.layers[-1].z_mm,
                    _final_top(hm, built[-1]) if hm is not None and built else None,
                    min(ctwd) if ctwd else None, max(ctwd) if ctwd else None,
                    _estimate_rms(records, beads, segs, built) if beads else None,
@@ -239,7 +241,7 @@ async def build(job: dict, *, part: str, platform: str, gain: float, mode: str, 
                    (min(raw), max(raw)) if raw else None)
 
 
-async def _run(ctl: CellController, job: dict, t0: float, timeout_s: float) -> tuple[Any, bool]:
+async def _run(ctl: CellController, job: CellJob, t0: float, timeout_s: float) -> tuple[Any, bool]:
     """Connect, build; a pause (the control's) ends the build by an abort. (result, paused)."""
     paused = False
     await ctl.connect(reply_timeout_ms=500.0)
@@ -253,7 +255,7 @@ async def _run(ctl: CellController, job: dict, t0: float, timeout_s: float) -> t
     return await task, paused
 
 
-def _probe_error(records: list[dict], hm: Any, built: list[dict]) -> float | None:
+def _probe_error(records: list[dict], hm: Any, built: list[Layer]) -> float | None:
     """The last probed layer's top against the height map there (same spots, the map's truth)."""
     last = [r for r in records if r.get("source") == "probe"]
     if not last:
@@ -262,7 +264,7 @@ def _probe_error(records: list[dict], hm: Any, built: list[dict]) -> float | Non
     # lazy: only this benchmark's path needs it
     from controller.align.layer_probe import probe_spots
 
-    spots = probe_spots(built[r["layer"]]["passes"], 3)
+    spots = probe_spots(built[r["layer"]].passes, 3)
     truth = float(np.mean([hm.surface(x, y) for x, y, _z in spots]))
     return abs(float(r["measured_top_mm"]) - truth)
 

@@ -75,6 +75,7 @@ def robot_starvation(log: Path) -> tuple[int, int, float]:
 async def one(cfgp: Path, scale: float, length: float, runs: Path) -> dict:
     # lazy: only this benchmark's path needs it
     from controller.api import CellController
+    from controller.job.read import job_from_dict
     from controller.runtime.build import BuildOptions
     from core.config import load_cell
 
@@ -85,7 +86,7 @@ async def one(cfgp: Path, scale: float, length: float, runs: Path) -> dict:
     await ctl.connect()
     job = zigzag_job(length)
     job["source"]["file"] = f"zigzag-x{scale:g}.stl"
-    ctl.open_job(job)
+    ctl.open_job(job_from_dict(job))
     cpu0, t0 = time.process_time(), time.monotonic()
     res = await ctl.start()
     cpu, wall = time.process_time() - cpu0, time.monotonic() - t0

@@ -19,6 +19,7 @@ import numpy as np
 from controller.api import CellController
 from controller.job.weld_path import weld_points
 from controller.harness.sim import SimHarness, with_urls
+from controller.job.read import job_from_dict
 from core.config import load_cell, load_material, load_sim
 from controller.motion.post5 import weld_axes
 from planner.five_axis import FiveAxisOptions
@@ -56,14 +57,15 @@ async def build(job: dict, tmp: Path, table: str = "AB", scale: float = 60.0) ->
     # lazy: only this benchmark's path needs it
     from controller.motion.cnc5 import limit_time_scale
 
-    cfg, _note = limit_time_scale(with_urls(kin_cfg(table), {}, time_scale=scale), job)
+    typed = job_from_dict(job)   # the job file's object, read as `cell run` reads it
+    cfg, _note = limit_time_scale(with_urls(kin_cfg(table), {}, time_scale=scale), typed)
     log = tmp / "log"
     harness = SimHarness(cfg, level_sim(), log_dir=log)
     cfg = with_urls(cfg, harness.start())
     ctl = CellController(cfg, runs_dir=tmp / "runs")
     try:
         await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
-        ctl.open_job(job)
+        ctl.open_job(typed)
         res = await ctl.start()
     finally:
         await ctl.close()
@@ -228,7 +230,7 @@ def feed_scale(job: dict, table: str, scale: float) -> float:
     # lazy: only this benchmark's path needs it
     from controller.motion.cnc5 import limit_time_scale
 
-    return float(limit_time_scale(with_urls(kin_cfg(table), {}, time_scale=scale), job)[0].cell.time_scale)
+    return float(limit_time_scale(with_urls(kin_cfg(table), {}, time_scale=scale), job_from_dict(job))[0].cell.time_scale)
 
 
 def main(argv: list[str] | None = None) -> int:

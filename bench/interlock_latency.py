@@ -30,6 +30,7 @@ async def run(trials: int, seed: int) -> dict:
     from controller.api import CellController
     from controller.harness.sim import SimHarness, with_urls
     from controller.defaults import SIM_REPLY_TIMEOUT_MS
+    from controller.job.read import job_from_dict
     from core.config import load_cell, load_sim
 
     rng = random.Random(seed)
@@ -44,7 +45,7 @@ async def run(trials: int, seed: int) -> dict:
     try:
         await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
         ctl.devices.power.subscribe(lambda st: statuses.append((st.t, st.command.weld_start)))
-        ctl.open_job(soak_job(20))
+        ctl.open_job(job_from_dict(soak_job(20)))
         for _ in range(trials):
             build = asyncio.ensure_future(ctl.start())
             while ctl.snapshot().state != "running_depositing":

@@ -82,6 +82,7 @@ async def _build(tmp: Path, spec: str, scale: float, reset_errors: bool = False)
     # lazy: only this benchmark's path needs it
     from controller.api import CellController
     from controller.harness.sim import SimHarness, with_urls
+    from controller.job.read import job_from_dict
     from core.config import load_cell, load_sim
 
     cfg = with_urls(load_cell(), {}, time_scale=scale)
@@ -94,7 +95,7 @@ async def _build(tmp: Path, spec: str, scale: float, reset_errors: bool = False)
     try:
         await ctl.connect(reply_timeout_ms=500.0)
         job = small_job()
-        ctl.open_job(job)
+        ctl.open_job(job_from_dict(job))
         t0 = time.monotonic()
         try:
             res = await asyncio.wait_for(ctl.start(), BUILD_BUDGET_S)

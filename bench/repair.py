@@ -26,6 +26,7 @@ from controller.runtime.devices import with_urls
 from controller.cli.main import main as cell_main
 from controller.harness.repair_parts import make_parts, posed_sim  # noqa: F401  (bench API)
 from controller.harness.repair import repair_run_sim
+from controller.job.read import read_job
 from controller.job.repair_volume import _manifold, _trimesh
 from core.config import load_cell
 
@@ -94,7 +95,7 @@ async def one(tmp: Path, pose: tuple, scale: float = 60.0, shape: str = "pocket"
     sim = posed_sim(stock, *pose)
     if faults:
         sim = sim.model_copy(update={"faults": faults})
-    rep = await repair_run_sim(job, cell, sim, job_path=tmp / "job.json", runs_dir=tmp / "runs", log_dir=tmp / "log")
+    rep = await repair_run_sim(read_job(tmp / "job.json"), cell, sim, job_path=tmp / "job.json", runs_dir=tmp / "runs", log_dir=tmp / "log")
     return {"pose": pose, "shape": shape, "alignment": rep["alignment"], "verify": rep["verify"],
             "state": rep["state"], "time_scale": rep.get("time_scale"), "on_deposit": touches_on_deposit(job, rep),
             **deposit_vs_plan(job, tmp / "log")}

@@ -6,7 +6,8 @@ methods. A view subscribes to immutable `Snapshot`s (controller/runtime/events.p
 
 Commands (each refused with a CellError naming the state when not allowed):
 
-- `open_job(job | path)`  load and check a job, open its run directory and journal → Ready
+- `open_job(job | path)`  a job (read typed once: controller/job/read.py) checked against the
+                          cell, its run directory and journal opened → Ready
 - `run_alignment()`       probe and align the substrate (CNC, when the routine is installed)
 - `start()`               start the build, or continue it from the journal after a reset
                           (awaits the end of the build: Complete, Paused→…, Fault, EStop, Aborted)
@@ -30,18 +31,19 @@ from controller.runtime.arc_out import RunOn
 from controller.job.check import check_job, job_material
 from controller.runtime.build import BuildOptions, BuildResult, BuildRunner
 from controller.runtime.controlled_build import ControlledRunner, make_control
-from controller.job.identity import canonical_json, job_hash, job_name, run_dir_for
+from controller.job.identity import run_dir_for
 from controller.runtime.devices import Devices
 from controller.runtime.host_witness import HostWitness
 from drivers.cyclic import CyclicDevice
 from core.config import CellConfig, load_material
 from controller.runtime.events import EventBus, LinkStat, Snapshot
 from controller.runtime.interlocks import Interlocks
-from controller.job.read import JobJSON, read_job
+from controller.job.model import CellJob
+from controller.job.read import read_job
 from controller.journal.store import Journal
 from controller.runtime.machine import CellMachine, State, TransitionRefused
 from controller.runtime.resume import remaining_work
-from core.errors import CellError, InputError
+from core.errors import CellError
 import importlib
 from core.config import load_sim
 from controller.runtime.arc_handshake import ArcHandshake
@@ -88,7 +90,7 @@ class CellController:
         self.executor: Any = None
         self.interlocks: Interlocks | None = None
         self.journal: Journal | None = None
-        self.job: JobJSON | None = None
+        self.job: CellJob | None = None
         self.run_dir: Path | None = None
         self.runner: BuildRunner | None = None
         self.alignment: Any = None
@@ -280,13 +282,12 @@ class CellController:
             self.witness = None
 
     # -- commands ---------------------------------------------------------------------------------
-    def open_job(self, job: JobJSON | str | Path, run_dir: str | Path | None = None) -> Path:
+    def open_job(self, job: CellJob | str | Path, run_dir: str | Path | None = None) -> Path:
         if not self.machine.can("open_job"):
             raise self._refuse("open_job")
-        if not isinstance(job, dict):
+        if not isinstance(job, CellJob):
             job = read_job(job)
-        job = _validated(job)
-        # the whole job against the cell before it can start (the CLI checks it before connecting)
+        # the whole job against the cell before it can start (once: `cell run` checked it before connecting)
         check_job(job, self.cfg, job_material(job, self.cfg))
         axes = getattr(self.executor, "require_job_axes", None)
         if axes is not None:  # the firmware's axes against the job, before any motion (exit 2)
@@ -296,14 +297,13 @@ class CellController:
         if self.journal is not None:
             self.journal.close()
         self.journal = Journal(self.run_dir / "journal.sqlite", background=True)
-        self.journal.start_job(job_hash(job), job_name(job), self.cfg.cell.platform, canonical_json(job))
+        self.journal.start_job(job.hash, job.name, self.cfg.cell.platform, job.json)
         if self.interlocks is not None:
             self.interlocks.journal = self.journal
         self.machine.send("open_job")
         done = sum(1 for v in self.journal.pass_progress().values() if v.state == "done")
-        self.bus.update(job_name=job_name(job), job_hash=job_hash(job), run_dir=str(self.run_dir),
-                        layers_total=len(job["layers"]),
-                        passes_total=sum(len(la["passes"]) for la in job["layers"]), passes_done=done)
+        self.bus.update(job_name=job.name, job_hash=job.hash, run_dir=str(self.run_dir),
+                        layers_total=len(job.layers), passes_total=job.passes_total, passes_done=done)
         return self.run_dir
 
     async def run_alignment(self, plan: Any = None) -> Any:
@@ -395,7 +395,8 @@ class CellController:
         if self.journal is None or self.run_dir is None:
             raise CellError("no job is open: nothing to report")
         state = self.last_result.state if self.last_result is not None else None
-        return write_report(self.journal, self.run_dir, self.job, plots=plots, state=state)
+        return write_report(self.journal, self.run_dir, self.job.job if self.job is not None else None, plots=plots,
+                            state=state)
 
     def pause(self) -> None:
         if self.runner is None or not self.machine.state.running:
@@ -459,25 +460,22 @@ class CellController:
             self.journal.event("info", "reset by the operator", state=self.machine.state.value)
 
 
-def _validated(job: JobJSON) -> dict[str, Any]:
-    """The job, checked by planner.job.load_job (a CellError naming the field), then the fields the build reads."""
-    # lazy: the planner (shapely, trimesh) loads only when a part is planned
-    from planner.job import load_job
+def write_run_report(run_dir: str | Path, *, plots: bool = True, operator: str | None = None,
+                     csv_path: str | Path | None = None) -> Path:
+    """`cell report RUN_DIR`: the build record of a run directory, from its journal and the job it
+    holds (no cell needed); the path of report.json."""
+    # lazy: the report modules (matplotlib) load only when a record is written
+    from controller.report.run import write_run_report as write
 
-    load_job(job)
-    if not isinstance(job, dict) or job.get("schema") != "cell-job/1":
-        raise InputError("not a cell-job/1 file (missing or wrong 'schema')")
-    layers = job.get("layers")
-    if not isinstance(layers, list) or not layers:
-        raise InputError("job has no layers")
-    for li, la in enumerate(layers):
-        for pi, p in enumerate(la.get("passes", [])):
-            for key in ("points", "speed_mm_min", "wfs_m_min", "current_a"):
-                if key not in p:
-                    raise InputError(f"layers[{li}].passes[{pi}]: missing '{key}'")
-            if len(p["points"]) < 2:
-                raise InputError(f"layers[{li}].passes[{pi}]: a pass needs at least 2 points")
-    return job
+    return write(run_dir, plots=plots, operator=operator, csv_path=csv_path)
+
+
+def run_rows(runs_dir: str | Path) -> list[dict[str, Any]]:
+    """`cell runs`: dir, job, state, started, layers done / total of every run directory."""
+    # lazy: the report modules load only when the runs are listed
+    from controller.report.run import run_rows as rows
+
+    return rows(Path(runs_dir))
 
 
 async def align_at(url: str, cell: CellConfig, plan: Any, *, settings: Any = None,

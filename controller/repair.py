@@ -20,10 +20,11 @@ import numpy as np
 from controller.align.probe_cycle import ProbeTarget, probe_points
 from controller.align.routine import alignment_record, plan_for_mesh
 from controller.api import CellController
-from controller.job.read import JobJSON
+from controller.job.model import CellJob
 from controller.motion.kinematics import apply_to_job
 from controller.runtime import stops
 from core.errors import CellError, InputError
+from planner.job import Layer
 
 
 @dataclass(frozen=True)
@@ -60,12 +61,11 @@ class VerifyResult:
                 "at": np.round(self.points_cad, 3).tolist()}
 
 
-def load_cad(job: JobJSON, job_path: Path | None) -> Any:
+def load_cad(job: CellJob, job_path: Path | None) -> Any:
     # lazy: trimesh loads only when this path runs (start-up time)
     import trimesh
 
-    rep = job.get("repair") or {}
-    cad = rep.get("cad")
+    cad = job.repair.cad if job.repair is not None else None
     if not cad:
         raise InputError("job: not a repair job (no repair.cad); plan it with `cell repair plan`")
     p = Path(cad)
@@ -77,7 +77,7 @@ def load_cad(job: JobJSON, job_path: Path | None) -> Any:
     return trimesh.load_mesh(str(p), force="mesh")
 
 
-def probe_plan(cad: Any, job: JobJSON) -> Any:
+def probe_plan(cad: Any, job: CellJob) -> Any:
     """The alignment's touches on the CAD, kept 3 mm clear of the repair region (its xy bounds).
 
     Limitation (docs/repair.md): the region must leave the middle of the top face and of the +X
@@ -86,7 +86,7 @@ def probe_plan(cad: Any, job: JobJSON) -> Any:
 
     lo, hi = np.asarray(cad.bounds, dtype=float)
     size, ctr = hi - lo, (lo + hi) / 2
-    rb = np.asarray((job.get("repair") or {}).get("bounds_mm", [hi, hi]), dtype=float)
+    rb = job.repair.bounds_mm if job.repair is not None and job.repair.bounds_mm is not None else np.array([hi, hi])
 
     def dist(k: int) -> float:  # how far the region stays from the centre line along axis k
         if rb[0, k] <= ctr[k] <= rb[1, k]:
@@ -104,7 +104,7 @@ def probe_plan(cad: Any, job: JobJSON) -> Any:
     return plan_for_mesh(cad, top_span_mm=span, side_span_mm=float(max(side, 4.0)))
 
 
-def _layer_footprint(L: dict[str, Any], job: JobJSON) -> Any:
+def _layer_footprint(L: Layer, job: CellJob) -> Any:
     """One layer's planned deposit: the union of its passes' centre lines widened by their width
     (None: the layer has no pass with a point)."""
     # lazy: shapely loads only when this path runs (start-up time)
@@ -112,9 +112,9 @@ def _layer_footprint(L: dict[str, Any], job: JobJSON) -> Any:
     from shapely.ops import unary_union
 
     shapes = []
-    for p in L.get("passes", []):
-        pts = [(float(q[0]), float(q[1])) for q in p.get("points", [])]
-        w = float(p.get("width_mm") or job["bead"]["width_mm"])
+    for p in L.passes:
+        pts = [(float(q[0]), float(q[1])) for q in p.points.tolist()]
+        w = p.width_mm or job.job.bead.width_mm
         if len(pts) >= 2:
             shapes.append(LineString(pts).buffer(w / 2, cap_style="flat" if pts[0] != pts[-1] else "round"))
         elif pts:
@@ -177,7 +177,7 @@ def _spread_pick(cand: list[tuple[float, float, float, str]], xy: np.ndarray,
     return list(dict.fromkeys(pick))
 
 
-def verify_targets(job: JobJSON, n_inside: int = 12, n_edge: int = 8) -> tuple[np.ndarray, np.ndarray, list[str]]:
+def verify_targets(job: CellJob, n_inside: int = 12, n_edge: int = 8) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Where to touch after the deposit, CAD frame: points on the deposit's exposed top, never on stock.
 
     The deposit is the union of the planned bead footprints (each pass's centre line widened by
@@ -186,13 +186,13 @@ def verify_targets(job: JobJSON, n_inside: int = 12, n_edge: int = 8) -> tuple[n
     farthest-point sampling, and along its edges (half a bead in from the boundary, on the
     boundary's longest stretches). Returns (n, 2) xy, (n,) planned top z under each, and kinds.
     """
-    layers = sorted(job["layers"], key=lambda L: float(L["z_mm"]))
+    layers = sorted(job.layers, key=lambda L: L.z_mm)
     foot = [_layer_footprint(L, job) for L in layers]
-    w = float(job["bead"]["width_mm"])
+    w = job.job.bead.width_mm
     inset = 0.5 * w + 0.25
     cand: list[tuple[float, float, float, str]] = []
     for i, L in enumerate(layers):
-        cand += _layer_candidates(foot, i, float(L["z_mm"]), inset)
+        cand += _layer_candidates(foot, i, L.z_mm, inset)
     if not cand:
         raise InputError("repair verify: the planned deposit leaves no top a probe can touch (narrower than a bead)")
     xy = np.array([(c[0], c[1]) for c in cand])
@@ -200,16 +200,17 @@ def verify_targets(job: JobJSON, n_inside: int = 12, n_edge: int = 8) -> tuple[n
     return xy[pick], np.array([cand[i][2] for i in pick]), [str(cand[i][3]) for i in pick]
 
 
-async def verify(link: Any, cell: Any, job: JobJSON, transform: np.ndarray, grid: int = 4,
+async def verify(link: Any, cell: Any, job: CellJob, transform: np.ndarray, grid: int = 4,
                  tolerance_mm: float = 0.1) -> VerifyResult:
     """Probe the deposit's exposed top (inside and along its edges, `verify_targets`); positions
     read back into the CAD frame and compared with the planned top under each touch."""
 
-    rep = job["repair"]
-    rb = np.asarray(rep["bounds_mm"], dtype=float)
+    if job.repair is None or job.repair.bounds_mm is None:
+        raise InputError("job: not a repair job (no repair.bounds_mm); plan it with `cell repair plan`")
+    rb = job.repair.bounds_mm
     n_inside = grid * grid * 5 // 8
     xy, ztop, kinds = verify_targets(job, n_inside=n_inside, n_edge=grid * grid - n_inside)
-    top = max(float(L["z_mm"]) for L in job["layers"])
+    top = max(L.z_mm for L in job.layers)
     clear = float(cell.probe.clearance_mm)
     tf = np.asarray(transform, dtype=float)
     down = tf[:3, :3] @ np.array([0.0, 0.0, -1.0])
@@ -226,7 +227,7 @@ async def verify(link: Any, cell: Any, job: JobJSON, transform: np.ndarray, grid
     return VerifyResult(pts, top, nominal, tolerance_mm, planned_z=ztop, kinds=tuple(kinds))
 
 
-async def repair_run(job: JobJSON, cell: Any, *, job_path: Path | None = None, runs_dir: str | Path = "runs",
+async def repair_run(job: CellJob, cell: Any, *, job_path: Path | None = None, runs_dir: str | Path = "runs",
                      reply_timeout_ms: float | None = None, apply_alignment: bool = True,
                      tolerance_mm: float = 0.1) -> dict[str, Any]:
     """The whole chain on the CNC cell of `cell` (its device URLs: hardware, `cell sim up` or the
@@ -234,7 +235,7 @@ async def repair_run(job: JobJSON, cell: Any, *, job_path: Path | None = None, r
 
     if cell.cell.platform != "cnc":
         cell = cell.model_copy(update={"cell": cell.cell.model_copy(update={"platform": "cnc"})})
-    if job.get("alignment"):
+    if job.alignment is not None:
         raise InputError("the repair job already carries an alignment; give the job `cell repair plan` wrote")
     cad = load_cad(job, job_path)
     plan = probe_plan(cad, job)

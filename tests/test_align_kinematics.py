@@ -8,6 +8,7 @@ import trimesh
 from controller.motion.kinematics import (Trunnion, apply_to_job, apply_to_mesh, apply_transform, paper_matrices,
                                          paper_transform, rotation_about_pivot, rotation_matrix, unit)
 from controller.align.leveling import face_angle, leveling_angles
+from controller.job.read import job_from_dict
 from core.errors import InputError
 
 TABLE1_PRE = np.array([[0, 0, 0], [0, 1, 0], [1, 1, 0], [1, 0, 0]], dtype=float)
@@ -121,15 +122,24 @@ def test_face_angle_eq1_and_cad_rotation():
 
 
 def test_apply_to_job_moves_points_and_rotates_normals():
-    job = {"schema": "cell-job/1", "layers": [{"index": 0, "z_mm": 1.0, "passes": [
-        {"role": "perimeter", "points": [[0, 0, 0], [1, 0, 0]], "normals": [[1, 0, 0], [0, 1, 0]]}]}]}
+    src = {"schema": "cell-job/1", "source": {"file": "t.stl", "sha256": "0" * 64, "units": "mm"}, "material": {},
+           "bead": {"width_mm": 5, "height_mm": 1, "step_over_mm": 3.7, "model": "tangent"},
+           "layers": [{"index": 0, "z_mm": 1.0, "height_mm": 1.0, "passes": [
+               {"role": "perimeter", "width_mm": 5, "current_a": 120, "speed_mm_min": 600, "wfs_m_min": 5.5,
+                "points": [[0, 0, 0], [1, 0, 0]], "normals": [[1, 0, 0], [0, 1, 0]]}]}]}
+    job = job_from_dict(src)
     m = rotation_about_pivot([("z", 90)], (0, 0, 0))
     m[:3, 3] = [10, 0, 0]
     out = apply_to_job(job, m)
-    ps = out["layers"][0]["passes"][0]
-    assert np.allclose(ps["points"], [[10, 0, 0], [10, 1, 0]])
-    assert np.allclose(ps["normals"], [[0, 1, 0], [-1, 0, 0]])  # rotated, not translated
-    assert job["layers"][0]["passes"][0]["points"][1] == [1, 0, 0]  # the input is untouched
+    ps = out.layers[0].passes[0]
+    assert np.allclose(ps.points, [[10, 0, 0], [10, 1, 0]])
+    assert ps.normals is not None and np.allclose(ps.normals, [[0, 1, 0], [-1, 0, 0]])  # rotated, not translated
+    assert out.alignment is not None and np.allclose(out.alignment.transform, m)
+    assert job.layers[0].passes[0].points[1].tolist() == [1, 0, 0] and job.alignment is None  # the input is untouched
+    assert src["layers"][0]["passes"][0]["points"][1] == [1, 0, 0] and "alignment" not in src
+    assert out.hash != job.hash   # a new job: its own run directory and journal
+    with pytest.raises(InputError, match="already carries an alignment"):
+        apply_to_job(out, m)
 
 
 def test_apply_to_mesh_returns_moved_copy():

@@ -6,6 +6,7 @@ from pathlib import Path
 from bench._coverage import coverage, read_segments
 from controller.api import CellController
 from controller.harness.sim import SimHarness, with_urls
+from controller.job.read import job_from_dict
 from core.config import load_cell, load_sim
 from tests.test_build_robot import SIM_REPLY_TIMEOUT_MS, planned, small_job
 
@@ -22,7 +23,7 @@ async def test_cnc_build_deposits_every_planned_segment_once(tmp_path: Path) -> 
             p["points"] = [[x, y, z + 20.0] for x, y, z in p["points"]]
     try:
         await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
-        ctl.open_job(job)
+        ctl.open_job(job_from_dict(job))
         res = await ctl.start()
         progress = ctl.journal.query("SELECT count(*) FROM progress")[0][0]
     finally:

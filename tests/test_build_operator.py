@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from bench._coverage import coverage, read_segments
+from controller.job.read import job_from_dict
 from controller.runtime.machine import TransitionRefused
 from tests.test_build_robot import Cell, planned, small_job
 
@@ -15,7 +16,7 @@ from tests.test_build_robot import Cell, planned, small_job
 async def test_pause_waits_for_the_end_of_the_bead_then_resume_and_abort(tmp_path: Path) -> None:
     job = small_job(n_layers=3)
     async with Cell(tmp_path, scale=10) as c:
-        c.ctl.open_job(job)
+        c.ctl.open_job(job_from_dict(job))
         snaps: list = []
         c.ctl.subscribe(snaps.append)
         assert c.ctl.allowed_commands() == ["open_job", "run_alignment", "start", "estop"]
@@ -46,7 +47,7 @@ async def test_pause_waits_for_the_end_of_the_bead_then_resume_and_abort(tmp_pat
 async def test_estop_latches_until_the_input_is_released_and_reset(tmp_path: Path) -> None:
     job = small_job(n_layers=2)
     async with Cell(tmp_path, scale=5) as c:
-        c.ctl.open_job(job)
+        c.ctl.open_job(job_from_dict(job))
         build = asyncio.ensure_future(c.ctl.start())
         await c.wait_for(lambda s: s.state == "running_depositing" and s.pass_ == 1)
         io = c.harness.sim("cellio")
@@ -67,7 +68,7 @@ async def test_estop_latches_until_the_input_is_released_and_reset(tmp_path: Pat
 
 async def test_a_lost_robot_link_latches_a_fault(tmp_path: Path) -> None:
     async with Cell(tmp_path, scale=5) as c:
-        c.ctl.open_job(small_job(n_layers=2))
+        c.ctl.open_job(job_from_dict(small_job(n_layers=2)))
         build = asyncio.ensure_future(c.ctl.start())
         await c.wait_for(lambda s: s.state == "running_depositing")
         c.harness.call(c.harness.sim("robot").server.unplug, 1.0)

@@ -6,13 +6,14 @@ import json
 from pathlib import Path
 
 from controller.cli.main import main
+from controller.job.read import job_from_dict
 from tests.test_build_robot import Cell, small_job
 
 
 async def test_every_build_leaves_a_record_with_one_csv_row_per_bead(tmp_path: Path, capsys) -> None:
     job = small_job(n_layers=2)
     async with Cell(tmp_path, scale=20) as c:
-        run_dir = c.ctl.open_job(job)
+        run_dir = c.ctl.open_job(job_from_dict(job))
         res = await c.ctl.start()  # no explicit write_report: the API writes it at the end of the build
     assert res.state == "complete"
     rep = json.loads((run_dir / "report.json").read_text())

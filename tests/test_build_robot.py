@@ -11,6 +11,7 @@ import pytest
 from bench._coverage import coverage, exec_log_duplicates, read_segments
 from controller.api import CellController
 from controller.harness.sim import SimHarness, with_urls
+from controller.job.read import job_from_dict
 from core.config import load_cell, load_sim
 from controller.runtime.machine import State
 
@@ -74,7 +75,7 @@ class Cell:
 async def test_a_build_deposits_every_planned_segment_exactly_once(tmp_path: Path) -> None:
     job = small_job()
     async with Cell(tmp_path, scale=20) as c:
-        run_dir = c.ctl.open_job(job)
+        run_dir = c.ctl.open_job(job_from_dict(job))
         res = await c.ctl.start()
         report = c.ctl.write_report()
         # the journal's write-ahead tickets are the ones the robot executed, point for point
@@ -100,7 +101,7 @@ async def test_a_build_deposits_every_planned_segment_exactly_once(tmp_path: Pat
 async def test_door_open_during_a_bead_holds_drops_start_and_resumes_without_gaps(tmp_path: Path) -> None:
     job = small_job(n_layers=2)
     async with Cell(tmp_path, scale=5) as c:
-        c.ctl.open_job(job)
+        c.ctl.open_job(job_from_dict(job))
         weld_start: list[tuple[float, int, bool]] = []
         c.ctl.devices.power.subscribe(lambda st: weld_start.append((st.t, st.cycle, st.command.weld_start)))
         build = asyncio.ensure_future(c.ctl.start())
@@ -143,7 +144,7 @@ async def test_door_open_during_a_bead_holds_drops_start_and_resumes_without_gap
 async def test_arc_loss_in_layer_3_latches_a_fault_and_the_build_completes_after_reset(tmp_path: Path) -> None:
     job = shorten(small_job(n_layers=4), range(0, 2))
     async with Cell(tmp_path, scale=4) as c:
-        c.ctl.open_job(job)
+        c.ctl.open_job(job_from_dict(job))
         build = asyncio.ensure_future(c.ctl.start())
         await c.wait_for(lambda s: s.layer == 2 and s.pass_ == 1 and s.state == "running_depositing", 60)
         await asyncio.sleep(0.1)

@@ -7,11 +7,14 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from pydantic import ValidationError
 
 from bench.closed_loop import build, wall_job
 from controller.align.layer_probe import probe_spots
+from controller.job.model import CellJob
+from controller.job.read import job_from_dict
 from controller.journal.store import Journal
 from controller.runtime.build import WorkItem
 from controller.runtime.layer_control import LayerControl
@@ -29,15 +32,25 @@ from sims.power_sim import PowerSourceSim, serve_modbus_tcp
 from sims.process_world import ProcessPhysics
 from sims.thread import SimThread
 from sims.world import World
+from planner.job import Layer, Pass
 
 MAT = load_material("inconel718-1.0mm")
 
 
-def _layers(n: int = 4, h: float = 0.77) -> list[dict]:
-    return [{"index": i, "z_mm": h * (i + 1), "height_mm": h, "passes": [
-        {"points": [[0.0, 0.0, h * (i + 1)], [30.0, 0.0, h * (i + 1)]] if i % 2 == 0 else
+def _job(n: int = 4, h: float = 0.77) -> CellJob:
+    """A single-bead wall of `n` layers, alternating direction."""
+    layers = [{"index": i, "z_mm": h * (i + 1), "height_mm": h, "passes": [
+        {"role": "perimeter", "width_mm": 7.0,
+         "points": [[0.0, 0.0, h * (i + 1)], [30.0, 0.0, h * (i + 1)]] if i % 2 == 0 else
          [[30.0, 0.0, h * (i + 1)], [0.0, 0.0, h * (i + 1)]],
          "speed_mm_min": 1500.0, "wfs_m_min": 6.9, "current_a": 151.0}]} for i in range(n)]
+    return job_from_dict({"schema": "cell-job/1", "source": {"file": "wall.stl", "sha256": "0" * 64, "units": "mm"},
+                          "material": {"name": MAT.name}, "layers": layers,
+                          "bead": {"width_mm": 7.0, "height_mm": h, "step_over_mm": 5.0, "model": "tangent"}})
+
+
+def _layers(n: int = 4, h: float = 0.77) -> list[Layer]:
+    return list(_job(n, h).layers)
 
 
 # -- the estimator ---------------------------------------------------------------------------------
@@ -94,19 +107,20 @@ def test_the_estimate_inverts_the_melting_relation_exactly_without_noise():
 def test_shift_and_trim_copy_the_layer_and_leave_the_job_alone():
     layers = _layers()
     s = shift_layer(layers[1], -0.4)
-    assert s["z_mm"] == pytest.approx(1.14) and all(p[2] == pytest.approx(1.14) for p in s["passes"][0]["points"])
-    assert layers[1]["z_mm"] == pytest.approx(1.54) and layers[1]["passes"][0]["points"][0][2] == pytest.approx(1.54)
+    assert s.z_mm == pytest.approx(1.14) and all(p[2] == pytest.approx(1.14) for p in s.passes[0].points)
+    assert layers[1].z_mm == pytest.approx(1.54) and layers[1].passes[0].points[0][2] == pytest.approx(1.54)
     t = trim_layer(layers[1], 0.8)
-    assert t["passes"][0]["speed_mm_min"] == pytest.approx(1200.0) and layers[1]["passes"][0]["speed_mm_min"] == 1500.0
+    assert t.passes[0].speed_mm_min == pytest.approx(1200.0) and layers[1].passes[0].speed_mm_min == 1500.0
 
 
 def test_extra_layers_continue_the_wall_one_layer_up_alternating():
     layers = _layers(4)
     e4, e5 = extra_layer(layers, 4), extra_layer(layers, 5)
     assert layer_z(e4) == pytest.approx(0.77 * 5) and layer_z(e5) == pytest.approx(0.77 * 6)
-    assert e4["passes"][0]["points"][0][0] == layers[2]["passes"][0]["points"][0][0]   # same direction as layer 2
-    assert e5["passes"][0]["points"][0][0] == layers[3]["passes"][0]["points"][0][0]
-    assert e4["added"] and len(build_layers(layers, 6)) == 6 and len(build_layers(layers, 3)) == 3
+    assert e4.passes[0].points[0][0] == layers[2].passes[0].points[0][0]   # same direction as layer 2
+    assert e5.passes[0].points[0][0] == layers[3].passes[0].points[0][0]
+    assert e4.index == 4 and e4.extra["added"] and not layers[2].extra.get("added")
+    assert len(build_layers(layers, 6)) == 6 and len(build_layers(layers, 3)) == 3
 
 
 def test_decide_trims_inside_the_envelope_then_adds_or_drops_a_layer():
@@ -139,7 +153,8 @@ def test_fit_gain_is_the_slope_of_top_against_model_rise():
 
 
 def test_probe_spots_lie_on_the_middle_of_the_beads():
-    spots = probe_spots([{"points": [[0, 0, 1], [40, 0, 1]]}, {"points": [[0, 5, 1], [40, 5, 1]]}], 4)
+    spots = probe_spots([Pass("perimeter", 5.0, 120.0, 600.0, 5.5, np.array([[0.0, 0, 1], [40, 0, 1]])),
+                         Pass("perimeter", 5.0, 120.0, 600.0, 5.5, np.array([[0.0, 5, 1], [40, 5, 1]]))], 4)
     assert len(spots) == 4
     assert all(8.0 <= x <= 32.0 and z == 1.0 for x, _y, z in spots)
     assert {y for _x, y, _z in spots} == {0.0, 5.0}
@@ -162,7 +177,7 @@ def test_process_control_config_is_validated():
 
 
 async def test_a_resume_reapplies_the_journaled_corrections(tmp_path: Path):
-    job = {"layers": _layers(6)}
+    job = _job(6)
     rel = relation_for(MAT)
     cfg = ProcessControl(mode="layer")
     j = Journal(tmp_path / "journal.sqlite")
@@ -170,20 +185,20 @@ async def test_a_resume_reapplies_the_journaled_corrections(tmp_path: Path):
     lc = LayerControl(job=job, cfg=cfg, material=MAT, platform="robot", journal=j)
     work = [WorkItem(i, 0) for i in range(6)]
     for la in range(3):   # each layer 0.15 mm low: the stick-out the current says is longer
-        z = lc.pass_for(la, 0)["points"][0][2]
+        z = lc.pass_for(la, 0).points[0][2]
         truth = 15.0 + z - (0.62 * (la + 1))
         lc.bead_closed(la, 0, [current_at(rel, MAT.ribeiro, 6.9, truth)] * 10, 6.9)
         assert await lc.after_pass(work[la], work, la) is None
-    applied = {la: lc.pass_for(la, 0)["points"][0][2] for la in range(4)}
-    speeds = {la: lc.pass_for(la, 0)["speed_mm_min"] for la in range(4)}
+    applied = {la: lc.pass_for(la, 0).points[0][2] for la in range(4)}
+    speeds = {la: lc.pass_for(la, 0).speed_mm_min for la in range(4)}
     assert applied[3] < 0.77 * 4 - 0.3              # the next layer follows the low part down
     j.close()
     j2 = Journal(tmp_path / "journal.sqlite")
     lc2 = LayerControl(job=job, cfg=cfg, material=MAT, platform="robot", journal=j2)
     lc2.restore()
     for la in range(4):
-        assert lc2.pass_for(la, 0)["points"][0][2] == pytest.approx(applied[la], abs=1e-4)
-        assert lc2.pass_for(la, 0)["speed_mm_min"] == pytest.approx(speeds[la], rel=1e-4)
+        assert lc2.pass_for(la, 0).points[0][2] == pytest.approx(applied[la], abs=1e-4)
+        assert lc2.pass_for(la, 0).speed_mm_min == pytest.approx(speeds[la], rel=1e-4)
     rows = [json.loads(m) for (m,) in j2.query("SELECT message FROM events WHERE kind = 'layer' ORDER BY id")]
     assert [r["layer"] for r in rows] == [0, 1, 2] and rows[-1]["measured_top_mm"] == pytest.approx(0.62 * 3, abs=1e-3)
     assert lc2.adjust_work([WorkItem(3, 0)], set())[0] == WorkItem(3, 0)
@@ -193,7 +208,7 @@ async def test_a_resume_reapplies_the_journaled_corrections(tmp_path: Path):
 # -- short builds against the simulators ------------------------------------------------------------
 
 
-def _build(job: dict, tmp: Path, **kw: Any) -> Any:
+def _build(job: CellJob, tmp: Path, **kw: Any) -> Any:
     """A build; once more when a loaded host (2 cores shared) let a link's watchdog trip (not the subject here)."""
     o = asyncio.run(build(job, tmp=tmp / "a", **kw))
     if o.state == "fault" and any("watchdog" in a or "link" in a for a in o.alarms):
@@ -261,7 +276,7 @@ def test_a_build_aborted_mid_layer_resumes_at_the_journaled_z(tmp_path: Path):
             await ctl.connect(reply_timeout_ms=500.0)
             ctl.open_job(job)
             task = asyncio.ensure_future(ctl.start())
-            n_first = len(job["layers"][0]["passes"]) + len(job["layers"][1]["passes"]) + 1
+            n_first = len(job.layers[0].passes) + len(job.layers[1].passes) + 1
             while not task.done():
                 await asyncio.sleep(0.005)
                 if ctl.snapshot().passes_done >= n_first - 1 and ctl.snapshot().layer == 2:
@@ -269,7 +284,7 @@ def test_a_build_aborted_mid_layer_resumes_at_the_journaled_z(tmp_path: Path):
                     break
             res = await task
             assert ctl.runner is not None
-            return res.state, {la: ctl.runner.layers[la]["passes"][0]["points"][0][2] for la in range(3)}
+            return res.state, {la: float(ctl.runner.layers[la].passes[0].points[0][2]) for la in range(3)}
         finally:
             await ctl.close()
 
@@ -280,7 +295,7 @@ def test_a_build_aborted_mid_layer_resumes_at_the_journaled_z(tmp_path: Path):
             ctl.open_job(job)
             res = await ctl.start()
             assert ctl.runner is not None
-            return res.state, {la: ctl.runner.layers[la]["passes"][0]["points"][0][2] for la in range(3)}
+            return res.state, {la: float(ctl.runner.layers[la].passes[0].points[0][2]) for la in range(3)}
         finally:
             await ctl.close()
 

@@ -16,6 +16,7 @@ import pytest
 
 from controller.motion.kinematics import homogeneous, rotation_matrix
 from controller.export import export_job
+from controller.job.read import job_from_dict
 from controller.export.gcode import parse_gcode
 from controller.export.krl import parse_krl
 from controller.export.rapid import parse_rapid
@@ -55,7 +56,7 @@ def _planned(job: dict):
 
 
 def _export(job: dict, fmt: str, tmp_path: Path):
-    res = export_job(job, fmt, name="t_job", out=tmp_path / f"t_job.{fmt}", clearance_mm=10.0,
+    res = export_job(job_from_dict(job), fmt, name="t_job", out=tmp_path / f"t_job.{fmt}", clearance_mm=10.0,
                      travel_mm_min=3000.0)
     return res, list(res.files.values())
 
@@ -233,7 +234,7 @@ def test_five_axis_gcode_round_trips_through_the_tables_kinematics(tmp_path):
 
     table = Trunnion()
     job = _job(axes=True)
-    res = export_job(job, "gcode", name="t5", out=tmp_path / "t5.nc", clearance_mm=10.0, travel_mm_min=3000.0,
+    res = export_job(job_from_dict(job), "gcode", name="t5", out=tmp_path / "t5.nc", clearance_mm=10.0, travel_mm_min=3000.0,
                      trunnion=table)
     lines = list(res.files.values())[0]
     assert "G93" in lines and "G94" in lines and all(len(ln) <= 80 for ln in lines)
@@ -260,7 +261,7 @@ async def test_exported_gcode_runs_on_real_firmware_every_line_ok(tmp_path, kind
         await asyncio.to_thread(firmware.build, kind)
     except firmware.PeerUnavailable as e:
         pytest.skip(str(e))
-    res = export_job(_tiny_job(axes), "gcode", name="fw", out=tmp_path / "fw.nc", clearance_mm=2.0,
+    res = export_job(job_from_dict(_tiny_job(axes)), "gcode", name="fw", out=tmp_path / "fw.nc", clearance_mm=2.0,
                      travel_mm_min=3000.0, trunnion=Trunnion())
     lines = list(res.files.values())[0]
     code = [ln for ln in lines if not ln.startswith("(")]

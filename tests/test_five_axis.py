@@ -9,6 +9,7 @@ import pytest
 
 from bench.five_axis import build, figures, plan5
 from controller.cli.main import main
+from controller.job.read import job_from_dict
 from planner.five_axis import FiveAxisOptions, Nozzle, collisions, overhangs, tool_axes
 from planner.job import BeadInfo, Job, Layer, Pass, Source, load_job
 from bench.parts5 import cone_frustum, tilted_tube
@@ -155,7 +156,7 @@ async def test_robot_movl_carries_the_planned_tool_axis(tmp_path: Path):
         n = len(p["points"])
         p["axes"] = [[np.sin(tilt) * np.cos(k), np.sin(tilt) * np.sin(k), np.cos(tilt)] for k in range(n)]
     async with Cell(tmp_path, scale=20) as c:
-        c.ctl.open_job(job)
+        c.ctl.open_job(job_from_dict(job))
         res = await c.ctl.start()
     assert res.state == "complete"
     rows = [json.loads(s) for s in (tmp_path / "log" / "robot.jsonl").read_text().splitlines()]

@@ -1,6 +1,7 @@
 """The job checked against the cell before any device is touched (issue 14, DESIGN.md §6)."""
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -8,6 +9,9 @@ import pytest
 
 from controller.cli.main import main
 from controller.job.check import JobCheckError, check_job, violations
+from controller.job.model import CellJob
+from controller.job.read import job_from_dict, read_job
+from core.errors import InputError
 from core.config import load_cell, load_material
 from tests.test_build_robot import small_job
 
@@ -29,8 +33,16 @@ def _edit(**kw) -> dict:
     return job
 
 
+def _with_speed(job: CellJob, layer: int, pass_: int, speed: float) -> CellJob:
+    """The typed job with one pass's speed set past what a job file may say (a reader would refuse it)."""
+    la = job.layers[layer]
+    passes = tuple(dataclasses.replace(p, speed_mm_min=speed) if k == pass_ else p for k, p in enumerate(la.passes))
+    layers = tuple(dataclasses.replace(la, passes=passes) if k == layer else x for k, x in enumerate(job.layers))
+    return dataclasses.replace(job, job=dataclasses.replace(job.job, layers=layers))
+
+
 def test_the_planned_job_fits_the_cell() -> None:
-    assert violations(small_job(3), CFG, MAT) == []
+    assert violations(job_from_dict(small_job(3)), CFG, MAT) == []
 
 
 @pytest.mark.parametrize("edit, needle", [
@@ -45,22 +57,27 @@ def test_the_planned_job_fits_the_cell() -> None:
     ({"interpass": {"max_temperature_c": -1, "dwell_s": 0}}, "interpass max_temperature_c -1 °C is outside (20, 400]"),
 ])
 def test_each_violation_is_named(edit: dict, needle: str | None) -> None:
-    found = violations(_edit(**edit), CFG, MAT)
+    found = violations(job_from_dict(_edit(**edit)), CFG, MAT)
     if needle is None:
         return
     assert found and found[0].layer == 1 and needle in f"{found[0].where()}: {found[0].what}"
 
 
-def test_a_standing_torch_is_refused() -> None:
-    job = _edit(speed_mm_min=0.0)
+def test_a_standing_torch_is_refused(tmp_path: Path) -> None:
+    # a job file that says so is refused when it is read, naming the file and the field
+    jp = tmp_path / "j.json"
+    jp.write_text(json.dumps(_edit(speed_mm_min=0.0)))
+    with pytest.raises(InputError, match=r"j\.json: layers\[1\]\.passes\[0\]\.speed_mm_min must be > 0, got 0\.0"):
+        read_job(jp)
+    # and the check against the cell refuses it too (a typed job built in memory)
     with pytest.raises(JobCheckError, match=r"layer 1, pass 0: speed_mm_min 0 is outside \(0, 6000\]"):
-        check_job(job, CFG, MAT, "j.json")
+        check_job(_with_speed(job_from_dict(small_job(2)), 1, 0, 0.0), CFG, MAT, "j.json")
 
 
 def test_the_alignment_transform_moves_points_out_of_the_workspace() -> None:
     job = small_job(2)
     job["alignment"] = {"transform": [[1, 0, 0, 495], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}
-    found = violations(job, CFG, MAT)
+    found = violations(job_from_dict(job), CFG, MAT)
     assert found and "outside the workspace" in found[0].what
 
 
@@ -70,18 +87,18 @@ def test_the_error_names_the_first_violation_and_counts_them() -> None:
         for p in la["passes"]:
             p["current_a"] = 1000
     with pytest.raises(JobCheckError) as ei:
-        check_job(job, CFG, MAT, "hand-edited.json")
+        check_job(job_from_dict(job), CFG, MAT, "hand-edited.json")
     msg = str(ei.value)
     assert msg.startswith("hand-edited.json: job refused before any motion: layer 0, pass 0: current_a 1000 A")
     assert "(6 violations in all" in msg
 
 
 def test_outside_envelope_passes_run_only_where_the_cell_allows_them() -> None:
-    job = _edit(current_a=200, inside_envelope=False)
+    job = job_from_dict(_edit(current_a=200, inside_envelope=False))
     assert violations(job, CFG, MAT)  # cell.yaml does not allow it
     allowed = CFG.model_copy(update={"limits": CFG.limits.model_copy(update={"allow_outside_envelope": True})})
     assert violations(job, allowed, MAT) == []
-    job = _edit(current_a=1e9, inside_envelope=False)
+    job = job_from_dict(_edit(current_a=1e9, inside_envelope=False))
     assert "power source's range" in violations(job, allowed, MAT)[0].what
 
 
@@ -109,12 +126,12 @@ def test_cell_run_refuses_before_any_device_and_the_simulators_log_nothing(tmp_p
 
 
 def test_too_many_points_are_refused(tmp_path: Path) -> None:
-    from controller.job import check as jobcheck
+    from controller.job import read
 
     job = small_job(1)
-    job["layers"][0]["passes"][0]["points"] = [[1.0, 1.0, 1.0]] * (jobcheck.MAX_POINTS_PER_PASS + 1)
-    with pytest.raises(Exception, match="over the limit"):
-        violations(job, CFG, MAT)
+    job["layers"][0]["passes"][0]["points"] = [[1.0, 1.0, 1.0]] * (read.MAX_POINTS_PER_PASS + 1)
+    with pytest.raises(InputError, match=r"big\.json: layers\[0\]\.passes\[0\] has 1000001 points, over the limit"):
+        job_from_dict(job, "big.json")
 
 
 def test_max_step_has_a_floor(tmp_path: Path, capsys) -> None:

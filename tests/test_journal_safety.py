@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from controller.job.identity import canonical_json, job_hash, run_dir_for
+from controller.job.read import job_from_dict
 from controller.cli.main import main
 from controller.journal.store import Journal
 from tests.test_build_robot import small_job
@@ -125,19 +126,20 @@ def test_run_of_a_complete_job_says_so_and_new_builds_it_again(tmp_path: Path, c
     runs = tmp_path / "runs"
     jf = tmp_path / "square.json"
     jf.write_text(json.dumps(job))
-    _journal(run_dir_for(job, runs), job, done=2, rows=10)
-    before = _digest(run_dir_for(job, runs))
+    run_dir = run_dir_for(job_from_dict(job), runs)
+    _journal(run_dir, job, done=2, rows=10)
+    before = _digest(run_dir)
     assert main(["run", str(jf), "--sim", "--runs", str(runs), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["already_complete"] is True and out["arc_starts"] == 0 and "already complete" in out["message"]
-    assert _digest(run_dir_for(job, runs)) == before
+    assert _digest(run_dir) == before
     log = tmp_path / "simlog"
     assert main(["run", str(jf), "--sim", "--new", "--runs", str(runs), "--sim-log", str(log), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["state"] == "complete" and out["arc_starts"] >= 2
-    assert out["run_dir"] == str(run_dir_for(job, runs)) + "-2"
+    assert out["run_dir"] == str(run_dir) + "-2"
     assert (log / "deposit.jsonl").stat().st_size > 0
-    assert _digest(run_dir_for(job, runs)) == before  # the first build's journal is untouched
+    assert _digest(run_dir) == before  # the first build's journal is untouched
 
 
 @pytest.mark.parametrize("flag", ["--runs", "--sim-log"])

@@ -152,12 +152,18 @@ def test_linearised_moves_keep_the_tool_tip_within_the_chord_tolerance(table: st
 def test_a_resumed_weld_starts_mid_move_and_maps_progress_to_planned_points() -> None:
     import asyncio
 
+    from controller.job.read import job_from_dict
     from controller.motion.cnc5 import Five
 
     tr = Trunnion(**TABLES["AC"], a_limits_deg=(-120, 120), second_limits_deg=(-360, 360),
                   chord_tolerance_mm=0.02)
     pts, axes = _bowing_pass("AC")
-    job = {"layers": [{"passes": [{"points": pts.tolist(), "axes": axes.tolist(), "speed_mm_min": 600.0}]}]}
+    job = job_from_dict({
+        "schema": "cell-job/1", "source": {"file": "bow.stl", "sha256": "0" * 64, "units": "mm"}, "material": {},
+        "bead": {"width_mm": 3.0, "height_mm": 1.0, "step_over_mm": 2.2, "model": "tangent"},
+        "layers": [{"index": 0, "z_mm": float(pts[0][2]), "height_mm": 1.0, "passes": [
+            {"role": "perimeter", "width_mm": 3.0, "current_a": 120.0, "speed_mm_min": 600.0, "wfs_m_min": 5.5,
+             "points": pts.tolist(), "axes": axes.tolist()}]}]})
     five = Five(tr)
     asyncio.run(five.post_job(job, 2.0))
     five.use(0, 0)

@@ -15,6 +15,7 @@ import pytest
 from asyncua import Client, ua
 
 from controller.api import CellController
+from controller.job.read import job_from_dict
 from core.config import OpcUaSettings, load_cell, load_sim
 from controller.opcua.endpoint import Identification
 from controller.opcua.server import FactoryServer
@@ -96,7 +97,7 @@ async def test_a_client_follows_a_build_and_gets_the_door_alarm_as_an_event(tmp_
         names = {(await m.read_browse_name()).Name for m in await c.machine.get_methods()}
         assert names == set()
         job = small_job(n_layers=3)
-        c.ctl.open_job(job)
+        c.ctl.open_job(job_from_dict(job))
         res = await asyncio.wait_for(c.ctl.start(), 60)
         assert res.state == "complete"
         await asyncio.sleep(0.3)
@@ -113,7 +114,7 @@ async def test_a_client_follows_a_build_and_gets_the_door_alarm_as_an_event(tmp_
         assert True in [v for _, v in rec.values["ArcOn"]]
 
         # a door opened during the next build: the alarm arrives as an event within 100 ms
-        c.ctl.open_job(small_job(n_layers=2, side=24.0))
+        c.ctl.open_job(job_from_dict(small_job(n_layers=2, side=24.0)))
         build = asyncio.ensure_future(c.ctl.start())
         t0 = time.monotonic()
         while c.ctl.snapshot().state != "running_depositing":
@@ -142,7 +143,7 @@ async def test_abort_method_only_with_allow_control_and_it_stops_at_the_end_of_t
         assert names == {"Pause", "Resume", "Abort"}
         abort = await c.machine.get_child([f"{c.ns}:Abort"])
         job = small_job(n_layers=3)
-        c.ctl.open_job(job)
+        c.ctl.open_job(job_from_dict(job))
         build = asyncio.ensure_future(c.ctl.start())
         t0 = time.monotonic()
         while c.ctl.snapshot().state != "running_depositing":

@@ -13,6 +13,7 @@ from pathlib import Path
 from bench._coverage import coverage, read_segments
 from controller.api import CellController
 from controller.harness.sim import SimHarness, with_urls
+from controller.job.read import job_from_dict
 from controller.runtime.progress import longest_move_s, progress_timeout_s, wall_bound_s
 from core.config import load_cell, load_sim
 from tests.test_build_robot import SIM_REPLY_TIMEOUT_MS, Cell, planned, small_job
@@ -35,9 +36,9 @@ def _arc_events(log: list[dict]) -> tuple[dict, dict | None]:
 def test_the_bound_is_the_longest_move_twice_plus_one_second() -> None:
     job = small_job(n_layers=1)
     # 20 mm sides cut into 2 mm moves at 600 mm/min: 0.2 s each
-    assert abs(longest_move_s(job, 2.0) - 0.2) < 1e-9
-    assert abs(progress_timeout_s(job, 2.0, None) - 1.4) < 1e-9
-    assert progress_timeout_s(job, 2.0, 3.0) == 3.0
+    assert abs(longest_move_s(job_from_dict(job), 2.0) - 0.2) < 1e-9
+    assert abs(progress_timeout_s(job_from_dict(job), 2.0, None) - 1.4) < 1e-9
+    assert progress_timeout_s(job_from_dict(job), 2.0, 3.0) == 3.0
     assert abs(wall_bound_s(1.4, 5.0) - 0.28) < 1e-9
     assert wall_bound_s(1.4, 120.0) == 0.25                 # the wall floor
     assert wall_bound_s(1.4, 5.0, status_period_s=0.2) == 0.5  # a 5 Hz status needs 2.5 periods
@@ -45,9 +46,9 @@ def test_the_bound_is_the_longest_move_twice_plus_one_second() -> None:
 
 async def test_a_robot_that_stops_executing_trips_within_the_bound_arc_first(tmp_path: Path) -> None:
     job = small_job(n_layers=1)
-    bound_process = progress_timeout_s(job, 2.0, None)
+    bound_process = progress_timeout_s(job_from_dict(job), 2.0, None)
     async with Cell(tmp_path, scale=SCALE, faults="freeze@move=20") as c:
-        c.ctl.open_job(job)
+        c.ctl.open_job(job_from_dict(job))
         res = await asyncio.wait_for(c.ctl.start(), 30)
         await asyncio.sleep(0.3)
         log = _power_log(c.harness)
@@ -83,10 +84,10 @@ async def test_a_cnc_that_reports_run_without_moving_trips_within_the_bound_arc_
     for la in job["layers"]:  # above the simulated substrate block (20 mm tall)
         for p in la["passes"]:
             p["points"] = [[x, y, z + 20.0] for x, y, z in p["points"]]
-    bound_process = progress_timeout_s(job, 2.0, None)
+    bound_process = progress_timeout_s(job_from_dict(job), 2.0, None)
     try:
         await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
-        ctl.open_job(job)
+        ctl.open_job(job_from_dict(job))
         res = await asyncio.wait_for(ctl.start(), 30)
         await asyncio.sleep(0.5)
         log = _power_log(harness)
@@ -112,7 +113,7 @@ async def test_a_cnc_that_reports_run_without_moving_trips_within_the_bound_arc_
 async def test_a_normal_build_never_trips_the_watchdog(tmp_path: Path) -> None:
     job = small_job(n_layers=2)
     async with Cell(tmp_path, scale=20) as c:
-        c.ctl.open_job(job)
+        c.ctl.open_job(job_from_dict(job))
         res = await c.ctl.start()
         dog = c.ctl.runner.watchdog if c.ctl.runner else None
     assert res.state == "complete", res

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 
+from controller.job.read import job_from_dict
 from controller.report.record import CSV_COLUMNS
 from controller.runtime.bead_measure import Pace
 from controller.tui.session import CellSession
@@ -66,7 +67,7 @@ def line_job(length_mm: float, beads: int = 2) -> dict:
 def _session_build(tmp: Path, job: dict, scale: float) -> tuple[CellSession, Path]:
     s = CellSession(sim=True, runs_dir=tmp / "runs", time_scale=scale, sim_log_dir=tmp / "log")
     s.start().result(60)
-    s._submit(lambda: s._open_dict(job)).result(30)
+    s._submit(lambda: s._open_job(job_from_dict(job))).result(30)
     s.command("start").result(15)
     assert s._build is not None
     s._build.result(180)                      # the build and its record
@@ -142,7 +143,7 @@ async def test_a_tui_build_leaves_its_record_complete_and_estopped(tmp_path: Pat
             # the same job again (--new's run dir), stopped by the E-stop input of the cell I/O
             session.ctl.journal.close()
             job2 = dict(job, name="square-again")
-            session._submit(lambda: session._open_dict(job2)).result(30)
+            session._submit(lambda: session._open_job(job_from_dict(job2))).result(30)
             await _until(pilot, lambda: app.view.snap.state == "ready", 15, "the second job")
             app.post_message(Key("s", None))
             await _until(pilot, lambda: app.view.snap.state == "running_depositing", 30, "an arc")
@@ -174,7 +175,7 @@ async def test_a_cnc_builds_deposited_length_is_the_deposit_logs(tmp_path: Path)
             p["points"] = [[x, y, z + 20.0] for x, y, z in p["points"]]
     try:
         await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
-        run_dir = ctl.open_job(job)
+        run_dir = ctl.open_job(job_from_dict(job))
         res = await ctl.start()
     finally:
         await ctl.close()

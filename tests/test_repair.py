@@ -12,6 +12,8 @@ import trimesh
 from controller.motion.kinematics import apply_to_job
 from controller.cli.main import main
 from controller.motion.cnc5 import Five
+from controller.job.model import CellJob
+from controller.job.read import job_from_dict
 from controller.job.repair_volume import _manifold, _trimesh
 from core.errors import InputError
 
@@ -65,16 +67,20 @@ def test_plan_frame_cad_keeps_the_cad_coordinates(tmp_path, capsys):
         assert job["frame"] == frame and lo < z.min() < lo + 1.0 and z.max() <= lo + 4.0 + 1e-6
 
 
-def _job(frame: str = "cad") -> dict:
-    return {"schema": "cell-job/1", "frame": frame, "layers": [{"index": 0, "z_mm": 1, "height_mm": 1, "passes": [
-        {"role": "perimeter", "points": [[0, 0, 1], [10, 0, 1]], "normals": [[0, -1, 0], [0, -1, 0]]}]}]}
+def _job(frame: str = "cad") -> CellJob:
+    return job_from_dict({
+        "schema": "cell-job/1", "frame": frame, "source": {"file": "t.stl", "sha256": "0" * 64, "units": "mm"},
+        "material": {}, "bead": {"width_mm": 4, "height_mm": 1, "step_over_mm": 3, "model": "tangent"},
+        "layers": [{"index": 0, "z_mm": 1, "height_mm": 1, "passes": [
+            {"role": "perimeter", "width_mm": 4, "current_a": 120, "speed_mm_min": 600, "wfs_m_min": 5.5,
+             "points": [[0, 0, 1], [10, 0, 1]], "normals": [[0, -1, 0], [0, -1, 0]]}]}]})
 
 
 def test_a_job_holds_at_most_one_alignment():
     tf = np.eye(4)
     tf[:3, 3] = (1, 2, 3)
     once = apply_to_job(_job(), tf, {"level_a_deg": 0.5, "level_b_deg": -0.3, "probed_at": time.time()})
-    assert once["layers"][0]["passes"][0]["points"][0] == [1, 2, 4]
+    assert once.layers[0].passes[0].points[0].tolist() == [1, 2, 4]
     with pytest.raises(InputError, match="second one is refused"):
         apply_to_job(once, tf)
 

@@ -47,7 +47,7 @@ async def test_the_repair_job_built_without_its_alignment_is_refused_before_moti
     ctl = CellController(cfg, runs_dir=tmp_path / "runs")
     try:
         await ctl.connect(reply_timeout_ms=500.0)
-        ctl.open_job(json.loads(job.read_text()))
+        ctl.open_job(job)
         res = await ctl.start()
         events = ctl.journal.query("SELECT message FROM events WHERE kind = 'alarm'")
     finally:
@@ -64,6 +64,7 @@ async def test_the_repair_job_built_without_its_alignment_is_refused_before_moti
 def test_verify_touches_land_on_the_planned_deposit_of_an_l_shaped_worn_region(tmp_path: Path, capsys):
     """Issue 29: the verify touches come from the planned bead footprints, not the bounding box."""
     from bench.repair import touches_on_deposit, worn_parts
+    from controller.job.read import read_job
     from controller.repair import verify_targets
 
     for shape in ("L", "slot", "edge"):
@@ -75,7 +76,7 @@ def test_verify_touches_land_on_the_planned_deposit_of_an_l_shaped_worn_region(t
         assert {"volume_mm3", "layers", "passes", "arc_starts", "coverage", "frame"} <= set(out)
         d = json.loads(job.read_text())
         assert Path(d["repair"]["cad"]).is_absolute()
-        xy, z, kinds = verify_targets(d, 10, 6)
+        xy, z, kinds = verify_targets(read_job(job), 10, 6)
         rep = {"verify": {"at": [[x, y, 0.0] for x, y in xy]}}
         assert touches_on_deposit(d, rep) == 1.0, shape
         assert "edge" in kinds and len(xy) >= 8

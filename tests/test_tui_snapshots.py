@@ -13,6 +13,7 @@ import pytest
 from controller.runtime.events import Alarm, LinkStat, Snapshot
 from controller.tui.app import CellApp
 from controller.tui.session import LogRow, PlanStatus, ReplaySession, Sample, View, job_info
+from planner.job import load_job
 
 T0 = 1_767_225_600.0   # 2026-01-01 00:00:00 UTC: every time on screen derives from it
 SIZE = (120, 36)
@@ -75,7 +76,7 @@ def recorded_view(**snap_changes: object) -> View:
         "transform": [[0.99966, -0.02618, 0.0, 1.2], [0.02618, 0.99966, 0.0, -0.4], [0.0, 0.0, 1.0, 0.1],
                       [0.0, 0.0, 0.0, 1.0]]}
     return View(snap=snap, seq=4242, history=hist, plan=PlanStatus("done", "jobs/block-slot.json"),
-                job=job_info(recorded_job(), "block-slot"), alignment=align, platform="cnc", can_probe=True,
+                job=job_info(load_job(recorded_job()), "block-slot"), alignment=align, platform="cnc", can_probe=True,
                 devices=tuple(_dev(ls) for ls in links), sim=True)
 
 

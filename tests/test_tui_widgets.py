@@ -5,6 +5,7 @@ from controller.runtime.events import Snapshot
 from controller.tui.log import matches
 from controller.tui.widgets import braille, bounds_of
 from controller.tui.session import LogRow, PlanStatus, View, job_info
+from planner.job import load_job
 
 from test_tui_snapshots import recorded_job
 
@@ -26,7 +27,7 @@ def test_the_preview_has_y_up_and_a_uniform_scale() -> None:
 
 
 def test_job_info_gives_the_process_parameters_per_role() -> None:
-    info = job_info(recorded_job(), "block-slot")
+    info = job_info(load_job(recorded_job()), "block-slot")
     assert (info.layers, info.passes) == (3, 12)
     roles = {r.role: r for r in info.roles}
     assert [r.role for r in info.roles] == ["perimeter", "infill", "gap"]
@@ -65,7 +66,7 @@ def test_apply_alignment_is_offered_once_per_job() -> None:
     from controller.runtime.events import Snapshot
 
     snap = Snapshot(state="ready", allowed_commands=("open_job", "start", "estop"))
-    base = View(snap=snap, job=job_info({"layers": [], "material": "x"}), alignment={"transform": [[1, 0, 0, 0]]})
+    base = View(snap=snap, job=job_info(load_job(recorded_job())), alignment={"transform": [[1, 0, 0, 0]]})
     assert base.allowed("apply_alignment")
     assert not _replace(base, alignment_applied=True).allowed("apply_alignment")
 

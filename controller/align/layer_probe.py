@@ -15,6 +15,7 @@ from typing import Any, Sequence
 from controller.align.probe_cycle import ProbeLog, ProbeTarget, probe_point
 from controller.ports import ProbePort
 from core.errors import CellError
+from planner.job import Pass
 
 __all__ = ["probe_spots", "probe_layer_top"]
 
@@ -39,11 +40,11 @@ def _at(segs: list[tuple[Point, Point, float]], s: float) -> Point:
     return segs[-1][1]
 
 
-def probe_spots(passes: Sequence[dict[str, Any]], n: int, middle: float = 0.6) -> list[Point]:
+def probe_spots(passes: Sequence[Pass], n: int, middle: float = 0.6) -> list[Point]:
     """`n` points on the passes' centre lines, evenly over the middle share of each pass."""
     spans = []
     for p in passes:
-        segs = _segments(p["points"])
+        segs = _segments(p.points.tolist())
         total = sum(s[2] for s in segs)
         if total > 0:
             spans.append((segs, total))

@@ -4,7 +4,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import csv
-import json
 import re
 from pathlib import Path
 
@@ -15,7 +14,7 @@ from controller.align.routine import alignment_record, cad_mesh, plan_for_mesh
 from controller.api import align_at
 from controller.cli import guard
 from controller.harness.align_sim import run_with_sim
-from controller.job.read import JobJSON, read_job
+from controller.job.read import read_job
 from core.config import load_cell, load_sim
 from core.errors import InputError
 
@@ -218,21 +217,14 @@ def _run(args: argparse.Namespace) -> int:
     return run_cli(args)
 
 
-def _read_job(path: str) -> JobJSON:
-    job = read_job(path)
-    if job.get("schema") != "cell-job/1":
-        raise InputError(f"{path}: not a cell-job/1 file (schema key missing or different)")
-    return job
-
-
 def run_cli(args: argparse.Namespace) -> int:
     """`cell align run`: probe and align on the CNC (or its simulator), print or emit JSON."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
 
     cell = load_cell(args.cell_config)
-    job = _read_job(args.job) if getattr(args, "job", None) else None
-    if job is not None and job.get("alignment"):  # refused before any probing
+    job = read_job(args.job) if getattr(args, "job", None) else None
+    if job is not None and job.alignment is not None:  # refused before any probing
         raise InputError(f"{args.job}: the job already carries an alignment; a second one is refused: "
                          "align the original (unaligned) job")
     sim_path = Path(args.sim_config) if args.sim_config else None
@@ -256,7 +248,7 @@ def run_cli(args: argparse.Namespace) -> int:
         dest = Path(args.job_out) if args.job_out else Path(args.job).with_suffix(".aligned.json")
         moved = apply_to_job(job, res.transform, alignment_record(res))
         try:
-            dest.write_text(json.dumps(moved) + "\n", encoding="utf-8")
+            dest.write_text(moved.json + "\n", encoding="utf-8")
         except OSError as exc:
             raise InputError(f"{dest}: cannot write the aligned job ({exc.strerror or exc})") from None
         out["job_out"] = str(dest)

@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 from controller.cli import guard, runargs
 from controller.cli.run import _drive, _err, _out, _print_summary, exit_code
-from controller.job.read import JobJSON
+from controller.job.model import CellJob
 from controller.defaults import DEMO_MAX_STEP_MM, DEMO_PART, DEMO_TIME_SCALE, DEMO_WIDTH_MM
 from core.config import load_cell, load_sim
 from core.errors import CellError
@@ -41,6 +41,7 @@ def _demo(args: argparse.Namespace) -> int:
     from controller.api import CellController
     from controller.runtime.build import BuildOptions
     from controller.job.identity import run_dir_for
+    from controller.job.read import job_from_dict
     from controller.runtime.devices import with_urls
     from core.config import load_material
     from planner.job import job_to_dict
@@ -59,13 +60,14 @@ def _demo(args: argparse.Namespace) -> int:
         cfg = cfg.model_copy(update={"process_control": cfg.process_control.model_copy(update={"mode": args.process_control})})
     mat = load_material(cfg.cell.material)
     say(f"planning {DEMO_PART.name}: {DEMO_WIDTH_MM} mm beads of {mat.name}, perimeters until they meet (Fang 2019)")
-    job = job_to_dict(plan_part(str(DEMO_PART), PlanOptions(width_mm=DEMO_WIDTH_MM, perimeters="all"), mat))
-    job = json.loads(json.dumps(job))
-    if args.layers:
-        job["layers"] = job["layers"][: args.layers]
+    plan = plan_part(str(DEMO_PART), PlanOptions(width_mm=DEMO_WIDTH_MM, perimeters="all"), mat)
+    planned = json.loads(json.dumps(job_to_dict(plan)))   # the job file's object, as `cell plan` writes it
+    if args.layers:   # the job file's own layers cut (its hash is of what is built)
+        planned["layers"] = planned["layers"][: args.layers]
+    job = job_from_dict(planned, f"demo job ({DEMO_PART.name})")
     runargs.check_job_for_cell(job, cfg, f"demo job ({DEMO_PART.name})")
-    s = job["summary"]
-    say(f"  {len(job['layers'])} layers, {sum(len(la['passes']) for la in job['layers'])} beads, "
+    s = job.job.summary
+    say(f"  {len(job.layers)} layers, {job.passes_total} beads, "
         f"{s.get('deposit_length_mm', 0) / 1000:.1f} m of bead, {s.get('arc_time_s', 0) / 60:.1f} min of arc, "
         f"about {s.get('est_time_s', 0) / 60:.0f} min with travel and interpass waits")
     runs = Path(args.runs or cfg.cell.runs_dir)
@@ -101,7 +103,7 @@ def _demo(args: argparse.Namespace) -> int:
     return exit_code(out)
 
 
-async def _demo_drive(ctl: Any, job: JobJSON, session: Any, say: Callable[[str], None],
+async def _demo_drive(ctl: Any, job: CellJob, session: Any, say: Callable[[str], None],
                       do_align: bool) -> tuple[Any, Path | None, dict[str, Any] | None]:
     align = None
     guard.attach(None, say)  # a signal while aligning: cancelled, the CNC safe-stopped (run_on_url)

@@ -131,16 +131,12 @@ def run_repair(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from controller.harness.repair import repair_run_sim
+    from controller.job.read import read_job
     from controller.repair import repair_run
     from core.config import load_cell, load_sim
 
     path = Path(args.job)
-    try:
-        job = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read the job ({exc.strerror or exc})") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    job = read_job(path)
     cell = load_cell(args.cell_config)
     sim_cfg = load_sim(Path(args.sim_config) if args.sim_config else None) if args.sim else None
     if sim_cfg is not None and args.sim_config:
@@ -179,6 +175,7 @@ def demo_repair(args: argparse.Namespace) -> int:
     from controller.harness.repair_parts import make_parts, posed_sim
     from controller.runtime.devices import with_urls
     from controller.cli.main import emit_json
+    from controller.job.read import read_job
     from controller.job.repair_volume import repair_volume
     from core.config import load_cell, load_material
     from planner.job import job_to_dict
@@ -195,9 +192,10 @@ def demo_repair(args: argparse.Namespace) -> int:
     job["repair"] = {"cad": str(cad), "stock": str(stock), "allowance_mm": 0.3,
                      "volume_mm3": round(rv.volume_mm3, 3), "bounds_mm": rv.bounds.round(4).tolist()}
     (work / "repair.job.json").write_text(json.dumps(job) + "\n", encoding="utf-8")
+    typed = read_job(work / "repair.job.json")
     # the power source's 100 ms watchdog on a loaded machine: the repair is short, no need to race
     cell = with_urls(cell, {}, time_scale=min(float(args.time_scale), 40.0))
-    rep = asyncio.run(repair_run_sim(job, cell, posed_sim(stock, 1.2, -0.8, 3.0, (2.0, -1.5, 0.5)),
+    rep = asyncio.run(repair_run_sim(typed, cell, posed_sim(stock, 1.2, -0.8, 3.0, (2.0, -1.5, 0.5)),
                                      job_path=work / "repair.job.json", runs_dir=work / "runs", log_dir=work / "sim"))
     rep["work_dir"] = str(work)
     if args.json:

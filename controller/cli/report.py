@@ -1,12 +1,11 @@
-"""`cell report RUN_DIR [--csv FILE]` and `cell runs`: the build record, from the journal alone."""
+"""`cell report RUN_DIR [--csv FILE]` and `cell runs`: the build record, from the journal alone,
+through the controller's API (controller/api.py `write_run_report`, `run_rows`)."""
 from __future__ import annotations
 
 import argparse
 import json
 from pathlib import Path
 from typing import Any
-
-from core.errors import InputError
 
 
 def register(sub: Any) -> None:
@@ -24,29 +23,12 @@ def register(sub: Any) -> None:
     r.set_defaults(func=_runs)
 
 
-def _open(run_dir: Path) -> Any:
-    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.journal.store import Journal
-
-    path = run_dir / "journal.sqlite"
-    if not path.is_file():
-        raise InputError(f"{run_dir}: no journal.sqlite here; give a run directory (see `cell runs`)")
-    return Journal(path)
-
-
 def _report(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
+    from controller.api import write_run_report
     from controller.cli.main import emit_json
-    from controller.report.summary import write_report
 
-    run_dir = Path(args.run_dir)
-    j = _open(run_dir)
-    try:
-        meta = j.job() or {}
-        job = json.loads(meta["job_json"]) if meta.get("job_json") else None
-        path = write_report(j, run_dir, job, plots=not args.no_plots, operator=args.operator, csv_path=args.csv)
-    finally:
-        j.close()
+    path = write_run_report(Path(args.run_dir), plots=not args.no_plots, operator=args.operator, csv_path=args.csv)
     rep = json.loads(path.read_text(encoding="utf-8"))
     summary = {k: v for k, v in rep.items() if k not in ("beads", "layers", "per_layer")}
     summary["report"] = str(path)
@@ -67,29 +49,9 @@ def _report(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_rows(runs: Path) -> list[dict[str, Any]]:
-    """dir, job, state, started, layers_done of every run directory with a journal."""
-    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.report.summary import summarize
-    from controller.report.record import iso
-
-    out = []
-    for d in sorted(p.parent for p in runs.glob("*/journal.sqlite")):
-        j = _open(d)
-        try:
-            meta = j.job() or {}
-            job = json.loads(meta["job_json"]) if meta.get("job_json") else None
-            s = summarize(j, job)
-            started, _ = j.wall_clock_span()
-        finally:
-            j.close()
-        out.append({"dir": str(d), "job": meta.get("name"), "state": s["state"], "started": iso(started),
-                    "layers_done": s["layers_done"], "layers_total": s["layers_total"]})
-    return out
-
-
 def _runs(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
+    from controller.api import run_rows
     from controller.cli.main import emit_json
     from core.config import load_cell
 

@@ -26,7 +26,8 @@ from typing import Any, Callable
 
 from core.config import CellConfig, load_cell, load_sim
 from controller.cli import guard, runargs
-from controller.job.read import JobJSON, read_job
+from controller.job.model import CellJob
+from controller.job.read import read_job
 from controller.journal.space import check_free_space
 from core.errors import CellError, InputError
 
@@ -255,7 +256,7 @@ def _resume(args: argparse.Namespace) -> int:
     return _build(args, cfg, job, run_dir, "", [], log_dir, runs, resume=True)
 
 
-def _build(args: argparse.Namespace, cfg: CellConfig, job: JobJSON, run_dir: Path | None, faults: str,
+def _build(args: argparse.Namespace, cfg: CellConfig, job: CellJob, run_dir: Path | None, faults: str,
            scen: list[tuple[str, int, float | None]], log_dir: Path, runs: Path, resume: bool = False) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.api import CellController
@@ -301,7 +302,7 @@ def exit_code(out: dict[str, Any]) -> int:
     return EXIT_COMPLETE_WITH_DEFECTS if out.get("defects") else 0
 
 
-async def _drive(ctl: Any, job: JobJSON, run_dir: Path | None, session: Any, scen: list[tuple[str, int, float | None]],
+async def _drive(ctl: Any, job: CellJob, run_dir: Path | None, session: Any, scen: list[tuple[str, int, float | None]],
                  say: Callable[[str], None], resume: bool) -> tuple[Any, Path | None]:
     resume_ticket = None
     if resume and run_dir is not None:

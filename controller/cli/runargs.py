@@ -2,13 +2,15 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from controller.job.read import JobJSON
 from core.errors import InputError
+
+if TYPE_CHECKING:  # annotations only: the argument checks load before the job and the config do
+    from controller.job.model import CellJob
+    from core.config import CellConfig
 
 MIN_STEP_MM = 0.1      # weld-move subdivision floor: 1 m of bead is at most 10 000 moves
 MAX_STEP_MM = 1000.0
@@ -40,36 +42,29 @@ def dir_arg(path: str | Path, what: str, *, must_exist: bool = False) -> Path:
     return p
 
 
-def check_job_for_cell(job: JobJSON, cfg: object, source: str) -> None:
-    """The job checked against the cell (controller/job/check.py); JobCheckError if it does not fit."""
+def check_job_for_cell(job: CellJob, cfg: CellConfig, source: str) -> None:
+    """The job checked against the cell (controller/job/check.py); JobCheckError if it does not fit.
+    The API's open_job finds it checked and does not walk it again."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.job.check import check_job, job_material
 
-    check_job(job, cfg, job_material(job, cfg), source)  # type: ignore[arg-type]
+    check_job(job, cfg, job_material(job, cfg), source)
 
 
-def stored_job(meta: dict[str, Any], jpath: Path) -> JobJSON:
+def stored_job(meta: dict[str, Any], jpath: Path) -> CellJob:
     """The job a journal holds, refused when it no longer matches the checksum stored beside it."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.job.identity import job_hash
+    from controller.job.read import stored_job as read_stored
 
-    try:
-        job = json.loads(meta["job_json"])
-    except (ValueError, TypeError, RecursionError):
-        raise InputError(f"journal {jpath}: the job stored in it is not valid JSON (tampered or damaged); "
-                         "it was left untouched") from None
-    if not isinstance(job, dict) or job_hash(job) != meta["hash"]:
-        raise InputError(f"journal {jpath}: the job stored in it does not match its checksum "
-                         f"{str(meta['hash'])[:12]} (tampered); refusing to build it")
-    return job
+    return read_stored(meta["job_json"], meta["hash"], jpath)
 
 
-def complete_in(run_dir: Path, job: JobJSON) -> bool:
+def complete_in(run_dir: Path, job: CellJob) -> bool:
     """Whether the journal of `run_dir` says every pass of the job is done (read-only look)."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.journal.store import count_done_readonly
 
-    total = sum(len(la.get("passes", [])) for la in job.get("layers", []))
+    total = job.passes_total
     return total > 0 and count_done_readonly(run_dir / "journal.sqlite") >= total
 
 

@@ -9,7 +9,7 @@ from controller.export.gcode import write_gcode
 from controller.export.krl import program_name, write_krl
 from controller.export.program import build_program
 from controller.export.rapid import write_rapid
-from controller.job.read import JobJSON
+from controller.job.model import CellJob
 
 FORMATS = ("gcode", "rapid", "krl")
 SUFFIX = {"gcode": ".nc", "rapid": ".mod", "krl": ".src"}
@@ -28,9 +28,9 @@ class Exported:
         return sum(len(v) for v in self.files.values())
 
 
-def export_job(job: JobJSON, fmt: str, *, name: str, out: Path, clearance_mm: float,
+def export_job(job: CellJob, fmt: str, *, name: str, out: Path, clearance_mm: float,
                travel_mm_min: float, power_s: int = 1000, trunnion: Trunnion | None = None) -> Exported:
-    """Render a validated job in one format; `out` is the main file (.dat beside a .src)."""
+    """Render a job in one format; `out` is the main file (.dat beside a .src)."""
     prog = build_program(job, name=name)
     if fmt == "gcode":
         files = {str(out): write_gcode(prog, clearance_mm=clearance_mm, travel_mm_min=travel_mm_min,

@@ -1,6 +1,6 @@
 """What every program export needs from a job: passes in the frame the machine works in.
 
-Pure: a validated `cell-job/1` dict in, frozen dataclasses out. The alignment (DESIGN.md §3,
+Pure: a typed job (controller/job/read.py) in, frozen dataclasses out. The alignment (DESIGN.md §3,
 `"alignment": {"transform": 4×4 part→machine}`) is carried here once, for every format.
 """
 from __future__ import annotations
@@ -9,9 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.job.read import JobJSON
+from controller.job.model import CellJob
 from core.errors import InputError
-from planner.job import load_job
 
 VERTICAL = np.array([0.0, 0.0, 1.0])
 
@@ -55,54 +54,41 @@ class Program:
         return any(p.five_axis for p in self.passes)
 
 
-def alignment_matrix(job: JobJSON) -> np.ndarray | None:
+def alignment_matrix(job: CellJob) -> np.ndarray | None:
     """The job's part→machine transform, or None; InputError when it is not a rigid 4×4."""
-    al = job.get("alignment")
+    al = job.alignment
     if al is None:
         return None
-    try:
-        m = np.asarray(al["transform"], dtype=np.float64)
-    except (KeyError, TypeError, ValueError):
-        raise InputError("job file: alignment.transform must be a 4×4 matrix of numbers") from None
-    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
-        raise InputError("job file: alignment.transform must be a finite 4×4 matrix")
+    if al.transform is None:
+        raise InputError("job file: alignment.transform must be a 4×4 matrix of numbers")
+    m = al.transform
     r = m[:3, :3]
     if not np.allclose(r.T @ r, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0:
         raise InputError("job file: alignment.transform is not a rotation plus translation")
     return m
 
 
-def points_in_machine_frame(job: JobJSON) -> bool:
+def points_in_machine_frame(job: CellJob) -> bool:
     """Whether the job's points were already moved by its alignment (`cell align run --job`)."""
-    al = job.get("alignment") or {}
-    return bool(al.get("points_in_machine_frame", job.get("frame") not in ("cad", "substrate")))
+    return job.alignment is not None and job.alignment.points_in_machine_frame
 
 
-def _axes(raw: object, n: int, where: str) -> np.ndarray | None:
-    if raw is None:
+def _axes(a: np.ndarray | None) -> np.ndarray | None:
+    """A pass's tool axes as exact unit vectors (the file's are unit within 1e-3: planner.job)."""
+    if a is None:
         return None
-    try:
-        a = np.asarray(raw, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"job file: {where}.axes must be a list of [i, j, k]") from None
-    if a.shape != (n, 3) or not np.all(np.isfinite(a)):
-        raise InputError(f"job file: {where}.axes must hold one [i, j, k] per point")
-    norm = np.linalg.norm(a, axis=1)
-    if np.any(norm < 1e-9):
-        raise InputError(f"job file: {where}.axes has a zero vector")
-    unit: np.ndarray = a / norm[:, None]
+    unit: np.ndarray = a / np.linalg.norm(a, axis=1)[:, None]
     return unit
 
 
-def build_program(job: JobJSON, *, name: str) -> Program:
-    """Validate the job and lay out its passes in the part frame, with the alignment beside them."""
-    parsed = load_job(job)
+def build_program(job: CellJob, *, name: str) -> Program:
+    """Lay out the job's passes in the part frame, with the alignment beside them."""
+    parsed = job.job
     m = alignment_matrix(job)
     t = m if m is not None else np.eye(4)
     # Old-style aligned jobs carry moved points: bring them back to the part frame, so that
     # every format applies the alignment exactly once (G-code in the points, robots as a frame).
     back = np.linalg.inv(t) if m is not None and points_in_machine_frame(job) else None
-    raw_layers = job["layers"]
     passes: list[ProgramPass] = []
     dwell: dict[int, float] = {}
     for li, layer in enumerate(parsed.layers):
@@ -110,7 +96,7 @@ def build_program(job: JobJSON, *, name: str) -> Program:
             dwell[layer.index] = float(layer.interpass.dwell_s) if layer.interpass else 0.0
         for pi, p in enumerate(layer.passes):
             pts = np.asarray(p.points, dtype=np.float64)
-            given = _axes(raw_layers[li]["passes"][pi].get("axes"), len(pts), f"layers[{li}].passes[{pi}]")
+            given = _axes(p.axes)
             axes = given if given is not None else np.tile(VERTICAL, (len(pts), 1))
             if back is not None:
                 pts = pts @ back[:3, :3].T + back[:3, 3]

@@ -5,12 +5,13 @@ from pathlib import Path
 from typing import Any
 
 from controller.harness.sim import SIM_REPLY_TIMEOUT_MS, simulated
+from controller.job.model import CellJob
 from controller.motion.cnc5 import limit_time_scale
 from controller.repair import repair_run
 from core.config import CellConfig, SimConfig
 
 
-async def repair_run_sim(job: dict[str, Any], cell: CellConfig, sim_cfg: SimConfig, *, job_path: Path | None = None,
+async def repair_run_sim(job: CellJob, cell: CellConfig, sim_cfg: SimConfig, *, job_path: Path | None = None,
                          runs_dir: str | Path = "runs", log_dir: str | Path | None = None,
                          tolerance_mm: float = 0.1) -> dict[str, Any]:
     """repair_run against the simulators (the stock posed by `sim_cfg`), logs in `log_dir`."""

@@ -1,29 +1,28 @@
 """The job checked against the cell before any device is touched (DESIGN.md §6, issue 14).
 
-Pure: the job (parsed JSON), the cell config and the material in, a list of violations out.
-Every point of every pass must lie inside the workspace after the job's alignment transform,
+Pure: the typed job (read and checked field by field once: controller/job/read.py, which also
+bounds the pass and point counts), the cell config and the material in, a list of violations
+out. Every point of every pass must lie inside the workspace after the job's alignment transform,
 every speed in (0, max_speed], every current and wire feed inside the material's envelope (or,
 for a pass planned with `inside_envelope: false` on a cell that allows it, inside the power
-source's range), every interpass limit inside (ambient, max part temperature), and the pass
-and point counts bounded so a hand-edited job can never exhaust memory or time.
+source's range), every interpass limit inside (ambient, max part temperature).
+
+A job is checked once per cell: `cell run` checks it before any device is touched, the API's
+`open_job` asks again and finds it already passed for the same limits and material.
 """
 from __future__ import annotations
 
-import math
 from functools import lru_cache
+import weakref
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from controller.job.read import JobJSON
+from controller.job.model import CellJob
+from planner.job import Layer, Pass
 from core.config import CellConfig
 from core.errors import CellError, InputError
 from core.material import Material
-
-MAX_PASSES = 200_000          # a 1 m³ part at 7 mm beads has ~60 000 passes
-MAX_POINTS = 5_000_000        # points over the whole job (the planner's own: a few 100 000)
-MAX_POINTS_PER_PASS = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -58,35 +57,6 @@ class JobCheckError(InputError):
         super().__init__(f"{source}: job refused before any motion: {where}{first.what}{more}")
 
 
-def _transform(job: JobJSON) -> np.ndarray | None:
-    al = job.get("alignment")
-    if not isinstance(al, dict) or al.get("transform") is None:
-        return None
-    try:
-        t = np.asarray(al["transform"], dtype=float)
-    except (TypeError, ValueError):
-        raise InputError("job file: alignment.transform must be a 4x4 matrix of numbers") from None
-    if t.shape != (4, 4) or not np.all(np.isfinite(t)):
-        raise InputError("job file: alignment.transform must be a 4x4 matrix of finite numbers")
-    return t
-
-
-def _points(p: dict[str, Any], li: int, pi: int) -> np.ndarray:
-    try:
-        pts = np.asarray(p.get("points"), dtype=float)
-    except (TypeError, ValueError, OverflowError):
-        raise InputError(f"job file: layers[{li}].passes[{pi}].points must be [x, y, z] numbers") from None
-    if pts.ndim != 2 or pts.shape[1] < 3 or pts.shape[0] < 2:
-        raise InputError(f"job file: layers[{li}].passes[{pi}].points needs at least 2 [x, y, z] points")
-    return pts[:, :3]
-
-
-def _num(v: Any) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        return math.nan
-    return float(v)
-
-
 class _Checker:
     def __init__(self, cfg: CellConfig, material: Material) -> None:
         lim = cfg.limits
@@ -114,18 +84,17 @@ class _Checker:
         extra = int(np.count_nonzero(bad)) - 1
         self.out.extend(Violation(li, pi, None, "point outside the workspace") for _ in range(max(0, extra)))
 
-    def process(self, p: dict[str, Any], li: int, pi: int) -> None:
-        s = _num(p.get("speed_mm_min"))
+    def process(self, p: Pass, li: int, pi: int) -> None:
+        s = p.speed_mm_min
         if not (0.0 < s <= self.vmax):
             self.out.append(Violation(li, pi, None, f"speed_mm_min {s:g} is outside (0, {self.vmax:g}] mm/min "
                                       "(limits.max_speed_mm_min)"))
         elif s < self.vmin:
             self.out.append(Violation(li, pi, None, f"speed_mm_min {s:g} is below the slowest weld "
                                       f"{self.vmin:g} mm/min (limits.min_weld_speed_mm_min): a standing torch"))
-        outside = p.get("inside_envelope") is False and self.allow_outside
-        for key, val, env, src, unit in (("current_a", _num(p.get("current_a")), self.env_i, self.source_i, "A"),
-                                         ("wfs_m_min", _num(p.get("wfs_m_min")), self.env_wfs, self.source_wfs,
-                                          "m/min")):
+        outside = not p.inside_envelope and self.allow_outside
+        for key, val, env, src, unit in (("current_a", p.current_a, self.env_i, self.source_i, "A"),
+                                         ("wfs_m_min", p.wfs_m_min, self.env_wfs, self.source_wfs, "m/min")):
             lo, hi = src if outside else env
             ok = (lo < val <= hi) if outside else (lo - 1e-9 <= val <= hi + 1e-9)
             if not ok:
@@ -133,70 +102,57 @@ class _Checker:
                     else f"{self.material}'s envelope [{lo:g}, {hi:g}]"
                 self.out.append(Violation(li, pi, None, f"{key} {val:g} {unit} is outside {rng}"))
 
-    def interpass(self, layer: dict[str, Any], li: int) -> None:
-        ip = layer.get("interpass")
+    def interpass(self, layer: Layer, li: int) -> None:
+        ip = layer.interpass
         if ip is None:
             return
-        t = _num(ip.get("max_temperature_c")) if isinstance(ip, dict) else math.nan
+        t = ip.max_temperature_c
         if not (self.ambient < t <= self.tmax):
             self.out.append(Violation(li, None, None, f"interpass max_temperature_c {t:g} °C is outside "
                                       f"({self.ambient:g}, {self.tmax:g}] (ambient, limits.max_part_temperature_c)"))
-        d = _num(ip.get("dwell_s")) if isinstance(ip, dict) else math.nan
+        d = ip.dwell_s
         if not (0.0 <= d <= 3600.0):
             self.out.append(Violation(li, None, None, f"interpass dwell_s {d:g} s is outside [0, 3600]"))
 
 
-def _counts(layers: list[Any]) -> None:
-    n_pass = 0
-    n_pts = 0
-    for li, la in enumerate(layers):
-        passes = la.get("passes") if isinstance(la, dict) else None
-        if not isinstance(passes, list):
-            raise InputError(f"job file: layers[{li}].passes must be a list")
-        n_pass += len(passes)
-        for pi, p in enumerate(passes):
-            pts = p.get("points") if isinstance(p, dict) else None
-            if not isinstance(pts, list):
-                raise InputError(f"job file: layers[{li}].passes[{pi}].points must be a list")
-            if len(pts) > MAX_POINTS_PER_PASS:
-                raise InputError(f"job file: layers[{li}].passes[{pi}] has {len(pts)} points, over the limit "
-                                 f"of {MAX_POINTS_PER_PASS}")
-            n_pts += len(pts)
-    if n_pass == 0:
-        raise InputError("job file: no passes in any layer; nothing to build")
-    if n_pass > MAX_PASSES:
-        raise InputError(f"job file: {n_pass} passes, over the limit of {MAX_PASSES}")
-    if n_pts > MAX_POINTS:
-        raise InputError(f"job file: {n_pts} points, over the limit of {MAX_POINTS}")
-
-
-def violations(job: JobJSON, cfg: CellConfig, material: Material) -> list[Violation]:
+def violations(job: CellJob, cfg: CellConfig, material: Material) -> list[Violation]:
     """Everything in the job the cell cannot do, in job order (empty: the job may run)."""
-    if not isinstance(job, dict) or not isinstance(job.get("layers"), list) or not job["layers"]:
-        raise InputError("job file: no layers (not a cell-job/1 job)")
-    _counts(job["layers"])
-    t = _transform(job)
+    _something_to_build(job, "job file")
+    al = job.alignment
+    t = al.transform if al is not None else None
     c = _Checker(cfg, material)
-    for li, la in enumerate(job["layers"]):
-        idx = la.get("index", li) if isinstance(la.get("index", li), int) else li
-        c.interpass(la, idx)
-        for pi, p in enumerate(la["passes"]):
-            if not isinstance(p, dict):
-                raise InputError(f"job file: layers[{li}].passes[{pi}] must be an object")
-            pts = _points(p, li, pi)
+    for la in job.layers:
+        c.interpass(la, la.index)
+        for pi, p in enumerate(la.passes):
+            pts = p.points
             if t is not None:
                 with np.errstate(all="ignore"):
                     pts = pts @ t[:3, :3].T + t[:3, 3]
-            c.points(pts, idx, pi)
-            c.process(p, idx, pi)
+            c.points(pts, la.index, pi)
+            c.process(p, la.index, pi)
     return c.out
 
 
-def check_job(job: JobJSON, cfg: CellConfig, material: Material, source: str = "job") -> None:
+def _something_to_build(job: CellJob, source: str) -> None:
+    if not any(la.passes for la in job.layers):
+        raise InputError(f"{source}: no passes in any layer; nothing to build")
+
+
+# the jobs that passed, per cell limits and material: the API's open_job finds a job `cell run`
+# checked before any device was touched, and does not walk its points again
+_passed: weakref.WeakKeyDictionary[CellJob, set[tuple[str, str]]] = weakref.WeakKeyDictionary()
+
+
+def check_job(job: CellJob, cfg: CellConfig, material: Material, source: str = "job") -> None:
     """Raise JobCheckError naming the first violation and how many there are; None if the job fits."""
+    key = (cfg.limits.model_dump_json(), material.name)
+    if key in _passed.get(job, ()):
+        return
+    _something_to_build(job, source)
     found = violations(job, cfg, material)
     if found:
         raise JobCheckError(source, found)
+    _passed.setdefault(job, set()).add(key)
 
 
 @lru_cache(maxsize=16)
@@ -208,11 +164,10 @@ def _material(name: str) -> Material:
     return load_material(name)
 
 
-def job_material(job: JobJSON, cfg: CellConfig) -> Material:
+def job_material(job: CellJob, cfg: CellConfig) -> Material:
     """The material the job was planned for (its `material.name`), else the cell's."""
     load_material = _material
-    m = job.get("material") if isinstance(job, dict) else None
-    name = m.get("name") if isinstance(m, dict) else None
+    name = job.job.material.get("name")
     if isinstance(name, str) and name and "/" not in name and "\\" not in name and not name.startswith("."):
         try:
             return load_material(name)

@@ -16,8 +16,8 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from controller.job.identity import canonical_json, job_hash
-from controller.job.read import JobJSON
+from controller.job.identity import job_hash
+from controller.job.model import CellJob
 from controller.journal.check import Row
 from controller.journal.store import SCHEMA
 from core.errors import CellError
@@ -77,7 +77,7 @@ def _read_copy(src: Path) -> tuple[dict[str, list[Row]], dict[str, int], set[str
     return data, lost, readable
 
 
-def recover(run_dir: Path, out_dir: Path, job: JobJSON | None) -> Recovered:
+def recover(run_dir: Path, out_dir: Path, job: CellJob | None) -> Recovered:
     """Copy what the journal of `run_dir` proves into a new journal under `out_dir`."""
     src = run_dir / "journal.sqlite"
     if out_dir.exists():
@@ -85,12 +85,12 @@ def recover(run_dir: Path, out_dir: Path, job: JobJSON | None) -> Recovered:
     data, lost, readable = _read_copy(src)
     jrows = data.get("job") or []
     if job is not None:
-        jh = job_hash(job)
+        jh = job.hash
         if jrows and jrows[0][1] != jh:
             raise CellError(f"--job: the job hashes to {jh[:12]}, the journal records {str(jrows[0][1])[:12]}; "
                             "give the job this build was started with")
         jrows = [(1, jh, jrows[0][2] if jrows else "job", jrows[0][3] if jrows else "robot",
-                  jrows[0][4] if jrows else 0.0, canonical_json(job))]
+                  jrows[0][4] if jrows else 0.0, job.json)]
     elif not jrows:
         raise CellError(f"journal {src}: its job record is not readable; give the job file with --job JOB")
     else:

@@ -15,12 +15,11 @@ The estimate, measured on real journals (docs/controller.md, "Journal space"):
 """
 from __future__ import annotations
 
-import json
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
+from controller.job.model import CellJob
 from controller.job.weld_path import weld_points
 from core.errors import InputError
 
@@ -38,23 +37,23 @@ class JournalEstimate:
     bytes: int
 
 
-def journal_estimate(job: dict[str, Any], max_step_mm: float, time_scale: float = 1.0) -> JournalEstimate:
+def journal_estimate(job: CellJob, max_step_mm: float, time_scale: float = 1.0) -> JournalEstimate:
     """Bytes the runs directory needs for this job's journal and record (see the module doc)."""
     points, arc_s = 0, 0.0
-    for la in job.get("layers", []):
-        for p in la.get("passes", []):
-            pts = weld_points(p["points"], max_step_mm)
+    for la in job.layers:
+        for p in la.passes:
+            pts = weld_points(p.points, max_step_mm)
             points += len(pts)
             length = sum(sum((b - a) ** 2 for a, b in zip(u, v)) ** 0.5 for u, v in zip(pts, pts[1:]))
-            speed = float(p.get("speed_mm_min") or 0.0)
+            speed = p.speed_mm_min
             if speed > 0:
                 arc_s += length / speed * 60.0 / max(time_scale, 1e-9)
-    total = (BASE_BYTES + len(json.dumps(job)) + points * BYTES_PER_WELD_POINT
+    total = (BASE_BYTES + len(job.json) + points * BYTES_PER_WELD_POINT
              + int(arc_s * BYTES_PER_ARC_SECOND) + WAL_PEAK_BYTES + RECORD_BYTES)
     return JournalEstimate(points, arc_s, total)
 
 
-def check_free_space(runs_dir: Path, job: dict[str, Any], max_step_mm: float, time_scale: float = 1.0) -> JournalEstimate:
+def check_free_space(runs_dir: Path, job: CellJob, max_step_mm: float, time_scale: float = 1.0) -> JournalEstimate:
     """Refuse (InputError, exit 2) when `runs_dir` (or its nearest existing parent) has less free
     space than the job's journal estimate; the message names the path, the need and the free."""
     est = journal_estimate(job, max_step_mm, time_scale)

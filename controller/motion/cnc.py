@@ -16,7 +16,7 @@ from typing import Any, Callable
 
 from controller.ports import CncLinkPort, PowerSourcePort
 from controller.motion.cnc5 import Five, check_feed
-from controller.job.read import JobJSON
+from controller.job.model import CellJob
 from drivers.errors import DeviceError
 from core.errors import CellError
 
@@ -70,16 +70,16 @@ class CncExecutor:
             raise CellError(f"cnc: the table reports A/B {st.mpos[3]:.4f}/{st.mpos[4]:.4f}°, not the job's "
                             f"leveling {level[0]:.4f}/{level[1]:.4f}°; check the rotary axes")
 
-    async def post_job(self, job: JobJSON, max_step_mm: float) -> None:
+    async def post_job(self, job: CellJob, max_step_mm: float) -> None:
         """Before any motion: every 5-axis pass to machine axes, or InputError naming the point."""
         self.require_job_axes(job)
         self.five.check_alignment(job, float(getattr(self.link, "reset_at", 0.0)))
-        if (job.get("alignment") or {}).get("no_level"):
+        if job.alignment is not None and job.alignment.no_level:
             self.five.level = None   # aligned without leveling: the tilt is in the transform, no A/B move
         await self.five.post_job(job, max_step_mm)
         check_feed(job, self.five.trunnion, self.link, max_step_mm)
 
-    def require_job_axes(self, job: JobJSON) -> None:
+    def require_job_axes(self, job: CellJob) -> None:
         """The firmware's axes against the job, before homing or any motion (DESIGN.md §5):
         GrblAxesMissing (exit 2) naming the firmware and the axes it lacks."""
         why = job_axes_need(job)
@@ -205,17 +205,14 @@ class CncExecutor:
         return await self.held_position()
 
 
-def job_axes_need(job: JobJSON) -> str | None:
+def job_axes_need(job: CellJob) -> str | None:
     """Why the job needs the rotary axes (A/B), None when X/Y/Z do: 5-axis passes, or an
     alignment that levels the table (not one made with `cell align run --no-level`)."""
-    layers = job.get("layers", [])
-    if any(p.get("axes") for la in layers for p in la.get("passes", [])):
-        return f"job '{job.get('name', '?')}' (5-axis passes with axes)"
-    al = job.get("alignment") or {}
-    if al and not al.get("no_level"):
-        t = al.get("table_deg") or {}
-        a, b = t.get("a", al.get("level_a_deg")), t.get("b", al.get("level_b_deg"))
-        return f"job '{job.get('name', '?')}' (its alignment levels the table with A {a}°, B {b}°)"
+    if any(p.axes is not None for la in job.layers for p in la.passes):
+        return f"job '{job.name}' (5-axis passes with axes)"
+    al = job.alignment
+    if al is not None and not al.no_level:
+        return f"job '{job.name}' (its alignment levels the table with A {al.table_a_deg}°, B {al.table_b_deg}°)"
     return None
 
 

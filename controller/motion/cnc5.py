@@ -13,8 +13,9 @@ import numpy as np
 
 from controller.motion.post5 import Post5, inverse_time, linearise, move_line, weld_axes
 from controller.job.weld_path import weld_points
-from controller.job.read import JobJSON
+from controller.job.model import CellJob
 from core.errors import InputError
+from planner.job import Pass
 from controller.motion.kinematics import Trunnion
 import asyncio
 
@@ -26,6 +27,11 @@ _ROUNDING_SHARE = 0.8
 
 def _weld_points(points: Sequence[Sequence[float]], max_step_mm: float) -> list[Point]:
     return weld_points(points, max_step_mm)  # the build's own subdivision: indices must agree
+
+
+def _axes(p: Pass) -> list[list[float]] | None:
+    """A pass's planned tool axes as lists (None: a 3-axis pass, vertical torch)."""
+    return p.axes.tolist() if p.axes is not None else None
 
 
 class Five:
@@ -49,28 +55,26 @@ class Five:
     def active(self) -> bool:
         return self.cur is not None
 
-    def check_alignment(self, job: JobJSON, reset_at: float) -> None:
+    def check_alignment(self, job: CellJob, reset_at: float) -> None:
         """The job's alignment drives the table: its A/B leveling, refused when stale or missing."""
         self.level = None
-        al = job.get("alignment")
-        if not al:
-            if job.get("frame") == "cad":
+        al = job.alignment
+        if al is None:
+            if job.frame == "cad":
                 raise InputError("the job is in the CAD frame and carries no alignment: the part's pose on the "
                                  "table is unknown; align it first (cell align run --job, or cell repair run)")
             return
-        probed = al.get("probed_at")
-        if not isinstance(probed, (int, float)) or probed < reset_at:
+        probed = al.probed_at
+        if probed is None or probed < reset_at:
             raise InputError("the job's alignment was probed before the CNC's last homing, reset or power-up "
                              "(the table may have moved): align again in this session (cell repair run does both)")
-        table = al.get("table_deg") or {}
-        a = table.get("a", al.get("level_a_deg"))
-        b = table.get("b", al.get("level_b_deg"))
-        if not all(isinstance(v, (int, float)) for v in (a, b)):
+        a, b = al.table_a_deg, al.table_b_deg
+        if a is None or b is None:
             raise InputError("job alignment: table_deg a/b (the A/B leveling) missing")
-        if any("axes" in p for la in job.get("layers", []) for p in la.get("passes", [])):
+        if any(p.axes is not None for la in job.layers for p in la.passes):
             raise InputError("an aligned 5-axis job is not supported yet: align a 3-axis job "
                              "or plan without --five-axis")
-        self.level = (float(a), float(b))
+        self.level = (a, b)
 
     def level_lines(self) -> list[str]:
         """Before the first bead: the table to the job's A/B leveling (clear above, then turn)."""
@@ -83,21 +87,21 @@ class Five:
         return self.level is None or (abs(float(mpos[3]) - self.level[0]) < 0.002
                                       and abs(float(mpos[4]) - self.level[1]) < 0.002)
 
-    async def post_job(self, job: JobJSON, max_step_mm: float) -> None:
+    async def post_job(self, job: CellJob, max_step_mm: float) -> None:
         """Every pass to machine axes; yields between passes so the links stay serviced."""
 
         self.passes, self.fine = {}, {}
-        if not any("axes" in p for la in job.get("layers", []) for p in la.get("passes", [])):
+        if not any(p.axes is not None for la in job.layers for p in la.passes):
             return
         if self.trunnion is None:
             raise InputError("job has 5-axis passes (axes) but the CNC has no kinematics; "
                              "set kinematics in cell.yaml")
         post = Post5(self.trunnion)
         tol = float(getattr(self.trunnion, "chord_tolerance_mm", 0.02)) * _ROUNDING_SHARE
-        for li, la in enumerate(job["layers"]):
-            for pi, p in enumerate(la["passes"]):
-                pts = np.asarray(_weld_points(p["points"], max_step_mm))
-                axes = np.asarray(weld_axes(p["points"], p.get("axes"), max_step_mm))
+        for li, la in enumerate(job.layers):
+            for pi, p in enumerate(la.passes):
+                pts = np.asarray(_weld_points(p.points.tolist(), max_step_mm))
+                axes = np.asarray(weld_axes(p.points.tolist(), _axes(p), max_step_mm))
                 try:
                     m = post.machine(pts, axes)
                 except InputError as exc:
@@ -226,32 +230,32 @@ class FeedLimit:
                 f"would stand still with the process on between moves; time scale limited to {self.time_scale:g}")
 
 
-def _pass_moves(five: Five, post: Post5 | None, p: dict[str, Any], max_step_mm: float) -> tuple[np.ndarray, np.ndarray]:
+def _pass_moves(five: Five, post: Post5 | None, p: Pass, max_step_mm: float) -> tuple[np.ndarray, np.ndarray]:
     """(process seconds, bytes) per streamed weld line of one pass, as the executor sends them."""
-    speed = float(p.get("speed_mm_min") or 0.0) / 60.0
-    if post is not None and "axes" in p:
-        pts = np.asarray(_weld_points(p["points"], max_step_mm))
-        axes = np.asarray(weld_axes(p["points"], p.get("axes"), max_step_mm))
+    speed = p.speed_mm_min / 60.0
+    if post is not None and p.axes is not None:
+        pts = np.asarray(_weld_points(p.points.tolist(), max_step_mm))
+        axes = np.asarray(weld_axes(p.points.tolist(), _axes(p), max_step_mm))
         tol = float(getattr(five.trunnion, "chord_tolerance_mm", 0.02)) * _ROUNDING_SHARE
         fp, _, fm, _ = linearise(post, pts, axes, post.machine(pts, axes), tol)
         length = np.linalg.norm(np.diff(fp, axis=0), axis=1)
         nbytes = np.array([len(move_line(r, five.letters, 1000.0)) + 1 for r in fm[1:]], dtype=float)
     else:
-        pts = np.asarray(_weld_points(p["points"], max_step_mm))
+        pts = np.asarray(_weld_points(p.points.tolist(), max_step_mm))
         length = np.linalg.norm(np.diff(pts, axis=0), axis=1)
         nbytes = np.array([len(f"G1 X{x:.3f} Y{y:.3f} Z{z:.3f} F{speed * 60:.0f}") + 1 for x, y, z in pts[1:]],
                           dtype=float)
     return length / max(speed, 1e-9), nbytes
 
 
-def feed_limit(job: JobJSON, trunnion: Any, baud: int = 115200, max_step_mm: float = 2.0) -> FeedLimit | None:
+def feed_limit(job: CellJob, trunnion: Any, baud: int = 115200, max_step_mm: float = 2.0) -> FeedLimit | None:
     """The largest time scale at which the CNC link can feed every bead of `job` (None: no beads)."""
     five = Five(trunnion)
     post = Post5(trunnion) if trunnion is not None else None
     best: FeedLimit | None = None
-    for li, la in enumerate(job.get("layers", [])):
-        for pi, p in enumerate(la.get("passes", [])):
-            if len(p.get("points", [])) < 2:
+    for li, la in enumerate(job.layers):
+        for pi, p in enumerate(la.passes):
+            if len(p.points) < 2:
                 continue
             try:
                 t, nb = _pass_moves(five, post, p, max_step_mm)
@@ -280,7 +284,7 @@ def _round_down(k: float) -> float:
     return 1.0
 
 
-def limit_time_scale(cfg: Any, job: JobJSON, max_step_mm: float = 2.0) -> tuple[Any, str | None]:
+def limit_time_scale(cfg: Any, job: CellJob, max_step_mm: float = 2.0) -> tuple[Any, str | None]:
     """cfg with cell.time_scale lowered to what the CNC link can feed for `job` (CNC cells, simulated
     time only), and the message saying so; (cfg, None) when nothing was lowered."""
     if cfg.cell.platform != "cnc" or cfg.cell.time_scale <= 1.0:
@@ -292,7 +296,7 @@ def limit_time_scale(cfg: Any, job: JobJSON, max_step_mm: float = 2.0) -> tuple[
     return cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"time_scale": lim.time_scale})}), msg
 
 
-def check_feed(job: JobJSON, trunnion: Any, link: Any, max_step_mm: float = 2.0) -> None:
+def check_feed(job: CellJob, trunnion: Any, link: Any, max_step_mm: float = 2.0) -> None:
     """Before any motion: a simulated link (line_scale > 1) faster than the host can feed the job's
     beads is refused, naming the time scale that can (`limit_time_scale` lowers it where the
     simulators are started here: `cell run --sim`, `cell repair run --sim`)."""

@@ -16,14 +16,14 @@ Everything here is pure: numpy in, frozen dataclasses / arrays out.
 """
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 from typing import Any, Iterable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from controller.job.read import JobJSON
+from controller.job.model import CellJob
+from controller.job.read import edited
 from core.errors import InputError
 
 F = NDArray[np.float64]
@@ -243,35 +243,35 @@ class Trunnion:
 # --- applying an alignment -------------------------------------------------------------------------
 
 
-def apply_to_job(job: JobJSON, matrix: ArrayLike, record: dict[str, Any] | None = None) -> JobJSON:
-    """A copy of a `cell-job/1` dict moved by `matrix` (points, normals, axes), recording the alignment.
+def apply_to_job(job: CellJob, matrix: ArrayLike, record: dict[str, Any] | None = None, *,
+                 name: str | None = None) -> CellJob:
+    """A copy of a job moved by `matrix` (points, normals, axes), recording the alignment (and
+    `name`, when given). The copy is a new job, read as its file would be (its own hash).
 
     A job holds at most one alignment (DESIGN.md §3): a job that already carries one is refused.
     """
     m = np.asarray(matrix, dtype=float)
     if m.shape != (4, 4):
         raise InputError(f"alignment transform must be 4×4, got shape {m.shape}")
-    if not isinstance(job, dict) or "layers" not in job:
-        raise InputError("not a cell-job/1 object: it has no 'layers'")
-    if job.get("alignment"):
+    if job.alignment is not None:
         raise InputError("the job already carries an alignment; a second one is refused: align the original "
                          "(unaligned) job instead")
-    out = copy.deepcopy(job)
-    out["alignment"] = dict(record) if record else {"transform": m.tolist()}
-    out["alignment"].setdefault("transform", m.tolist())
-    for li, layer in enumerate(out["layers"]):
-        for pi, ps in enumerate(layer.get("passes", [])):
-            pts = np.asarray(ps.get("points", []), dtype=float)
-            if pts.size:
-                if pts.ndim != 2 or pts.shape[1] != 3:
-                    raise InputError(f"job layer {li} pass {pi}: points must be [x, y, z] triples")
-                ps["points"] = apply_transform(m, pts).tolist()
-            if ps.get("normals"):
-                nrm = rotate_vectors(m, np.asarray(ps["normals"], dtype=float))
-                ps["normals"] = nrm.tolist()
-            if ps.get("axes"):
-                ps["axes"] = rotate_vectors(m, np.asarray(ps["axes"], dtype=float)).tolist()
-    return out
+
+    def move(out: dict[str, Any]) -> dict[str, Any]:
+        out["alignment"] = dict(record) if record else {"transform": m.tolist()}
+        out["alignment"].setdefault("transform", m.tolist())
+        if name is not None:
+            out["name"] = name
+        for layer in out["layers"]:
+            for ps in layer["passes"]:
+                ps["points"] = apply_transform(m, np.asarray(ps["points"], dtype=float)).tolist()
+                if ps.get("normals"):
+                    ps["normals"] = rotate_vectors(m, np.asarray(ps["normals"], dtype=float)).tolist()
+                if ps.get("axes"):
+                    ps["axes"] = rotate_vectors(m, np.asarray(ps["axes"], dtype=float)).tolist()
+        return out
+
+    return edited(job, move, f"the aligned job {name or job.name}")
 
 
 def apply_to_mesh(mesh: Any, matrix: ArrayLike) -> Any:

@@ -13,7 +13,7 @@ from typing import Any, Callable
 
 from controller.motion.post5 import weld_axes
 from controller.job.weld_path import weld_points
-from controller.job.read import JobJSON
+from controller.job.model import CellJob
 from controller.ports import RobotLinkPort
 from drivers.robot import RobotStatus
 from core.errors import InputError
@@ -46,19 +46,19 @@ class RobotExecutor:
         self._weld_pts: list[Point] | None = None
         self._subscribe()
 
-    def post_job(self, job: JobJSON, max_step_mm: float) -> None:
+    def post_job(self, job: CellJob, max_step_mm: float) -> None:
         """The planned tool axis per weld point of every 5-axis pass (`axes`), before any motion."""
-        if job.get("frame") == "cad" and not job.get("alignment"):
+        if job.frame == "cad" and job.alignment is None:
 
             raise InputError("the job is in the CAD frame and carries no alignment: the controller does not know "
                              "where the substrate is; align it (cell align run --job) or plan with --frame substrate")
 
         self._axes, self._pts = {}, {}
-        for li, la in enumerate(job.get("layers", [])):
-            for pi, p in enumerate(la.get("passes", [])):
-                if p.get("axes"):
-                    self._axes[(li, pi)] = weld_axes(p["points"], p["axes"], max_step_mm)
-                    self._pts[(li, pi)] = weld_points(p["points"], max_step_mm)
+        for li, la in enumerate(job.layers):
+            for pi, p in enumerate(la.passes):
+                if p.axes is not None:
+                    self._axes[(li, pi)] = weld_axes(p.points.tolist(), p.axes.tolist(), max_step_mm)
+                    self._pts[(li, pi)] = weld_points(p.points, max_step_mm)
 
     def use_pass(self, layer: int, pass_: int) -> None:
         self._cur_axes = self._axes.get((layer, pass_))

@@ -9,9 +9,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from controller.job.read import JobJSON
 from controller.journal.queries import SampleRow
 from controller.journal.store import Journal
+from planner.job import Job
 
 GAP_FACTOR = 20.0  # a sample interval this many times the median breaks the line
 
@@ -35,7 +35,7 @@ def _with_gaps(t: list[float], cols: list[list[Any]]) -> tuple[list[float], list
     return tt, cc
 
 
-def plot_report(journal: Journal, out: Path, job: JobJSON | None, summary: dict[str, Any]) -> list[Path]:
+def plot_report(journal: Journal, out: Path, job: Job | None, summary: dict[str, Any]) -> list[Path]:
     """Write layers.png, process.png, temperature.png and defects.png into `out`."""
     # lazy: matplotlib loads only when this path runs (start-up time)
     import matplotlib
@@ -203,14 +203,14 @@ def _layer_marks(rows: list[SampleRow], t: list[float]) -> list[float]:
     return marks
 
 
-def _defects(plt: Any, out: Path, job: JobJSON | None, summary: dict[str, Any]) -> Path:
+def _defects(plt: Any, out: Path, job: Job | None, summary: dict[str, Any]) -> Path:
     fig, ax = plt.subplots(figsize=(7, 7))
     if job:
-        for li, la in enumerate(job["layers"]):
-            if li % max(1, len(job["layers"]) // 5):
+        for li, la in enumerate(job.layers):
+            if li % max(1, len(job.layers) // 5):
                 continue  # a few layers suffice for the outline
-            for pa in la["passes"]:
-                ax.plot([p[0] for p in pa["points"]], [p[1] for p in pa["points"]], lw=0.4, color="0.7")
+            for pa in la.passes:
+                ax.plot(pa.points[:, 0], pa.points[:, 1], lw=0.4, color="0.7")
     for d in summary["defects"]:
         x, y, _z = d["position"]
         ax.plot([x], [y], "x", color="red", ms=10, mew=2)

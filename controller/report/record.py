@@ -11,9 +11,9 @@ import datetime as _dt
 from pathlib import Path
 from typing import Any, Sequence
 
-from controller.job.read import JobJSON
 from controller.journal.queries import SampleRow
 from controller.journal.store import Journal
+from planner.job import Job, Pass
 
 # One row per planned bead (DESIGN.md §7); every name carries its unit. How each figure is
 # measured: docs/build-record.md "Per bead". There is no planned voltage: the job carries none and
@@ -40,11 +40,11 @@ def iso(t: float | None) -> str | None:
     return _dt.datetime.fromtimestamp(t, tz=_dt.UTC).isoformat(timespec="seconds")
 
 
-def _planned(job: JobJSON | None, layer: int, pass_: int) -> dict[str, Any]:
-    try:
-        return dict(job["layers"][layer]["passes"][pass_]) if job else {}
-    except (IndexError, KeyError, TypeError):
-        return {}
+def _planned(job: Job | None, layer: int, pass_: int) -> Pass | None:
+    """The planned pass (None: no job, or a bead the job does not have)."""
+    if job is None or not (0 <= layer < len(job.layers)) or not (0 <= pass_ < len(job.layers[layer].passes)):
+        return None
+    return job.layers[layer].passes[pass_]
 
 
 def _wfs_stats(samples: list[SampleRow], on: float, off: float, layer: int,
@@ -79,7 +79,7 @@ def _ext(rows: list[dict[str, Any]], key: str, fn: Any) -> float | None:
     return fn(vals) if vals else None
 
 
-def _bead_run(b: dict[str, Any], plan: dict[str, Any], scale: float, samples: list[SampleRow]) -> dict[str, Any]:
+def _bead_run(b: dict[str, Any], plan: Pass | None, scale: float, samples: list[SampleRow]) -> dict[str, Any]:
     """One journaled bead row (one run of a planned bead) in the record's units."""
     if b.get("wfs_min") is not None:   # every bus cycle of the bead (the samples are thinned)
         w_mean, w_min, w_max = b["wfs_mean"], b["wfs_min"], b["wfs_max"]
@@ -99,13 +99,13 @@ def _bead_run(b: dict[str, Any], plan: dict[str, Any], scale: float, samples: li
             "w_min": w_min, "w_max": w_max, "w_p5": b.get("wfs_p5"), "w_p95": b.get("wfs_p95"),
             "speed": b.get("speed_actual_mm_min"), "starved": b.get("starved"), "heat": b["heat_input_j_mm"],
             # the speed the bead was commanded at: the plan's, or the layer control's trim of it
-            "speed_plan": b["speed_mm_min"] or plan.get("speed_mm_min")}
+            "speed_plan": b["speed_mm_min"] or (plan.speed_mm_min if plan is not None else None)}
 
 
-def _bead_keys(job: JobJSON | None, runs: dict[tuple[int, int], list[dict[str, Any]]]) -> list[tuple[int, int]]:
+def _bead_keys(job: Job | None, runs: dict[tuple[int, int], list[dict[str, Any]]]) -> list[tuple[int, int]]:
     """(layer, pass) of every bead to report: each pass of the job, else each journaled bead."""
     if job:
-        return [(li, pi) for li, la in enumerate(job["layers"]) for pi in range(len(la["passes"]))]
+        return [(li, pi) for li, la in enumerate(job.layers) for pi in range(len(la.passes))]
     return sorted(runs)
 
 
@@ -127,7 +127,7 @@ def _bead_status(key: tuple[int, int], done: Any, rows: list[dict[str, Any]], mi
     return status
 
 
-def bead_records(journal: Journal, job: JobJSON | None, scale: float, defects: list[dict[str, Any]],
+def bead_records(journal: Journal, job: Job | None, scale: float, defects: list[dict[str, Any]],
                  tolerance: Any = None) -> list[dict[str, Any]]:
     """One record per planned bead (every pass of the job, built or not): planned against measured.
 
@@ -154,14 +154,14 @@ def bead_records(journal: Journal, job: JobJSON | None, scale: float, defects: l
         i_mean, u_mean = _wmean(rows, "i_mean", "arc_s"), _wmean(rows, "u_mean", "arc_s")
         status = _bead_status((la, pa), done, rows, mine)
         out.append({
-            "layer": la, "pass": pa, "role": plan.get("role"), "status": status,
+            "layer": la, "pass": pa, "role": plan.role if plan else None, "status": status,
             "runs": "+".join(str(r["run"]) for r in rows),
             "arc_time_s": _r(arc, 3), "motion_time_s": _r(motion, 3),
             "still_time_s": _r(_sum(rows, "still_s"), 3), "still_count": _sum(rows, "still_n"),
             "still_max_s": _r(_ext(rows, "still_max_s", max), 3),
-            "length_planned_mm": _r(_polyline_mm(plan["points"]), 2) if plan.get("points") else None,
+            "length_planned_mm": _r(_polyline_mm(plan.points.tolist()), 2) if plan else None,
             "length_measured_mm": _r(length, 2),
-            "current_planned_a": plan.get("current_a"), "current_mean_a": _r(i_mean),
+            "current_planned_a": plan.current_a if plan else None, "current_mean_a": _r(i_mean),
             "current_p5_a": _r(_ext(rows, "i_p5", min)), "current_p95_a": _r(_ext(rows, "i_p95", max)),
             "current_min_a": _r(_ext(rows, "i_min", min)), "current_max_a": _r(_ext(rows, "i_max", max)),
             "voltage_window_min_v": getattr(tolerance, "voltage_min_v", None),
@@ -169,10 +169,10 @@ def bead_records(journal: Journal, job: JobJSON | None, scale: float, defects: l
             "voltage_mean_v": _r(u_mean),
             "voltage_p5_v": _r(_ext(rows, "u_p5", min)), "voltage_p95_v": _r(_ext(rows, "u_p95", max)),
             "voltage_min_v": _r(_ext(rows, "u_min", min)), "voltage_max_v": _r(_ext(rows, "u_max", max)),
-            "wfs_planned_m_min": plan.get("wfs_m_min"), "wfs_mean_m_min": _r(_wmean(rows, "w_mean", "arc_s"), 3),
+            "wfs_planned_m_min": plan.wfs_m_min if plan else None, "wfs_mean_m_min": _r(_wmean(rows, "w_mean", "arc_s"), 3),
             "wfs_p5_m_min": _r(_ext(rows, "w_p5", min), 3), "wfs_p95_m_min": _r(_ext(rows, "w_p95", max), 3),
             "wfs_min_m_min": _r(_ext(rows, "w_min", min), 3), "wfs_max_m_min": _r(_ext(rows, "w_max", max), 3),
-            "speed_planned_mm_min": plan.get("speed_mm_min", rows[0]["speed_plan"] if rows else None),
+            "speed_planned_mm_min": plan.speed_mm_min if plan else (rows[0]["speed_plan"] if rows else None),
             "speed_measured_mm_min": _r(speed, 1),
             "starved_count": _sum(rows, "starved"),
             "heat_input_j_mm": _r(_wmean(rows, "heat", "length_mm")),
@@ -182,7 +182,7 @@ def bead_records(journal: Journal, job: JobJSON | None, scale: float, defects: l
     return out
 
 
-def layer_records(journal: Journal, job: JobJSON | None, scale: float) -> list[dict[str, Any]]:
+def layer_records(journal: Journal, job: Job | None, scale: float) -> list[dict[str, Any]]:
     """Per layer: interpass temperature at its first arc strike, and the wait since the last layer."""
     beads = journal.bead_rows()
     samples = journal.sample_rows()
@@ -196,9 +196,8 @@ def layer_records(journal: Journal, job: JobJSON | None, scale: float) -> list[d
     for la in sorted(first):
         t0 = first[la]
         before = [s[4] for s in samples if s[0] <= t0 and s[4] is not None]
-        limit = None
-        if job and la < len(job["layers"]):
-            limit = (job["layers"][la].get("interpass") or {}).get("max_temperature_c")
+        ip = job.layers[la].interpass if job and 0 <= la < len(job.layers) else None
+        limit = ip.max_temperature_c if ip is not None else None
         out.append({"layer": la, "start": iso(t0), "interpass_temperature_c": _r(before[-1], 1) if before else None,
                     "interpass_limit_c": limit,
                     "wait_s": round((t0 - prev_end) * scale, 1) if prev_end is not None else None})
@@ -211,7 +210,7 @@ def _polyline_mm(points: list[Sequence[float]]) -> float:
     return length
 
 
-def planned_arc_s(job: JobJSON | None, beads: list[dict[str, Any]]) -> float:
+def planned_arc_s(job: Job | None, beads: list[dict[str, Any]]) -> float:
     """The plan's arc time of the passes these beads belong to (whole passes, planned speed)."""
     if not job:
         return 0.0
@@ -220,12 +219,12 @@ def planned_arc_s(job: JobJSON | None, beads: list[dict[str, Any]]) -> float:
         if b.get("status") == "not built":
             continue
         p = _planned(job, b["layer"], b["pass"])
-        if p.get("points") and p.get("speed_mm_min"):
-            total += _polyline_mm(p["points"]) / float(p["speed_mm_min"]) * 60.0
+        if p is not None and p.speed_mm_min:
+            total += _polyline_mm(p.points.tolist()) / p.speed_mm_min * 60.0
     return total
 
 
-def arc_time_figures(journal: Journal, job: JobJSON | None, scale: float, beads: list[dict[str, Any]]) -> dict[str, Any]:
+def arc_time_figures(journal: Journal, job: Job | None, scale: float, beads: list[dict[str, Any]]) -> dict[str, Any]:
     """Three arc times that must agree within 2 %, and the measured arc time beside them.
 
     plan_s: the job's passes that were built, at their planned length and speed (the figure
@@ -258,10 +257,10 @@ def arc_time_figures(journal: Journal, job: JobJSON | None, scale: float, beads:
     return figs
 
 
-def _speed_tolerance_pct(job: JobJSON | None) -> float:
+def _speed_tolerance_pct(job: Job | None) -> float:
     """The material's `tolerance.speed_pct` of the job (10 % when it has none or a bad one)."""
     try:
-        pct = float(((job or {}).get("material") or {}).get("tolerance", {}).get("speed_pct", 10.0))
+        pct = float((job.material if job else {}).get("tolerance", {}).get("speed_pct", 10.0))
     except (AttributeError, TypeError, ValueError):
         pct = 10.0
     return pct
@@ -273,7 +272,7 @@ def _speed_deviations(beads: list[dict[str, Any]]) -> list[tuple[float, dict[str
             if b.get("speed_measured_mm_min") and b.get("speed_planned_mm_min")]
 
 
-def travel_speed_summary(beads: list[dict[str, Any]], job: JobJSON | None = None) -> dict[str, Any]:
+def travel_speed_summary(beads: list[dict[str, Any]], job: Job | None = None) -> dict[str, Any]:
     """How far the measured travel speed strayed from the plan, the beads outside the material's
     `tolerance.speed_pct` (flagged, not defects), the starved beads and the stand-stills."""
     pct = _speed_tolerance_pct(job)

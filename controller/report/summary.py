@@ -11,7 +11,6 @@ import os
 from pathlib import Path
 from typing import Any
 
-from controller.job.read import JobJSON
 from controller.journal.store import Journal
 from controller.report.height import add_height
 from controller.report.plots import plot_report
@@ -25,17 +24,18 @@ from controller.report.record import (
 )
 from core.config import load_material
 from core.errors import CellError
+from planner.job import Job
 
 ALARM_KINDS = ("alarm",)
 
 
-def summarize(journal: Journal, job: JobJSON | None = None, state: str | None = None,
+def summarize(journal: Journal, job: Job | None = None, state: str | None = None,
               operator: str | None = None) -> dict[str, Any]:
     """The build's summary as a JSON-ready dict (times in process seconds, wall clock in ISO UTC)."""
     meta = journal.job() or {}
     scale = journal.latest_time_scale()
-    layers_total = len(job["layers"]) if job else None
-    passes_total = sum(len(la["passes"]) for la in job["layers"]) if job else None
+    layers_total = len(job.layers) if job else None
+    passes_total = sum(len(la.passes) for la in job.layers) if job else None
     done = journal.done_passes()
     layers_done = _layers_done(job, done)
     alarms = journal.alarm_rows()
@@ -75,11 +75,11 @@ def summarize(journal: Journal, job: JobJSON | None = None, state: str | None = 
     }
 
 
-def _layers_done(job: dict[str, Any] | None, done: set[tuple[int, int]]) -> int:
+def _layers_done(job: Job | None, done: set[tuple[int, int]]) -> int:
     """Layers from the first whose every pass is done (the count stops at the first one that is not)."""
     n = 0
-    for li, la in enumerate(job["layers"] if job else []):
-        if not all((li, pi) in done for pi in range(len(la["passes"]))):
+    for li, la in enumerate(job.layers if job else ()):
+        if not all((li, pi) in done for pi in range(len(la.passes))):
             break
         n += 1
     return n
@@ -108,10 +108,13 @@ def _per_layer(beads: list[dict[str, Any]]) -> dict[int, dict[str, float]]:
     return per_layer
 
 
-def _tolerance(job: JobJSON | None) -> Any:
+def _material_name(job: Job | None) -> Any:
+    return job.material.get("name") if job else None
+
+
+def _tolerance(job: Job | None) -> Any:
     """The process tolerance of the job's material (None when the cell no longer knows it)."""
-    mat = (job or {}).get("material")
-    name = mat.get("name") if isinstance(mat, dict) else mat
+    name = _material_name(job)
     if not name:
         return None
     try:
@@ -120,7 +123,7 @@ def _tolerance(job: JobJSON | None) -> Any:
         return None
 
 
-def _tolerance_dict(job: JobJSON | None) -> dict[str, Any] | None:
+def _tolerance_dict(job: Job | None) -> dict[str, Any] | None:
     tol = _tolerance(job)
     if tol is None:
         return None
@@ -128,10 +131,9 @@ def _tolerance_dict(job: JobJSON | None) -> dict[str, Any] | None:
             if hasattr(tol, k)}
 
 
-def _provenance(job: JobJSON | None, operator: str | None) -> dict[str, Any]:
+def _provenance(job: Job | None, operator: str | None) -> dict[str, Any]:
     """Material, wire, gas, software version and operator of the build."""
-    mat = (job or {}).get("material")
-    name = mat.get("name") if isinstance(mat, dict) else mat
+    name = _material_name(job)
     wire = gas = None
     if name:
         try:
@@ -148,17 +150,13 @@ def _provenance(job: JobJSON | None, operator: str | None) -> dict[str, Any]:
             "operator": operator or os.environ.get("CELL_OPERATOR")}
 
 
-def _outside(job: JobJSON | None) -> list[dict[str, int]]:
+def _outside(job: Job | None) -> list[dict[str, int]]:
     """Passes the planner marked as planned outside the process envelope (`--allow-outside`)."""
-    out = []
-    for li, la in enumerate((job or {}).get("layers", [])):
-        for pi, pa in enumerate(la.get("passes", [])):
-            if pa.get("inside_envelope") is False or pa.get("outside_envelope"):
-                out.append({"layer": li, "pass": pi})
-    return out
+    return [{"layer": li, "pass": pi} for li, la in enumerate(job.layers if job else ())
+            for pi, pa in enumerate(la.passes) if not pa.inside_envelope]
 
 
-def write_report(journal: Journal, out_dir: str | Path, job: JobJSON | None = None, plots: bool = True,
+def write_report(journal: Journal, out_dir: str | Path, job: Job | None = None, plots: bool = True,
                  state: str | None = None, operator: str | None = None, csv_path: str | Path | None = None) -> Path:
     """Write report.json, beads.csv (and the PNGs) into `out_dir`; returns the path of report.json."""
     out = Path(out_dir)

@@ -5,8 +5,9 @@ the controller it delayed the 10 ms device cycles by up to 100 ms (measured: the
 waiting for the lock while the plotting thread, time-shared, waited for a CPU beside a busy
 process), enough to lose the cell I/O link or trip the power source's watchdog right after a
 build. The child (`python -m controller.report.worker RUN_DIR`) reads the journal on its own
-connection (WAL lets it read while the controller's connection stays open) and the job from its
-stdin.
+connection (WAL lets it read while the controller's connection stays open) and the job's
+canonical JSON from its stdin (the journal's copy when none is given), read typed there as a file
+is (controller/job/read.py).
 
 A plain child process, not a multiprocessing pool: a forkserver pool re-imports the parent's
 `__main__`, which failed (and would have run the caller's script a second time) whenever the
@@ -25,15 +26,18 @@ import os
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from core.errors import CellError
 import argparse
 
+if TYPE_CHECKING:  # the typed job only annotates: the controller has it loaded already
+    from controller.job.model import CellJob
+
 TIMEOUT_S = 300.0   # a record that takes longer is abandoned (the journal keeps everything)
 
 
-def write_record(run_dir: str | Path, job: dict[str, Any] | None, plots: bool = True,
+def write_record(run_dir: str | Path, job: CellJob | None, plots: bool = True,
                  state: str | None = None, timeout_s: float = TIMEOUT_S) -> Path:
     """Write report.json (+ beads.csv, PNGs) for `run_dir` in a child process; its path.
 
@@ -50,7 +54,7 @@ def write_record(run_dir: str | Path, job: dict[str, Any] | None, plots: bool = 
     env["PYTHONPATH"] = os.pathsep.join([root] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
     env.setdefault("MPLBACKEND", "Agg")
     try:
-        proc = subprocess.run(cmd, input=json.dumps(job) if job is not None else "", capture_output=True,
+        proc = subprocess.run(cmd, input=job.json if job is not None else "", capture_output=True,
                               text=True, env=env, timeout=timeout_s, check=False)
     except subprocess.TimeoutExpired:
         raise CellError(f"build record of {run_dir}: not written within {timeout_s:.0f} s "
@@ -65,13 +69,13 @@ def write_record(run_dir: str | Path, job: dict[str, Any] | None, plots: bool = 
     return Path(out[-1])
 
 
-async def write_report_elsewhere(run_dir: Path, job: dict[str, Any] | None, plots: bool = True,
+async def write_report_elsewhere(run_dir: Path, job: CellJob | None, plots: bool = True,
                                  state: str | None = None) -> Path:
     """Write report.json (+ CSV, PNGs) for `run_dir` in a child process; await its path."""
     return await asyncio.to_thread(write_record, run_dir, job, plots, state)
 
 
-async def record_build_end(journal: Any, bus: Any, run_dir: Path, job: dict[str, Any] | None,
+async def record_build_end(journal: Any, bus: Any, run_dir: Path, job: CellJob | None,
                            state: str | None) -> Path | None:
     """The one record writer at the end of every build (controller/api.py `start()`): the record
     in the run directory, its path journaled and on the views' message line. A record that could
@@ -99,19 +103,12 @@ def _main(argv: list[str]) -> int:
     ap.add_argument("--no-plots", action="store_true")
     args = ap.parse_args(argv)
     text = sys.stdin.read()
-    job = json.loads(text) if text.strip() else None
     # lazy: the report modules (matplotlib) load only when a record is written
-    from controller.journal.store import Journal
-    from controller.report.summary import write_report
+    from controller.job.read import job_from_dict
+    from controller.report.run import write_run_report
 
-    journal = Journal(Path(args.run_dir) / "journal.sqlite")
-    try:
-        if job is None:   # the job the journal holds
-            meta = journal.job()
-            job = json.loads(meta["job_json"]) if meta else None
-        path = write_report(journal, args.run_dir, job, plots=not args.no_plots, state=args.state)
-    finally:
-        journal.close()
+    job = job_from_dict(json.loads(text), "the build's job") if text.strip() else None
+    path = write_run_report(args.run_dir, job, plots=not args.no_plots, state=args.state)
     print(path)
     return 0
 

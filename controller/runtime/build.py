@@ -30,11 +30,12 @@ from controller.journal.store import Journal
 from controller.runtime.machine import CellMachine, State
 from controller.runtime.device_record import crash_rearc, dry_lookahead
 from controller.runtime.progress import ProgressWatchdog, progress_timeout_s
-from controller.job.read import JobJSON
+from controller.job.model import CellJob
 from controller.job.weld_path import Point, weld_points
 from controller.ports import ArcControl, CellIOPort, MotionExecutor, PowerSourcePort
 from core.errors import CellError
 from core.material import ProcessTolerance
+from planner.job import Layer
 from controller.runtime.readiness import ensure_ready
 
 STALE_STATUS_S = 0.1  # a power-source status older than its watchdog (100 ms) does not vouch for a move
@@ -87,7 +88,7 @@ class Interrupted(Exception):
 class BuildRunner:
     """Runs a list of work items; one instance per run (first run or resume)."""
 
-    def __init__(self, *, job: JobJSON, journal: Journal, machine: CellMachine, bus: EventBus,
+    def __init__(self, *, job: CellJob, journal: Journal, machine: CellMachine, bus: EventBus,
                  executor: MotionExecutor, power: PowerSourcePort, cellio: CellIOPort | None = None,
                  options: BuildOptions | None = None, arc: ArcControl | None = None,
                  log: Callable[[str], None] | None = None) -> None:
@@ -124,8 +125,8 @@ class BuildRunner:
         self._unsub: list[Callable[[], None]] = []
         self._stream: asyncio.Task[int] | None = None
         self.starved = 0                      # times the motion queue ran empty inside a bead
-        self.layers = job["layers"]
-        self.totals = (len(self.layers), sum(len(la["passes"]) for la in self.layers))
+        self.layers: Sequence[Layer] = job.layers
+        self.totals = (len(self.layers), sum(len(la.passes) for la in self.layers))
         progress = journal.pass_progress()
         self.done = {k for k, v in progress.items() if v.state == "done"}
         self._journaled = set(progress)       # passes an earlier run started
@@ -175,7 +176,7 @@ class BuildRunner:
                     if prev_layer is not None and self.m.can("next_layer"):
                         self.m.send("next_layer")
                     self.bus.update(layer=item.layer, pass_=item.pass_,
-                                    passes_in_layer=len(self.layers[item.layer]["passes"]))
+                                    passes_in_layer=len(self.layers[item.layer].passes))
                     await self._interpass(item.layer)
                     prev_layer = item.layer
                 await self._one_pass(item)
@@ -218,7 +219,7 @@ class BuildRunner:
     def _layers_done(self) -> int:
         n = 0
         for li, la in enumerate(self.layers):
-            if all((li, pi) in self.done for pi in range(len(la["passes"]))):
+            if all((li, pi) in self.done for pi in range(len(la.passes))):
                 n += 1
             else:
                 break
@@ -226,9 +227,9 @@ class BuildRunner:
 
     async def _interpass(self, layer: int) -> None:
         """Before a layer's first arc: pyrometer below the limit, or the dwell without a reading."""
-        rule = self.layers[layer].get("interpass") or {}
-        limit = float(rule.get("max_temperature_c", self.o.interpass_limit_c))
-        dwell = float(rule.get("dwell_s", self.o.interpass_dwell_s))
+        rule = self.layers[layer].interpass
+        limit = rule.max_temperature_c if rule is not None else self.o.interpass_limit_c
+        dwell = rule.dwell_s if rule is not None else self.o.interpass_dwell_s
         t0 = time.monotonic()
         scale = self.o.time_scale
         temp = self._temperature()
@@ -297,14 +298,14 @@ class BuildRunner:
 
     async def _one_pass(self, item: WorkItem) -> None:
         la, pa = item.layer, item.pass_
-        p = self.layers[la]["passes"][pa]
-        pts = weld_points(p["points"], self.o.max_step_mm)
-        speed = float(p["speed_mm_min"])
+        p = self.layers[la].passes[pa]
+        pts = weld_points(p.points, self.o.max_step_mm)
+        speed = p.speed_mm_min
         start_idx, start_pt, start_mm = self._start_point(item, pts, speed)
         self.current, self.cur_idx, self._acct_idx = item, start_idx, start_idx
         self._pts, self._measured_mm, self._faltered, self._defect_at = pts, 0.0, False, None
         self._cum, self._start_mm = arc_lengths(pts), start_mm
-        self.bus.update(layer=la, pass_=pa, passes_in_layer=len(self.layers[la]["passes"]))
+        self.bus.update(layer=la, pass_=pa, passes_in_layer=len(self.layers[la].passes))
         if start_idx >= len(pts) - 1:  # nothing left of this bead (it stopped on its last point)
             self._pass_done(la, pa)
             return
@@ -323,7 +324,7 @@ class BuildRunner:
         tickets = self._stream = self.ex.queue_weld(pts, start_idx, speed, self._on_exec)
         await self.ex.at_start()
         self.m.send("arc_start")
-        self.power.set_wire_feed(float(p["wfs_m_min"]))
+        self.power.set_wire_feed(p.wfs_m_min)
         await self.arc.start()
         self.arc_starts += 1
         self._arc_lit = True
@@ -344,7 +345,7 @@ class BuildRunner:
         await self.arc.stop()
         self.bus.update(travel_speed_mm_min=None)
         stats = self._close_bead(la, pa, pts, start_idx, len(pts) - 1, speed, interrupted=False)
-        why = judge(stats or {}, float(p["current_a"]), float(p["wfs_m_min"]), self._tolerance(),
+        why = judge(stats or {}, p.current_a, p.wfs_m_min, self._tolerance(),
                     self._faltered, planned_speed=speed)
         if why is not None:
             self._defect(la, pa, why)
@@ -458,10 +459,10 @@ class BuildRunner:
         self._arc_lit = False
         item = self.current
         if item is not None and self._bead is not None:
-            p = self.layers[item.layer]["passes"][item.pass_]
-            pts = weld_points(p["points"], self.o.max_step_mm)
+            p = self.layers[item.layer].passes[item.pass_]
+            pts = weld_points(p.points, self.o.max_step_mm)
             args = (item.layer, item.pass_, pts, item.start_idx, self.cur_idx or item.start_idx,
-                    float(p["speed_mm_min"]))
+                    p.speed_mm_min)
             try:
                 self.closing = asyncio.get_running_loop().create_task(self._close_interrupted(*args))
             except RuntimeError:

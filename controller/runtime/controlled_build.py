@@ -12,13 +12,14 @@ from __future__ import annotations
 from typing import Any
 
 from controller.align.layer_probe import probe_layer_top, probe_spots
-from controller.job.read import JobJSON
+from controller.job.model import CellJob
 from controller.journal.store import Journal
 from controller.runtime.build import BuildResult, BuildRunner, WorkItem
 from controller.runtime.events import EventBus
 from controller.runtime.layer_control import LayerControl, ProbeFn
 from core.config import CellConfig
 from core.material import Material
+from planner.job import Layer
 
 __all__ = ["ControlledRunner", "make_control"]
 
@@ -28,7 +29,7 @@ class ControlledRunner(BuildRunner):
         super().__init__(**kw)
         self.lc = control
         self.layers = control.layers
-        self.totals = (len(self.layers), sum(len(la["passes"]) for la in list.__iter__(self.layers)))
+        self.totals = (len(self.layers), sum(len(la.passes) for la in list.__iter__(self.layers)))
         self.pause_cause: str | None = None
         self._work: list[WorkItem] = []
         self._k = -1
@@ -62,19 +63,19 @@ class ControlledRunner(BuildRunner):
         had = self._bead is not None
         stats = super()._close_bead(la, pa, pts, i0, i1, speed, interrupted)
         if had and not interrupted:
-            self.lc.bead_closed(la, pa, self._currents, float(self.layers[la]["passes"][pa]["wfs_m_min"]))
+            self.lc.bead_closed(la, pa, self._currents, self.layers[la].passes[pa].wfs_m_min)
         return stats
 
 
-def make_control(cfg: CellConfig, job: JobJSON, material: Material, journal: Journal, bus: EventBus | None,
+def make_control(cfg: CellConfig, job: CellJob, material: Material, journal: Journal, bus: EventBus | None,
                  executor: Any) -> LayerControl:
     """The build's layer control (restored from the journal on a resume); the CNC's probe when it has one."""
     pc = cfg.process_control
     probe: ProbeFn | None = None
     link = getattr(executor, "link", None)
     if cfg.cell.platform == "cnc" and link is not None and hasattr(link, "probe"):
-        async def probe(la: int, layer: dict[str, Any]) -> list[float]:
-            spots = probe_spots(layer["passes"], pc.probe_points)
+        async def probe(la: int, layer: Layer) -> list[float]:
+            spots = probe_spots(layer.passes, pc.probe_points)
             return await probe_layer_top(link, cfg.probe, spots, cfg.probe.clearance_mm, name=f"layer {la} top")
     lc = LayerControl(job=job, cfg=pc, material=material, platform=cfg.cell.platform, journal=journal, bus=bus,
                       max_speed_mm_min=cfg.limits.max_speed_mm_min, probe=probe)

@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Any, Awaitable, Callable, Sequence
+from typing import Any, Awaitable, Callable, Sequence, SupportsIndex, overload
 
-from controller.job.read import JobJSON
+from controller.job.model import CellJob
 from controller.journal.store import Journal
 from controller.runtime.build import WorkItem
 from controller.runtime.events import EventBus
@@ -32,24 +32,32 @@ from controller.runtime.layer_plan import (
 from controller.runtime.stickout import StickOutEstimator
 from core.config import ProcessControl
 from core.material import Material
+from planner.job import Layer, Pass
 
-ProbeFn = Callable[[int, dict[str, Any]], Awaitable[list[float]]]   # (layer, the layer as built) -> probed tops
+ProbeFn = Callable[[int, Layer], Awaitable[list[float]]]   # (layer, the layer as built) -> probed tops
 
 
-class BuiltLayers(list[dict[str, Any]]):
+class BuiltLayers(list[Layer]):
     """The layers the runner indexes: `layers[i]` is layer i as built (LayerControl.layer); the
     list itself holds the plan's layers (planned, then added ones), iteration and slices too."""
 
-    def __init__(self, lc: "LayerControl", layers: list[dict[str, Any]]) -> None:
+    def __init__(self, lc: "LayerControl", layers: list[Layer]) -> None:
         super().__init__(layers)
         self.lc = lc
 
-    def __getitem__(self, i: Any) -> Any:
-        if isinstance(i, int):
-            return self.lc.layer(i if i >= 0 else len(self) + i)
-        return super().__getitem__(i)
+    @overload
+    def __getitem__(self, i: SupportsIndex) -> Layer: ...
 
-    def raw(self, i: int) -> dict[str, Any]:
+    @overload
+    def __getitem__(self, i: slice) -> list[Layer]: ...
+
+    def __getitem__(self, i: SupportsIndex | slice) -> Layer | list[Layer]:
+        if isinstance(i, slice):
+            return super().__getitem__(i)
+        k = i.__index__()
+        return self.lc.layer(k if k >= 0 else len(self) + k)
+
+    def raw(self, i: int) -> Layer:
         return list.__getitem__(self, i)
 
 
@@ -60,23 +68,23 @@ def _r(x: float | None, nd: int = 4) -> float | None:
 class LayerControl:
     """One build's layer-height control; `open` records only."""
 
-    def __init__(self, *, job: JobJSON, cfg: ProcessControl, material: Material, platform: str, journal: Journal,
+    def __init__(self, *, job: CellJob, cfg: ProcessControl, material: Material, platform: str, journal: Journal,
                  bus: EventBus | None = None, max_speed_mm_min: float = 1e9, probe: ProbeFn | None = None) -> None:
         self.cfg, self.platform, self.journal, self.bus, self.probe = cfg, platform, journal, bus, probe
         self.closed = cfg.mode == "layer"
-        self.job_layers: list[dict[str, Any]] = list(job["layers"])
+        self.job_layers: list[Layer] = list(job.layers)
         self.n_planned = len(self.job_layers)
         self.n_total = self.n_planned
         self.layers = BuiltLayers(self, self.job_layers)   # the runner builds this list (edited in place)
         self.est = StickOutEstimator(material, cfg.steady_share)
         self.l0 = self.est.nominal_mm
         self.p = 1.0   # the rise follows the metal (controller/runtime/layer_plan.py)
-        top_speed = max(float(p["speed_mm_min"]) for la in self.job_layers for p in la["passes"])
+        top_speed = max(p.speed_mm_min for la in self.job_layers for p in la.passes)
         trim = cfg.speed_trim_pct / 100.0
         self.k_range = (max(1.0 - trim, 0.05), max(min(1.0 + trim, max_speed_mm_min / top_speed), 1e-3))
         self.final_mm = layer_z(self.job_layers[-1])
         self.applied: dict[int, tuple[float, float]] = {}
-        self._built: dict[int, dict[str, Any]] = {}
+        self._built: dict[int, Layer] = {}
         self.next_dz, self.next_k = 0.0, 1.0
         self.gain = 1.0
         first = self.job_layers[0]
@@ -115,11 +123,11 @@ class LayerControl:
         """The remaining work of the planned layers, without dropped layers, with added ones."""
         out = [w for w in work if w.layer < self.n_total]
         out += [WorkItem(j, pi) for j in range(self.n_planned, self.n_total)
-                for pi in range(len(self.layers.raw(j)["passes"])) if (j, pi) not in done]
+                for pi in range(len(self.layers.raw(j).passes)) if (j, pi) not in done]
         return out
 
     # -- the runner's hooks ----------------------------------------------------------------------
-    def layer(self, la: int) -> dict[str, Any]:
+    def layer(self, la: int) -> Layer:
         """Layer `la` as built (its z offset and trim journaled before its first bead)."""
         if not self.closed:
             return self.layers.raw(la)
@@ -136,9 +144,8 @@ class LayerControl:
             self.bus.update(z_correction_mm=dz)
         return got
 
-    def pass_for(self, la: int, pa: int) -> dict[str, Any]:
-        pass_: dict[str, Any] = self.layer(la)["passes"][pa]
-        return pass_
+    def pass_for(self, la: int, pa: int) -> Pass:
+        return self.layer(la).passes[pa]
 
     def bead_closed(self, la: int, pa: int, currents: Sequence[float], wfs_m_min: float) -> None:
         """A bead's arc-stable current samples: its stick-out through the arc (journaled)."""
@@ -193,7 +200,8 @@ class LayerControl:
             "source": source, "stick_out_mm": _r(so), "stick_out_min_mm": _r(min(vals)) if vals else None,
             "stick_out_max_mm": _r(max(vals)) if vals else None, "height_error_mm": _r(top - planned),
             "z_offset_mm": _r(dz), "correction_mm": _r(z_cmd - planned), "speed_factor": _r(kf, 5), "gain": _r(self.gain, 5),
-            "expected_rise_mm": _r(expected), "expected_cum_mm": _r(self.expected_cum), "mode": self.cfg.mode, "added": bool(self.layers.raw(la).get("added")),
+            "expected_rise_mm": _r(expected), "expected_cum_mm": _r(self.expected_cum), "mode": self.cfg.mode,
+            "added": bool(self.layers.raw(la).extra.get("added")),
         }
         pause = None
         if self.closed:
@@ -226,7 +234,7 @@ class LayerControl:
         if d.n_total != self.n_total:
             self._set_count(d.n_total)
             work[k + 1:] = [WorkItem(j, pi) for j in range(la + 1, self.n_total)
-                            for pi in range(len(self.layers.raw(j)["passes"]))]
+                            for pi in range(len(self.layers.raw(j).passes))]
             self._event("layer_count", {"after_layer": la, "layers": self.n_total}, layer=la)
         self.next_k = d.speed_factor
         pause, corr = None, 0.0
@@ -269,4 +277,4 @@ class LayerControl:
         for j in [j for j in self._built if j >= n]:
             del self._built[j]
         if self.bus is not None:
-            self.bus.update(layers_total=n, passes_total=sum(len(x["passes"]) for x in list.__iter__(self.layers)))
+            self.bus.update(layers_total=n, passes_total=sum(len(x.passes) for x in list.__iter__(self.layers)))

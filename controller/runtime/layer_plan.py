@@ -1,5 +1,6 @@
 """Closed-loop layer height, the pure half (docs/closed-loop.md): the control law and the edits
-it makes to the job's layers. No I/O, no clocks: unit-tested on plain dicts.
+it makes to the job's layers (planner.job `Layer`s, frozen: each edit is a copy). No I/O, no
+clocks: unit-tested on typed layers.
 
 Conventions (docs/process-physics.md): a layer's planned z (`z_mm`, every point's z) is the top
 of the bead being laid; the contact tip sits the nominal stick-out L0 above it, so
@@ -19,53 +20,48 @@ The law, after layer i with measured top T (mean over the layer's bead centre li
 """
 from __future__ import annotations
 
-import copy
 import math
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, replace
+from typing import Sequence
+
+import numpy as np
+
+from planner.job import Layer
 
 __all__ = ["Decision", "layer_z", "layer_height", "shift_layer", "trim_layer", "adjusted_layer",
            "extra_layer", "build_layers", "rise_factor", "speed_for", "fit_gain", "decide"]
 
 
-def layer_z(layer: dict[str, Any]) -> float:
-    """The layer's planned top (its `z_mm`, else its first point's z)."""
-    if layer.get("z_mm") is not None:
-        return float(layer["z_mm"])
-    return float(layer["passes"][0]["points"][0][2])
+def layer_z(layer: Layer) -> float:
+    """The layer's planned top (its `z_mm`)."""
+    return layer.z_mm
 
 
-def layer_height(layer: dict[str, Any]) -> float:
-    return float(layer.get("height_mm") or 0.0)
+def layer_height(layer: Layer) -> float:
+    return layer.height_mm
 
 
-def shift_layer(layer: dict[str, Any], dz: float) -> dict[str, Any]:
+def shift_layer(layer: Layer, dz: float) -> Layer:
     """A copy of the layer with every point (and its z_mm) `dz` higher."""
-    out = copy.deepcopy(layer)
-    if out.get("z_mm") is not None:
-        out["z_mm"] = float(out["z_mm"]) + dz
-    for p in out["passes"]:
-        p["points"] = [[float(q[0]), float(q[1]), float(q[2]) + dz, *q[3:]] for q in p["points"]]
-    return out
+    up = np.array([0.0, 0.0, dz])
+    return replace(layer, z_mm=layer.z_mm + dz, passes=tuple(replace(p, points=p.points + up) for p in layer.passes),
+                   extra=dict(layer.extra))
 
 
-def trim_layer(layer: dict[str, Any], speed_factor: float) -> dict[str, Any]:
+def trim_layer(layer: Layer, speed_factor: float) -> Layer:
     """A copy of the layer with every pass's travel speed times `speed_factor`."""
-    out = copy.deepcopy(layer)
-    for p in out["passes"]:
-        p["speed_mm_min"] = float(p["speed_mm_min"]) * speed_factor
-    return out
+    return replace(layer, passes=tuple(replace(p, speed_mm_min=p.speed_mm_min * speed_factor) for p in layer.passes))
 
 
-def adjusted_layer(layer: dict[str, Any], dz: float, speed_factor: float) -> dict[str, Any]:
+def adjusted_layer(layer: Layer, dz: float, speed_factor: float) -> Layer:
     """The layer as built: shifted by `dz`, its travel speeds trimmed by `speed_factor`."""
-    out = shift_layer(layer, dz) if dz else copy.deepcopy(layer)
+    out = shift_layer(layer, dz) if dz else layer
     return trim_layer(out, speed_factor) if speed_factor != 1.0 else out
 
 
-def extra_layer(layers: list[dict[str, Any]], j: int) -> dict[str, Any]:
+def extra_layer(layers: Sequence[Layer], j: int) -> Layer:
     """Layer j ≥ len(layers): a copy of the last layer (or of the one before, so a wall keeps
-    its alternating direction) one planned layer height above the previous top."""
+    its alternating direction) one planned layer height above the previous top (`extra["added"]`)."""
     n = len(layers)
     if j < n:
         raise ValueError(f"layer {j} is a planned layer, not an extra one")
@@ -74,14 +70,10 @@ def extra_layer(layers: list[dict[str, Any]], j: int) -> dict[str, Any]:
     h = layer_height(last) or (layer_z(last) - layer_z(layers[-2]) if n >= 2 else 1.0)
     z = layer_z(last) + h * (j - n + 1)
     out = shift_layer(template, z - layer_z(template))
-    out["index"] = j
-    out["z_mm"] = z
-    out["height_mm"] = h
-    out["added"] = True
-    return out
+    return replace(out, index=j, z_mm=z, height_mm=h, extra={**template.extra, "added": True})
 
 
-def build_layers(layers: list[dict[str, Any]], n_total: int) -> list[dict[str, Any]]:
+def build_layers(layers: Sequence[Layer], n_total: int) -> list[Layer]:
     """The layers a build lays: the planned ones, the first `n_total` of them or extra ones after."""
     if n_total <= len(layers):
         return list(layers[:n_total])

@@ -23,7 +23,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Awaitable, Callable, Sequence
 
-from controller.job.read import JobJSON
+from controller.job.model import CellJob
 from core.errors import CellError
 
 NOISE_MM = 0.02          # position change that counts as progress (reports carry 3 decimals)
@@ -33,14 +33,14 @@ DROP_MARGIN_S = 0.03     # the dropped start reaches the source within 2 bus cyc
 SAMPLE_TIMEOUT_S = 1.0   # a status request that takes longer is not a sample (the link's own loss rule acts)
 
 
-def longest_move_s(job: JobJSON, max_step_mm: float) -> float:
+def longest_move_s(job: CellJob, max_step_mm: float) -> float:
     """Process seconds of the longest weld move of the job (its polylines subdivided to at most
     `max_step_mm`, as controller/job/weld_path.py does), at each pass's planned speed."""
     worst = 0.0
-    for la in job.get("layers", []):
-        for p in la.get("passes", []):
-            v = float(p.get("speed_mm_min") or 0.0) / 60.0
-            pts = p.get("points") or []
+    for la in job.layers:
+        for p in la.passes:
+            v = p.speed_mm_min / 60.0
+            pts = p.points.tolist()
             if v <= 0 or len(pts) < 2:
                 continue
             longest = 0.0
@@ -52,7 +52,7 @@ def longest_move_s(job: JobJSON, max_step_mm: float) -> float:
     return worst
 
 
-def progress_timeout_s(job: JobJSON, max_step_mm: float, configured: float | None) -> float:
+def progress_timeout_s(job: CellJob, max_step_mm: float, configured: float | None) -> float:
     """The bound in process seconds: the configured one, else 2 × the longest move + 1 s."""
     if configured is not None:
         return float(configured)

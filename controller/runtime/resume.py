@@ -16,17 +16,17 @@ from __future__ import annotations
 from pathlib import Path
 
 from controller.runtime.build import WorkItem
-from controller.job.read import JobJSON
+from controller.job.model import CellJob
 from controller.journal.store import Journal
 from core.errors import CellError
 
 
-def remaining_work(job: JobJSON, journal: Journal) -> list[WorkItem]:
+def remaining_work(job: CellJob, journal: Journal) -> list[WorkItem]:
     """Every pass not yet done, in build order, each from where its bead stopped."""
     prog = journal.pass_progress()
     items: list[WorkItem] = []
-    for li, layer in enumerate(job["layers"]):
-        for pi, _p in enumerate(layer["passes"]):
+    for li, layer in enumerate(job.layers):
+        for pi in range(len(layer.passes)):
             p = prog.get((li, pi))
             if p is not None and p.state == "done":
                 continue

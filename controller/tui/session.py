@@ -30,7 +30,8 @@ from pathlib import Path
 from typing import Any, Callable
 
 from controller.runtime.events import Snapshot
-from controller.job.read import JobJSON, read_job
+from controller.job.model import CellJob
+from controller.job.read import read_job
 from core.errors import CellError, InputError
 
 from controller.tui.planning import _plan_main, probe_plan  # noqa: F401  (re-exported)
@@ -87,7 +88,7 @@ class CellSession:
         self._last_sample = 0.0
         self._plan = PlanStatus()
         self._job: JobInfo | None = None
-        self._job_dict: JobJSON | None = None
+        self._cell_job: CellJob | None = None   # the job as the controller opens it (typed)
         self._alignment: dict[str, Any] | None = None
         self._alignment_applied = False  # DESIGN.md §3: one alignment per job, applied once
         self._busy: str | None = None
@@ -157,8 +158,8 @@ class CellSession:
                 self._connect_error = None
                 freeze_heap()
                 self._note("info", "connected: " + ", ".join(f"{ls.device} {ls.url}" for ls in self.ctl.snapshot().links))
-                if self._job_dict is not None:
-                    await self._open_dict(self._job_dict)
+                if self._cell_job is not None:
+                    await self._open_job(self._cell_job)
             except Exception as exc:
                 msg = str(exc) or exc.__class__.__name__
                 self._connect_error = msg
@@ -267,21 +268,23 @@ class CellSession:
         return self._submit(lambda: self._open_path(p))
 
     async def _open_path(self, p: Path) -> None:
-        job = read_job(p)
+        # read, checked and hashed off the controller's loop (~0.1 s for the demo part): the power
+        # source's 10 ms cycle keeps running meanwhile
+        job = await asyncio.get_running_loop().run_in_executor(None, read_job, p)
         self._plan = PlanStatus(state="done", file=str(p))
         self._alignment_applied = False  # a new job: the alignment may be applied to it once
-        await self._open_dict(job)
+        await self._open_job(job)
 
-    async def _open_dict(self, job: JobJSON, info: JobInfo | None = None) -> None:
-        info = info or job_info(job)
+    async def _open_job(self, job: CellJob, info: JobInfo | None = None) -> None:
+        info = info or job_info(job.job)
         if self.ctl is None or self._snap.state == "disconnected":
             # no cell yet: keep the job, it is opened when the devices connect
-            self._job_dict, self._job = job, info
+            self._cell_job, self._job = job, info
             return
-        # open_job hashes and journals the whole job (~0.1 s for the demo part): off the
-        # controller's loop, so the power source's 10 ms cycle keeps running meanwhile.
+        # open_job checks and journals the whole job: off the controller's loop, so the power
+        # source's 10 ms cycle keeps running meanwhile.
         await asyncio.get_running_loop().run_in_executor(None, self.ctl.open_job, job)
-        self._job_dict, self._job = job, replace(info, name=self.ctl.snapshot().job_name or info.name)
+        self._cell_job, self._job = job, replace(info, name=self.ctl.snapshot().job_name or info.name)
         freeze_heap()
         self._note("info", f"job {self._job.name} open: {self._job.layers} layers, {self._job.passes} passes")
 
@@ -296,11 +299,10 @@ class CellSession:
 
         material = self.cfg.cell.material
 
-        def work() -> tuple[JobJSON, JobInfo]:
+        def work() -> tuple[CellJob, JobInfo]:
             # Planning is CPU-bound: in a thread it would hold the GIL long enough to starve
             # the power source's 10 ms cycle and the cell I/O poll (a link timeout, a fault).
             # It runs in a child process; progress comes back line by line on its stdout.
-            import json
             import subprocess
             import sys
             import tempfile
@@ -326,15 +328,15 @@ class CellSession:
                 if proc.returncode != 0 or not out.exists():
                     last = err_text.strip().splitlines()[-1:] or ["no output"]
                     raise CellError(f"planning {st.file}: the planner stopped ({last[0]})")
-                job = json.loads(out.read_text(encoding="utf-8"))
-            return job, job_info(job)
+                job = read_job(out)
+            return job, job_info(job.job)
 
         async def _do() -> None:
             try:
                 job, info = await asyncio.get_running_loop().run_in_executor(None, work)
                 self._plan = replace(self._plan, state="done")
                 self._alignment_applied = False  # a new job: the alignment may be applied to it once
-                await self._open_dict(job, info)
+                await self._open_job(job, info)
             except Exception as exc:
                 self._plan = replace(self._plan, state="error", error=str(exc))
                 self._note("alarm", f"planning failed: {exc}")
@@ -441,7 +443,7 @@ class CellSession:
     def apply_alignment(self) -> concurrent.futures.Future[Any]:
         """Re-open the job moved by the alignment transform (the CAD model moves, not the part)."""
         async def _do() -> None:
-            if self._alignment is None or self._job_dict is None:
+            if self._alignment is None or self._cell_job is None:
                 raise CellError("nothing to apply: run the alignment and open a job first")
             if self._alignment_applied:
                 raise CellError("the alignment is already applied to this job (one alignment per job); "
@@ -449,14 +451,16 @@ class CellSession:
             tf = self._alignment.get("transform")
             if tf is None:
                 raise CellError("the alignment result has no transform")
-            a = self._alignment
-            job = apply_to_job(self._job_dict, tf, {"transform": tf, "level_a_deg": a.get("level_a_deg"),
-                                                     "level_b_deg": a.get("level_b_deg"),
-                                                     "probed_at": a.get("probed_at")})  # a second: refused
-            job["name"] = f"{self._job.name if self._job else 'job'}-aligned"
+            a, src = self._alignment, self._cell_job
+            record = {"transform": tf, "level_a_deg": a.get("level_a_deg"), "level_b_deg": a.get("level_b_deg"),
+                      "probed_at": a.get("probed_at")}
+            name = f"{self._job.name if self._job else 'job'}-aligned"
             self._alignment_applied = True  # set before the await: a second key press is refused at once
             try:
-                await self._open_dict(job)
+                # a new job, read and hashed off the controller's loop; a second alignment is refused
+                job = await asyncio.get_running_loop().run_in_executor(
+                    None, lambda: apply_to_job(src, tf, record, name=name))
+                await self._open_job(job)
             except BaseException:
                 self._alignment_applied = False
                 raise

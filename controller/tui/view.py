@@ -1,12 +1,13 @@
 """What the TUI shows: view dataclasses (a frozen picture of the cell) and their summarisers."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from controller.job.read import JobJSON
+from planner.job import Job, Pass
 from controller.runtime.events import Snapshot
 
 HISTORY_LEN = 300          # samples kept for the live plots (30 s at 10 Hz)
@@ -147,32 +148,31 @@ class View:
 # -- job helpers (pure) --------------------------------------------------------------------------
 
 
-def job_info(job: JobJSON, name: str | None = None) -> JobInfo:
-    """The summary, per-role parameters and 2-D layer paths of a `cell-job/1` dict."""
-    per: dict[str, list[dict[str, Any]]] = {}
+def job_info(job: Job, name: str | None = None) -> JobInfo:
+    """The summary, per-role parameters and 2-D layer paths of a typed job (planner.job)."""
+    per: dict[str, list[Pass]] = {}
     layer_paths = []
-    for la in job["layers"]:
+    for la in job.layers:
         paths = []
-        for p in la.get("passes", []):
-            per.setdefault(p.get("role", "?"), []).append(p)
-            pts = tuple((round(float(q[0]), 3), round(float(q[1]), 3)) for q in p["points"])
-            paths.append((p.get("role", "?"), pts))
+        for p in la.passes:
+            per.setdefault(p.role, []).append(p)
+            pts = tuple((round(x, 3), round(y, 3)) for x, y in p.points[:, :2].tolist())
+            paths.append((p.role, pts))
         layer_paths.append(tuple(paths))
 
-    def rng(ps: list[dict[str, Any]], key: str) -> tuple[float, float]:
-        vals = [float(p[key]) for p in ps if key in p]
+    def rng(ps: list[Pass], key: str) -> tuple[float, float]:
+        vals = [float(getattr(p, key)) for p in ps]
         return (min(vals), max(vals)) if vals else (math.nan, math.nan)
 
     roles = tuple(RoleParams(role=r, passes=len(ps), width_mm=rng(ps, "width_mm")[1],
                              current_a=rng(ps, "current_a"), speed_mm_min=rng(ps, "speed_mm_min"),
                              wfs_m_min=rng(ps, "wfs_m_min"))
                   for r, ps in sorted(per.items(), key=lambda kv: (ROLES + (kv[0],)).index(kv[0])))
-    src = job.get("source") or {}
     if name is None:
-        name = Path(str(src.get("file") or "job")).stem
-    return JobInfo(name=name, source=str(src.get("file", "")), layers=len(job["layers"]),
-                   passes=sum(len(la.get("passes", [])) for la in job["layers"]), bead=dict(job.get("bead") or {}),
-                   summary=dict(job.get("summary") or {}), roles=roles, layer_paths=tuple(layer_paths))
+        name = Path(job.source.file or "job").stem
+    return JobInfo(name=name, source=job.source.file, layers=len(job.layers),
+                   passes=sum(len(la.passes) for la in job.layers), bead=dataclasses.asdict(job.bead),
+                   summary=dict(job.summary), roles=roles, layer_paths=tuple(layer_paths))
 
 
 def alignment_dict(result: Any) -> dict[str, Any] | None:
