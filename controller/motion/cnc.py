@@ -42,7 +42,7 @@ class CncExecutor:
         self.exec_count = 0
         self.min_ahead: int | None = None
         self._lost_cbs: list[Callable[[Any], None]] = []
-        self._pos_cbs: list[Callable[[float, int, float], None]] = []
+        self._pos_cbs: list[Callable[[float, float], None]] = []
         self.exe_t = 0.0   # when the latest progress (status report, the closing `ok`) came off the wire
         self.go_t = 0.0    # when the current bead's weld lines began to go out (grbl sets off at once)
         self.stopping: asyncio.Task[Any] | None = None   # the safe stop of the latest hold_now()
@@ -52,9 +52,9 @@ class CncExecutor:
     def on_link_lost(self, fn: Callable[[Any], None]) -> None:
         self._lost_cbs.append(fn)
 
-    def on_position(self, fn: Callable[[float, int, float], None]) -> None:
-        """`fn(t, i, f)` for every status report during a weld: at wall time t the tool was the
-        fraction f along the planned move i → i+1 (the bead's timing, controller/runtime/bead_measure.py)."""
+    def on_position(self, fn: Callable[[float, float], None]) -> None:
+        """`fn(t, s)` for every status report during a weld: at wall time t (as the report came off
+        the wire) the tool was s mm along the pass's points (the bead's pace: runtime/bead_measure.py)."""
         self._pos_cbs.append(fn)
 
     async def prepare(self) -> None:
@@ -182,7 +182,7 @@ class CncExecutor:
                     break
             if at is not None:
                 for fn in self._pos_cbs:
-                    fn(self.exe_t, at[0], at[1])
+                    fn(self.exe_t, at)
 
     async def at_start(self) -> None:
         return None  # approach() returned after its G4 P0: the torch is there
@@ -254,19 +254,22 @@ def _setting(lines: list[str], n: int) -> str | None:
 
 
 class _Along:
-    """Where a reported position lies along the planned weld points (from `i0` on, forward only):
-    the move i → i+1 and the fraction f along it, within `tol` mm of the path."""
+    """How far along the planned weld points (mm from the first) a reported position lies, within
+    `tol` mm of the path, searching forward from the move the previous report lay on."""
 
     def __init__(self, pts: list[Point], i0: int, tip: Callable[[Any], Point], tol: float = 0.05) -> None:
         self.pts, self.k, self.tip, self.tol = pts, i0, tip, tol
+        self.cum = [0.0]
+        for a, b in zip(pts, pts[1:]):
+            self.cum.append(self.cum[-1] + math.dist(a, b))
 
-    def locate(self, mpos: Any) -> tuple[int, float] | None:
+    def locate(self, mpos: Any) -> float | None:
         p = self.tip(mpos)
         for j in range(self.k, min(self.k + 200, len(self.pts) - 1)):
             f = _fraction(p, self.pts[j], self.pts[j + 1], self.tol)
             if f is not None:
                 self.k = j
-                return j, f
+                return self.cum[j] + f * (self.cum[j + 1] - self.cum[j])
         return None
 
 

@@ -104,6 +104,12 @@ class Pace:
             return
         self.points.append((t, s))
 
+    def at(self, t: float, s: float) -> None:
+        """A position report (a CNC status report): the torch s mm along the pass at wall time t.
+        At the start it may not have set off yet: that says nothing of its pace."""
+        if s > self.s_release + 1e-3:
+            self.reached(t, s)
+
     def speed_mm_s(self) -> float | None:
         """Wall mm/s: the slope over the EXEs (two or more), else from the release to the one EXE."""
         pts = self.points

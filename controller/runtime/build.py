@@ -133,9 +133,9 @@ class BuildRunner:
         # to be committed (fsync), which would stall the device cycles at the end of the build
         self._defects_before = journal.defect_count()
         self._defects_new = 0
-        on_position = getattr(executor, "on_position", None)   # the CNC's status positions
+        on_position = getattr(executor, "on_position", None)   # the CNC's status positions: the bead's pace
         if on_position is not None:
-            on_position(self._on_position)
+            on_position(lambda t, s: self._pace.at(t, s) if self._pace is not None else None)
         self.progress_s = progress_timeout_s(job, self.o.max_step_mm, self.o.progress_timeout_s)
         self.watchdog: ProgressWatchdog | None = None
 
@@ -385,8 +385,7 @@ class BuildRunner:
         pace, self._pace = self._pace, None
         if pace is not None:
             pace.starved += getattr(self.ex, "starved", 0)   # starvations inside this bead
-            go = float(getattr(self.ex, "go_t", 0.0) or 0.0)   # a CNC sets off when its first weld line arrives
-            if go:
+            if go := float(getattr(self.ex, "go_t", 0.0) or 0.0):   # a CNC sets off when its first weld line arrives
                 pace.set_off(go)
             stats.update(pace.figures(self.o.time_scale, length))
         hi = None
@@ -422,14 +421,6 @@ class BuildRunner:
             self._pace.reached(self._t_exe_rx, self._cum[idx])
         self.cur_idx = idx
         self.journal.progress(ticket, item.layer, item.pass_, idx)
-
-    def _on_position(self, t: float, idx: int, frac: float) -> None:
-        """The torch a fraction `frac` along weld move idx → idx+1 at wall time t (a CNC status
-        report as it came off the wire): the bead's pace between the points it passed."""
-        if self._pace is not None and 0 <= idx < len(self._cum) - 1:
-            s = self._cum[idx] + frac * (self._cum[idx + 1] - self._cum[idx])
-            if s > self._pace.s_release + 1e-3:   # still at the start: it may not have set off
-                self._pace.reached(t, s)
 
     def _on_power(self, st: Any) -> None:
         if self._bead is not None and st.arc_stable and self._arc_lit:  # not the burn-back after weld start drops
