@@ -7,6 +7,8 @@ marks the last weld move executed. grbl reports no per-line execution, so progre
 the status reports (≤ 5 Hz): a point counts as reached once the machine position lies on a
 later segment of the bead — conservative, so a resumed bead re-arcs at or before the point
 where it stopped (the overlap is bounded by one status period of motion, not by one move).
+For the bead's timing each report is also placed along the path and timed as it came off the
+wire (`on_position`), and the end by the closing `ok`'s arrival (docs/build-record.md arc_time_s).
 """
 from __future__ import annotations
 
