@@ -44,6 +44,8 @@ class GrblReceiver:
         self.planner_blocks_reported: int | None = None   # idem
         self.axis_letters: str | None = None         # from `$I` [AXS:n:XYZAB] (grblHAL)
         self.latest_status: GrblStatus | None = None
+        self.status_t = 0.0   # when latest_status came off the wire (the port's reader thread), monotonic
+        self.answer_t = 0.0   # when the latest `ok` / `error:N` came off the wire, monotonic
         self.messages: deque[str] = deque(maxlen=200)   # unsolicited feedback lines
         self.alarms: list[int] = []
         self.last_probe: Probe | None = None
@@ -150,6 +152,7 @@ class GrblReceiver:
         if r.wco is not None:
             self._wco = r.wco
         self.latest_status = r
+        self.status_t = getattr(self._port, "rx_t", 0.0) or time.monotonic()
         if r.rx_free is not None and r.planner_free is not None:
             # Bf: the most free ever seen is the empty buffer / planner
             self._rx_free_max = max(self._rx_free_max, r.rx_free)
@@ -173,6 +176,7 @@ class GrblReceiver:
             return  # a stray acknowledgement (e.g. after a reset): nothing waits for it
         p = self._pending.popleft()
         self._last_ack = time.monotonic()
+        self.answer_t = getattr(self._port, "rx_t", 0.0) or self._last_ack
         self._set_in_flight(self._in_flight - p.nbytes)
         if isinstance(r, Error) and p.number is not None and self._stream_error is None:
             self._stream_error = p

@@ -7,11 +7,14 @@ marks the last weld move executed. grbl reports no per-line execution, so progre
 the status reports (≤ 5 Hz): a point counts as reached once the machine position lies on a
 later segment of the bead — conservative, so a resumed bead re-arcs at or before the point
 where it stopped (the overlap is bounded by one status period of motion, not by one move).
+For the bead's timing each report is also placed along the path and timed as it came off the
+wire (`on_position`), and the end by the closing `ok`'s arrival (docs/build-record.md arc_time_s).
 """
 from __future__ import annotations
 
 import asyncio
 import math
+import time
 from typing import Any, Callable
 
 from controller.ports import CncLinkPort, PowerSourcePort
@@ -41,12 +44,20 @@ class CncExecutor:
         self.exec_count = 0
         self.min_ahead: int | None = None
         self._lost_cbs: list[Callable[[Any], None]] = []
+        self._pos_cbs: list[Callable[[float, float], None]] = []
+        self.exe_t = 0.0   # when the latest progress (status report, the closing `ok`) came off the wire
+        self.go_t = 0.0    # when the current bead's weld lines began to go out (grbl sets off at once)
         self.stopping: asyncio.Task[Any] | None = None   # the safe stop of the latest hold_now()
         self.stop_result: Any = None                # its SafeStopResult (drivers/grbl_stop.py)
         self.accel_mm_s2 = 10.0                     # the hold's deceleration bound (grbl default)
 
     def on_link_lost(self, fn: Callable[[Any], None]) -> None:
         self._lost_cbs.append(fn)
+
+    def on_position(self, fn: Callable[[float, float], None]) -> None:
+        """`fn(t, s)` for every status report during a weld: at wall time t (as the report came off
+        the wire) the tool was s mm along the pass's points (the bead's pace: runtime/bead_measure.py)."""
+        self._pos_cbs.append(fn)
 
     async def prepare(self) -> None:
         st = await self.link.status()
@@ -126,6 +137,7 @@ class CncExecutor:
     def queue_weld(self, pts: list[Point], i0: int, speed: float,
                    on_exec: Callable[[int, int], None]) -> "asyncio.Task[int]":
         self._release = asyncio.Event()
+        self.go_t = 0.0
         lines = [f"M3 S{self.spindle_s}"]
         if self.five.active:  # chord-tolerance split moves: the track maps back to the planned points
             lines += self.five.weld_lines(i0, speed)
@@ -134,26 +146,35 @@ class CncExecutor:
             lines += [f"G1 X{_f(p[0])} Y{_f(p[1])} Z{_f(p[2])} F{speed:.0f}" for p in pts[i0 + 1:]]
             track, t0, on_track = pts, i0, on_exec
         lines.append("M5")
+        along = _Along(pts, i0, self.five.part_point if self.five.active else _xyz)
 
         async def run() -> int:
             await self._release.wait()
-            poll = asyncio.get_running_loop().create_task(self._track(track, t0, on_track))
+            poll = asyncio.get_running_loop().create_task(self._track(track, t0, on_track, along))
+            self.go_t = time.monotonic()
             try:
                 await self.link.stream(lines)
             finally:
                 poll.cancel()
             last = len(pts) - 1
+            # the closing G4 P0's `ok` as it came off the wire: the last weld move had ended
+            self.exe_t = float(getattr(self.link, "answer_t", 0.0) or 0.0) or time.monotonic()
             on_exec(last, last)
             self.exec_count += len(lines)
             return last
 
         return asyncio.get_running_loop().create_task(run())
 
-    async def _track(self, pts: list[Point], i0: int, on_exec: Callable[[int, int], None]) -> None:
-        """Progress from the status reports: the points the position has passed."""
+    async def _track(self, pts: list[Point], i0: int, on_exec: Callable[[int, int], None], along: "_Along") -> None:
+        """Progress from the status reports: the points the position has passed, and where along
+        the planned path the tool was when the report came off the wire (`on_position`)."""
         k = i0
         while True:
             st = await self.link.status()
+            fresh = getattr(self.link, "latest_status", None) is st
+            self.exe_t = float(getattr(self.link, "status_t", 0.0) or 0.0) if fresh else 0.0
+            self.exe_t = self.exe_t or time.monotonic()
+            at = along.locate(st.mpos)
             pos = _xyz(st.mpos)
             for j in range(k, min(k + 200, len(pts) - 1)):
                 if _on_segment(pos, pts[j], pts[j + 1]):
@@ -161,6 +182,9 @@ class CncExecutor:
                         k = j
                         on_exec(j, j)
                     break
+            if at is not None:
+                for fn in self._pos_cbs:
+                    fn(self.exe_t, at)
 
     async def at_start(self) -> None:
         return None  # approach() returned after its G4 P0: the torch is there
@@ -226,6 +250,39 @@ def _setting(lines: list[str], n: int) -> str | None:
         if text.startswith(f"${n}="):
             return text.split("=", 1)[1]
     return None
+
+
+class _Along:
+    """How far along the planned weld points (mm from the first) a reported position lies, within
+    `tol` mm of the path, searching forward from the move the previous report lay on."""
+
+    def __init__(self, pts: list[Point], i0: int, tip: Callable[[Any], Point], tol: float = 0.05) -> None:
+        self.pts, self.k, self.tip, self.tol = pts, i0, tip, tol
+        self.cum = [0.0]
+        for a, b in zip(pts, pts[1:]):
+            self.cum.append(self.cum[-1] + math.dist(a, b))
+
+    def locate(self, mpos: Any) -> float | None:
+        p = self.tip(mpos)
+        for j in range(self.k, min(self.k + 200, len(self.pts) - 1)):
+            f = _fraction(p, self.pts[j], self.pts[j + 1], self.tol)
+            if f is not None:
+                self.k = j
+                return self.cum[j] + f * (self.cum[j + 1] - self.cum[j])
+        return None
+
+
+def _fraction(p: Point, a: Point, b: Point, tol: float) -> float | None:
+    """How far along a → b the point nearest p lies (0..1), None when p is off the segment."""
+    ab = [y - x for x, y in zip(a, b)]
+    L2 = sum(v * v for v in ab)
+    if L2 < 1e-12:
+        return None
+    t = sum((pv - av) * v for pv, av, v in zip(p, a, ab)) / L2
+    if t < -1e-6 or t > 1 + 1e-6:
+        return None
+    t = min(1.0, max(0.0, t))
+    return t if math.dist(p, [av + t * v for av, v in zip(a, ab)]) < tol else None
 
 
 def _on_segment(p: Point, a: Point, b: Point, tol: float = 0.02) -> bool:

@@ -17,6 +17,9 @@ import math
 from dataclasses import dataclass, field
 
 BUS_CYCLE_S = 0.010   # the power source's bus cycle (wall): how finely the controller sees the process
+# wall: how late a device's report may come without the torch having stood; the arc time forgives
+# that much at the bead's start and end (DESIGN.md §6a: the simulators answer within 5 ms, p99)
+REPORT_LATENCY_S = 0.005
 
 
 @dataclass
@@ -88,6 +91,7 @@ class Pace:
     t_arc_lost: float | None = None       # wall time the source first reported the arc not stable
     planned_mm_min: float | None = None   # the pass's planned travel speed (process mm/min)
     speed_tol: float = 0.10               # the material's tolerance.speed_pct as a fraction
+    t_go: float | None = None             # when a device that sets off at once was sent its first move (CNC)
 
     def arc_lost(self, t: float) -> None:
         """The source's arc-stable bit fell at wall time `t` (the first fall counts)."""
@@ -99,6 +103,12 @@ class Pace:
             self.points[-1] = (t, max(s, self.points[-1][1]))
             return
         self.points.append((t, s))
+
+    def at(self, t: float, s: float) -> None:
+        """A position report (a CNC status report): the torch s mm along the pass at wall time t.
+        At the start it may not have set off yet: that says nothing of its pace."""
+        if s > self.s_release + 1e-3:
+            self.reached(t, s)
 
     def speed_mm_s(self) -> float | None:
         """Wall mm/s: the slope over the EXEs (two or more), else from the release to the one EXE."""
@@ -133,35 +143,86 @@ class Pace:
         """Wall time the torch started along the bead: the release, or later when the device
         took a while to start (a robot starts its first move some milliseconds after `!GO`).
 
-        Each report bounds the start from below: the torch reached s_i by t_i, so at most at
-        the pace v it left s_release at t_i - (s_i - s_release) / v or later; the latest of those
-        bounds over the bead's first reports (before any stand-still) is where it set off."""
+        Each report bounds the start from above: the torch reached s_i by t_i, so at most at
+        the pace v it left s_release at t_i - (s_i - s_release) / v or earlier; the earliest of
+        those bounds is where it set off (the reports are late by about as much as the one that
+        ends the bead, `motion_end`, so the two cancel). A device that sets off as soon as it has
+        its first move (`t_go`: grbl starts a planned block at once) set off at t_go: a later
+        start than that, beyond a report's latency (`REPORT_LATENCY_S`), is the torch standing
+        still with the arc on before its first report, and in the arc time (a CNC starved by its
+        host 10-55 ms, 0.6-3.3 s of process time at time scale 60)."""
         v = self._wall_speed(time_scale)
         if v is None or not self.points:
             return self.t_release
         est = min(t - max(0.0, s - self.s_release) / v for t, s in self.points)
+        if self.t_go is not None:
+            go = max(self.t_release, self.t_go)
+            return go + min(max(0.0, est - go), REPORT_LATENCY_S)
         return max(self.t_release, est)
 
-    def _wall_speed(self, time_scale: float) -> float | None:
-        """The faster of the measured pace and the plan: a stand-still mid-bead lowers the
-        measured pace, which would push the start estimate early; a device faster than its plan
-        would do the same with the planned pace."""
-        vs = [v for v in (self.speed_mm_s(),
-                          self.planned_mm_min / 60.0 * time_scale if self.planned_mm_min else None) if v]
-        return max(vs) if vs else None
+    def set_off(self, t_go: float) -> None:
+        """The device sets off as soon as it has its first move, which it was sent at wall time t_go."""
+        self.t_go = t_go
+
+    def _wall_speed(self, time_scale: float, cycle_s: float = BUS_CYCLE_S) -> float | None:
+        """The plan's pace, or the measured one where the device clearly ran faster than its plan:
+        by more than the speed tolerance and the two bus cycles each report may be late by, over
+        the span of the reports. A stand-still mid-bead lowers the measured pace, which would push
+        the start estimate early; two reports a few milliseconds late apart raise it (a CNC's two
+        status reports over a bead at time scale 60: +13 %), which would push it late."""
+        v_plan = self.planned_mm_min / 60.0 * time_scale if self.planned_mm_min else None
+        v = self.speed_mm_s()
+        span = max(t for t, _ in self.points) - min(t for t, _ in self.points) if self.points else 0.0
+        if v_plan is None or (v is not None and span > 0
+                              and v > v_plan * (1.0 + self.speed_tol + 2 * cycle_s / span)):
+            return v
+        return v_plan
 
     def arc_time(self, time_scale: float) -> dict[str, float | None]:
         """The bead's arc time in process seconds: from the torch setting off along the bead
         (after the release, which waits for the source's arc-stable edge: `motion_start`) to the
-        end of the last move executed with the arc stable, cut at the source's falling
-        arc-stable edge when the arc was lost before. Ignition and the wait for the motion
+        end of the last move executed with the arc stable (`motion_end`), cut at the source's
+        falling arc-stable edge when the arc was lost before. Ignition and the wait for the motion
         before the first move, and the crater after the last, are not in it."""
         if not self.points:
             return {"arc_s": 0.0 if self.t_arc_lost is not None else None}
-        t_end = self.points[-1][0]
+        t_end = self.motion_end(time_scale)
         if self.t_arc_lost is not None:
             t_end = min(t_end, self.t_arc_lost)
         return {"arc_s": max(0.0, t_end - self.motion_start(time_scale)) * time_scale}
+
+    def motion_end(self, time_scale: float) -> float:
+        """Wall time the last move ended: its report, less the delay it came with beyond the
+        report before it (at most a report's latency, `REPORT_LATENCY_S`). The last report is the
+        only one that times the end; the start is timed by the earliest of them (`motion_start`),
+        so a closing report later than the others would count its lateness as arc time."""
+        t_last = max(t for t, _ in self.points)
+        st = self._stretches(time_scale, BUS_CYCLE_S)
+        if st is None or (self.t_arc_lost is not None and self.t_arc_lost < t_last):
+            return t_last   # the arc's falling edge ends it
+        d = st[1]
+        return t_last - min(max(0.0, d[-1] - d[-2]), REPORT_LATENCY_S)
+
+    def _stretches(self, time_scale: float, cycle_s: float
+                   ) -> tuple[list[tuple[float, float]], list[float], list[tuple[float, float]]] | None:
+        """The reports from the set-off (arc lost: up to it), their delays t - s / v against the
+        planned pace, and per stretch between two reports the rise of the suffix minimum of the
+        delays and the rise allowed (`standstill`); None without a plan or reports."""
+        if not self.planned_mm_min or not self.points:
+            return None
+        v = self.planned_mm_min / 60.0 * time_scale   # wall mm/s
+        t0 = self.motion_start(time_scale)
+        pts = [(t0, self.s_release)] + sorted(self.points)
+        if self.t_arc_lost is not None:
+            pts = [p for p in pts if p[0] <= self.t_arc_lost] or pts[:1]
+        d = [t - s / v for t, s in pts]
+        suffix = d[:]
+        for k in range(len(d) - 2, -1, -1):
+            suffix[k] = min(suffix[k], suffix[k + 1])
+        # the reports opening and closing the stretch are each seen to within one bus cycle
+        return pts, d, [(suffix[k + 1] - suffix[k],
+                         self.speed_tol * max(0.0, pts[k + 1][1] - pts[k][1]) / v + 2 * cycle_s)
+                        for k in range(len(pts) - 1)]
 
     def standstill(self, time_scale: float, cycle_s: float = BUS_CYCLE_S) -> dict[str, float | int | None]:
         """The torch standing still with the arc on, from the device's own progress reports.
@@ -177,30 +238,16 @@ class Pace:
         process seconds: `still_n` stand-stills, `still_s` their total, `still_max_s` the longest;
         `lag_s` is how much longer the whole bead took than its length at the planned speed.
         """
-        if not self.planned_mm_min or not self.points:
+        st = self._stretches(time_scale, cycle_s)
+        if st is None:
             return {"still_n": None, "still_s": None, "still_max_s": None, "lag_s": None}
-        v = self.planned_mm_min / 60.0 * time_scale   # wall mm/s
-        t0 = self.motion_start(time_scale)
-        pts = [(t0, self.s_release)] + sorted(self.points)
-        if self.t_arc_lost is not None:
-            pts = [p for p in pts if p[0] <= self.t_arc_lost] or pts[:1]
-        d = [t - s / v for t, s in pts]
-        suffix = d[:]
-        for k in range(len(d) - 2, -1, -1):
-            suffix[k] = min(suffix[k], suffix[k + 1])
-        n, total, longest = 0, 0.0, 0.0
-        for k in range(len(pts) - 1):
-            rise = suffix[k + 1] - suffix[k]
-            # the reports opening and closing the stretch are each seen to within one bus cycle
-            allowed = self.speed_tol * max(0.0, pts[k + 1][1] - pts[k][1]) / v + 2 * cycle_s
-            if rise > allowed:
-                n += 1
-                total += rise
-                longest = max(longest, rise)
+        pts, _, stretches = st
+        rises = [rise for rise, allowed in stretches if rise > allowed]
+        v = (self.planned_mm_min or 0.0) / 60.0 * time_scale
         t_end, s_end = pts[-1]
-        lag = (t_end - t0) - max(0.0, s_end - self.s_release) / v
-        return {"still_n": n, "still_s": total * time_scale, "still_max_s": longest * time_scale,
-                "lag_s": lag * time_scale}
+        lag = (t_end - pts[0][0]) - max(0.0, s_end - self.s_release) / v
+        return {"still_n": len(rises), "still_s": sum(rises) * time_scale,
+                "still_max_s": max(rises, default=0.0) * time_scale, "lag_s": lag * time_scale}
 
 
 def envelope_speed(points: list[tuple[float, float]]) -> float | None:

@@ -134,6 +134,9 @@ class BuildRunner:
         # to be committed (fsync), which would stall the device cycles at the end of the build
         self._defects_before = journal.defect_count()
         self._defects_new = 0
+        on_position = getattr(executor, "on_position", None)   # the CNC's status positions: the bead's pace
+        if on_position is not None:
+            on_position(lambda t, s: self._pace.at(t, s) if self._pace is not None else None)
         self.progress_s = progress_timeout_s(job, self.o.max_step_mm, self.o.progress_timeout_s)
         self.watchdog: ProgressWatchdog | None = None
 
@@ -383,6 +386,8 @@ class BuildRunner:
         pace, self._pace = self._pace, None
         if pace is not None:
             pace.starved += getattr(self.ex, "starved", 0)   # starvations inside this bead
+            if go := float(getattr(self.ex, "go_t", 0.0) or 0.0):   # a CNC sets off when its first weld line arrives
+                pace.set_off(go)
             stats.update(pace.figures(self.o.time_scale, length))
         hi = None
         if stats.get("i_mean") is not None and stats.get("u_mean") is not None:
