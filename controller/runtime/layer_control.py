@@ -22,6 +22,8 @@ import json
 import math
 from typing import Any, Awaitable, Callable, Sequence
 
+import numpy as np
+
 from controller.job.read import JobJSON
 from controller.journal.store import Journal
 from controller.runtime.build import WorkItem
@@ -53,6 +55,30 @@ class BuiltLayers(list[dict[str, Any]]):
         return list.__getitem__(self, i)
 
 
+def layers_as_commanded(job: JobJSON) -> list[dict[str, Any]]:
+    """The job's layers with each `z_mm` in the frame of its points, the frame the machine is
+    commanded in and the probe reads: an aligned job's points are machine positions
+    (`apply_to_job`) while its layers' z_mm stay in the CAD frame (a repair job's pocket floor at
+    z = -4 mm in the CAD frame was z = -2 mm on the machine). Unaligned jobs: the same list."""
+    al = job.get("alignment")
+    if not al or "transform" not in al:
+        return list(job["layers"])
+    m = np.asarray(al["transform"], dtype=float)
+    pts = np.array([q[:3] for la in job["layers"] for p in la.get("passes", []) for q in p.get("points", [])],
+                   dtype=float).reshape(-1, 3)
+    # the CAD xy under the deposit's middle: a leveled table maps CAD z to machine z whatever the
+    # xy, up to the leveling's residual
+    mid = np.linalg.inv(m) @ np.r_[pts.mean(axis=0), 1.0] if len(pts) else np.zeros(4)
+    out = []
+    for la in job["layers"]:
+        if la.get("z_mm") is None:
+            out.append(la)
+            continue
+        z = float(m[2] @ np.array([mid[0], mid[1], float(la["z_mm"]), 1.0]))
+        out.append({**la, "z_mm": z})
+    return out
+
+
 def _r(x: float | None, nd: int = 4) -> float | None:
     return None if x is None or not math.isfinite(x) else round(float(x), nd)
 
@@ -64,7 +90,7 @@ class LayerControl:
                  bus: EventBus | None = None, max_speed_mm_min: float = 1e9, probe: ProbeFn | None = None) -> None:
         self.cfg, self.platform, self.journal, self.bus, self.probe = cfg, platform, journal, bus, probe
         self.closed = cfg.mode == "layer"
-        self.job_layers: list[dict[str, Any]] = list(job["layers"])
+        self.job_layers: list[dict[str, Any]] = layers_as_commanded(job)
         self.n_planned = len(self.job_layers)
         self.n_total = self.n_planned
         self.layers = BuiltLayers(self, self.job_layers)   # the runner builds this list (edited in place)
