@@ -87,18 +87,36 @@ def wall_width(piece: Polygon, tol: float) -> float:
 
     A ring or a wall of even width W and length L has area L·W and perimeter 2(L + W): W is the
     small root of that pair (exact for a rectangle, to first order for a ring). The estimate
-    stands when an inset of just under half of it leaves something and just over leaves nothing;
-    else the inscribed circle is searched (slow on large rings: its grid covers the hole too).
+    stands when an inset of just under half of it leaves something and just over leaves nothing
+    but junctions: the corner of an L or the crossing of a T bulges wider than the arms (an 8 mm
+    L's corner holds a 9.4 mm circle), and a layout for the bulge would space the arms' loops
+    apart (issue 29: two 3.95 mm loops 4.06 mm apart in the 8 mm legs, a crevice). Else the
+    inscribed circle is searched (slow on large rings: its grid covers the hole too).
     """
     a, p = piece.area, piece.length
     ring = 2.0 * a / p  # exact for a concentric ring
     strip = (p - np.sqrt(max(p * p - 16.0 * a, 0.0))) / 4.0  # exact for a rectangle
     fine = 0.25 * tol
     for w0 in ((ring, strip) if len(piece.interiors) == 1 else (strip,)):
-        if (piece.buffer(-0.5 * w0 - fine, quad_segs=4).is_empty
-                and not piece.buffer(-0.5 * w0 + fine, quad_segs=4).is_empty):
+        if piece.buffer(-0.5 * w0 + fine, quad_segs=4).is_empty:
+            continue
+        over = piece.buffer(-0.5 * w0 - fine, quad_segs=4)
+        # junctions only in a wall: at least two widths long (a blob, a disc, is not a wall)
+        if over.is_empty or (a / w0 >= 2.0 * w0 and _junctions_only(over, w0)):
             return float(w0)
     return 2.0 * float(shapely.length(shapely.maximum_inscribed_circle(piece, tol)))
+
+
+def _junctions_only(core: shapely.Geometry, w0: float) -> bool:
+    """Is what a wall w0 wide leaves beyond half its width only junction bulges (or nothing)?
+    Each piece left must be smaller than the wall is wide: a wall that widens along its length
+    (a taper, a boss longer than the wall is wide) leaves a long piece and is measured by its
+    inscribed circle instead."""
+    for q in polygons_of(core):
+        x0, y0, x1, y1 = q.bounds
+        if max(x1 - x0, y1 - y0) > w0:
+            return False
+    return True
 
 
 def _ring_centre(piece: Polygon, W: float) -> np.ndarray | None:

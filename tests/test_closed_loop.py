@@ -205,6 +205,31 @@ async def test_a_resume_reapplies_the_journaled_corrections(tmp_path: Path):
     j2.close()
 
 
+async def test_an_aligned_job_is_controlled_in_the_frame_its_points_are_in(tmp_path: Path):
+    """A repair job (issue 29) keeps its layers' z_mm in the CAD frame while the alignment moves its
+    points onto the machine: probed machine tops were read against CAD z (2 mm off here), and the
+    loop dropped four layers of a nominal repair, which ended 1.7 mm low."""
+    from controller.motion.kinematics import apply_to_job
+
+    on_table = [[0.0, -1.0, 0.0, 4.0], [1.0, 0.0, 0.0, -3.0], [0.0, 0.0, 1.0, 2.0], [0.0, 0.0, 0.0, 1.0]]
+    job = apply_to_job(_job(6), on_table)
+
+    async def probe(la: int, layer: Layer) -> list[float]:   # every layer's top where the plan put it
+        return [float(q[2]) for q in layer.passes[0].points]
+
+    j = Journal(tmp_path / "journal.sqlite")
+    j.start_job("h", "repair", "cnc", "{}")
+    lc = LayerControl(job=job, cfg=ProcessControl(mode="layer"), material=MAT, platform="cnc", journal=j, probe=probe)
+    work = [WorkItem(i, 0) for i in range(6)]
+    for la in range(6):
+        assert await lc.after_pass(work[la], work, la) is None
+    rows = [json.loads(m) for (m,) in j.query("SELECT message FROM events WHERE kind = 'layer' ORDER BY id")]
+    j.close()
+    assert [r["layer"] for r in rows] == list(range(6)) and lc.n_total == 6
+    assert all(abs(r["height_error_mm"]) < 1e-6 and r["action"] == "none" for r in rows), rows
+    assert rows[-1]["measured_top_mm"] == pytest.approx(0.77 * 6 + 2.0, abs=1e-6)
+
+
 # -- short builds against the simulators ------------------------------------------------------------
 
 

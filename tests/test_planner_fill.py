@@ -209,6 +209,22 @@ def test_a_junction_does_not_widen_every_arm_of_a_thin_cross():
     assert fp.difference(region).area / fp.area <= 0.03
 
 
+def test_the_legs_of_an_l_get_their_beads_at_the_step_over_not_the_corners_width():
+    """Issue 29: the corner of an L of 11 mm legs holds a 12.9 mm circle; a layout for it put the legs'
+    two loops 5.5 mm apart with 5.5 mm beads (a crevice between them) and a third bead in the corner."""
+    ell = extrude(box(0, 0, 60, 11).union(box(0, 0, 11, 50)), 2 * H)
+    job = plan_part(ell, PlanOptions(width_mm=W), MAT)
+    for layer in job.layers:
+        lines = [shapely.linestrings(p.points[:, :2]) for p in layer.passes]
+        for cut in (shapely.linestrings([(40, -1), (40, 12)]), shapely.linestrings([(-1, 30), (12, 30)])):
+            hits = sorted(c for ln in lines for c in np.atleast_2d(shapely.get_coordinates(ln.intersection(cut)))
+                          .tolist() if c)
+            assert len(hits) == 2, (layer.index, hits)
+            gap = float(np.hypot(*np.subtract(hits[1], hits[0])))
+            w = max(p.width_mm for p in layer.passes)
+            assert WIDTHS.r_lo * w * 0.99 <= gap <= WIDTHS.r_hi * w * 1.01, (layer.index, gap, w)
+
+
 def test_teeth_of_a_comb_keep_ding_spacing():
     comb = extrude(box(0, 0, 80, 10).union(box(0, 0, 5, 40)).union(box(40, 0, 49, 40))
                    .union(box(60, 0, 71, 40)), 2 * H)

@@ -8,17 +8,26 @@ from bench.repair import make_parts, one, posed_sim
 from controller.cli.main import main
 
 
-async def test_repair_lands_in_the_pocket_of_a_posed_stock_and_verifies_its_height(tmp_path: Path):
-    fig = await one(tmp_path, (1.7, -1.2, -4.5, (4.0, -3.0, 2.0)))
+async def test_an_l_shaped_repair_lands_on_a_posed_stock_and_verifies_on_its_deposit(tmp_path: Path):
+    """Issue 17's chain (posed stock, alignment, deposit in the workpiece frame) on issue 29's L-shaped
+    worn region (one run: the repair tests run at the time scale the CNC link can feed, 5)."""
+    fig = await one(tmp_path, (1.7, -1.2, -4.5, (4.0, -3.0, 2.0)), shape="L")
     assert abs(fig["alignment"]["face_angle_deg"] + 4.5) < 0.05
     assert fig["max_lateral_mm"] < 0.05 and fig["max_dz_mm"] < 0.05, fig   # in the workpiece frame
     assert abs(fig["deposited_mm"] - fig["planned_mm"]) < 0.1, fig
-    v = fig["verify"]
-    # On the physical deposit of DESIGN.md §6b (a height map: ripple between beads, rounded edges at the
-    # pocket walls) the open-loop top is within 0.5 mm of the plan, not the 0.1 mm the box-shaped deposit
-    # gave; the verify names every touch beyond its 0.1 mm tolerance as a defect (the known gap of issue 29).
-    assert v["points"] == 16 and v["height_error_max_mm"] < 0.8, v
-    assert abs(v["height_error_mean_mm"]) < 0.5, v
+    v, truth = fig["verify"], fig["truth"]
+    assert fig["state"] == "complete" and fig["on_deposit"] == 1.0 and v["points"] == 16, fig
+    # The verify reads the deposit: every touch within 0.01 mm of the simulated deposit's true top.
+    assert truth["probe_err_max_mm"] < 0.01, truth
+    # The deposit against the plan (docs/repair.md "Verify figures"): the 0.1 mm target is not reachable
+    # as deposited in the physical world of DESIGN.md §6b: a two-bead layer's first bead crowns
+    # 1.5 × metal / width, +0.13 mm over its neighbour at 0.44 mm layers, loop corners and ends dip,
+    # the corner of the L's inner loop piles up; measured max 0.35-0.38 mm, mean +0.08 mm over poses.
+    # The verify names those touches as height defects. The mean is no drift a layer-height loop corrects.
+    assert v["height_error_max_mm"] < 0.45 and abs(v["height_error_mean_mm"]) < 0.15, v
+    # What a repair needs before it is machined: the top reaches CAD + allowance within the tolerance
+    # at every touch (the verify's second defect kind), so it cleans up at the CAD surface.
+    assert v["vs_nominal_min_mm"] > -0.1 and not [d for d in v["defects"] if d["kind"] != "height"], v
 
 
 def test_repair_run_cli_reports_and_refuses_an_aligned_job(tmp_path: Path, capsys):
@@ -80,12 +89,3 @@ def test_verify_touches_land_on_the_planned_deposit_of_an_l_shaped_worn_region(t
         rep = {"verify": {"at": [[x, y, 0.0] for x, y in xy]}}
         assert touches_on_deposit(d, rep) == 1.0, shape
         assert "edge" in kinds and len(xy) >= 8
-
-
-async def test_l_shaped_worn_edge_repair_verifies_on_deposit(tmp_path: Path):
-    from bench.repair import one
-
-    fig = await one(tmp_path, (1.38, -1.356, 0.577, (-1.319, -2.851, -1.142)), shape="L")
-    v = fig["verify"]
-    assert fig["state"] == "complete" and fig["on_deposit"] == 1.0, fig
-    assert v["height_error_max_mm"] < 0.8 and abs(v["height_error_mean_mm"]) < 0.5, v   # see the pocket test

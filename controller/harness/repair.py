@@ -2,9 +2,9 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
-from controller.harness.sim import SIM_REPLY_TIMEOUT_MS, simulated
+from controller.harness.sim import SIM_REPLY_TIMEOUT_MS, SimHarness, simulated
 from controller.job.model import CellJob
 from controller.motion.cnc5 import limit_time_scale
 from controller.repair import repair_run
@@ -13,14 +13,18 @@ from core.config import CellConfig, SimConfig
 
 async def repair_run_sim(job: CellJob, cell: CellConfig, sim_cfg: SimConfig, *, job_path: Path | None = None,
                          runs_dir: str | Path = "runs", log_dir: str | Path | None = None,
-                         tolerance_mm: float = 0.1) -> dict[str, Any]:
-    """repair_run against the simulators (the stock posed by `sim_cfg`), logs in `log_dir`."""
+                         tolerance_mm: float = 0.1,
+                         inspect: Callable[[SimHarness, dict[str, Any]], None] | None = None) -> dict[str, Any]:
+    """repair_run against the simulators (the stock posed by `sim_cfg`), logs in `log_dir`;
+    `inspect(harness, report)` before the simulators stop (benches read the simulated world)."""
     if cell.cell.platform != "cnc":
         cell = cell.model_copy(update={"cell": cell.cell.model_copy(update={"platform": "cnc"})})
     cell, note = limit_time_scale(cell, job)  # what the CNC link can feed (issue 29)
-    with simulated(cell, sim_cfg, log_dir=log_dir) as (cfg, _harness):
+    with simulated(cell, sim_cfg, log_dir=log_dir) as (cfg, harness):
         rep = await repair_run(job, cfg, job_path=job_path, runs_dir=runs_dir,
                                reply_timeout_ms=SIM_REPLY_TIMEOUT_MS, tolerance_mm=tolerance_mm)
+        if inspect is not None:
+            inspect(harness, rep)
     rep["time_scale"] = cell.cell.time_scale
     if note:
         rep.setdefault("notes", []).append(note)

@@ -20,7 +20,10 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from typing import Any, Awaitable, Callable, Sequence, SupportsIndex, overload
+
+import numpy as np
 
 from controller.job.model import CellJob
 from controller.journal.store import Journal
@@ -61,6 +64,23 @@ class BuiltLayers(list[Layer]):
         return list.__getitem__(self, i)
 
 
+def layers_as_commanded(job: CellJob) -> list[Layer]:
+    """The job's layers with each `z_mm` in the frame of its points, the frame the machine is
+    commanded in and the probe reads: an aligned job's points are machine positions
+    (`apply_to_job`) while its layers' z_mm stay in the CAD frame (a repair job's pocket floor at
+    z = -4 mm in the CAD frame was z = -2 mm on the machine). Unaligned jobs: the same list."""
+    al = job.alignment
+    if al is None or al.transform is None:
+        return list(job.layers)
+    m = np.asarray(al.transform, dtype=float)
+    pts = [p.points[:, :3] for la in job.layers for p in la.passes]
+    allp = np.concatenate(pts) if pts else np.zeros((0, 3))
+    # the CAD xy under the deposit's middle: a leveled table maps CAD z to machine z whatever the
+    # xy, up to the leveling's residual
+    mid = np.linalg.inv(m) @ np.r_[allp.mean(axis=0), 1.0] if len(allp) else np.zeros(4)
+    return [replace(la, z_mm=float(m[2] @ np.array([mid[0], mid[1], la.z_mm, 1.0]))) for la in job.layers]
+
+
 def _r(x: float | None, nd: int = 4) -> float | None:
     return None if x is None or not math.isfinite(x) else round(float(x), nd)
 
@@ -72,7 +92,7 @@ class LayerControl:
                  bus: EventBus | None = None, max_speed_mm_min: float = 1e9, probe: ProbeFn | None = None) -> None:
         self.cfg, self.platform, self.journal, self.bus, self.probe = cfg, platform, journal, bus, probe
         self.closed = cfg.mode == "layer"
-        self.job_layers: list[Layer] = list(job.layers)
+        self.job_layers: list[Layer] = layers_as_commanded(job)
         self.n_planned = len(self.job_layers)
         self.n_total = self.n_planned
         self.layers = BuiltLayers(self, self.job_layers)   # the runner builds this list (edited in place)
