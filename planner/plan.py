@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 import shapely
@@ -10,7 +10,6 @@ from shapely.geometry import Polygon
 
 from planner import limits
 from core.errors import MeshError
-from core.material import Material
 from planner import five_axis
 from planner.balance import laid_area_mm2
 from planner.bead import area_factor, step_over
@@ -29,6 +28,10 @@ from planner.thin import legal_widths
 from planner.options import PlanOptions
 from planner.verdict import Verdict
 from planner.weld import Process, as_welded, weld_passes
+
+if TYPE_CHECKING:  # annotations only: `cell plan` passes a remembered material (core.config_cache) and
+    # never imports pydantic
+    from core.material import Material
 
 Progress = Callable[[int, int], None]
 

@@ -87,10 +87,8 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
             continue
         seen.add(module)
         if wanted is not None and module != wanted:
-            # Only the needed module is imported; the others get a placeholder for --help.
-            for alias, mod in COMMANDS.items():
-                if mod == module:
-                    sub.add_parser(alias, add_help=False)
+            # Only the needed module is imported, and no placeholder parser for the others (each
+            # costs argparse's translation lookups): the command named is the one parsed.
             continue
         command = importlib.import_module(module)  # a missing command module is an error, never skipped
         command.register(sub)
