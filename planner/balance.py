@@ -15,6 +15,7 @@ import shapely
 import shapely.errors
 from shapely.geometry import Polygon
 
+from planner.cellclip import cell_areas_inside
 from planner.path2d import Path2D
 
 
@@ -82,11 +83,15 @@ def _frame(island: Polygon, width: float) -> np.ndarray:
 
 def _clipped_areas(cells: np.ndarray, island: shapely.Geometry, tile_mm: float) -> np.ndarray:
     """Area of each cell inside the island. Cells wholly inside are not clipped; the others are
-    clipped against tiles of the island (a grid of squares about `tile_mm` wide): each overlay
-    then sees a few island edges, not all of them."""
+    clipped all at once (planner.cellclip); the few it leaves are clipped against tiles of the
+    island (a grid of squares about `tile_mm` wide): each overlay then sees a few island edges."""
     shapely.prepare(island)
     areas = np.asarray(shapely.area(cells), dtype=np.float64)
     edge = np.flatnonzero(~shapely.contains(island, cells))
+    if len(edge) == 0:
+        return areas
+    areas[edge], rest = cell_areas_inside(cells[edge], island)
+    edge = edge[rest]  # the few cells the arrays could not decide (a corner on the boundary): overlays
     if len(edge) == 0:
         return areas
     minx, miny, maxx, maxy = island.bounds

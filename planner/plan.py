@@ -21,7 +21,7 @@ from planner.mesh import PreparedMesh, check_size, prepare_mesh, read_mesh
 from planner.process import inverse
 from planner.regions import islands
 from planner.path2d import Path2D
-from planner.slicer import LayerSlice, slice_levels, slice_mesh
+from planner.slicer import LayerSlice, face_z_range, slice_levels, slice_mesh
 from planner.stubs import drop_short
 from planner.summary import ARC_START_S, TRAVEL_MM_MIN, LayerQuality, layer_quality, summarise
 from planner.thin import legal_widths
@@ -50,11 +50,13 @@ def plan_part(mesh_or_path: Any, options: PlanOptions,
     nominal = inverse(material, w, options.layer_height_mm, allow_outside=options.allow_outside)
     height = options.layer_height_mm or nominal.height_mm
     check_size(mesh, w, height)
-    limits.check_before_slicing(mesh.source.file, mesh.vertices, mesh.faces, height, options.workspace_mm)
+    z_range = face_z_range(mesh.vertices, mesh.faces)
+    limits.check_before_slicing(mesh.source.file, mesh.vertices, mesh.faces, height, options.workspace_mm, z_range)
     run = _Run(options, material, height)
     top_z = float(mesh.extents[2])
     gap_tols = (1e-6, 0.01 * w, 0.1 * w, 0.5 * w)
-    slices = slice_mesh(mesh.vertices, mesh.faces, mesh.face_normals, slice_levels(top_z, height), gap_tols)
+    slices = slice_mesh(mesh.vertices, mesh.faces, mesh.face_normals, slice_levels(top_z, height), gap_tols, z_range)
+    del z_range
     _fail_on_open(slices, mesh.source.file, w)
     n_net = len(slices)
     slices = _with_top(slices, layer_count(top_z, height, run.ctx.allowance, n_net), height)
