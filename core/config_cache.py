@@ -13,6 +13,7 @@ Light on purpose: stdlib only (no yaml, no pydantic); `core.config` imports CONF
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -46,6 +47,7 @@ def cache_dir() -> Path:
     return (Path(xdg) if xdg else Path.home() / ".cache") / "cell"
 
 
+@functools.lru_cache(maxsize=1)
 def _code_digest() -> bytes:
     h = hashlib.sha256()
     here = Path(__file__).resolve().parent

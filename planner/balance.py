@@ -125,9 +125,8 @@ def _first_of_each(cells: np.ndarray) -> np.ndarray:
     np.unique(cells, axis=0, return_index=True)[1], sorted, gives (-0.0 is 0.0), by one sort of
     int64 keys when the values fit in 31 bits."""
     if len(cells) == 0 or float(np.max(np.abs(cells))) >= 2.0 ** 30:
-        _, first = np.unique(cells, axis=0, return_index=True)
-        first.sort()
-        return first
+        found: np.ndarray = np.unique(cells, axis=0, return_index=True)[1]
+        return np.sort(found)
     ij = cells.astype(np.int64)
     key = (ij[:, 0] << 32) + ij[:, 1]
     order = np.argsort(key, kind="stable")
@@ -135,8 +134,7 @@ def _first_of_each(cells: np.ndarray) -> np.ndarray:
     new = np.empty(len(sk), dtype=bool)
     new[0] = True
     np.not_equal(sk[1:], sk[:-1], out=new[1:])
-    first: np.ndarray = np.sort(order[new])
-    return first
+    return np.sort(order[new])
 
 
 def _along(xy: np.ndarray, frac: np.ndarray) -> np.ndarray:
@@ -152,7 +150,6 @@ def _along(xy: np.ndarray, frac: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         f = (at - run[k]) / seg[k]
     p0, p1 = xy[k], xy[k + 1]
-    out = (p1 - p0) * f[:, None] + p0
-    out = np.where((f <= 0.0)[:, None], p0, np.where((f >= 1.0)[:, None], p1, out))
+    out: np.ndarray = np.where((f <= 0.0)[:, None], p0, np.where((f >= 1.0)[:, None], p1, (p1 - p0) * f[:, None] + p0))
     out[end] = xy[-1]
     return out

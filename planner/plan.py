@@ -10,7 +10,6 @@ from shapely.geometry import Polygon
 
 from planner import limits
 from core.errors import MeshError
-from planner import five_axis
 from planner.balance import laid_area_mm2
 from planner.bead import area_factor, step_over
 from planner.ding import close_share
@@ -77,6 +76,9 @@ def plan_part(mesh_or_path: Any, options: PlanOptions,
     src = Source(mesh.source.file, mesh.source.sha256, mesh.source.units)
     job = Job(src, mat, bead, tuple(layers), summary)
     if options.five_axis is not None:  # the tool tilts to bring the overhangs within the rule
+        # a 5-axis plan only: a 3-axis plan's start-up does not load it (issue 28)
+        from planner import five_axis
+
         fa = dataclasses.replace(options.five_axis, max_overhang_deg=material.max_overhang_deg)
         job = five_axis.apply(job, fa, options.allow_overhang, run.regions)
     return in_frame(job, options.frame, mesh.z_shift_mm)

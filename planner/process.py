@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -65,8 +65,7 @@ class ProcessPoint:
 
 def _coeffs(material: Material | RibeiroCoefficients) -> RibeiroCoefficients:
     # by attribute, not isinstance: a remembered material (core.config_cache.Frozen) reads the same
-    k: RibeiroCoefficients = getattr(material, "ribeiro", material)
-    return k
+    return cast("RibeiroCoefficients", getattr(material, "ribeiro", material))
 
 
 def _name(material: Material | RibeiroCoefficients) -> str:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import json
 import logging
@@ -10,7 +11,6 @@ import sqlite3
 import sys
 from typing import Any, NoReturn, Sequence
 
-from controller.runtime.cell_lock import early as early_lock
 from core.errors import CellError
 
 # Subcommand modules, imported lazily so that `cell process` does not pay for Textual or
@@ -101,7 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # planner's one `error:` line instead
     logging.getLogger("trimesh").setLevel(logging.CRITICAL)
     try:
-        with early_lock(argv):  # one controller per cell: refused before the heavy imports
+        with _early_lock(argv):  # one controller per cell: refused before the heavy imports
             parser = build_parser(argv)
             args = parser.parse_args(argv)
             return int(args.func(args) or 0)
@@ -138,6 +138,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         # is still one `error:` line and exit 2, never a traceback
         sys.stderr.write(f"error: bad input ({type(exc).__name__}: {_short(exc)})\n")
         return 2
+
+
+def _early_lock(argv: list[str]) -> contextlib.AbstractContextManager[object]:
+    """cell_lock.early(argv); `cell plan` touches no device and holds no lock: it skips the import."""
+    if next((a for a in argv if not a.startswith("-")), None) == "plan":
+        return contextlib.nullcontext()
+    # every other command: cell_lock.early decides which ones lock (plan's start-up skips its imports)
+    from controller.runtime.cell_lock import early
+
+    return early(argv)
 
 
 def _short(exc: BaseException) -> str:

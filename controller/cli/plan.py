@@ -131,18 +131,33 @@ def _config(material: str | None, five_axis: bool) -> tuple[Material, tuple[floa
     without a valid cell.yaml. Remembered by the files' bytes (core.config_cache)."""
     # what planning needs (after the arguments parsed): the planner's option types
     from core.config_cache import CONFIG_DIR, Frozen, material_path, remembered
-    from planner.five_axis import FiveAxisOptions, Nozzle
     from planner.weld import CellLimits
+
+    if five_axis:  # a 5-axis plan only: a 3-axis plan's start-up does not load planner.five_axis
+        from planner.five_axis import FiveAxisOptions, Nozzle
 
     cell = remembered("cell-plan", [CONFIG_DIR / "cell.yaml"], _cell_values)
     path = material_path(material or cell.get("material") or "inconel718-1.0mm")
     mat = remembered("material", [path], lambda: _material_values(path))
+    material_ = cast("Material", Frozen(mat["dump"], mat["hidden"]))
     if not cell:
-        return cast("Material", Frozen(mat["dump"], mat["hidden"])), None, CellLimits(), \
-            FiveAxisOptions() if five_axis else None
+        return material_, None, CellLimits(), FiveAxisOptions() if five_axis else None
     room = (cell["room"][0], cell["room"][1], cell["room"][2])
     five = FiveAxisOptions(tilt_limit_deg=cell["tilt_limit_deg"], nozzle=Nozzle(*cell["nozzle"])) if five_axis else None
-    return cast("Material", Frozen(mat["dump"], mat["hidden"])), room, CellLimits(*cell["limits"]), five
+    return material_, room, CellLimits(*cell["limits"]), five
+
+
+def _material(name: str | None) -> Material:
+    """The validated material by name or path, else cell.yaml's, else Inconel 718 (`cell repair plan`)."""
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
+    from core.config import load_cell, load_material
+
+    if name is None:
+        try:
+            name = load_cell().cell.material
+        except CellError:
+            name = "inconel718-1.0mm"
+    return load_material(name)
 
 
 class _Bar:
