@@ -7,7 +7,6 @@ import importlib
 import json
 import logging
 import math
-import sqlite3
 import sys
 from typing import Any, NoReturn, Sequence
 
@@ -115,7 +114,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RecursionError:
         sys.stderr.write("error: an input file is nested too deeply to read; give a flat file\n")
         return 2
-    except sqlite3.DatabaseError as exc:
+    except _journal_errors() as exc:
         sys.stderr.write(f"error: a journal could not be read ({_short(exc)}); it was left untouched: "
                          "`cell journal check RUN_DIR` says what is readable\n")
         return 2
@@ -138,6 +137,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         # is still one `error:` line and exit 2, never a traceback
         sys.stderr.write(f"error: bad input ({type(exc).__name__}: {_short(exc)})\n")
         return 2
+
+
+def _journal_errors() -> type[Exception] | tuple[()]:
+    """sqlite3.DatabaseError once a journal was opened; nothing to catch (and no import) before."""
+    sqlite3 = sys.modules.get("sqlite3")
+    return sqlite3.DatabaseError if sqlite3 is not None else ()
 
 
 def _early_lock(argv: list[str]) -> contextlib.AbstractContextManager[object]:
