@@ -14,11 +14,11 @@ from planner.balance import laid_area_mm2
 from planner.bead import area_factor, step_over
 from planner.ding import close_share
 from planner.job import BeadInfo, Interpass, Job, Layer, Source
-from planner.layer import LayerCtx, LayerPlan, plan_layer, reseamed
-from planner.nearnet import grow, layer_count
+from planner.ahead import Ahead
+from planner.layer import LayerCtx, LayerPlan, placed, reseamed
+from planner.nearnet import layer_count
 from planner.mesh import PreparedMesh, check_size, prepare_mesh, read_mesh
 from planner.process import inverse
-from planner.regions import islands
 from planner.path2d import Path2D
 from planner.slicer import LayerSlice, face_z_range, slice_levels, slice_mesh
 from planner.stubs import drop_short
@@ -60,10 +60,12 @@ def plan_part(mesh_or_path: Any, options: PlanOptions,
     n_net = len(slices)
     slices = _with_top(slices, layer_count(top_z, height, run.ctx.allowance, n_net), height)
     layers: list[Layer] = []
-    for sl in slices:
-        layers.append(run.layer(sl, sl.index >= n_net))
-        if progress is not None:
-            progress(sl.index + 1, len(slices))
+    tops = [sl.index >= n_net for sl in slices]
+    with Ahead(slices, tops, run.ctx, _LayerMemo.key, _LayerMemo.misses) as ahead:
+        for sl, top in zip(slices, tops):
+            layers.append(run.layer(sl, top, ahead))
+            if progress is not None:
+                progress(sl.index + 1, len(slices))
     summary = summarise(run.qualities, run.n_passes, run.time_s)
     summary["arc_time_s"] = round(run.arc_time_s, 1)
     summary.update(run.verdict.finish(mesh.source.file, run.qualities))
@@ -108,25 +110,24 @@ class _Run:
         self.arc_time_s = 0.0  # the beads alone, at their planned speed (the record compares it)
         self.n_passes = 0
 
-    def _plan(self, sl: LayerSlice, top: bool) -> tuple[LayerPlan, list[Path2D], LayerQuality, float]:
+    def _plan(self, sl: LayerSlice, top: bool, ahead: Ahead) -> tuple[LayerPlan, list[Path2D], LayerQuality, float]:
         """The layer's beads (from the memo when a layer below had the same islands)."""
         w, allowance = self.ctx.width, self.ctx.allowance
-        net = islands([c.points for c in sl.contours if c.closed], simplify_mm=0.005 * w)
-        polys = grow(net, allowance)
-        hit = self.memo.get(polys, sl.index, self.pos, self.proc, top)
+        net, _, key = ahead.prepared[sl.index]
+        hit = self.memo.get(key, sl.index, self.pos, self.proc)
         if hit is not None:
             return hit
-        lp = plan_layer(polys, sl.index, self.ctx, self.pos)
+        lp = placed(ahead.groups(sl.index), self.pos)
         paths = [as_welded(p, self.proc) for p in lp.paths]
         stock_of = shapely.union_all(net) if allowance > 0 and not top and net else None
         q = layer_quality(lp.region, paths, w, self.height, stock_of)
         close = close_share(paths, self.material.bead.min_step_over_ratio, w)
-        self.memo.put(polys, sl.index, lp, (q, close), top)
+        self.memo.put(key, lp, (q, close))
         return lp, paths, q, close
 
-    def layer(self, sl: LayerSlice, top: bool) -> Layer:
+    def layer(self, sl: LayerSlice, top: bool, ahead: Ahead) -> Layer:
         """Plan, weld and judge one layer (`top`: a layer of the top's near-net stock)."""
-        lp, paths, q, close = self._plan(sl, top)
+        lp, paths, q, close = self._plan(sl, top, ahead)
         v, h = self.verdict, self.height
         paths = drop_short(paths, self.ctx.min_length, sl.index, v.stubs)
         v.ding(sl.index, close)
@@ -170,25 +171,39 @@ class _LayerMemo:
     def __init__(self) -> None:
         self.seen: dict[tuple[bytes, int, bool], tuple[LayerPlan, tuple[LayerQuality, float]]] = {}
 
+    BOUND = 64  # layers kept: a prism repeats the layer just below
+
     @staticmethod
-    def _key(polys: list[Polygon], index: int, tag: bool) -> tuple[bytes, int, bool]:
+    def key(polys: list[Polygon], index: int, tag: bool) -> tuple[bytes, int, bool]:
         norm = shapely.normalize(shapely.set_precision(np.asarray(polys, dtype=object), 1e-6))
         return (b"".join(shapely.to_wkb(norm).tolist()), index % 2, tag)
 
-    def get(self, polys: list[Polygon], index: int, pos: np.ndarray, proc: Process,
-            tag: bool = False) -> tuple[LayerPlan, list[Path2D], LayerQuality, float] | None:
-        hit = self.seen.get(self._key(polys, index, tag))
+    @classmethod
+    def misses(cls, keys: list[tuple[bytes, int, bool]]) -> list[bool]:
+        """Which layers get() will not have, layer after layer (get, then put on a miss, as below)."""
+        seen: set[tuple[bytes, int, bool]] = set()
+        out = []
+        for k in keys:
+            out.append(k not in seen)
+            if out[-1]:
+                if len(seen) >= cls.BOUND:
+                    seen.clear()
+                seen.add(k)
+        return out
+
+    def get(self, key: tuple[bytes, int, bool], index: int, pos: np.ndarray,
+            proc: Process) -> tuple[LayerPlan, list[Path2D], LayerQuality, float] | None:
+        hit = self.seen.get(key)
         if hit is None:
             return None
         lp, (q, close) = hit
         lp = reseamed(lp, index, pos)
         return lp, [as_welded(p, proc) for p in lp.paths], q, close
 
-    def put(self, polys: list[Polygon], index: int, lp: LayerPlan, q: tuple[LayerQuality, float],
-            tag: bool = False) -> None:
-        if len(self.seen) >= 64:  # bounded: a prism repeats the layer just below
+    def put(self, key: tuple[bytes, int, bool], lp: LayerPlan, q: tuple[LayerQuality, float]) -> None:
+        if len(self.seen) >= self.BOUND:
             self.seen.clear()
-        self.seen[self._key(polys, index, tag)] = (lp, q)
+        self.seen[key] = (lp, q)
 
 
 def _allowance(options: PlanOptions, material: Material) -> float:

@@ -82,3 +82,23 @@ def test_an_edited_material_file_is_validated_again(tmp_path):
     for _ in range(2):
         rc, loaded, _ = _plan(tmp_path, cache, "--material", str(mat))
         assert rc == 2 and "pydantic" in loaded
+
+
+def test_layers_planned_side_by_side_give_the_job_planned_one_by_one(monkeypatch):
+    """The layers the memo does not have are planned on worker threads (planner.ahead): the job is
+    the same byte for byte on one thread or three."""
+    import trimesh  # the test's part
+
+    from core.config import load_material
+    from planner import ahead
+    from planner.job import job_to_json
+    from planner.plan import PlanOptions, plan_part
+
+    mesh = trimesh.creation.torus(major_radius=30.0, minor_radius=8.0, major_sections=48, minor_sections=24)
+    opts = PlanOptions(width_mm=6.0, allow_overhang=True, allow_underfill=True)
+    mat = load_material("inconel718-1.0mm")
+    jobs = []
+    for n in (1, 3):
+        monkeypatch.setattr(ahead, "workers", lambda n=n: n)
+        jobs.append(job_to_json(plan_part(mesh, opts, mat)))
+    assert len(jobs[0]) > 10_000 and jobs[0] == jobs[1]
