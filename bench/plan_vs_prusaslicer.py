@@ -5,7 +5,7 @@ faces, peak memory <= 1.2x PrusaSlicer's); and our growth with face count. Overh
 underfill are allowed in both (PrusaSlicer plans them silently): the comparison is of speed.
 
 Each figure is the median of `--repeat` runs (default 3), ours and PrusaSlicer's alternating, so
-both see the same load on a shared machine; peak memory is each process's maxrss (wait4). The
+both see the same load on a shared machine; peak memory is each process's maxrss (GNU time). The
 project's modules are byte-compiled first (as an install does): a plan does not pay for it.
 
 Run: .venv/bin/python -m bench.plan_vs_prusaslicer [--quick] [--no-install] [--set-only] [--repeat N]
@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import compileall
 import math
-import os
 import shutil
 import statistics
 import subprocess
@@ -59,15 +58,20 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def _timed(cmd: list[str], cwd: Path) -> tuple[float, int, int, str]:
-    """(wall s, peak RSS kB, exit status, stdout + stderr) of one command."""
-    with tempfile.TemporaryFile() as out:
+    """(wall s, peak RSS kB or 0, exit status, stdout + stderr) of one command.
+
+    The peak is GNU time's (/usr/bin/time -f %M): a child's own maxrss from wait4 would start at
+    this bench's size (Linux carries the forked copy's high-water mark over exec)."""
+    gnu_time = shutil.which("time", path="/usr/bin:/bin")
+    with tempfile.TemporaryDirectory() as tmp:
+        peak = Path(tmp) / "peak"
+        run = [gnu_time, "-f", "%M", "-o", str(peak), *cmd] if gnu_time else cmd
         t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, cwd=cwd, stdout=out, stderr=subprocess.STDOUT)
-        _, status, usage = os.wait4(proc.pid, 0)
+        proc = subprocess.run(run, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
         wall = time.perf_counter() - t0
-        proc.returncode = os.waitstatus_to_exitcode(status)
-        out.seek(0)
-        return wall, int(usage.ru_maxrss), proc.returncode, out.read().decode(errors="replace")
+        lines = peak.read_text().split() if peak.exists() else []
+        kb = int(lines[-1]) if lines and lines[-1].isdigit() else 0
+        return wall, kb, proc.returncode, proc.stdout.decode(errors="replace")
 
 
 def _ours_cmd(stl: Path, work: Path, width: float, layer: float) -> list[str]:

@@ -27,7 +27,7 @@ if TYPE_CHECKING:
 Key = tuple[bytes, int, bool]
 Prepared = tuple[list[Polygon], list[Polygon], Key]  # net islands, grown islands, memo key
 
-MIN_THREADED = 4  # layers to plan below which no thread is started
+MIN_THREADED = 8  # layers to plan (memo misses) below which no thread is started
 
 
 def workers() -> int:
@@ -49,20 +49,16 @@ class Ahead:
         self._key = key
         self.threads = workers() if threads is None else threads
         self._pool: ThreadPoolExecutor | None = None
-        jobs = list(zip(slices, tops))
-        if self.threads > 1 and len(jobs) >= MIN_THREADED:
+        # in turn: islands are cheap, and a tall prism's many layers would only pass the GIL around
+        self.prepared: list[Prepared] = [self._prepare(j) for j in zip(slices, tops)]
+        miss = misses([p[2] for p in self.prepared])
+        self._todo = deque(i for i, m in enumerate(miss) if m)
+        self._running: dict[int, Future[LayerGroups]] = {}
+        if self.threads > 1 and len(self._todo) >= MIN_THREADED:
             # only a plan with layers to share starts threads (concurrent.futures: start-up time)
             from concurrent.futures import ThreadPoolExecutor
 
             self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="plan")
-            self.prepared: list[Prepared] = list(self._pool.map(self._prepare, jobs))
-        else:
-            self.prepared = [self._prepare(j) for j in jobs]
-        miss = misses([p[2] for p in self.prepared])
-        self._todo = deque(i for i, m in enumerate(miss) if m)
-        self._running: dict[int, Future[LayerGroups]] = {}
-        if self._pool is not None and len(self._todo) < MIN_THREADED:
-            self.close()
         self._fill()
 
     def _prepare(self, job: tuple[LayerSlice, bool]) -> Prepared:
