@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import os
 from collections import deque
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Generic, Protocol, Sequence, TypeVar
 
 from shapely.geometry import Polygon
 
@@ -27,6 +27,9 @@ if TYPE_CHECKING:
 Key = tuple[bytes, int, bool]
 Prepared = tuple[list[Polygon], list[Polygon], Key]  # net islands, grown islands, memo key
 
+T = TypeVar("T")
+T_co = TypeVar("T_co", covariant=True)
+
 MIN_THREADED = 8  # layers to plan (memo misses) below which no thread is started
 
 
@@ -37,6 +40,20 @@ def workers() -> int:
     except (AttributeError, OSError):
         n = os.cpu_count() or 1
     return max(1, min(n, 4))
+
+
+class Later(Protocol[T_co]):
+    """A value being computed (a Future) or already there (Done)."""
+
+    def result(self) -> T_co: ...
+
+
+class Done(Generic[T]):
+    def __init__(self, value: T) -> None:
+        self.value = value
+
+    def result(self) -> T:
+        return self.value
 
 
 class Ahead:
@@ -84,6 +101,17 @@ class Ahead:
             out = fut.result()
         self._fill()
         return out
+
+    @property
+    def depth(self) -> int:
+        """Layers the plan may start before it finishes the first of them (0: one by one)."""
+        return 2 * self.threads if self._pool is not None else 0
+
+    def later(self, fn: Callable[..., T], *args: Any) -> Later[T]:
+        """fn(*args) on a worker thread, or now when there is none."""
+        if self._pool is None:
+            return Done(fn(*args))
+        return self._pool.submit(fn, *args)
 
     def close(self) -> None:
         if self._pool is not None:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections import deque
 from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
@@ -14,7 +15,7 @@ from planner.balance import laid_area_mm2
 from planner.bead import area_factor, step_over
 from planner.ding import close_share
 from planner.job import BeadInfo, Interpass, Job, Layer, Source
-from planner.ahead import Ahead
+from planner.ahead import Ahead, Later
 from planner.layer import LayerCtx, LayerPlan, placed, reseamed
 from planner.nearnet import layer_count
 from planner.mesh import PreparedMesh, check_size, prepare_mesh, read_mesh
@@ -62,10 +63,16 @@ def plan_part(mesh_or_path: Any, options: PlanOptions,
     layers: list[Layer] = []
     tops = [sl.index >= n_net for sl in slices]
     with Ahead(slices, tops, run.ctx, _LayerMemo.key, _LayerMemo.misses) as ahead:
+        # each layer started in turn (its beads ordered from where the torch is), welded and judged
+        # a few layers behind (its quality computed meanwhile on a thread); an error is raised at
+        # its own layer, in order, as if the layers were planned one by one
+        started: deque[_Started | BaseException] = deque()
         for sl, top in zip(slices, tops):
-            layers.append(run.layer(sl, top, ahead))
-            if progress is not None:
-                progress(sl.index + 1, len(slices))
+            started.append(_started(run, sl, top, ahead))
+            while started and (len(started) > ahead.depth or isinstance(started[-1], BaseException)):
+                layers.append(_finished(run, started.popleft(), progress, len(slices)))
+        while started:
+            layers.append(_finished(run, started.popleft(), progress, len(slices)))
     summary = summarise(run.qualities, run.n_passes, run.time_s)
     summary["arc_time_s"] = round(run.arc_time_s, 1)
     summary.update(run.verdict.finish(mesh.source.file, run.qualities))
@@ -110,28 +117,35 @@ class _Run:
         self.arc_time_s = 0.0  # the beads alone, at their planned speed (the record compares it)
         self.n_passes = 0
 
-    def _plan(self, sl: LayerSlice, top: bool, ahead: Ahead) -> tuple[LayerPlan, list[Path2D], LayerQuality, float]:
-        """The layer's beads (from the memo when a layer below had the same islands)."""
-        w, allowance = self.ctx.width, self.ctx.allowance
+    def start(self, sl: LayerSlice, top: bool, ahead: Ahead) -> _Started:
+        """The layer's beads ordered from where the torch is (the memo's when a layer below had the
+        same islands), and their quality and Ding check underway; the torch moves on."""
         net, _, key = ahead.prepared[sl.index]
         hit = self.memo.get(key, sl.index, self.pos, self.proc)
         if hit is not None:
-            return hit
-        lp = placed(ahead.groups(sl.index), self.pos)
-        paths = [as_welded(p, self.proc) for p in lp.paths]
-        stock_of = shapely.union_all(net) if allowance > 0 and not top and net else None
-        q = layer_quality(lp.region, paths, w, self.height, stock_of)
-        close = close_share(paths, self.material.bead.min_step_over_ratio, w)
-        self.memo.put(key, lp, (q, close))
-        return lp, paths, q, close
+            lp, paths, judged = hit
+        else:
+            lp = placed(ahead.groups(sl.index), self.pos)
+            paths = [as_welded(p, self.proc) for p in lp.paths]
+            stock_of = net if self.ctx.allowance > 0 and not top and net else None
+            judged = ahead.later(self._judge, lp.region, paths, stock_of)
+            self.memo.put(key, lp, judged)
+        self.pos = lp.end
+        return sl, lp, paths, judged
 
-    def layer(self, sl: LayerSlice, top: bool, ahead: Ahead) -> Layer:
-        """Plan, weld and judge one layer (`top`: a layer of the top's near-net stock)."""
-        lp, paths, q, close = self._plan(sl, top, ahead)
+    def _judge(self, region: shapely.Geometry, paths: list[Path2D], net: list[Polygon] | None) -> tuple[LayerQuality, float]:
+        """The layer's coverage, metal and stock (planner.summary) and its Ding check (planner.ding)."""
+        w = self.ctx.width
+        q = layer_quality(region, paths, w, self.height, shapely.union_all(net) if net else None)
+        return q, close_share(paths, self.material.bead.min_step_over_ratio, w)
+
+    def layer(self, started: _Started) -> Layer:
+        """Weld and judge one layer, in turn."""
+        sl, lp, paths, judged = started
+        q, close = judged.result()
         v, h = self.verdict, self.height
         paths = drop_short(paths, self.ctx.min_length, sl.index, v.stubs)
         v.ding(sl.index, close)
-        self.pos = lp.end
         self.qualities.append(q)
         v.layer(sl.index, lp, q, self.below, h)
         self.below = lp.region
@@ -155,6 +169,25 @@ class _Run:
                       "perimeter_loops": lp.stats["loops"], "fill_regions": lp.stats["regions"]})
 
 
+_Started = tuple[LayerSlice, LayerPlan, list[Path2D], "Later[tuple[LayerQuality, float]]"]
+
+
+def _started(run: _Run, sl: LayerSlice, top: bool, ahead: Ahead) -> _Started | BaseException:
+    try:
+        return run.start(sl, top, ahead)
+    except Exception as exc:  # raised in turn, once the layers below are done (see plan_part)
+        return exc
+
+
+def _finished(run: _Run, started: _Started | BaseException, progress: Progress | None, total: int) -> Layer:
+    if isinstance(started, BaseException):
+        raise started
+    layer = run.layer(started)
+    if progress is not None:
+        progress(layer.index + 1, total)
+    return layer
+
+
 def in_frame(job: Job, frame: str, z_shift_mm: float) -> Job:
     """The job in its frame: `cad` puts back the height the mesh intake took off (z = 0 → CAD z)."""
     if frame != "cad":
@@ -169,7 +202,7 @@ class _LayerMemo:
     is planned the same; its seams move on and its beads are ordered from where the torch is."""
 
     def __init__(self) -> None:
-        self.seen: dict[tuple[bytes, int, bool], tuple[LayerPlan, tuple[LayerQuality, float]]] = {}
+        self.seen: dict[tuple[bytes, int, bool], tuple[LayerPlan, Later[tuple[LayerQuality, float]]]] = {}
 
     BOUND = 64  # layers kept: a prism repeats the layer just below
 
@@ -192,18 +225,18 @@ class _LayerMemo:
         return out
 
     def get(self, key: tuple[bytes, int, bool], index: int, pos: np.ndarray,
-            proc: Process) -> tuple[LayerPlan, list[Path2D], LayerQuality, float] | None:
+            proc: Process) -> tuple[LayerPlan, list[Path2D], Later[tuple[LayerQuality, float]]] | None:
         hit = self.seen.get(key)
         if hit is None:
             return None
-        lp, (q, close) = hit
+        lp, judged = hit
         lp = reseamed(lp, index, pos)
-        return lp, [as_welded(p, proc) for p in lp.paths], q, close
+        return lp, [as_welded(p, proc) for p in lp.paths], judged
 
-    def put(self, key: tuple[bytes, int, bool], lp: LayerPlan, q: tuple[LayerQuality, float]) -> None:
+    def put(self, key: tuple[bytes, int, bool], lp: LayerPlan, judged: Later[tuple[LayerQuality, float]]) -> None:
         if len(self.seen) >= self.BOUND:
             self.seen.clear()
-        self.seen[key] = (lp, q)
+        self.seen[key] = (lp, judged)
 
 
 def _allowance(options: PlanOptions, material: Material) -> float:
