@@ -1,16 +1,22 @@
 """`cell plan` against PrusaSlicer 2.5, wall time of the whole command each (same mesh, layer
 height, width, 2 perimeters, full infill): the bench.plan_quality part set (target <= 1.0x on
 every part) and icospheres of radius 50 mm at 2 mm layers, 6 mm beads (target <= 0.5x at 1.3M
-faces); and our growth with face count. Overhangs and underfill are allowed in both (PrusaSlicer
-plans them silently): the comparison is of speed.
+faces, peak memory <= 1.2x PrusaSlicer's); and our growth with face count. Overhangs and
+underfill are allowed in both (PrusaSlicer plans them silently): the comparison is of speed.
 
-Run: .venv/bin/python -m bench.plan_vs_prusaslicer [--quick] [--no-install] [--set-only]
+Each figure is the median of `--repeat` runs (default 3), ours and PrusaSlicer's alternating, so
+both see the same load on a shared machine; peak memory is each process's maxrss (GNU time). The
+project's modules are byte-compiled first (as an install does): a plan does not pay for it.
+
+Run: .venv/bin/python -m bench.plan_vs_prusaslicer [--quick] [--no-install] [--set-only] [--repeat N]
 """
 from __future__ import annotations
 
 import argparse
+import compileall
 import math
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -48,33 +54,75 @@ def _install_prusa() -> str | None:
     return _prusa()
 
 
-def _timed(cmd: list[str], cwd: Path) -> tuple[float, subprocess.CompletedProcess]:
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
-    return time.perf_counter() - t0, proc
+ROOT = Path(__file__).resolve().parent.parent
 
 
-def run_ours(stl: Path, work: Path, width: float = WIDTH, layer: float = LAYER) -> tuple[float, str]:
-    cmd = [sys.executable, "-m", "controller.cli.main", "plan", str(stl), "--width", str(width),
-           "--layer-height", str(layer), "--perimeters", "2", "--material", "inconel718-1.0mm",
-           "--allow-outside", "--allow-underfill", "--allow-overhang",
-           "--out", str(work / (stl.stem + ".job.json")), "--json"]
-    t, proc = _timed(cmd, Path(__file__).resolve().parent.parent)
-    if proc.returncode != 0:
-        raise RuntimeError(f"cell plan failed: {proc.stderr.strip()}")
-    return t, proc.stdout.strip()
+def _timed(cmd: list[str], cwd: Path) -> tuple[float, int, int, str]:
+    """(wall s, peak RSS kB or 0, exit status, stdout + stderr) of one command.
+
+    The peak is GNU time's (/usr/bin/time -f %M): a child's own maxrss from wait4 would start at
+    this bench's size (Linux carries the forked copy's high-water mark over exec)."""
+    gnu_time = shutil.which("time", path="/usr/bin:/bin")
+    with tempfile.TemporaryDirectory() as tmp:
+        peak = Path(tmp) / "peak"
+        run = [gnu_time, "-f", "%M", "-o", str(peak), *cmd] if gnu_time else cmd
+        t0 = time.perf_counter()
+        proc = subprocess.run(run, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        wall = time.perf_counter() - t0
+        lines = peak.read_text().split() if peak.exists() else []
+        kb = int(lines[-1]) if lines and lines[-1].isdigit() else 0
+        return wall, kb, proc.returncode, proc.stdout.decode(errors="replace")
 
 
-def run_prusa(exe: str, stl: Path, work: Path, width: float = WIDTH, layer: float = LAYER) -> tuple[float, str]:
-    cmd = [exe, "--export-gcode", "--layer-height", str(layer), "--first-layer-height", str(layer),
-           "--nozzle-diameter", str(width), "--extrusion-width", str(width), "--perimeters", "2",
-           "--fill-density", "100%", "--fill-pattern", "rectilinear", "--top-fill-pattern", "rectilinear",
-           "--bottom-fill-pattern", "rectilinear", "--max-layer-height", str(layer), "--skirts", "0",
-           "--center", "100,100", "--output", str(work / (stl.stem + ".gcode")), str(stl)]
-    t, proc = _timed(cmd, work)
-    if proc.returncode != 0:
-        raise RuntimeError(f"prusa-slicer failed ({proc.returncode}): {(proc.stderr or proc.stdout).strip()[-300:]}")
-    return t, ""
+def _ours_cmd(stl: Path, work: Path, width: float, layer: float) -> list[str]:
+    return [sys.executable, "-m", "controller.cli.main", "plan", str(stl), "--width", str(width),
+            "--layer-height", str(layer), "--perimeters", "2", "--material", "inconel718-1.0mm",
+            "--allow-outside", "--allow-underfill", "--allow-overhang",
+            "--out", str(work / (stl.stem + ".job.json")), "--json"]
+
+
+def _prusa_cmd(exe: str, stl: Path, work: Path, width: float, layer: float) -> list[str]:
+    return [exe, "--export-gcode", "--layer-height", str(layer), "--first-layer-height", str(layer),
+            "--nozzle-diameter", str(width), "--extrusion-width", str(width), "--perimeters", "2",
+            "--fill-density", "100%", "--fill-pattern", "rectilinear", "--top-fill-pattern", "rectilinear",
+            "--bottom-fill-pattern", "rectilinear", "--max-layer-height", str(layer), "--skirts", "0",
+            "--center", "100,100", "--output", str(work / (stl.stem + ".gcode")), str(stl)]
+
+
+class Figures:
+    """Median wall time and peak memory of each side over alternating runs."""
+
+    def __init__(self) -> None:
+        self.wall: dict[str, list[float]] = {"ours": [], "prusa": []}
+        self.rss: dict[str, list[int]] = {"ours": [], "prusa": []}
+        self.summary = ""
+        self.prusa_error = ""
+
+    def t(self, side: str) -> float:
+        return statistics.median(self.wall[side])
+
+    def mb(self, side: str) -> float:
+        return statistics.median(self.rss[side]) / 1024.0
+
+
+def compare(stl: Path, work: Path, exe: str | None, repeat: int, width: float = WIDTH, layer: float = LAYER) -> Figures:
+    """`repeat` runs of `cell plan` and of PrusaSlicer on `stl`, alternating."""
+    fig = Figures()
+    for _ in range(repeat):
+        wall, rss, code, out = _timed(_ours_cmd(stl, work, width, layer), ROOT)
+        if code != 0:
+            raise RuntimeError(f"cell plan failed: {out.strip()[-300:]}")
+        fig.wall["ours"].append(wall)
+        fig.rss["ours"].append(rss)
+        fig.summary = out.strip().splitlines()[-1]
+        if exe is not None and not fig.prusa_error:
+            wall, rss, code, out = _timed(_prusa_cmd(exe, stl, work, width, layer), work)
+            if code != 0:
+                fig.prusa_error = f"prusa-slicer failed ({code}): {out.strip()[-300:]}"
+                continue
+            fig.wall["prusa"].append(wall)
+            fig.rss["prusa"].append(rss)
+    return fig
 
 
 def part_set(exe: str | None, work: Path, repeat: int, quick: bool) -> bool:
@@ -91,14 +139,13 @@ def part_set(exe: str | None, work: Path, repeat: int, quick: bool) -> bool:
         layer = round(inverse(mat, width).height_mm, 4)
         stl = work / ("part-" + "".join(c if c.isalnum() else "_" for c in name) + ".stl")
         stl.write_bytes(mesh.export(file_type="stl"))
-        t_ours, _ = min(run_ours(stl, work, width, layer) for _ in range(repeat))
-        line = f"{name:28s} {len(mesh.faces):>7,} faces: cell plan {t_ours:5.2f} s"
-        if exe is not None:
-            t_p, _ = min(run_prusa(exe, stl, work, width, layer) for _ in range(repeat))
-            ratio = t_ours / t_p
+        fig = compare(stl, work, exe, repeat, width, layer)
+        line = f"{name:28s} {len(mesh.faces):>7,} faces: cell plan {fig.t('ours'):5.2f} s"
+        if fig.wall["prusa"]:
+            ratio = fig.t("ours") / fig.t("prusa")
             ok = ok and ratio <= 1.0
-            line += f" | prusa-slicer {t_p:5.2f} s | ratio {ratio:4.2f} {'ok' if ratio <= 1.0 else 'MISSED'}"
-        print(line, flush=True)
+            line += f" | prusa-slicer {fig.t('prusa'):5.2f} s | ratio {ratio:4.2f} {'ok' if ratio <= 1.0 else 'MISSED'}"
+        print(line + (f" | {fig.prusa_error}" if fig.prusa_error else ""), flush=True)
     return ok
 
 
@@ -106,10 +153,13 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="bench.plan_vs_prusaslicer")
     ap.add_argument("--quick", action="store_true", help="20k and 327k faces only, one run each")
     ap.add_argument("--no-install", action="store_true", help="do not apt-get PrusaSlicer when missing")
-    ap.add_argument("--repeat", type=int, default=None, help="runs per size (best is kept; default 2, quick 1)")
+    ap.add_argument("--repeat", type=int, default=None,
+                    help="alternating runs per part (the median is kept; default 3, quick 1)")
     ap.add_argument("--set-only", action="store_true", help="the part set only, no icospheres")
     args = ap.parse_args(argv)
-    repeat = args.repeat or (1 if args.quick else 2)
+    repeat = args.repeat or (1 if args.quick else 3)
+    for pkg in ("core", "planner", "controller"):  # as installed: no module compiled during a timed run
+        compileall.compile_dir(str(ROOT / pkg), quiet=1)
     subs = [5, 7] if args.quick else [5, 7, 8]
     exe = _prusa() if args.no_install else _install_prusa()
     if exe is None:
@@ -123,29 +173,32 @@ def main(argv: list[str]) -> int:
         print(f"target on every part of the set: <= 1.0x PrusaSlicer: {'met' if set_ok else 'MISSED'}")
         if args.set_only:
             return 0 if set_ok else 1
-        icospheres(exe, work, subs, repeat, ours, theirs)
-    return 0 if set_ok and growth_verdicts(subs, ours, theirs) else 1
+        mem = icospheres(exe, work, subs, repeat, ours, theirs)
+    return 0 if set_ok and growth_verdicts(subs, ours, theirs) and mem else 1
 
 
 def icospheres(exe: str | None, work: Path, subs: list[int], repeat: int, ours: dict[int, float],
-               theirs: dict[int, float]) -> None:
-    """Icospheres of growing face count: our wall time (and PrusaSlicer's) into `ours` / `theirs`."""
+               theirs: dict[int, float]) -> bool:
+    """Icospheres of growing face count: our wall time (and PrusaSlicer's) into `ours` / `theirs`;
+    True unless the peak memory at 1.3M faces is over 1.2x PrusaSlicer's."""
+    ok = True
     for sub in subs:
         stl = work / f"icosphere{sub}.stl"
         stl.write_bytes(trimesh.creation.icosphere(subdivisions=sub, radius=RADIUS).export(file_type="stl"))
-        t_ours, summary = min(run_ours(stl, work) for _ in range(repeat))
-        ours[sub] = t_ours
-        line = f"{SIZES[sub]:>9,} faces: cell plan {t_ours:6.2f} s"
-        if exe is not None:
-            try:
-                t_p, _ = min(run_prusa(exe, stl, work) for _ in range(repeat))
-                theirs[sub] = t_p
-                line += f" | prusa-slicer {t_p:6.2f} s | ratio {t_ours / t_p:4.2f}"
-            except RuntimeError as exc:
-                line += f" | prusa-slicer: {exc}"
-        print(line, flush=True)
+        fig = compare(stl, work, exe, repeat)
+        ours[sub] = fig.t("ours")
+        line = f"{SIZES[sub]:>9,} faces: cell plan {fig.t('ours'):6.2f} s {fig.mb('ours'):5.0f} MB"
+        if fig.wall["prusa"]:
+            theirs[sub] = fig.t("prusa")
+            line += (f" | prusa-slicer {fig.t('prusa'):6.2f} s {fig.mb('prusa'):5.0f} MB | ratio {ours[sub] / theirs[sub]:4.2f}"
+                     f", memory {fig.mb('ours') / fig.mb('prusa'):4.2f}")
+            if sub == 8:
+                ok = fig.mb("ours") <= 1.2 * fig.mb("prusa")
+                line += f" (target <= 1.2: {'met' if ok else 'MISSED'})"
+        print(line + (f" | {fig.prusa_error}" if fig.prusa_error else ""), flush=True)
         if sub == 7:
-            print(f"    summary: {summary}")
+            print(f"    summary: {fig.summary}")
+    return ok
 
 
 def growth_verdicts(subs: list[int], ours: dict[int, float], theirs: dict[int, float]) -> bool:

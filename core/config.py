@@ -8,10 +8,11 @@ import yaml
 from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
 from typing_extensions import Annotated
 
+from core.config_cache import CONFIG_DIR as CONFIG_DIR  # re-exported: the light module (cell plan) has them
+from core.config_cache import material_path as material_path
 from core.errors import ConfigError
 from core.material import Material
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
 M = TypeVar("M", bound=BaseModel)
 
 
@@ -419,18 +420,6 @@ def load_cell(path: str | Path | None = None) -> CellConfig:
 
 def load_sim(path: str | Path | None = None) -> SimConfig:
     return load_model(path or CONFIG_DIR / "sim.yaml", SimConfig)
-
-
-def material_path(name_or_path: str) -> Path:
-    """A material by name (config/materials/NAME.yaml) or by a path to a YAML file."""
-    p = Path(name_or_path)
-    if p.suffix in (".yaml", ".yml") or p.exists():
-        return p
-    cand = CONFIG_DIR / "materials" / f"{name_or_path}.yaml"
-    if not cand.exists():
-        known = ", ".join(sorted(x.stem for x in (CONFIG_DIR / "materials").glob("*.yaml")))
-        raise ConfigError(f"material '{name_or_path}' not found; known materials: {known}")
-    return cand
 
 
 def load_material(name_or_path: str = "inconel718-1.0mm") -> Material:

@@ -15,6 +15,7 @@ import shapely
 import shapely.errors
 from shapely.geometry import Polygon
 
+from planner.cellclip import cell_areas_inside
 from planner.path2d import Path2D
 
 
@@ -82,11 +83,15 @@ def _frame(island: Polygon, width: float) -> np.ndarray:
 
 def _clipped_areas(cells: np.ndarray, island: shapely.Geometry, tile_mm: float) -> np.ndarray:
     """Area of each cell inside the island. Cells wholly inside are not clipped; the others are
-    clipped against tiles of the island (a grid of squares about `tile_mm` wide): each overlay
-    then sees a few island edges, not all of them."""
+    clipped all at once (planner.cellclip); the few it leaves are clipped against tiles of the
+    island (a grid of squares about `tile_mm` wide): each overlay then sees a few island edges."""
     shapely.prepare(island)
     areas = np.asarray(shapely.area(cells), dtype=np.float64)
     edge = np.flatnonzero(~shapely.contains(island, cells))
+    if len(edge) == 0:
+        return areas
+    areas[edge], rest = cell_areas_inside(cells[edge], island)
+    edge = edge[rest]  # the few cells the arrays could not decide (a corner on the boundary): overlays
     if len(edge) == 0:
         return areas
     minx, miny, maxx, maxy = island.bounds
@@ -109,8 +114,42 @@ def _samples(beads: Sequence[Path2D], spacing: float) -> tuple[np.ndarray, np.nd
     lengths = shapely.length(lines)
     counts = np.maximum(np.ceil(lengths / spacing).astype(np.int64), 1) + 1
     owner = np.repeat(np.arange(len(beads)), counts)
-    frac = np.concatenate([np.linspace(0.0, 1.0, int(k)) for k in counts])
-    pts = shapely.get_coordinates(shapely.line_interpolate_point(lines[owner], frac, normalized=True))
-    _, first = np.unique(np.round(pts / (0.25 * spacing)), axis=0, return_index=True)
-    first.sort()
+    pts = np.vstack([_along(np.asarray(b.points, dtype=np.float64), np.linspace(0.0, 1.0, int(k)))
+                     for b, k in zip(beads, counts)])
+    first = _first_of_each(np.round(pts / (0.25 * spacing)))
     return pts[first], owner[first]
+
+
+def _first_of_each(cells: np.ndarray) -> np.ndarray:
+    """Ascending indices of the first row of each distinct row of integral floats: what
+    np.unique(cells, axis=0, return_index=True)[1], sorted, gives (-0.0 is 0.0), by one sort of
+    int64 keys when the values fit in 31 bits."""
+    if len(cells) == 0 or float(np.max(np.abs(cells))) >= 2.0 ** 30:
+        found: np.ndarray = np.unique(cells, axis=0, return_index=True)[1]
+        return np.sort(found)
+    ij = cells.astype(np.int64)
+    key = (ij[:, 0] << 32) + ij[:, 1]
+    order = np.argsort(key, kind="stable")
+    sk = key[order]
+    new = np.empty(len(sk), dtype=bool)
+    new[0] = True
+    np.not_equal(sk[1:], sk[:-1], out=new[1:])
+    return np.sort(order[new])
+
+
+def _along(xy: np.ndarray, frac: np.ndarray) -> np.ndarray:
+    """shapely.line_interpolate_point(line, frac, normalized=True) of the polyline `xy`, the same
+    bits (GEOS's sums and its p0 + (p1 − p0)·f), without walking the line once per point."""
+    d = np.diff(xy, axis=0)
+    seg = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
+    run = np.concatenate([[0.0], np.cumsum(seg)])
+    at = frac * run[-1]
+    k = np.searchsorted(run[1:], at, side="right")  # the first segment ending beyond `at`
+    end = k >= len(seg)
+    k = np.minimum(k, len(seg) - 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = (at - run[k]) / seg[k]
+    p0, p1 = xy[k], xy[k + 1]
+    out: np.ndarray = np.where((f <= 0.0)[:, None], p0, np.where((f >= 1.0)[:, None], p1, (p1 - p0) * f[:, None] + p0))
+    out[end] = xy[-1]
+    return out

@@ -54,6 +54,16 @@ class LayerPlan:
 
 def plan_layer(polys: list[Polygon], index: int, ctx: LayerCtx, pos: np.ndarray) -> LayerPlan:
     """Beads of one layer's islands, ordered island by island to keep the travel short."""
+    return placed(layer_groups(polys, index, ctx), pos)
+
+
+# A layer's beads before they are ordered: region, per island [perimeters, infill, gaps], stats, issues, stubs
+LayerGroups = tuple[shapely.Geometry, list[Groups], dict[str, int], list[str], list[str]]
+
+
+def layer_groups(polys: list[Polygon], index: int, ctx: LayerCtx) -> LayerGroups:
+    """The beads of one layer's islands and their shares, not yet ordered: all that does not
+    depend on where the torch is (so layers can be planned side by side, planner.plan)."""
     region = shapely.union_all(polys) if polys else Polygon()
     angle = ctx.angle0_deg + 90.0 * (index % 2)
     stats = {"loops": 0, "regions": 0}
@@ -73,8 +83,14 @@ def plan_layer(polys: list[Polygon], index: int, ctx: LayerCtx, pos: np.ndarray)
                           f"gets no bead of at least {ctx.min_length:.1f} mm (min_bead_length_mm)")
         _balance_island(groups, poly, ctx.width, ctx.widths.lo)
         per_island.append(groups)
-    ordered, pos, travel = order_islands(per_island, pos)
-    return LayerPlan(region, ordered, pos, travel, stats, issues, stubs, per_island)
+    return region, per_island, stats, issues, stubs
+
+
+def placed(lg: LayerGroups, pos: np.ndarray) -> LayerPlan:
+    """The layer's beads ordered from where the torch is, island by island."""
+    region, per_island, stats, issues, stubs = lg
+    ordered, end, travel = order_islands(per_island, pos)
+    return LayerPlan(region, ordered, end, travel, stats, issues, stubs, per_island)
 
 
 def _island(poly: Polygon, index: int, angle: float, ctx: LayerCtx, stats: dict[str, int],

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from core.errors import MeshError
+from planner.slicer import face_z_range
 
 MAX_FACES = 5_000_000          # triangles of one mesh
 MAX_TEXT_BYTES = 400_000_000   # an ASCII STL / OBJ / 3MF file (parsed by trimesh)
@@ -40,9 +41,11 @@ def check_vertices(name: str, vertices: np.ndarray, n_faces: int) -> None:
 
 
 def check_before_slicing(name: str, vertices: np.ndarray, faces: np.ndarray, layer_mm: float,
-                         workspace_mm: tuple[float, float, float] | None = None) -> None:
+                         workspace_mm: tuple[float, float, float] | None = None,
+                         z_range: tuple[np.ndarray, np.ndarray] | None = None) -> None:
     """Refuse a part larger than the workspace (or MAX_EXTENT_MM), or one whose layer or
-    segment count would exceed the stated limits, before any slicing."""
+    segment count would exceed the stated limits, before any slicing. `z_range`: each face's
+    lowest and highest z (planner.slicer.face_z_range) when the caller has them."""
     check_vertices(name, vertices, len(faces))
     v = np.asarray(vertices, dtype=np.float64)
     ext = v.max(axis=0) - v.min(axis=0)
@@ -56,8 +59,8 @@ def check_before_slicing(name: str, vertices: np.ndarray, faces: np.ndarray, lay
     layers = int(ext[2] / layer_mm) + 1
     if layers > MAX_LAYERS:
         raise MeshError(f"{name}: {layers} layers of {layer_mm:g} mm, over the limit of {MAX_LAYERS}")
-    z = v[:, 2][np.asarray(faces)]
-    segs = int(np.sum(np.floor((z.max(axis=1) - z.min(axis=1)) / layer_mm) + 1))
+    zmin, zmax = z_range if z_range is not None else face_z_range(v, faces)
+    segs = int(np.sum(np.floor((zmax - zmin) / layer_mm) + 1))
     if segs > MAX_SEGMENTS:
         raise MeshError(f"{name}: slicing would make about {segs} segments, over the limit of {MAX_SEGMENTS}; "
                         "decimate the mesh or use thicker layers")

@@ -62,8 +62,9 @@ def read_mesh(path: str | Path, units: str = "mm") -> PreparedMesh:
     if tri is not None:
         if len(tri) == 0:
             raise MeshError(f"{p}: the mesh has no triangles; export the part again as a solid")
-        limits.check_vertices(p.name, tri.reshape(-1, 3) * UNITS_MM[units], len(tri))
         vertices, faces = _weld(tri)
+        # the distinct corners, in the file's single precision as before: the same verdict and figure
+        limits.check_vertices(p.name, vertices.astype(np.float32) * UNITS_MM[units], len(tri))
         fast = _prepare_clean(vertices, faces, units, source)
         if fast is not None:
             return fast
@@ -92,27 +93,60 @@ def _binary_stl(data: bytes) -> np.ndarray | None:
 
 
 def _weld(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Shared vertices from exactly repeated corner coordinates (STL repeats them bit for bit)."""
+    """Shared vertices from exactly repeated corner coordinates (STL repeats them bit for bit).
+
+    The vertices come in the order of a stable sort of the corners' 64-bit hashes (first corner
+    of each): the same numbering whichever way it is computed."""
     v = np.ascontiguousarray(tri.reshape(-1, 3), dtype=np.float32) + np.float32(0.0)  # -0.0 -> 0.0
-    bits = v.view(np.uint32).astype(np.uint64)
-    # One 64-bit key per corner (a hash of its three float bit patterns), sorted once; equal
-    # coordinates give equal keys, and a collision is caught below by comparing the bits.
-    h = bits[:, 0] * np.uint64(0x9E3779B185EBCA87) ^ bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F) \
-        ^ bits[:, 2] * np.uint64(0x165667B19E3779F9)
-    order = np.argsort(h, kind="stable")
-    sh = h[order]
+    b32 = v.view(np.uint32)
+    # One 64-bit key per corner (a hash of its three float bit patterns); equal coordinates give
+    # equal keys, and a collision is caught below by comparing the bits.
+    h = b32[:, 0] * np.uint64(0x9E3779B185EBCA87)
+    h ^= b32[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F)
+    h ^= b32[:, 2] * np.uint64(0x165667B19E3779F9)
+    order, sh = _stable_order(h)
     new = np.empty(len(sh), dtype=bool)
     new[0] = True
     np.not_equal(sh[1:], sh[:-1], out=new[1:])
+    del sh
     ids = np.cumsum(new) - 1
     first = order[new]
-    if np.any(bits[order] != bits[first[ids]]):  # a hash collision: sort on the bits themselves
-        b = bits.astype(np.uint32)
-        order = np.lexsort((b[:, 2], b[:, 1], b[:, 0]))
-        sb = b[order]
-        new[1:] = np.any(sb[1:] != sb[:-1], axis=1)
-        ids = np.cumsum(new) - 1
-        first = order[new]
+    inverse = np.empty(len(v), dtype=np.int64)
+    inverse[order] = ids
+    rows = v.view(np.dtype((np.void, 12))).ravel()  # a corner's 12 bytes, compared at once
+    if np.any(rows != rows[first][inverse]):  # a hash collision: sort on the bits themselves
+        return _weld_exact(v)
+    return v[first].astype(np.float64), inverse.reshape(-1, 3)
+
+
+def _stable_order(h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`np.argsort(h, kind="stable")` and `h` in that order, by a plain sort of keys that carry the
+    index in their low bits (the high bits of the hash above it), put right where two hashes
+    differ only in the bits dropped (rare: an almost sorted array sorts in one pass)."""
+    n = len(h)
+    shift = np.uint64(max((n - 1).bit_length(), 1))
+    key = (h >> shift) << shift
+    key |= np.arange(n, dtype=np.uint64)
+    key.sort()
+    order = (key & ((np.uint64(1) << shift) - np.uint64(1))).astype(np.intp)
+    del key
+    sh = h[order]
+    if n > 1 and np.any(sh[1:] < sh[:-1]):
+        fix = np.argsort(sh, kind="stable")
+        order, sh = order[fix], sh[fix]
+    return order, sh
+
+
+def _weld_exact(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Shared vertices by a sort on the coordinates' bits (no hash): when two hashes collide."""
+    b = v.view(np.uint32)
+    order = np.lexsort((b[:, 2], b[:, 1], b[:, 0]))
+    sb = b[order]
+    new = np.empty(len(sb), dtype=bool)
+    new[0] = True
+    new[1:] = np.any(sb[1:] != sb[:-1], axis=1)
+    ids = np.cumsum(new) - 1
+    first = order[new]
     inverse = np.empty(len(v), dtype=np.int64)
     inverse[order] = ids
     return v[first].astype(np.float64), inverse.reshape(-1, 3)
@@ -126,9 +160,7 @@ def _prepare_clean(vertices: np.ndarray, faces: np.ndarray, units: str, source: 
     if np.any((f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])):
         return None
     vertices = vertices * UNITS_MM[units]
-    tri = vertices[f]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    area2 = np.linalg.norm(cross, axis=1)
+    p0, cross, area2 = _face_cross(vertices, f)
     if np.any(area2 <= 1e-12 * max(float(np.ptp(vertices)), 1.0) ** 2):
         return None
     nv = np.int64(len(vertices))
@@ -139,7 +171,7 @@ def _prepare_clean(vertices: np.ndarray, faces: np.ndarray, units: str, source: 
     if not np.array_equal(np.sort(b * nv + a), key):
         return None  # an edge without its twin: open
     repairs: list[str] = []
-    volume = float(np.einsum("ij,ij->i", tri[:, 0], cross).sum()) / 6.0
+    volume = float(np.einsum("ij,ij->i", p0, cross).sum()) / 6.0
     normals = cross / area2[:, None]
     if volume < 0:
         f = f[:, ::-1].copy()
@@ -149,6 +181,23 @@ def _prepare_clean(vertices: np.ndarray, faces: np.ndarray, units: str, source: 
     z0 = float(vertices[:, 2].min())
     vertices[:, 2] -= z0
     return PreparedMesh(vertices, np.ascontiguousarray(f, dtype=np.int64), normals, tuple(repairs), True, source, z0)
+
+
+def _face_cross(vertices: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each face's first corner, edge cross product and its length: np.cross and np.linalg.norm's
+    own arithmetic (the same bits), column by column without the (F, 3, 3) corner array."""
+    p0 = np.take(vertices, f[:, 0], axis=0)
+    e1 = np.take(vertices, f[:, 1], axis=0)
+    e1 -= p0
+    e2 = np.take(vertices, f[:, 2], axis=0)
+    e2 -= p0
+    cross = np.empty_like(e1)
+    cross[:, 0] = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
+    cross[:, 1] = e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2]
+    cross[:, 2] = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    c0, c1, c2 = cross[:, 0], cross[:, 1], cross[:, 2]
+    area2 = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+    return p0, cross, area2
 
 
 def _parse(data: bytes, ext: str, p: Path) -> Any:

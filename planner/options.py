@@ -2,12 +2,15 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from core.errors import InputError
-from planner.five_axis import FiveAxisOptions
 from planner.weld import CellLimits
+
+if TYPE_CHECKING:  # an annotation only: a 3-axis plan does not load planner.five_axis (start-up time)
+    from planner.five_axis import FiveAxisOptions
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,8 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from collections import deque
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 import shapely
@@ -10,25 +11,27 @@ from shapely.geometry import Polygon
 
 from planner import limits
 from core.errors import MeshError
-from core.material import Material
-from planner import five_axis
 from planner.balance import laid_area_mm2
 from planner.bead import area_factor, step_over
 from planner.ding import close_share
 from planner.job import BeadInfo, Interpass, Job, Layer, Source
-from planner.layer import LayerCtx, LayerPlan, plan_layer, reseamed
-from planner.nearnet import grow, layer_count
+from planner.ahead import Ahead, Later
+from planner.layer import LayerCtx, LayerPlan, placed, reseamed
+from planner.nearnet import layer_count
 from planner.mesh import PreparedMesh, check_size, prepare_mesh, read_mesh
 from planner.process import inverse
-from planner.regions import islands
 from planner.path2d import Path2D
-from planner.slicer import LayerSlice, slice_levels, slice_mesh
+from planner.slicer import LayerSlice, face_z_range, slice_levels, slice_mesh
 from planner.stubs import drop_short
 from planner.summary import ARC_START_S, TRAVEL_MM_MIN, LayerQuality, layer_quality, summarise
 from planner.thin import legal_widths
 from planner.options import PlanOptions
 from planner.verdict import Verdict
 from planner.weld import Process, as_welded, weld_passes
+
+if TYPE_CHECKING:  # annotations only: `cell plan` passes a remembered material (core.config_cache) and
+    # never imports pydantic
+    from core.material import Material
 
 Progress = Callable[[int, int], None]
 
@@ -47,19 +50,29 @@ def plan_part(mesh_or_path: Any, options: PlanOptions,
     nominal = inverse(material, w, options.layer_height_mm, allow_outside=options.allow_outside)
     height = options.layer_height_mm or nominal.height_mm
     check_size(mesh, w, height)
-    limits.check_before_slicing(mesh.source.file, mesh.vertices, mesh.faces, height, options.workspace_mm)
+    z_range = face_z_range(mesh.vertices, mesh.faces)
+    limits.check_before_slicing(mesh.source.file, mesh.vertices, mesh.faces, height, options.workspace_mm, z_range)
     run = _Run(options, material, height)
     top_z = float(mesh.extents[2])
     gap_tols = (1e-6, 0.01 * w, 0.1 * w, 0.5 * w)
-    slices = slice_mesh(mesh.vertices, mesh.faces, mesh.face_normals, slice_levels(top_z, height), gap_tols)
+    slices = slice_mesh(mesh.vertices, mesh.faces, mesh.face_normals, slice_levels(top_z, height), gap_tols, z_range)
+    del z_range
     _fail_on_open(slices, mesh.source.file, w)
     n_net = len(slices)
     slices = _with_top(slices, layer_count(top_z, height, run.ctx.allowance, n_net), height)
     layers: list[Layer] = []
-    for sl in slices:
-        layers.append(run.layer(sl, sl.index >= n_net))
-        if progress is not None:
-            progress(sl.index + 1, len(slices))
+    tops = [sl.index >= n_net for sl in slices]
+    with Ahead(slices, tops, run.ctx, _LayerMemo.key, _LayerMemo.misses) as ahead:
+        # each layer started in turn (its beads ordered from where the torch is), welded and judged
+        # a few layers behind (its quality computed meanwhile on a thread); an error is raised at
+        # its own layer, in order, as if the layers were planned one by one
+        started: deque[_Started | BaseException] = deque()
+        for sl, top in zip(slices, tops):
+            started.append(_started(run, sl, top, ahead))
+            while started and (len(started) > ahead.depth or isinstance(started[-1], BaseException)):
+                layers.append(_finished(run, started.popleft(), progress, len(slices)))
+        while started:
+            layers.append(_finished(run, started.popleft(), progress, len(slices)))
     summary = summarise(run.qualities, run.n_passes, run.time_s)
     summary["arc_time_s"] = round(run.arc_time_s, 1)
     summary.update(run.verdict.finish(mesh.source.file, run.qualities))
@@ -72,6 +85,9 @@ def plan_part(mesh_or_path: Any, options: PlanOptions,
     src = Source(mesh.source.file, mesh.source.sha256, mesh.source.units)
     job = Job(src, mat, bead, tuple(layers), summary)
     if options.five_axis is not None:  # the tool tilts to bring the overhangs within the rule
+        # a 5-axis plan only: a 3-axis plan's start-up does not load it (issue 28)
+        from planner import five_axis
+
         fa = dataclasses.replace(options.five_axis, max_overhang_deg=material.max_overhang_deg)
         job = five_axis.apply(job, fa, options.allow_overhang, run.regions)
     return in_frame(job, options.frame, mesh.z_shift_mm)
@@ -101,29 +117,35 @@ class _Run:
         self.arc_time_s = 0.0  # the beads alone, at their planned speed (the record compares it)
         self.n_passes = 0
 
-    def _plan(self, sl: LayerSlice, top: bool) -> tuple[LayerPlan, list[Path2D], LayerQuality, float]:
-        """The layer's beads (from the memo when a layer below had the same islands)."""
-        w, allowance = self.ctx.width, self.ctx.allowance
-        net = islands([c.points for c in sl.contours if c.closed], simplify_mm=0.005 * w)
-        polys = grow(net, allowance)
-        hit = self.memo.get(polys, sl.index, self.pos, self.proc, top)
+    def start(self, sl: LayerSlice, top: bool, ahead: Ahead) -> _Started:
+        """The layer's beads ordered from where the torch is (the memo's when a layer below had the
+        same islands), and their quality and Ding check underway; the torch moves on."""
+        net, _, key = ahead.prepared[sl.index]
+        hit = self.memo.get(key, sl.index, self.pos, self.proc)
         if hit is not None:
-            return hit
-        lp = plan_layer(polys, sl.index, self.ctx, self.pos)
-        paths = [as_welded(p, self.proc) for p in lp.paths]
-        stock_of = shapely.union_all(net) if allowance > 0 and not top and net else None
-        q = layer_quality(lp.region, paths, w, self.height, stock_of)
-        close = close_share(paths, self.material.bead.min_step_over_ratio, w)
-        self.memo.put(polys, sl.index, lp, (q, close), top)
-        return lp, paths, q, close
+            lp, paths, judged = hit
+        else:
+            lp = placed(ahead.groups(sl.index), self.pos)
+            paths = [as_welded(p, self.proc) for p in lp.paths]
+            stock_of = net if self.ctx.allowance > 0 and not top and net else None
+            judged = ahead.later(self._judge, lp.region, paths, stock_of)
+            self.memo.put(key, lp, judged)
+        self.pos = lp.end
+        return sl, lp, paths, judged
 
-    def layer(self, sl: LayerSlice, top: bool) -> Layer:
-        """Plan, weld and judge one layer (`top`: a layer of the top's near-net stock)."""
-        lp, paths, q, close = self._plan(sl, top)
+    def _judge(self, region: shapely.Geometry, paths: list[Path2D], net: list[Polygon] | None) -> tuple[LayerQuality, float]:
+        """The layer's coverage, metal and stock (planner.summary) and its Ding check (planner.ding)."""
+        w = self.ctx.width
+        q = layer_quality(region, paths, w, self.height, shapely.union_all(net) if net else None)
+        return q, close_share(paths, self.material.bead.min_step_over_ratio, w)
+
+    def layer(self, started: _Started) -> Layer:
+        """Weld and judge one layer, in turn."""
+        sl, lp, paths, judged = started
+        q, close = judged.result()
         v, h = self.verdict, self.height
         paths = drop_short(paths, self.ctx.min_length, sl.index, v.stubs)
         v.ding(sl.index, close)
-        self.pos = lp.end
         self.qualities.append(q)
         v.layer(sl.index, lp, q, self.below, h)
         self.below = lp.region
@@ -147,6 +169,25 @@ class _Run:
                       "perimeter_loops": lp.stats["loops"], "fill_regions": lp.stats["regions"]})
 
 
+_Started = tuple[LayerSlice, LayerPlan, list[Path2D], "Later[tuple[LayerQuality, float]]"]
+
+
+def _started(run: _Run, sl: LayerSlice, top: bool, ahead: Ahead) -> _Started | BaseException:
+    try:
+        return run.start(sl, top, ahead)
+    except Exception as exc:  # raised in turn, once the layers below are done (see plan_part)
+        return exc
+
+
+def _finished(run: _Run, started: _Started | BaseException, progress: Progress | None, total: int) -> Layer:
+    if isinstance(started, BaseException):
+        raise started
+    layer = run.layer(started)
+    if progress is not None:
+        progress(layer.index + 1, total)
+    return layer
+
+
 def in_frame(job: Job, frame: str, z_shift_mm: float) -> Job:
     """The job in its frame: `cad` puts back the height the mesh intake took off (z = 0 → CAD z)."""
     if frame != "cad":
@@ -161,27 +202,41 @@ class _LayerMemo:
     is planned the same; its seams move on and its beads are ordered from where the torch is."""
 
     def __init__(self) -> None:
-        self.seen: dict[tuple[bytes, int, bool], tuple[LayerPlan, tuple[LayerQuality, float]]] = {}
+        self.seen: dict[tuple[bytes, int, bool], tuple[LayerPlan, Later[tuple[LayerQuality, float]]]] = {}
+
+    BOUND = 64  # layers kept: a prism repeats the layer just below
 
     @staticmethod
-    def _key(polys: list[Polygon], index: int, tag: bool) -> tuple[bytes, int, bool]:
+    def key(polys: list[Polygon], index: int, tag: bool) -> tuple[bytes, int, bool]:
         norm = shapely.normalize(shapely.set_precision(np.asarray(polys, dtype=object), 1e-6))
         return (b"".join(shapely.to_wkb(norm).tolist()), index % 2, tag)
 
-    def get(self, polys: list[Polygon], index: int, pos: np.ndarray, proc: Process,
-            tag: bool = False) -> tuple[LayerPlan, list[Path2D], LayerQuality, float] | None:
-        hit = self.seen.get(self._key(polys, index, tag))
+    @classmethod
+    def misses(cls, keys: list[tuple[bytes, int, bool]]) -> list[bool]:
+        """Which layers get() will not have, layer after layer (get, then put on a miss, as below)."""
+        seen: set[tuple[bytes, int, bool]] = set()
+        out = []
+        for k in keys:
+            out.append(k not in seen)
+            if out[-1]:
+                if len(seen) >= cls.BOUND:
+                    seen.clear()
+                seen.add(k)
+        return out
+
+    def get(self, key: tuple[bytes, int, bool], index: int, pos: np.ndarray,
+            proc: Process) -> tuple[LayerPlan, list[Path2D], Later[tuple[LayerQuality, float]]] | None:
+        hit = self.seen.get(key)
         if hit is None:
             return None
-        lp, (q, close) = hit
+        lp, judged = hit
         lp = reseamed(lp, index, pos)
-        return lp, [as_welded(p, proc) for p in lp.paths], q, close
+        return lp, [as_welded(p, proc) for p in lp.paths], judged
 
-    def put(self, polys: list[Polygon], index: int, lp: LayerPlan, q: tuple[LayerQuality, float],
-            tag: bool = False) -> None:
-        if len(self.seen) >= 64:  # bounded: a prism repeats the layer just below
+    def put(self, key: tuple[bytes, int, bool], lp: LayerPlan, judged: Later[tuple[LayerQuality, float]]) -> None:
+        if len(self.seen) >= self.BOUND:
             self.seen.clear()
-        self.seen[self._key(polys, index, tag)] = (lp, q)
+        self.seen[key] = (lp, judged)
 
 
 def _allowance(options: PlanOptions, material: Material) -> float:

@@ -22,12 +22,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
 from core.errors import EnvelopeError, InputError
-from core.material import Material, RibeiroCoefficients
+
+if TYPE_CHECKING:  # annotations only: `cell plan` passes a remembered material (core.config_cache) and
+    # never imports pydantic
+    from core.material import Material, RibeiroCoefficients
 
 __all__ = [
     "ProcessPoint",
@@ -61,11 +64,12 @@ class ProcessPoint:
 
 
 def _coeffs(material: Material | RibeiroCoefficients) -> RibeiroCoefficients:
-    return material.ribeiro if isinstance(material, Material) else material
+    # by attribute, not isinstance: a remembered material (core.config_cache.Frozen) reads the same
+    return cast("RibeiroCoefficients", getattr(material, "ribeiro", material))
 
 
 def _name(material: Material | RibeiroCoefficients) -> str:
-    return material.name if isinstance(material, Material) else "the given coefficients"
+    return str(getattr(material, "name", "the given coefficients"))
 
 
 def _positive(name: str, value: Any, unit: str) -> np.ndarray:

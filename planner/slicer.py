@@ -39,11 +39,22 @@ def slice_levels(height_mm: float, layer_mm: float) -> np.ndarray:
     return (np.arange(max(n, 1)) + 0.5) * layer_mm
 
 
+def face_z_range(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each face's lowest and highest z, corner by corner (no (F, 3) array reduced along its rows)."""
+    zc = np.ascontiguousarray(vertices[:, 2])
+    f = np.asarray(faces)
+    z0, z1, z2 = np.take(zc, f[:, 0]), np.take(zc, f[:, 1]), np.take(zc, f[:, 2])
+    return np.minimum(np.minimum(z0, z1), z2), np.maximum(np.maximum(z0, z1), z2)
+
+
 def slice_mesh(vertices: np.ndarray, faces: np.ndarray, face_normals: np.ndarray, levels: np.ndarray,
-               gap_tolerances: tuple[float, ...] = (1e-6, 0.05, 0.5, 2.0)) -> list[LayerSlice]:
-    """All layers at once. `gap_tolerances` (mm) are tried in order to close open chains."""
+               gap_tolerances: tuple[float, ...] = (1e-6, 0.05, 0.5, 2.0),
+               z_range: tuple[np.ndarray, np.ndarray] | None = None) -> list[LayerSlice]:
+    """All layers at once. `gap_tolerances` (mm) are tried in order to close open chains;
+    `z_range`: face_z_range(vertices, faces) when the caller has it."""
     levels = np.asarray(levels, dtype=np.float64)
-    seg_layer, seg_a, seg_b, seg_face, key_start, key_end = _segments(vertices, faces, levels)
+    zmin, zmax = z_range if z_range is not None else face_z_range(vertices, faces)
+    seg_layer, seg_a, seg_b, seg_face, key_start, key_end = _segments(vertices, faces, levels, zmin, zmax)
     slices = []
     order = np.argsort(seg_layer, kind="stable")
     bounds = np.searchsorted(seg_layer[order], np.arange(len(levels) + 1))
@@ -55,19 +66,20 @@ def slice_mesh(vertices: np.ndarray, faces: np.ndarray, face_normals: np.ndarray
     return slices
 
 
-def _segments(vertices: np.ndarray, faces: np.ndarray, levels: np.ndarray) -> Any:
-    fz = vertices[:, 2][faces]
-    zmin, zmax = fz.min(axis=1), fz.max(axis=1)
+def _segments(vertices: np.ndarray, faces: np.ndarray, levels: np.ndarray, zmin: np.ndarray, zmax: np.ndarray) -> Any:
     # A vertex on a plane counts as above it, so every crossing face has exactly one "up" edge.
     lo = np.searchsorted(levels, zmin, side="right")
     hi = np.searchsorted(levels, zmax, side="right")
     count = np.maximum(hi - lo, 0)
+    crossing = np.flatnonzero(count)  # the few faces a plane cuts: the per-segment work is theirs alone
+    count = count[crossing]
     total = int(count.sum())
-    face = np.repeat(np.arange(len(faces)), count)
+    face = np.repeat(crossing, count)
     offs = np.repeat(np.cumsum(count) - count, count)
     layer = lo[face] + (np.arange(total) - offs)
     z = levels[layer]
-    above = fz[face] >= z[:, None]
+    fz = vertices[:, 2][faces[face]]
+    above = fz >= z[:, None]
     nxt = np.array([1, 2, 0])
     up = ~above & above[:, nxt]  # edge j goes from below to above
     down = above & ~above[:, nxt]

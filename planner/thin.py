@@ -7,6 +7,8 @@ the widths that fit, the one nearest the nominal width.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,11 +17,14 @@ from shapely.geometry import Polygon
 from shapely.geometry.polygon import orient
 
 from planner.gapfill import centre_lines
-from core.material import Material
 from planner.path2d import Path2D
 from planner.process import ENVELOPE_RTOL, wfs_for_current
 from planner.process import _inverse_arrays  # noqa: PLC2701  (the vectorised inverse, same model)
 from planner.regions import polygons_of
+
+if TYPE_CHECKING:  # annotations only: `cell plan` passes a remembered material (core.config_cache) and
+    # never imports pydantic
+    from core.material import Material
 
 MAX_BEADS = 8
 

@@ -4,15 +4,18 @@ from __future__ import annotations
 
 from core.errors import MeshError
 import re
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import shapely
 
-from core.material import Material
 from planner.layer import ALLOWANCE_HINT, LayerCtx, LayerPlan
 from planner.options import PlanOptions
 from planner.overhang import check_overhang
 from planner.summary import LayerQuality, gap_message
+
+if TYPE_CHECKING:  # annotations only: `cell plan` passes a remembered material (core.config_cache) and
+    # never imports pydantic
+    from core.material import Material
 
 MAX_LISTED = 6
 

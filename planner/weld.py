@@ -15,18 +15,23 @@ Pure: no I/O, no clocks.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from dataclasses import dataclass
 
 import numpy as np
 import shapely
 
 from core.errors import EnvelopeError
-from core.material import Material
 from planner.balance import balance_error, balanced_speed
 from planner.job import Pass
 from planner.path2d import Path2D
 from planner.process import ProcessPoint, current_for_wfs, envelope_violations, inverse
 from planner.slicer import LayerSlice
+
+if TYPE_CHECKING:  # annotations only: `cell plan` passes a remembered material (core.config_cache) and
+    # never imports pydantic
+    from core.material import Material
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,9 @@ ROOT = Path(__file__).resolve().parent.parent
 # directory of its own, so two test files building the demo cell at once on two workers are not
 # refused as a second controller (tests/test_stops.py checks the refusal in a directory of its own).
 os.environ["CELL_LOCK_DIR"] = tempfile.mkdtemp(prefix=f"cell-locks-{os.environ.get('PYTEST_XDIST_WORKER', 'main')}-")
+# Validated configuration remembered by `cell plan` (core/config_cache.py): a directory per test
+# worker, never the user's ~/.cache.
+os.environ["CELL_CACHE_DIR"] = tempfile.mkdtemp(prefix=f"cell-cache-{os.environ.get('PYTEST_XDIST_WORKER', 'main')}-")
 SHARED_PARTS = ROOT.parent / "shared" / "parts"
 
 

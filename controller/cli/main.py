@@ -2,15 +2,14 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import json
 import logging
 import math
-import sqlite3
 import sys
 from typing import Any, NoReturn, Sequence
 
-from controller.runtime.cell_lock import early as early_lock
 from core.errors import CellError
 
 # Subcommand modules, imported lazily so that `cell process` does not pay for Textual or
@@ -87,10 +86,8 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
             continue
         seen.add(module)
         if wanted is not None and module != wanted:
-            # Only the needed module is imported; the others get a placeholder for --help.
-            for alias, mod in COMMANDS.items():
-                if mod == module:
-                    sub.add_parser(alias, add_help=False)
+            # Only the needed module is imported, and no placeholder parser for the others (each
+            # costs argparse's translation lookups): the command named is the one parsed.
             continue
         command = importlib.import_module(module)  # a missing command module is an error, never skipped
         command.register(sub)
@@ -103,7 +100,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # planner's one `error:` line instead
     logging.getLogger("trimesh").setLevel(logging.CRITICAL)
     try:
-        with early_lock(argv):  # one controller per cell: refused before the heavy imports
+        with _early_lock(argv):  # one controller per cell: refused before the heavy imports
             parser = build_parser(argv)
             args = parser.parse_args(argv)
             return int(args.func(args) or 0)
@@ -117,7 +114,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RecursionError:
         sys.stderr.write("error: an input file is nested too deeply to read; give a flat file\n")
         return 2
-    except sqlite3.DatabaseError as exc:
+    except _journal_errors() as exc:
         sys.stderr.write(f"error: a journal could not be read ({_short(exc)}); it was left untouched: "
                          "`cell journal check RUN_DIR` says what is readable\n")
         return 2
@@ -140,6 +137,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         # is still one `error:` line and exit 2, never a traceback
         sys.stderr.write(f"error: bad input ({type(exc).__name__}: {_short(exc)})\n")
         return 2
+
+
+def _journal_errors() -> type[Exception] | tuple[()]:
+    """sqlite3.DatabaseError once a journal was opened; nothing to catch (and no import) before."""
+    sqlite3 = sys.modules.get("sqlite3")
+    return sqlite3.DatabaseError if sqlite3 is not None else ()
+
+
+def _early_lock(argv: list[str]) -> contextlib.AbstractContextManager[object]:
+    """cell_lock.early(argv); `cell plan` touches no device and holds no lock: it skips the import."""
+    if next((a for a in argv if not a.startswith("-")), None) == "plan":
+        return contextlib.nullcontext()
+    # every other command: cell_lock.early decides which ones lock (plan's start-up skips its imports)
+    from controller.runtime.cell_lock import early
+
+    return early(argv)
 
 
 def _short(exc: BaseException) -> str:

@@ -5,7 +5,7 @@ import argparse
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from core.errors import CellError, ConfigError, InputError
 
@@ -92,24 +92,63 @@ def register(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
-def _five_axis(enabled: bool) -> FiveAxisOptions | None:
-    """FiveAxisOptions from cell.yaml (tilt limit, nozzle cone), or None for a 3-axis plan."""
-    if not enabled:
-        return None
-    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
+def _cell_values() -> dict[str, Any]:
+    """What `cell plan` reads from config/cell.yaml (its material, workspace, speed and source
+    limits, tilt limit and nozzle), validated; {} when there is no valid cell.yaml."""
+    # on a cache miss only: pydantic and PyYAML are what a remembered start saves (issue 28)
     from core.config import load_cell
-    from planner.five_axis import FiveAxisOptions, Nozzle
 
     try:
         cell = load_cell()
     except CellError:
-        return FiveAxisOptions()
-    nz = cell.nozzle
-    return FiveAxisOptions(tilt_limit_deg=cell.kinematics.tilt_limit_deg,
-                           nozzle=Nozzle(nz.half_angle_deg, nz.length_mm, nz.standoff_mm))
+        return {}
+    lim, nz = cell.limits, cell.nozzle
+    lo, hi = lim.workspace_min_mm, lim.workspace_max_mm
+    return {"material": cell.cell.material,
+            "room": [float(hi[0] - lo[0]), float(hi[1] - lo[1]), float(hi[2] - lo[2])],
+            "limits": [lim.max_speed_mm_min, lim.min_weld_speed_mm_min, lim.source_current_max_a,
+                       lim.source_wfs_max_m_min],
+            "tilt_limit_deg": cell.kinematics.tilt_limit_deg,
+            "nozzle": [nz.half_angle_deg, nz.length_mm, nz.standoff_mm]}
+
+
+def _material_values(path: Path) -> dict[str, Any]:
+    """The validated material's JSON dump and the fields its dump leaves out."""
+    # on a cache miss only: pydantic and PyYAML are what a remembered start saves (issue 28)
+    from core.config import load_material
+
+    m = load_material(str(path))
+    hidden = {name: getattr(m, name) for name, f in type(m).model_fields.items() if f.exclude}
+    return {"dump": m.model_dump(mode="json"),
+            "hidden": {k: v.model_dump(mode="json") if hasattr(v, "model_dump") else v for k, v in hidden.items()}}
+
+
+def _config(material: str | None, five_axis: bool) -> tuple[Material, tuple[float, float, float] | None, CellLimits,
+                                                          FiveAxisOptions | None]:
+    """The material, the cell's workspace extent (a part larger than it is refused before slicing),
+    its speed and source limits (a bead outside them is refused at plan time) and, for a 5-axis
+    plan, its tilt limit and nozzle, from config/; the planner's defaults (cell.yaml's own)
+    without a valid cell.yaml. Remembered by the files' bytes (core.config_cache)."""
+    # what planning needs (after the arguments parsed): the planner's option types
+    from core.config_cache import CONFIG_DIR, Frozen, material_path, remembered
+    from planner.weld import CellLimits
+
+    if five_axis:  # a 5-axis plan only: a 3-axis plan's start-up does not load planner.five_axis
+        from planner.five_axis import FiveAxisOptions, Nozzle
+
+    cell = remembered("cell-plan", [CONFIG_DIR / "cell.yaml"], _cell_values)
+    path = material_path(material or cell.get("material") or "inconel718-1.0mm")
+    mat = remembered("material", [path], lambda: _material_values(path))
+    material_ = cast("Material", Frozen(mat["dump"], mat["hidden"]))
+    if not cell:
+        return material_, None, CellLimits(), FiveAxisOptions() if five_axis else None
+    room = (cell["room"][0], cell["room"][1], cell["room"][2])
+    five = FiveAxisOptions(tilt_limit_deg=cell["tilt_limit_deg"], nozzle=Nozzle(*cell["nozzle"])) if five_axis else None
+    return material_, room, CellLimits(*cell["limits"]), five
 
 
 def _material(name: str | None) -> Material:
+    """The validated material by name or path, else cell.yaml's, else Inconel 718 (`cell repair plan`)."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from core.config import load_cell, load_material
 
@@ -119,24 +158,6 @@ def _material(name: str | None) -> Material:
         except CellError:
             name = "inconel718-1.0mm"
     return load_material(name)
-
-
-def _cell_limits() -> tuple[tuple[float, float, float] | None, CellLimits]:
-    """The cell's workspace extent (a part larger than it is refused before slicing) and its speed and
-    source limits (a bead outside them is refused at plan time), from config/cell.yaml; the
-    planner's defaults (cell.yaml's own) without one."""
-    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from core.config import load_cell
-    from planner.weld import CellLimits
-
-    try:
-        lim = load_cell().limits
-    except CellError:
-        return None, CellLimits()
-    lo, hi = lim.workspace_min_mm, lim.workspace_max_mm
-    room = (float(hi[0] - lo[0]), float(hi[1] - lo[1]), float(hi[2] - lo[2]))
-    return room, CellLimits(lim.max_speed_mm_min, lim.min_weld_speed_mm_min, lim.source_current_max_a,
-                            lim.source_wfs_max_m_min)
 
 
 class _Bar:
@@ -169,14 +190,13 @@ def run(args: argparse.Namespace) -> int:
     from planner.plan import PlanOptions, plan_part
 
     t0 = time.perf_counter()
-    material = _material(args.material)
-    workspace, cell_limits = _cell_limits()
+    material, workspace, cell_limits, five_axis = _config(args.material, args.five_axis)
     options = PlanOptions(width_mm=args.width, layer_height_mm=args.layer_height, perimeters=args.perimeters,
                           units=args.units, allow_outside=args.allow_outside,
                           allow_underfill=args.allow_underfill, allow_overhang=args.allow_overhang,
                           min_coverage=args.min_coverage, workspace_mm=workspace, cell_limits=cell_limits,
                           machining_allowance_mm=args.machining_allowance, frame=args.frame,
-                          five_axis=_five_axis(args.five_axis))
+                          five_axis=five_axis)
     mesh = read_mesh(args.mesh, args.units)
     bar = _Bar(sys.stderr.isatty() or len(mesh.faces) >= LONG_PLAN_FACES)
     try:
