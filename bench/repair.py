@@ -31,7 +31,7 @@ from controller.harness.repair import repair_run_sim
 from controller.harness.sim import SimHarness
 from controller.job.model import CellJob
 from controller.job.read import read_job
-from controller.repair import verify_targets
+from controller.repair import verify_split, verify_targets
 from controller.job.repair_volume import _manifold, _trimesh
 from core.config import load_cell
 
@@ -125,8 +125,7 @@ def per_touch(job: CellJob, verify: dict, tops: list[float]) -> dict:
     top there (the simulated height map) and the touched z; `deposit_err` = true top − planned (what
     was built), `probe_err` = touched − true top (what the verify misread)."""
     n = int(verify["points"])
-    n_inside = n * 5 // 8   # as controller.repair.verify picks them
-    _, planned, kinds = verify_targets(job, n_inside=n_inside, n_edge=n - n_inside)
+    _, planned, kinds = verify_targets(job, *verify_split(n))
     z = np.asarray(verify["at"], dtype=float)[:, 2]
     top = np.asarray(tops, dtype=float)
     dep, probe = top - planned, z - top

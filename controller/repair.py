@@ -200,6 +200,12 @@ def verify_targets(job: CellJob, n_inside: int = 12, n_edge: int = 8) -> tuple[n
     return xy[pick], np.array([cand[i][2] for i in pick]), [str(cand[i][3]) for i in pick]
 
 
+def verify_split(n: int) -> tuple[int, int]:
+    """How `n` verify touches divide: (inside the deposit's exposed top, along its edges)."""
+    n_inside = n * 5 // 8
+    return n_inside, n - n_inside
+
+
 async def verify(link: Any, cell: Any, job: CellJob, transform: np.ndarray, grid: int = 4,
                  tolerance_mm: float = 0.1) -> VerifyResult:
     """Probe the deposit's exposed top (inside and along its edges, `verify_targets`); positions
@@ -208,8 +214,7 @@ async def verify(link: Any, cell: Any, job: CellJob, transform: np.ndarray, grid
     if job.repair is None or job.repair.bounds_mm is None:
         raise InputError("job: not a repair job (no repair.bounds_mm); plan it with `cell repair plan`")
     rb = job.repair.bounds_mm
-    n_inside = grid * grid * 5 // 8
-    xy, ztop, kinds = verify_targets(job, n_inside=n_inside, n_edge=grid * grid - n_inside)
+    xy, ztop, kinds = verify_targets(job, *verify_split(grid * grid))
     top = max(L.z_mm for L in job.layers)
     clear = float(cell.probe.clearance_mm)
     tf = np.asarray(transform, dtype=float)

@@ -110,20 +110,26 @@ def _number(v: Any) -> float | None:
     return float(v)
 
 
+def _matrix(v: Any, shape: tuple[int, int], what: str) -> np.ndarray | None:
+    """`v` as a finite float array of `shape` (None stays None); InputError "job file: WHAT" otherwise."""
+    if v is None:
+        return None
+    try:
+        m = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{_PREFIX}{what}") from None
+    if m.shape != shape or not np.all(np.isfinite(m)):
+        raise InputError(f"{_PREFIX}{what}")
+    return m
+
+
 def _alignment(obj: dict[str, Any]) -> Alignment | None:
     al = obj.get("alignment")
     if not al:
         return None
     if not isinstance(al, dict):
         raise InputError(f"{_PREFIX}alignment must be an object")
-    t = None
-    if al.get("transform") is not None:
-        try:
-            t = np.asarray(al["transform"], dtype=float)
-        except (TypeError, ValueError):
-            raise InputError(f"{_PREFIX}alignment.transform must be a 4x4 matrix of numbers") from None
-        if t.shape != (4, 4) or not np.all(np.isfinite(t)):
-            raise InputError(f"{_PREFIX}alignment.transform must be a 4x4 matrix of finite numbers")
+    t = _matrix(al.get("transform"), (4, 4), "alignment.transform must be a 4x4 matrix of finite numbers")
     raw_table = al.get("table_deg")
     table: dict[str, Any] = raw_table if isinstance(raw_table, dict) else {}
     return Alignment(transform=t, table_a_deg=_number(table.get("a", al.get("level_a_deg"))),
@@ -143,13 +149,7 @@ def _repair(obj: dict[str, Any]) -> RepairInfo | None:
     for key in ("cad", "stock"):
         if rep.get(key) is not None and not isinstance(rep[key], str):
             raise InputError(f"{_PREFIX}repair.{key} must be a file path")
-    bounds = None
-    if rep.get("bounds_mm") is not None:
-        try:
-            bounds = np.asarray(rep["bounds_mm"], dtype=float)
-        except (TypeError, ValueError):
-            bounds = None
-        if bounds is None or bounds.shape != (2, 3) or not np.all(np.isfinite(bounds)):
-            raise InputError(f"{_PREFIX}repair.bounds_mm must be [[x, y, z], [x, y, z]] (the repair volume's corners)")
+    bounds = _matrix(rep.get("bounds_mm"), (2, 3),
+                     "repair.bounds_mm must be [[x, y, z], [x, y, z]] (the repair volume's corners)")
     return RepairInfo(cad=rep.get("cad"), stock=rep.get("stock"), allowance_mm=_number(rep.get("allowance_mm")),
                       bounds_mm=bounds)
