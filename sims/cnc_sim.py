@@ -44,6 +44,8 @@ PLANNER_BLOCKS = 15       # grbl 1.1 on a 328p: BLOCK_BUFFER_SIZE 16, one kept f
 class CncSim:
     """In-process grbl 1.1 controller. Drive it with attach/feed/detach (sims.transport.ByteSim)."""
 
+    WORK_BUDGET_S = 0.003   # wall time a tick may spend on blocks before the loop runs (RobotSim's)
+
     def __init__(self, *, clock: SimClock, world: World | None = None, workpiece: Workpiece | None = None,
                  log_path: str | Path | None = None, rx_buffer_bytes: int = 128,
                  planner_blocks: int = PLANNER_BLOCKS, homing_enabled: bool = True,
@@ -410,12 +412,16 @@ class CncSim:
             b.target = (hit[0], hit[1], hit[2], self.pos[3], self.pos[4])
             b.contact = True
 
-    def advance(self, t: float, now: float) -> None:
-        """Execute queued blocks over simulated time [t, now]."""
+    def advance(self, t: float, now: float, deadline: float | None = None) -> float:
+        """Execute queued blocks over [t, now] until the wall clock passes `deadline` (RobotSim's); the time reached."""
         if self.freeze is not None and (time.monotonic() - self._t0 if self.freeze[0] == "t"
                                         else self.executed_count) >= self.freeze[1]:
-            return  # fault: reports Run with lines queued, never moves
+            return now  # fault: reports Run with lines queued, never moves
+        done_any = False
         while t < now and self._queue and not self.alarm and not (self.hold and self.hold_sub == 0):
+            if deadline is not None and done_any and time.perf_counter() > deadline:
+                return t   # at least one move per tick: a thread switch must not starve it
+            done_any = True
             b = self._queue[0]
             if b.target is None:
                 if b.spindle is not None:
@@ -430,6 +436,7 @@ class CncSim:
         if self.hold and self.hold_sub == 1 and not self._current():
             self.hold_sub = 0
             self._notify()
+        return now
 
     def _moved(self, b: Block, p0: Pos5, p1: Pos5, t0: float, t1: float) -> None:
         self.pos = list(p1)
@@ -443,18 +450,23 @@ class CncSim:
 
     async def _exec_loop(self) -> None:
         last = self.clock.now()
+        behind = False
         while True:
             if not self._queue or self.alarm or (self.hold and self.hold_sub == 0):  # nothing can move
                 if self._log_dirty and self._log is not None:
                     self._log.flush()
                     self._log_dirty = False
                 self._work.clear()
+                while self.world is not None and not self.world.settle(time.perf_counter() + self.WORK_BUDGET_S):
+                    await asyncio.sleep(0.001)   # deferred beads: a slice, a rest (RobotSim.LAY_REST_S)
                 await self._work.wait()
                 last = self.clock.now()
-            await asyncio.sleep(self.tick_s)
-            now = self.clock.now()
-            self.advance(last, now)
-            last = now
+            await asyncio.sleep(0.0 if behind else self.tick_s)
+            now, deadline = self.clock.now(), time.perf_counter() + self.WORK_BUDGET_S
+            last = self.advance(last, now, deadline)
+            behind = last < now
+            if self.world is not None:   # deferred beads, in what is left of the budget
+                self.world.settle(deadline)
             if self._log_dirty and self._log is not None and not self._queue:
                 self._log.flush()
                 self._log_dirty = False
@@ -467,8 +479,7 @@ async def serve(ctx: SimContext) -> list[Served]:
     wp = Workpiece.from_config(ctx.sim.cnc.workpiece, ctx.sim.cnc.probe_noise_mm, seed=spec.seed,
                                kinematics=ctx.cell.kinematics, base_dir=ctx.config_dir)
     sim = CncSim(clock=ctx.clock, world=ctx.world, workpiece=wp, rx_buffer_bytes=dev.rx_buffer_bytes,
-                 letters=wp.kin.letters,
-                 log_path=(Path(ctx.log_dir) / "cnc.jsonl") if ctx.log_dir else None)
+                 letters=wp.kin.letters, log_path=(Path(ctx.log_dir) / "cnc.jsonl") if ctx.log_dir else None)
     for cond, v in spec.events("freeze"):
         sim.freeze = (cond, float(v))
     if "freeze" in spec.values:
@@ -485,3 +496,4 @@ def use_deposit_map(ctx: SimContext, wp: Workpiece) -> None:
         return
     phys.set_substrate(DEVICE, wp.top_z)
     wp.deposit_map = phys.height_map(DEVICE)
+    wp.settle = ctx.world.settle if ctx.world is not None else None   # a touch sees every bead laid before it

@@ -87,14 +87,16 @@ class ProcessPhysics:
         return max(c.height_gain * (1.0 + c.height_temp_coeff * hot) * self._noise, 0.05)
 
     def lay(self, device: str, q0: Vec3, q1: Vec3, duration_s: float, current_a: float,
-            wfs_m_min: float) -> Laid | None:
-        """The bead of one deposited segment (substrate frame); None when it lays no metal."""
+            wfs_m_min: float, factor: float | None = None) -> Laid | None:
+        """The bead of one deposited segment (substrate frame); None when it lays no metal.
+        `factor`: the height factor as it was when the segment was deposited (else now's)."""
         length = math.dist(q0[:2], q1[:2])
         if length < 1e-9 or duration_s <= 0 or current_a <= 0 or wfs_m_min <= 0:
             return None
         speed = length / duration_s * 60.0
         width, _ = ribeiro_forward(self.material.ribeiro, current_a, speed)
-        area = wire_area_mm2(self.material.wire_diameter_mm, wfs_m_min, speed) * self.height_factor()
+        k = self.height_factor() if factor is None else factor
+        area = wire_area_mm2(self.material.wire_diameter_mm, wfs_m_min, speed) * k
         hm = self.height_map(device)
         if hm.bead == 0:
             hm.new_bead()

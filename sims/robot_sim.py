@@ -36,6 +36,17 @@ class RobotSim:
 
     IDLE_TICK_S = 0.01  # wall seconds between executor ticks while nothing can move
     MIN_TICK_S = 0.0002
+    # Wall time one executor tick may spend on moves before it lets the loop run. Laying the
+    # world's bead costs 1-2.5 ms a segment; at time scale 60 a short move lasts 0.3 ms, so a tick
+    # that ran every due move at once spiralled (the backlog grew with each tick) and held the
+    # simulators' loop for 80 ms: the power source and the cell I/O, separate devices on a real
+    # cell, answered nothing meanwhile ("no reply within 50 ms"). Moves left over run on the next
+    # tick, at their own simulated times: the robot lags, it never skips.
+    WORK_BUDGET_S = 0.003
+    # Deferred beads (sims/world.py) are laid in slices of the budget with this rest between them:
+    # at the simulators' real-time priority, back-to-back slices would take a whole CPU from the
+    # controller (its serial reader stamps the robot's reports: late stamps read as a stand-still).
+    LAY_REST_S = 0.001
 
     def __init__(self, *, clock: SimClock, world: World | None = None, queue_slots: int = 64,
                  log_path: str | Path | None = None, heartbeat_s: float = 1.0,
@@ -237,53 +248,67 @@ class RobotSim:
         lo, hi = self.workspace
         return any(v < a - 1e-9 or v > b + 1e-9 for v, a, b in zip(p, lo, hi))
 
-    def advance(self, t: float, now: float) -> None:
-        """Execute queued moves over simulated time [t, now]."""
+    def advance(self, t: float, now: float, deadline: float | None = None) -> float:
+        """Execute queued moves over simulated time [t, now]; stop between moves once the wall
+        clock (`time.perf_counter()`) passes `deadline`. Returns the simulated time reached."""
         self._next_finish = None
         if self.lies and self.lies.active("freeze"):  # fault: accepts moves, executes none (RUN)
-            return
+            return now
+        done_any = False
         while t < now and self.queue and not (self.held or self.fault or self.waiting):
-            m = self.queue[0]
-            if m.verb == "WAIT":
-                self.waiting = True
+            if deadline is not None and done_any and time.perf_counter() > deadline:
+                return t   # at least one move per tick: a thread switch must not starve it
+            done_any = True
+            step = self._step(self.queue[0], t, now)
+            if step is None:
                 break
-            if m.verb == "MARK":
-                self._flush_exe()
-                self._send(f"MRK {m.mark}")
-                self._finish(m, t)
-                continue
-            target, speed = m.target, m.speed
-            assert target is not None and speed is not None  # MOVJ / MOVL: parse_host sets both
-            if self._outside(target):
-                self.fault = True
-                self._stopped()
-                self._send(f"ERR {ERR_WORKSPACE} target {' '.join(rlp.fmt_mm(v) for v in target)} outside workspace")
-                break
-            p0 = self.pos
-            delta = [b - a for a, b in zip(p0, target)]
-            dist = sum(d * d for d in delta) ** 0.5
-            v = speed / 60.0
-            need = dist / v
-            if t + need <= now:
-                p1, t1, done = target, t + need, True
-            else:
-                f = (now - t) * v / dist
-                p1, t1, done = (p0[0] + f * delta[0], p0[1] + f * delta[1], p0[2] + f * delta[2]), now, False
-            if self.world is not None and dist > 0:
-                self.world.torch_moved(DEVICE, m.seq, p0, p1, t, t1)
-            self.pos, t = p1, t1
-            if not done:
-                self._next_finish = now + dist * (1.0 - f) / v   # when this move's EXE is due
-                break
-            self._stopped()
+            t = step
+        return now
+
+    def _step(self, m: rlp.Move, t: float, now: float) -> float | None:
+        """Run the head move from simulated time t, up to now: the time it ended, or None when
+        the executor stops here (a WAIT, a fault, a move still under way)."""
+        if m.verb == "WAIT":
+            self.waiting = True
+            return None
+        if m.verb == "MARK":
+            self._flush_exe()
+            self._send(f"MRK {m.mark}")
             self._finish(m, t)
+            return t
+        target, speed = m.target, m.speed
+        assert target is not None and speed is not None  # MOVJ / MOVL: parse_host sets both
+        if self._outside(target):
+            self.fault = True
+            self._stopped()
+            self._send(f"ERR {ERR_WORKSPACE} target {' '.join(rlp.fmt_mm(v) for v in target)} outside workspace")
+            return None
+        p0 = self.pos
+        delta = [b - a for a, b in zip(p0, target)]
+        dist = sum(d * d for d in delta) ** 0.5
+        v = speed / 60.0
+        need = dist / v
+        if t + need <= now:
+            p1, t1, done = target, t + need, True
+        else:
+            f = (now - t) * v / dist
+            p1, t1, done = (p0[0] + f * delta[0], p0[1] + f * delta[1], p0[2] + f * delta[2]), now, False
+        if self.world is not None and dist > 0:
+            self.world.torch_moved(DEVICE, m.seq, p0, p1, t, t1)
+        self.pos = p1
+        if not done:
+            self._next_finish = now + dist * (1.0 - f) / v   # when this move's EXE is due
+            return None
+        self._stopped()
+        self._finish(m, t1)
+        return float(t1)
 
     def _runnable(self) -> bool:
         return bool(self.queue) and not (self.held or self.fault or self.waiting)
 
     async def _exec_loop(self) -> None:
         last = self.clock.now()
-        was = False
+        was = behind = laying = False
         while True:
             # tick fast while moving, slowly while idle (a move noticed at a tick starts then);
             # while moving, wake when the head move ends: its EXE leaves on time, as a real
@@ -294,13 +319,21 @@ class RobotSim:
                 pause = max(self.MIN_TICK_S, min(pause, to_end))
             # on the simulators' loop (sims/loop.py) a timer fires within microseconds of its
             # time: the EXE leaves at the move's end (the host measures travel speed from EXEs)
-            await asyncio.sleep(pause)
+            await asyncio.sleep(0.0 if behind else min(pause, self.LAY_REST_S) if laying else pause)
             now = self.clock.now()
+            reached = now
+            deadline = time.perf_counter() + self.WORK_BUDGET_S
             if was:
-                self.advance(last, now)
+                reached = self.advance(last, now, deadline)
                 self._flush_exe()
+            # deferred beads in what is left of the budget, and never past the head move's end
+            # (its EXE leaves on time); more on the next pass of the loop
+            if self._next_finish is not None:
+                deadline = min(deadline, time.perf_counter() + self.clock.wall(self._next_finish - self.clock.now()))
+            laid = self.world.settle(deadline) if self.world is not None else True
             was = self._runnable()
-            last = now
+            behind, laying = was and reached < now, not laid
+            last = reached
             if self._log_dirty and self._log is not None:
                 self._log.flush()
                 self._log_dirty = False

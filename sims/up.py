@@ -7,6 +7,7 @@ ports when `ctx.ephemeral`), and returns what it serves. A module not built yet 
 from __future__ import annotations
 
 import asyncio
+import os
 import importlib
 import signal
 import sys
@@ -81,6 +82,10 @@ async def run_forever(ctx: SimContext, on_ready: Callable[[list[Served]], None])
     rt = elevate("simulators", SIM_RT_PRIORITY)
     if "cannot" in rt:  # the clear line the operator needs; nothing when it worked
         sys.stderr.write(f"cell sim up: {rt}\n")
+    slow_ms = os.environ.get("CELL_SLOW_CALLBACK_MS")  # diagnosis: log loop stalls longer than this
+    if slow_ms:
+        loop.set_debug(True)
+        loop.slow_callback_duration = float(slow_ms) / 1000.0
     try:
         served = await serve_all(ctx)
         quiet_gc(collect=True)  # full collections of this heap stalled replies 58-84 ms

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -70,6 +70,7 @@ class Workpiece:
         # deposited metal: the World's height map of this device, in the part frame (when served
         # with process physics; sims/process_world.py)
         self.deposit_map: HeightMap | None = None
+        self.settle: Callable[[], object] | None = None   # lays the World's deferred beads first
         self.kin = TableKin(table, _vec3(self.pivot), _vec3(axis_a), _vec3(axis_second), _vec3(offset_mm))
         # How close to the surface the stylus counts as deflected (a real probe trips within
         # microns); wide enough that a noisy trip point still reads as tripped.
@@ -169,6 +170,8 @@ class Workpiece:
         t = t[(t >= -1e-9) & (t <= length + 1e-9)]
         best = float(t.min()) if len(t) else None
         if self.deposit_map is not None:
+            if self.settle is not None:
+                self.settle()
             dep = self.deposit_map.ray_hit(q0, q1)
             if dep is not None and (best is None or dep < best):
                 best = dep

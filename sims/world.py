@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import json
 import threading
+import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Callable
@@ -42,13 +44,25 @@ class _Open:
     voltages: list[float] = field(default_factory=list)
     wfs: list[float] = field(default_factory=list)
     ctwds: list[float] = field(default_factory=list)
+    factor: float | None = None   # the height factor when the segment closed (a deferred lay)
 
 
 class World:
     """Shared state of the simulated cell. Thread-safe; cheap to call at every simulator tick."""
 
-    def __init__(self, log_dir: str | Path | None = None, arc_efficiency: float = 0.8) -> None:
+    def __init__(self, log_dir: str | Path | None = None, arc_efficiency: float = 0.8,
+                 defer_lays: bool = False) -> None:
         self._lock = threading.Lock()
+        # Laying a segment's bead costs 1-2.5 ms; at time scale 60 a short move lasts 0.3 ms, so
+        # laid at once the beads held the simulators' loop (the robot's EXEs, the power source's
+        # and the cell I/O's replies) for tens of ms. With `defer_lays` a closed segment waits in
+        # `_pending` and the simulators' executors lay it in their spare time (`settle`); it is
+        # laid before anything reads the shape it changes: a new bead (its "before" surface), a
+        # probe touch (`Workpiece.settle`), `segments`, `flush`, `close`. The CTWD under the torch
+        # reads the surface before the current bead, which the current bead's own pending
+        # segments do not change, plus the bead's settled rise (laid up to a few segments ago).
+        self.defer_lays = defer_lays
+        self._pending: deque[tuple[_Open, dict[str, Any]]] = deque()
         self.arc_stable = False
         self.current_a = 0.0
         self.voltage_v = 0.0
@@ -57,7 +71,7 @@ class World:
         self.arc_efficiency = arc_efficiency
         self.heat_j = 0.0  # total heat put into the part: η·U·I integrated over arc time
         self._heat_t: float | None = None
-        self.segments: list[dict[str, Any]] = []
+        self._segments: list[dict[str, Any]] = []
         self._open: _Open | None = None
         self._listeners: list[Callable[[dict[str, Any]], None]] = []
         self._fh: IO[str] | None = None
@@ -79,6 +93,7 @@ class World:
             if stable != self.arc_stable and self._open is not None:
                 self._flush()
             if stable and not self.arc_stable and self.physics is not None:
+                self._settle(None)   # the previous bead's metal, before the new bead's "before"
                 self.physics.new_bead()
             self.arc_stable = stable
             self.current_a = current_a if stable else 0.0
@@ -149,10 +164,33 @@ class World:
             if self._open is not None and self._open.device == device:
                 self._flush()
 
+    @property
+    def segments(self) -> list[dict[str, Any]]:
+        """Every deposited segment so far (each one laid)."""
+        self.settle()
+        return self._segments
+
+    def settle(self, deadline: float | None = None) -> bool:
+        """Lay pending segments (all, or until `time.perf_counter()` passes `deadline`);
+        True when none is left."""
+        if not self._pending:   # the usual case: no lock (a thread holding it may wait for the GIL)
+            return True
+        with self._lock:
+            return self._settle(deadline)
+
+    def _settle(self, deadline: float | None) -> bool:
+        while self._pending:
+            if deadline is not None and time.perf_counter() > deadline:
+                return False
+            o, seg = self._pending.popleft()
+            self._record(o, seg)
+        return True
+
     def flush(self) -> None:
         with self._lock:
             if self._open is not None:
                 self._flush()
+            self._settle(None)
             if self._fh is not None:
                 self._fh.flush()
 
@@ -185,9 +223,17 @@ class World:
         if o.part is not None:
             seg["part"] = {"from": [round(float(v), 4) for v in o.part[0]], "to": [round(float(v), 4) for v in o.part[1]]}
             seg["axis"] = [round(float(v), 5) for v in o.part[2]]
+        if self.defer_lays and self.physics is not None:
+            o.factor = self.physics.height_factor()   # the part's temperature now, not at laying
+            self._pending.append((o, seg))
+        else:
+            self._record(o, seg)
+
+    def _record(self, o: _Open, seg: dict[str, Any]) -> None:
+        """Lay a closed segment's bead and log it."""
         if self.physics is not None:
             self._lay(o, seg)
-        self.segments.append(seg)
+        self._segments.append(seg)
         if self._fh is not None:
             self._fh.write(json.dumps(seg) + "\n")
             self._fh.flush()
@@ -200,7 +246,7 @@ class World:
         assert self.physics is not None
         q0, q1 = (o.part[0], o.part[1]) if o.part is not None else (o.start, o.end)
         wfs = sum(o.wfs) / len(o.wfs) if o.wfs else 0.0
-        laid = self.physics.lay(o.device, q0, q1, o.t1 - o.t0, seg["current_a"], wfs)
+        laid = self.physics.lay(o.device, q0, q1, o.t1 - o.t0, seg["current_a"], wfs, o.factor)
         if o.ctwds:
             seg["ctwd_mm"] = round(sum(o.ctwds) / len(o.ctwds), 3)
         if laid is not None:

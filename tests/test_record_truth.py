@@ -62,12 +62,21 @@ def deposit_per_bead(job: dict, log: Path, device: str | None = None) -> dict[tu
     return out
 
 
-def line_job(length_mm: float, beads: int = 2) -> dict:
-    """One layer of straight beads (planned 600 mm/min), long enough to time at the scale."""
+def line_job(length_mm: float, beads: int = 2, rows: int = 1) -> dict:
+    """One layer of beads (planned 600 mm/min), long enough to time at the scale: straight, or
+    `rows` back-and-forth rows 8 mm apart (a long bead on a small block)."""
     job = small_job(n_layers=1)
     proto = job["layers"][0]["passes"][0]
-    job["layers"][0]["passes"] = [dict(proto, points=[[0.0, 8.0 * k, 1.0], [length_mm, 8.0 * k, 1.0]])
-                                  for k in range(beads)]
+    run = length_mm / rows
+    passes = []
+    for k in range(beads):
+        y0 = 8.0 * (rows + 1) * k
+        pts = []
+        for r in range(rows):
+            xs = (0.0, run) if r % 2 == 0 else (run, 0.0)
+            pts += [[xs[0], y0 + 8.0 * r, 1.0], [xs[1], y0 + 8.0 * r, 1.0]]
+        passes.append(dict(proto, points=pts))
+    job["layers"][0]["passes"] = passes
     return job
 
 
@@ -215,12 +224,13 @@ def cnc_answer_late_s(log: Path, scale: float) -> list[float]:
             if r["verb"] == "G4" and k >= 2 and rows[k - 1]["verb"] == "M5" and rows[k - 2]["verb"] == "G1"]
 
 
-@pytest.mark.parametrize("scale,length_mm", [(1.0, 12.0), (10.0, 40.0), (60.0, 80.0)])
-async def test_a_cnc_beads_arc_time_is_the_deposit_logs(tmp_path: Path, scale: float, length_mm: float) -> None:
+@pytest.mark.parametrize("scale,length_mm,rows", [(1.0, 12.0, 1), (10.0, 40.0, 1), (60.0, 240.0, 3)])
+async def test_a_cnc_beads_arc_time_is_the_deposit_logs(tmp_path: Path, scale: float, length_mm: float,
+                                                        rows: int) -> None:
     # grbl reports its position at 5 Hz (wall): at time scale 60 a bead sees one report or none
     # besides the closing `ok`; the arc time comes from the positions along the path and the
     # wire's time stamps, not from the points passed (-6.6 % to +8.8 % before)
-    job = on_the_cnc_block(line_job(length_mm))
+    job = on_the_cnc_block(line_job(length_mm, rows=rows))
     run_dir = await _cnc_build(tmp_path, job, scale)
     rep = json.loads((run_dir / "report.json").read_text())
     dep = deposit_per_bead(job, tmp_path / "log" / "deposit.jsonl", device="cnc")

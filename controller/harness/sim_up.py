@@ -19,7 +19,7 @@ def serve_until_interrupted(cell: CellConfig, sim: SimConfig, log_dir: Path | No
     """Serve every device; one JSON line per simulator with its URL on stdout once all are up."""
     mat = load_material(cell.cell.material)
     ctx = SimContext(
-        cell=cell, sim=sim, world=World(log_dir, arc_efficiency=mat.arc_efficiency),
+        cell=cell, sim=sim, world=World(log_dir, arc_efficiency=mat.arc_efficiency, defer_lays=True),
         clock=SimClock(cell.cell.time_scale), log_dir=log_dir, pty=pty, faults=faults,
     )
 
