@@ -29,9 +29,15 @@ def test_three_builds_beside_a_cpu_hog_complete_without_a_false_trip(tmp_path: P
         # what a real one does (bench/false_trips.host_explained; docs/false-trips.md)
         if host_explained(r):
             continue
-        assert r["state"] == "complete" and r["exit"] == 0, (r["state"], r["exit"], r["alarms"], r["defects"],
-                                                             r["error"], r["witness_max_gap_ms"])
+        assert r["state"] == "complete" and not r["alarms"], (r["state"], r["exit"], r["alarms"], r["defects"],
+                                                               r["error"], r["witness_max_gap_ms"])
         assert r["watchdog_drops"] == 0
+        # A bead may be flagged, not tripped: at time scale 60 the robot's 64-move queue holds
+        # 20-60 ms of a rounded corner's short moves, and a controller late by that much (beside
+        # the hog) leaves it empty for a moment; the record says so (exit 3), the build goes on.
+        # Anything else flagged is a failure (docs/false-trips.md).
+        timing = ("motion queue ran empty", "torch stood still")
+        assert r["exit"] in (0, 3) and all(any(t in d for t in timing) for d in r["defects"]), r["defects"]
     assert sum(r["state"] == "complete" for r in results) >= 2, [r["witness_max_gap_ms"] for r in results]
     # the independent client was answered all along (figures: bench/false_trips.py)
     for dev in ("power_source", "cellio"):
