@@ -450,7 +450,6 @@ class CncSim:
 
     async def _exec_loop(self) -> None:
         last = self.clock.now()
-        behind = False
         while True:
             if not self._queue or self.alarm or (self.hold and self.hold_sub == 0):  # nothing can move
                 if self._log_dirty and self._log is not None:
@@ -461,12 +460,11 @@ class CncSim:
                     await asyncio.sleep(0.001)   # deferred beads: a slice, a rest (RobotSim.LAY_REST_S)
                 await self._work.wait()
                 last = self.clock.now()
-            await asyncio.sleep(0.0 if behind else self.tick_s)
-            now, deadline = self.clock.now(), time.perf_counter() + self.WORK_BUDGET_S
-            last = self.advance(last, now, deadline)
-            behind = last < now
-            if self.world is not None:   # deferred beads, in what is left of the budget
-                self.world.settle(deadline)
+            await asyncio.sleep(self.tick_s)
+            now = self.clock.now()
+            last = self.advance(last, now)   # every block due (grbl's planner is its own CPU's)
+            if self.world is not None:   # deferred beads, within the budget
+                self.world.settle(time.perf_counter() + self.WORK_BUDGET_S)
             if self._log_dirty and self._log is not None and not self._queue:
                 self._log.flush()
                 self._log_dirty = False

@@ -319,7 +319,9 @@ class RobotSim:
                 pause = max(self.MIN_TICK_S, min(pause, to_end))
             # on the simulators' loop (sims/loop.py) a timer fires within microseconds of its
             # time: the EXE leaves at the move's end (the host measures travel speed from EXEs)
-            await asyncio.sleep(0.0 if behind else min(pause, self.LAY_REST_S) if laying else pause)
+            # behind: a short real sleep, not sleep(0): in one process with the controller (--sim)
+            # a loop that only yields to itself keeps the interpreter lock from the controller
+            await asyncio.sleep(self.MIN_TICK_S if behind else min(pause, self.LAY_REST_S) if laying else pause)
             now = self.clock.now()
             reached = now
             deadline = time.perf_counter() + self.WORK_BUDGET_S

@@ -97,7 +97,9 @@ async def test_five_axis_build_on_the_cnc_simulator_lands_on_the_plan(part, tabl
     for la in job["layers"]:   # slower beads: the link can feed them at a time scale a test affords
         for p in la["passes"]:
             p["speed_mm_min"] /= 4.0
-    res, log = await build(job, tmp_path, table, scale=60.0)
+    # time scale 30: at 60 the in-process controller beside the other test worker's cell left the
+    # CNC's planner empty for 0.1-0.4 s now and then (the same on the commit before this one)
+    res, log = await build(job, tmp_path, table, scale=30.0)
     assert res.state == "complete", res
     mid = executed_mid_dev(job, log, table)
     assert mid["max_mid_dev_mm"] <= 0.02 and mid["max_quarter_dev_mm"] <= 0.02, mid  # chord tolerance (issue 29)
