@@ -44,7 +44,7 @@ PLANNER_BLOCKS = 15       # grbl 1.1 on a 328p: BLOCK_BUFFER_SIZE 16, one kept f
 class CncSim:
     """In-process grbl 1.1 controller. Drive it with attach/feed/detach (sims.transport.ByteSim)."""
 
-    WORK_BUDGET_S = 0.003   # wall time a tick may spend on blocks before the loop runs (RobotSim's)
+    WORK_BUDGET_S = 0.003   # wall time a tick may spend laying the World's deferred beads (RobotSim's)
 
     def __init__(self, *, clock: SimClock, world: World | None = None, workpiece: Workpiece | None = None,
                  log_path: str | Path | None = None, rx_buffer_bytes: int = 128,
