@@ -412,16 +412,12 @@ class CncSim:
             b.target = (hit[0], hit[1], hit[2], self.pos[3], self.pos[4])
             b.contact = True
 
-    def advance(self, t: float, now: float, deadline: float | None = None) -> float:
-        """Execute queued blocks over [t, now] until the wall clock passes `deadline` (RobotSim's); the time reached."""
+    def advance(self, t: float, now: float) -> None:
+        """Execute queued blocks over simulated time [t, now] (every block due: grbl's planner has its own CPU)."""
         if self.freeze is not None and (time.monotonic() - self._t0 if self.freeze[0] == "t"
                                         else self.executed_count) >= self.freeze[1]:
-            return now  # fault: reports Run with lines queued, never moves
-        done_any = False
+            return  # fault: reports Run with lines queued, never moves
         while t < now and self._queue and not self.alarm and not (self.hold and self.hold_sub == 0):
-            if deadline is not None and done_any and time.perf_counter() > deadline:
-                return t   # at least one move per tick: a thread switch must not starve it
-            done_any = True
             b = self._queue[0]
             if b.target is None:
                 if b.spindle is not None:
@@ -436,7 +432,6 @@ class CncSim:
         if self.hold and self.hold_sub == 1 and not self._current():
             self.hold_sub = 0
             self._notify()
-        return now
 
     def _moved(self, b: Block, p0: Pos5, p1: Pos5, t0: float, t1: float) -> None:
         self.pos = list(p1)
@@ -462,7 +457,8 @@ class CncSim:
                 last = self.clock.now()
             await asyncio.sleep(self.tick_s)
             now = self.clock.now()
-            last = self.advance(last, now)   # every block due (grbl's planner is its own CPU's)
+            self.advance(last, now)
+            last = now
             if self.world is not None:   # deferred beads, within the budget
                 self.world.settle(time.perf_counter() + self.WORK_BUDGET_S)
             if self._log_dirty and self._log is not None and not self._queue:

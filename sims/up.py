@@ -7,8 +7,8 @@ ports when `ctx.ephemeral`), and returns what it serves. A module not built yet 
 from __future__ import annotations
 
 import asyncio
-import os
 import importlib
+import os
 import signal
 import sys
 from dataclasses import dataclass, field
