@@ -428,6 +428,8 @@ class RobotLink(LinkLiveness[LinkStats]):
             fault = self._w.implausible(r, frames_lost=self.stats.crc_errors + self.stats.bad_frames > self._bad_at_ack,
                                         paused=self._tx_paused)
             if fault is not None:
+                if isinstance(r, Exe):
+                    self._retract(rlp.unwrap(r.seq, self._w.last_exec))
                 self._protocol(fault)
                 return
             self._heard()  # heard: a valid frame that fits what was sent
@@ -491,6 +493,14 @@ class RobotLink(LinkLiveness[LinkStats]):
         self._kick.set()
         self._changes.notify()
         self._emit("ERR", value="PROTOCOL", text=f"protocol fault: {text}")
+
+    def _retract(self, e: int) -> None:
+        """An EXE going backwards: the robot claimed tickets past `e` it had not executed (a lie
+        in the race with frames still on the line). The lower claim stands: a robot executes in
+        order, and metal counted but never laid would be skipped by a resume (RETRACT event)."""
+        if e < self._w.last_exec:
+            self._w.last_exec = e
+            self._emit("RETRACT", ticket=e)
 
     def _executed(self, tickets: range) -> None:
         """Report the newly executed tickets (EXE events)."""

@@ -161,6 +161,7 @@ async def test_arc_loss_in_layer_3_latches_a_fault_and_the_build_completes_after
     assert defect["layer"] == 2 and defect["pass"] == 1 and "arc" in defect["message"].lower()
     x, y, z = defect["position"]
     assert abs(z - 3.0) < 0.01 and 4.9 <= x <= 15.1 and 4.9 <= y <= 15.1  # on the inner square of layer 3
-    # the arc went out for a while: that stretch is the defect; everything else is there once
+    # the arc went out for a while: that stretch is the defect; everything else is there once,
+    # but for the re-arc overlap (at most one 2 mm weld move; the deposit log rounds to 1 µm)
     cov = coverage(planned(job), read_segments(c.log / "deposit.jsonl"))
-    assert cov.excess_mm < 2.0 and cov.missing_mm < 15.0, cov.as_dict()
+    assert cov.excess_mm <= 2.0 + 0.01 and cov.missing_mm < 15.0, cov.as_dict()

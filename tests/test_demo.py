@@ -21,7 +21,7 @@ def cell(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
 
 def test_demo_plans_aligns_builds_and_reports(tmp_path: Path) -> None:
     r = cell("demo", "--json", "--layers", "2", "--runs", str(tmp_path))
-    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.returncode == 0, (r.stderr[-2000:], r.stdout[-3000:])
     out = json.loads(r.stdout)
     assert out["state"] == "complete" and out["layers_done"] == 2 and out["passes_done"] == 8
     report = Path(out["report"])

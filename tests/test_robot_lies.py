@@ -107,6 +107,26 @@ async def test_ack_and_exe_of_an_unsent_seq_is_a_protocol_fault(tmp_path):
         await link.close()
 
 
+@pytest.mark.parametrize("after", [12, 40])
+async def test_a_lie_about_a_frame_on_the_line_is_taken_back_from_the_account(tmp_path, after):
+    # the robot ACKs and EXEs the seq after its last received one, which the host has already
+    # sent (still on the line while the queue fills): it passes as true until the robot's real
+    # EXE goes backwards. The account (EXE minus RETRACT) must end where the robot's log ends
+    async with Cell(tmp_path, f"lie@move={after}") as cell:
+        link = RobotLink(cell.url, auto_reconnect=False)
+        evs: list[tuple[str, int]] = []
+        link.on_event(lambda ev: evs.append((ev.kind, ev.ticket)) if ev.kind in ("EXE", "RETRACT") else None)
+        await link.connect()
+        what, _ = await stream_until_trouble(link, 400)
+        await asyncio.sleep(0.5)                  # held: the last real EXEs are in
+        assert what == "DeviceError" and "out of order" in (link.protocol_fault or ""), link.protocol_fault
+        claimed = 0
+        for kind, tk in evs:
+            claimed = tk if kind == "RETRACT" else max(claimed, tk)
+        assert claimed == len(cell.executed()) < 400
+        await link.close()
+
+
 async def test_lie_between_builds_is_caught_before_any_motion(tmp_path):
     async with Cell(tmp_path, "lie=0") as cell:
         link = RobotLink(cell.url, auto_reconnect=False)

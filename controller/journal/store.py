@@ -238,6 +238,11 @@ class Journal(JournalQueries):
             (ticket, layer, pass_, idx, self.run, time.time()),
         )
 
+    def retract(self, layer: int, pass_: int, idx: int, why: str) -> None:
+        """Withdraw this run's progress of a pass beyond point `idx` (a device took its word back)."""
+        self._write("DELETE FROM progress WHERE run=? AND layer=? AND pass=? AND idx>?", (self.run, layer, pass_, idx))
+        self.event("alarm", why, layer=layer, pass_=pass_)
+
     def pass_state(self, layer: int, pass_: int, state: str, **info: Any) -> None:
         self._write(
             "INSERT INTO passes (layer, pass, state, run, t, info) VALUES (?,?,?,?,?,?)",

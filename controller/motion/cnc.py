@@ -54,6 +54,9 @@ class CncExecutor:
     def on_link_lost(self, fn: Callable[[Any], None]) -> None:
         self._lost_cbs.append(fn)
 
+    def on_retract(self, fn: Callable[[int, int | None], None]) -> None:
+        """Never called: the CNC's progress comes from its status reports, which cannot go back."""
+
     def on_position(self, fn: Callable[[float, float], None]) -> None:
         """`fn(t, s)` for every status report during a weld: at wall time t (as the report came off
         the wire) the tool was s mm along the pass's points (the bead's pace: runtime/bead_measure.py)."""

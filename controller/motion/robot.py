@@ -30,6 +30,7 @@ class RobotExecutor:
         self._at_start: int | None = None
         self._weld: dict[int, int] = {}       # ticket -> point index reached by that move
         self._on_exec: Callable[[int, int], None] | None = None
+        self._on_retract: Callable[[int, int | None], None] | None = None
         self._sent_last: int | None = None
         self._all_sent = False
         self.starved = 0                        # queue ran empty inside a bead
@@ -76,6 +77,11 @@ class RobotExecutor:
         if ev.kind == "EXE":
             self.exe_t = ev.t or time.monotonic()
             self._exe(int(ev.ticket))
+        elif ev.kind == "RETRACT" and self._on_retract is not None:
+            # the robot took back executed moves (it lied): the account goes back to its last true one
+            tk = int(ev.ticket)
+            idx = max((i for t, i in self._weld.items() if t <= tk), default=None)
+            self._on_retract(tk, idx)
         elif ev.kind == "link_lost":
             for cb in self._lost_cbs:
                 cb(ev.text)
@@ -86,6 +92,11 @@ class RobotExecutor:
     def on_link_lost(self, fn: Callable[[Any], None]) -> None:
         """`fn(text)` when the robot link drops or the robot reports an error."""
         self._lost_cbs.append(fn)
+
+    def on_retract(self, fn: Callable[[int, int | None], None]) -> None:
+        """`fn(ticket, idx)` when the robot takes back EXEs past `ticket` (idx: the weld point that
+        ticket reached in the current bead, None when before it)."""
+        self._on_retract = fn
 
     def _exe(self, ticket: int) -> None:
         self.exec_count += 1

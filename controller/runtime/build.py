@@ -1,9 +1,8 @@
 """Build execution: layer by layer, pass by pass, under the state machine and the journal.
 
-The runner is platform-neutral; the motion link is driven by an executor (exec_robot.py,
-exec_cnc.py) that offers: `prepare()`, `approach(point)` (travel to the start of a bead and
-stop there, with the weld moves allowed to queue behind a hold point), `queue_weld(...)`,
-`release()`, `weld_done()`, `hold_now()`, `position()`.
+The runner is platform-neutral; an executor (controller/motion/robot.py, cnc.py) drives the motion:
+`prepare()`, `approach(point)` (travel to a bead's start and stop there, weld moves queued behind a
+hold point), `queue_weld(...)`, `release()`, `weld_done()`, `hold_now()`, `position()`, `on_retract()`.
 
 Per pass: travel to the start (or to the point where the bead stopped, on resume) → arc start
 handshake on the power source → release the motion → stream the weld moves → arc end when the
@@ -162,11 +161,11 @@ class BuildRunner:
                 await done
         await self._arc_out()
         await self.ex.prepare()
-
         await ensure_ready(self.ex, self.power, self.journal, reset_errors=self.o.reset_errors, arc=self.arc)
 
     async def run(self, work: list[WorkItem]) -> BuildResult:
         self._unsub.append(self.power.subscribe(self._on_power))
+        self.ex.on_retract(self._on_retract)
         self.bus.update(layers_total=self.totals[0], passes_total=self.totals[1],
                         passes_done=len(self.done), layers_done=self._layers_done())
         try:
@@ -423,6 +422,17 @@ class BuildRunner:
         self.cur_idx = idx
         self.journal.progress(ticket, item.layer, item.pass_, idx)
 
+    def _on_retract(self, ticket: int, idx: int | None) -> None:
+        """The robot took back EXEs past `ticket`: count, and journal, the bead only up to it."""
+        item, back = self.current, self.cur_idx
+        idx = max(idx if idx is not None else -1, item.start_idx) if item is not None else None
+        if item is None or back is None or idx is None or idx >= back or not self._pts:
+            return
+        self._measured_mm = max(0.0, self._measured_mm - (self._cum[back] - max(self._cum[idx], self._start_mm)))
+        self.cur_idx = self._acct_idx = idx
+        self.journal.retract(item.layer, item.pass_, idx, f"robot took back its EXEs after ticket {ticket}: "
+                             f"progress withdrawn from point {back} to {idx}")
+
     def _on_power(self, st: Any) -> None:
         if self._bead is not None and st.arc_stable and self._arc_lit:  # not the burn-back after weld start drops
             self._bead.add(st.current_a, st.voltage_v, st.wfs_m_min)
@@ -487,4 +497,3 @@ class BuildRunner:
             if note:
                 self.journal.event("info", note, layer=la, pass_=pa)
         self._close_bead(la, pa, pts, i0, i1, speed, interrupted=True)
-
