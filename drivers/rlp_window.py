@@ -131,6 +131,16 @@ class TicketWindow:
         self.window_end = max(self.window_end, e + self.capacity)
         return range(first, e + 1)
 
+    def retract(self, e: int) -> bool:
+        """An EXE going backwards to ticket `e`: the robot claimed tickets past it that it had not
+        executed (a lie about a frame still on the line). The lower claim stands (True when taken
+        back): a robot executes in order, and a move counted but never executed would be skipped
+        by a resume, while one executed twice is a visible overlap."""
+        if e >= self.last_exec:
+            return False
+        self.last_exec = e
+        return True
+
     def on_ack(self, r: Ack, now: float) -> None:
         a = rlp.unwrap(r.seq, self.last_ack)
         self.acked(a, now)

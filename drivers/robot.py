@@ -8,10 +8,9 @@ an adaptive timeout (Jacobson/Karn), sends control frames ahead of the queue, wa
 heartbeat (link lost after `link_timeout_s` of silence or when the port closes), and after a
 reconnect resynchronises from the robot's last received / last executed sequence numbers.
 
-Usage: `open_robot(cfg)` (drivers/registry.py), `connect(resume_ticket=...)`, `send_move(...)`
-(back-pressure: waits for window space), `wait_executed(ticket)`. Waiters get LinkLost (naming the device and URL) when the link drops; with auto_reconnect the
-link reconnects in the background and emits `link_restored` (motion held by the robot's silence
-rule stays held until `go()`).
+Usage: `open_robot(cfg)` (drivers/registry.py), `connect(resume_ticket=...)`, `send_move(...)` (waits for window
+space), `wait_executed(ticket)`. Waiters get LinkLost (naming device and URL) when the link drops; auto_reconnect
+reconnects in the background and emits `link_restored` (motion held by the silence rule stays held until `go()`).
 """
 from __future__ import annotations
 
@@ -428,8 +427,8 @@ class RobotLink(LinkLiveness[LinkStats]):
             fault = self._w.implausible(r, frames_lost=self.stats.crc_errors + self.stats.bad_frames > self._bad_at_ack,
                                         paused=self._tx_paused)
             if fault is not None:
-                if isinstance(r, Exe):
-                    self._retract(rlp.unwrap(r.seq, self._w.last_exec))
+                if isinstance(r, Exe) and self._w.retract(rlp.unwrap(r.seq, self._w.last_exec)):
+                    self._emit("RETRACT", ticket=self._w.last_exec)  # a lie taken back (RlpWindow.retract)
                 self._protocol(fault)
                 return
             self._heard()  # heard: a valid frame that fits what was sent
@@ -493,14 +492,6 @@ class RobotLink(LinkLiveness[LinkStats]):
         self._kick.set()
         self._changes.notify()
         self._emit("ERR", value="PROTOCOL", text=f"protocol fault: {text}")
-
-    def _retract(self, e: int) -> None:
-        """An EXE going backwards: the robot claimed tickets past `e` it had not executed (a lie
-        in the race with frames still on the line). The lower claim stands: a robot executes in
-        order, and metal counted but never laid would be skipped by a resume (RETRACT event)."""
-        if e < self._w.last_exec:
-            self._w.last_exec = e
-            self._emit("RETRACT", ticket=e)
 
     def _executed(self, tickets: range) -> None:
         """Report the newly executed tickets (EXE events)."""

@@ -10,6 +10,8 @@ import pytest
 
 from controller.cli.main import main
 
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
+
 
 def _json(capsys, argv):
     rc = main(argv)

@@ -17,6 +17,8 @@ from core.config import load_cell, load_sim
 from drivers.grbl import CncLink
 from sims.workpiece import rot, trans
 
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
+
 
 def _cell(time_scale: float = 1000.0, **probe):
     cell = load_cell()

@@ -3,12 +3,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from bench._coverage import coverage, read_segments
 from controller.api import CellController
 from controller.harness.sim import SimHarness, with_urls
 from controller.job.read import job_from_dict
 from core.config import load_cell, load_sim
 from tests.test_build_robot import SIM_REPLY_TIMEOUT_MS, planned, small_job
+
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
 
 
 async def test_cnc_build_deposits_every_planned_segment_once(tmp_path: Path) -> None:

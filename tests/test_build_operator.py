@@ -12,6 +12,8 @@ from controller.job.read import job_from_dict
 from controller.runtime.machine import TransitionRefused
 from tests.test_build_robot import Cell, planned, small_job
 
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
+
 
 async def test_pause_waits_for_the_end_of_the_bead_then_resume_and_abort(tmp_path: Path) -> None:
     job = small_job(n_layers=3)

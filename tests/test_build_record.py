@@ -5,9 +5,13 @@ import csv
 import json
 from pathlib import Path
 
+import pytest
+
 from controller.cli.main import main
 from controller.job.read import job_from_dict
 from tests.test_build_robot import Cell, small_job
+
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
 
 
 async def test_every_build_leaves_a_record_with_one_csv_row_per_bead(tmp_path: Path, capsys) -> None:

@@ -15,6 +15,8 @@ from controller.job.read import job_from_dict
 from core.config import load_cell, load_sim
 from controller.runtime.machine import State
 
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
+
 
 def small_job(n_layers: int = 3, side: float = 20.0, h: float = 1.0) -> dict:
     layers = []

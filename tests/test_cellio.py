@@ -20,6 +20,8 @@ from sims.thread import SimThread
 from sims.world import World
 from power_fixtures import power_rig
 
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
+
 
 @asynccontextmanager
 async def cellio_rig(*, time_scale: float = 1.0, world: World | None = None, faults=None, thermal=None,

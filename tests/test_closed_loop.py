@@ -34,6 +34,8 @@ from sims.thread import SimThread
 from sims.world import World
 from planner.job import Layer, Pass
 
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
+
 MAT = load_material("inconel718-1.0mm")
 
 

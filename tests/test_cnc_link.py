@@ -26,6 +26,8 @@ from sims.up import SimContext, close_all
 from sims.workpiece import Workpiece, rot
 from sims.world import World
 
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
+
 
 @dataclass
 class Rig:

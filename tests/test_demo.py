@@ -7,9 +7,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import yaml
 
 from tests.test_build_robot import shorten, small_job
+
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
 
 ROOT = Path(__file__).resolve().parent.parent
 

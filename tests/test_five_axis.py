@@ -14,6 +14,8 @@ from planner.five_axis import FiveAxisOptions, Nozzle, collisions, overhangs, to
 from planner.job import BeadInfo, Job, Layer, Pass, Source, load_job
 from bench.parts5 import cone_frustum, tilted_tube
 
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
+
 
 @pytest.mark.parametrize("part", ["tube", "frustum"])
 def test_three_axis_plan_names_the_overhanging_layers_and_five_axis_brings_them_within(part, tmp_path, capsys):

@@ -26,6 +26,8 @@ from planner.plan import PlanOptions, plan_part
 
 import planner_parts as parts
 
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
+
 DATA = Path(__file__).parent / "data"
 HAND = DATA / "job_hand.json"        # hand-written: ints, odd rounding, -0.0, extra keys, a non-ASCII name
 PLANNED = DATA / "job_planned.json"  # written by `cell plan` (planner.job.job_to_json)

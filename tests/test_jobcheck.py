@@ -15,6 +15,8 @@ from core.errors import InputError
 from core.config import load_cell, load_material
 from tests.test_build_robot import small_job
 
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
+
 CFG = load_cell()
 MAT = load_material("inconel718-1.0mm")
 

@@ -12,6 +12,8 @@ import pytest
 
 from controller.journal.store import Journal, JournalError
 
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
+
 ROOT = Path(__file__).resolve().parent.parent
 
 WRITER = r"""

@@ -16,6 +16,8 @@ from controller.cli.main import main
 from controller.journal.store import Journal
 from tests.test_build_robot import small_job
 
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
+
 
 def _journal(run_dir: Path, job: dict, done: int, rows: int = 3000) -> Path:
     """A journal of `job` with `done` passes done and enough samples to span many pages; the

@@ -14,8 +14,12 @@ import subprocess
 import time
 from pathlib import Path
 
+import pytest
+
 from bench._coverage import read_segments
 from bench.kill_resume import _cell, _deposited_mm, _setup, build_with_kills
+
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
 
 
 def _args(**kw: object) -> argparse.Namespace:

@@ -17,6 +17,8 @@ import pytest
 
 from bench.lying_devices import one_run, small_job
 
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
+
 ROOT = Path(__file__).resolve().parent.parent
 
 

@@ -23,6 +23,8 @@ from controller.runtime.events import EventBus
 from core.errors import ConfigError
 from tests.test_build_robot import SIM_REPLY_TIMEOUT_MS, SimHarness, small_job, with_urls
 
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
+
 
 def _endpoint() -> str:
     s = socket.socket()

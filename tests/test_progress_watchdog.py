@@ -10,6 +10,8 @@ from __future__ import annotations
 import asyncio
 from pathlib import Path
 
+import pytest
+
 from bench._coverage import coverage, read_segments
 from controller.api import CellController
 from controller.harness.sim import SimHarness, with_urls
@@ -17,6 +19,8 @@ from controller.job.read import job_from_dict
 from controller.runtime.progress import longest_move_s, progress_timeout_s, wall_bound_s
 from core.config import load_cell, load_sim
 from tests.test_build_robot import SIM_REPLY_TIMEOUT_MS, Cell, planned, small_job
+
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
 
 SCALE = 5.0
 

@@ -26,7 +26,7 @@ from controller.tui.session import CellSession
 from core.config import load_cell, load_sim
 from tests.test_build_robot import SIM_REPLY_TIMEOUT_MS, small_job
 
-pytestmark = pytest.mark.timeout(240)
+pytestmark = [pytest.mark.timeout(240), pytest.mark.realtime]
 PLOTS = ("layers.png", "process.png", "temperature.png", "defects.png")
 
 

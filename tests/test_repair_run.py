@@ -4,8 +4,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from bench.repair import make_parts, one, posed_sim
 from controller.cli.main import main
+
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
 
 
 async def test_an_l_shaped_repair_lands_on_a_posed_stock_and_verifies_on_its_deposit(tmp_path: Path):

@@ -21,6 +21,8 @@ from sims.faults import parse_fault_spec
 from sims.robot_sim import RobotSim
 from sims.transport import SerialServer
 
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
+
 
 class Cell:
     """The robot simulator with a misbehaviour spec, served on loopback TCP."""

@@ -22,6 +22,8 @@ from sims.robot_sim import RobotSim
 from sims.transport import SerialServer
 from sims.world import World
 
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
+
 
 class Cell:
     """A robot simulator served on loopback TCP (or a pty), with its log in tmp_path."""

@@ -12,9 +12,12 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 import yaml
 
 from drivers.robot import RobotLink
+
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
 
 ROOT = Path(__file__).resolve().parent.parent
 

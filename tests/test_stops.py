@@ -23,6 +23,8 @@ import pytest
 
 from bench.stops import SimCell, WeldStartWatch, cell, cnc_status, fill, job, judge, wait_arc
 
+pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
+
 ROOT = Path(__file__).resolve().parent.parent
 
 

@@ -19,7 +19,7 @@ from textual.widgets import Button, Input
 from controller.tui.app import CellApp, ConfirmQuit, OpenDialog
 from controller.tui.session import CellSession
 
-pytestmark = pytest.mark.timeout(180)
+pytestmark = [pytest.mark.timeout(180), pytest.mark.realtime]
 SIZE = (120, 36)
 TIME_SCALE = 600.0   # process time 600x: interpass cooling takes a fraction of a second
 

@@ -17,7 +17,7 @@ from core.config import load_cell
 from controller.tui.app import CellApp
 from controller.tui.session import CellSession
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.timeout(120), pytest.mark.realtime]
 RATE_HZ = 100.0
 SECONDS = 3.0
 
