@@ -22,15 +22,17 @@ class Prober:
         self.link = link
 
     async def _recover(self, start: GrblStatus) -> str:
-        """After a failed probe: `$X`, retract Z to where the probe started (machine
-        coordinates), and confirm Idle from a status report. Returns a note for the error."""
+        """After a failed probe: `$X`, retract Z to where the probe started (machine coordinates;
+        never down: `start` may be the report from before the last rapid ended), and confirm Idle
+        from a status report. Returns a note for the error."""
         try:
             await self.link.command("$X")
-            await self.link.command(f"G53 G0 Z{fmt(start.mpos[2])}")
+            z = max(start.mpos[2], (await self.link.status()).mpos[2])
+            await self.link.command(f"G53 G0 Z{fmt(z)}")
             st = await self.link.wait_idle(30.0)
         except DeviceError as e:
             return f"; recovery failed ({e}): unlock ($X) and retract by hand"
-        return f"; recovered: unlocked, Z retracted to {start.mpos[2]:.3f} (machine), state {st.state}"
+        return f"; recovered: unlocked, Z retracted to {z:.3f} (machine), state {st.state}"
 
     async def run(self, target: dict[str, float] | tuple[float, float, float], feed_mm_min: float, *,
                     mode: str = "G38.2", unlock_on_fail: bool = True) -> ProbeResult:
@@ -56,7 +58,9 @@ class Prober:
         words = " ".join(f"{k}{fmt(v)}" for k, v in items)
         line = f"{mode} G90 {words} F{feed_mm_min:g}"
         where = f" toward {words}"
-        start = await self.link.status()
+        # only a failed probe's recovery reads it: the newest background report (≤ 5 Hz), not a
+        # fresh one (waiting for the next poll cost up to 200 ms per touch, 4 touches per point)
+        start = self.link.latest_status or await self.link.status()
         try:
             lines = await self.link.command(line)
         except ProbeError as exc:
