@@ -116,7 +116,8 @@ async def one(tmp: Path, pose: tuple, scale: float = 60.0, shape: str = "pocket"
     rep = await repair_run_sim(typed, cell, sim, job_path=tmp / "job.json", runs_dir=tmp / "runs", log_dir=tmp / "log",
                                inspect=deposit_tops)
     return {"pose": pose, "shape": shape, "alignment": rep["alignment"], "verify": rep["verify"],
-            "state": rep["state"], "time_scale": rep.get("time_scale"), "on_deposit": touches_on_deposit(job, rep),
+            "state": rep["state"], "time_scale": rep.get("time_scale"),
+            "time_scale_probing": rep.get("time_scale_probing"), "on_deposit": touches_on_deposit(job, rep),
             "truth": per_touch(typed, rep["verify"], tops), **deposit_vs_plan(job, tmp / "log")}
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -234,9 +234,11 @@ async def verify(link: Any, cell: Any, job: CellJob, transform: np.ndarray, grid
 
 async def repair_run(job: CellJob, cell: Any, *, job_path: Path | None = None, runs_dir: str | Path = "runs",
                      reply_timeout_ms: float | None = None, apply_alignment: bool = True,
-                     tolerance_mm: float = 0.1) -> dict[str, Any]:
+                     tolerance_mm: float = 0.1, phase: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The whole chain on the CNC cell of `cell` (its device URLs: hardware, `cell sim up` or the
-    in-process simulators of controller.harness); returns the report."""
+    in-process simulators of controller.harness); returns the report. `phase(name)` is told
+    "align", "build" and "verify" as each begins, the machine idle (the harness sets its clock)."""
+    say = phase or (lambda _name: None)
 
     if cell.cell.platform != "cnc":
         cell = cell.model_copy(update={"cell": cell.cell.model_copy(update={"platform": "cnc"})})
@@ -248,14 +250,17 @@ async def repair_run(job: CellJob, cell: Any, *, job_path: Path | None = None, r
     stops.attach(ctl)  # SIGINT / SIGTERM / SIGHUP: the fault path (when the CLI installed them)
     try:
         await ctl.connect(reply_timeout_ms=reply_timeout_ms)
+        say("align")
         res = await ctl.run_alignment(plan)
         built = apply_to_job(job, res.transform, alignment_record(res)) if apply_alignment else job
         ctl.open_job(built)
+        say("build")
         result = await ctl.start()
         if result.state != "complete":
             raise CellError(f"repair: the build stopped in state {result.state}; see the journal in {ctl.run_dir}")
         if ctl.devices is None:
             raise CellError("repair: the cell's devices closed before the verify probe")
+        say("verify")
         ver = await verify(ctl.devices.cnc, cell, job, res.transform, tolerance_mm=tolerance_mm)
     finally:
         stops.detach()

@@ -14,13 +14,28 @@ class SimClock:
     def __init__(self, time_scale: float = 1.0) -> None:
         if time_scale <= 0:
             raise ValueError("time_scale must be positive")
-        self.time_scale = float(time_scale)
-        self._t0 = time.monotonic()
+        # (process time at the anchor, monotonic time of the anchor, scale): one tuple, replaced
+        # whole, so a reader on another thread never mixes an old anchor with a new scale
+        self._anchor = (0.0, time.monotonic(), float(time_scale))
+
+    @property
+    def time_scale(self) -> float:
+        return self._anchor[2]
+
+    def set_scale(self, time_scale: float) -> None:
+        """Run at `time_scale` from now on; process time goes on without a jump (a repair's probing
+        at the cell's time scale, its build at what the CNC link can feed: controller/harness/repair.py)."""
+        if time_scale <= 0:
+            raise ValueError("time_scale must be positive")
+        now = time.monotonic()
+        base, t0, k = self._anchor
+        self._anchor = (base + (now - t0) * k, now, float(time_scale))
 
     def now(self) -> float:
         """Simulated seconds since the clock started."""
-        return (time.monotonic() - self._t0) * self.time_scale
+        base, t0, k = self._anchor
+        return base + (time.monotonic() - t0) * k
 
     def wall(self, sim_seconds: float) -> float:
         """Wall-clock seconds that `sim_seconds` of process time take."""
-        return sim_seconds / self.time_scale
+        return sim_seconds / self._anchor[2]

@@ -14,8 +14,11 @@ pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py
 
 async def test_an_l_shaped_repair_lands_on_a_posed_stock_and_verifies_on_its_deposit(tmp_path: Path):
     """Issue 17's chain (posed stock, alignment, deposit in the workpiece frame) on issue 29's L-shaped
-    worn region (one run: the repair tests run at the time scale the CNC link can feed, 5)."""
+    worn region (one run: its build runs at the time scale the CNC link can feed, 5; the alignment and
+    the verify at the cell's, 60)."""
     fig = await one(tmp_path, (1.7, -1.2, -4.5, (4.0, -3.0, 2.0)), shape="L")
+    # the build at what the CNC link can feed (its 0.6 mm moves), the probe cycles at the cell's scale
+    assert fig["time_scale"] == 5.0 and fig["time_scale_probing"] == 60.0, fig
     assert abs(fig["alignment"]["face_angle_deg"] + 4.5) < 0.05
     assert fig["max_lateral_mm"] < 0.05 and fig["max_dz_mm"] < 0.05, fig   # in the workpiece frame
     assert abs(fig["deposited_mm"] - fig["planned_mm"]) < 0.1, fig

@@ -19,13 +19,20 @@ async def repair_run_sim(job: CellJob, cell: CellConfig, sim_cfg: SimConfig, *, 
     `inspect(harness, report)` before the simulators stop (benches read the simulated world)."""
     if cell.cell.platform != "cnc":
         cell = cell.model_copy(update={"cell": cell.cell.model_copy(update={"platform": "cnc"})})
+    probing = cell.cell.time_scale
     cell, note = limit_time_scale(cell, job)  # what the CNC link can feed (issue 29)
     with simulated(cell, sim_cfg, log_dir=log_dir) as (cfg, harness):
+        # the limit is the build's (its weld moves streamed one line each); the probe cycles send a
+        # few lines per touch and run at the cell's own time scale, the machine idle at each switch
+        def phase(name: str) -> None:
+            harness.clock.set_scale(cell.cell.time_scale if name == "build" else probing)
+
         rep = await repair_run(job, cfg, job_path=job_path, runs_dir=runs_dir,
-                               reply_timeout_ms=SIM_REPLY_TIMEOUT_MS, tolerance_mm=tolerance_mm)
+                               reply_timeout_ms=SIM_REPLY_TIMEOUT_MS, tolerance_mm=tolerance_mm, phase=phase)
         if inspect is not None:
             inspect(harness, rep)
     rep["time_scale"] = cell.cell.time_scale
+    rep["time_scale_probing"] = probing
     if note:
         rep.setdefault("notes", []).append(note)
     return rep
