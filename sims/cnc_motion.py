@@ -18,6 +18,9 @@ def move_block(sim: CncSim, b: Block, target: Pos5, t: float, now: float) -> flo
         b.started = True
         if b.probe:
             sim._start_probe(b)
+            # the move ends where the stylus touches: when the whole probing move fits in this
+            # tick it must not run on to the commanded end (it went through the part, 1 run in 3)
+            target = b.target if b.target is not None else target
     if sim.spindle_on:
         sim.spindle_s = b.s  # laser mode: S changes apply in motion
     p0 = pos5(sim.pos)

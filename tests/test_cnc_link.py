@@ -20,6 +20,7 @@ from drivers.errors import LinkLost
 from drivers.grbl import CncLink, GrblAckLost, GrblAlarm, GrblError, GrblReset, GrblStopped, GrblStuck, ProbeError
 from sims.clock import SimClock
 from sims.cnc_sim import CncSim
+from sims.cnc_block import Block
 from sims.faults import parse_fault_spec
 from sims.transport import SerialServer
 from sims.up import SimContext, close_all
@@ -489,3 +490,19 @@ def test_workpiece_from_a_mesh_file_is_posed_and_probed(tmp_path):
     assert wp.probe((60.0, 60.0, 60.0), (60.0, 60.0, 0.0)) is None     # misses the part
     # the table's A axis carries the part: turned 90° about X, the top now faces -Y
     assert wp.surface_hit((5.0, -60.0, 0.0), (5.0, 0.0, 0.0), 90.0, 0.0) == pytest.approx(35.0, abs=1e-6)
+
+
+def test_a_probing_move_that_ends_within_one_tick_stops_at_the_surface(tmp_path):
+    # a loaded host (or a high time scale) lets one executor tick cover the whole probing move:
+    # it must still end where the stylus touches, not at the commanded end inside the part (the
+    # next touch then started inside it: ALARM:4, 1 alignment in 3 under make test)
+    piece = Workpiece.from_config(WorkpieceConfig(), 0.0, seed=11)
+    sim = CncSim(clock=SimClock(60.0), workpiece=piece, log_path=tmp_path / "cnc.jsonl", homing_enabled=False)
+    top = float(piece.top_z(np.array([0.0]), np.array([0.0]))[0])
+    sim.pos = [0.0, 0.0, top + 5.0, 0.0, 0.0]
+    b = Block(1, "G38.2", "G38.2 Z-10 F300", target=(0.0, 0.0, top - 10.0, 0.0, 0.0), feed=300.0, probe="G38.2")
+    sim._push(b)
+    sim.advance(0.0, 1000.0)                          # far more process time than the move needs
+    assert b.done and b.contact
+    assert abs(sim.pos[2] - top) < 1e-6, sim.pos       # on the surface, not 10 mm into the part
+    assert not piece.inside(tuple(sim.pos[:3]), 0.0, 0.0)
