@@ -1,9 +1,12 @@
 """Shared test fixtures."""
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import os
 import tempfile
 from pathlib import Path
+from typing import Iterator
 
 import pytest
 
@@ -25,6 +28,45 @@ SHARED_PARTS = ROOT.parent / "shared" / "parts"
 # summary counts the reruns). Run alone (no worker beside it, e.g. `pytest tests/test_stops.py`)
 # every real-time test is strict. docs/testing.md says why.
 RERUNS_BESIDE_ANOTHER_WORKER = 1
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    # one lock directory for the session, inherited by the xdist workers (started after this)
+    os.environ.setdefault("CELL_TEST_LOCKS", tempfile.mkdtemp(prefix="cell-test-locks-"))
+
+
+@contextlib.contextmanager
+def _cpus(exclusive: bool) -> Iterator[None]:
+    """A readers-writer lock across the test workers: real-time tests share the CPUs, a test
+    marked `owns_cpus` waits until no other worker runs one and holds them alone. The turnstile
+    keeps a stream of shared holders from starving the exclusive one."""
+    d = Path(os.environ["CELL_TEST_LOCKS"])
+    with open(d / "turnstile", "a") as gate, open(d / "cpus", "a") as cpus:
+        fcntl.flock(gate, fcntl.LOCK_EX)
+        try:
+            fcntl.flock(cpus, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+        finally:
+            if not exclusive:
+                fcntl.flock(gate, fcntl.LOCK_UN)
+        try:
+            yield
+        finally:
+            fcntl.flock(cpus, fcntl.LOCK_UN)
+            fcntl.flock(gate, fcntl.LOCK_UN)
+
+
+@pytest.fixture(autouse=True)
+def _share_the_cpus(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Real-time tests (`realtime`) share the CPUs with each other; an `owns_cpus` test has them alone
+    (the demo's figures: no bead flagged, travel speed within 5 %; docs/testing.md)."""
+    if request.node.get_closest_marker("owns_cpus") is not None:
+        with _cpus(exclusive=True):
+            yield
+    elif request.node.get_closest_marker("realtime") is not None:
+        with _cpus(exclusive=False):
+            yield
+    else:
+        yield
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
