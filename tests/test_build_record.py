@@ -19,7 +19,8 @@ async def test_every_build_leaves_a_record_with_one_csv_row_per_bead(tmp_path: P
     async with Cell(tmp_path, scale=20) as c:
         run_dir = c.ctl.open_job(job_from_dict(job))
         res = await c.ctl.start()  # no explicit write_report: the API writes it at the end of the build
-    assert res.state == "complete"
+        trips = [t.message for t in c.ctl.interlocks.trips]
+    assert res.state == "complete", trips
     rep = json.loads((run_dir / "report.json").read_text())
     rows = list(csv.DictReader((run_dir / "beads.csv").open()))
     assert len(rows) == len(rep["beads"]) == 4
@@ -34,7 +35,7 @@ async def test_every_build_leaves_a_record_with_one_csv_row_per_bead(tmp_path: P
     assert abs(b["wfs_mean_m_min"] / 5.5 - 1) < 0.05
     # the robot's pace, from its EXE reports: the planned speed, no starvation inside a bead
     for bead in rep["beads"]:
-        assert abs(bead["speed_measured_mm_min"] / bead["speed_planned_mm_min"] - 1) < 0.03, bead
+        assert abs(bead["speed_measured_mm_min"] / bead["speed_planned_mm_min"] - 1) < 0.03, json.dumps(bead)
         assert bead["starved_count"] == 0 and bead["motion_time_s"] > 0 and bead["still_count"] == 0
         assert abs(bead["length_measured_mm"] - bead["length_planned_mm"]) < 0.01 and bead["status"] == "done"
     assert rep["travel_speed"]["starved_beads"] == 0
