@@ -87,6 +87,27 @@ def test_pass_progress_replays_the_append_only_rows(tmp_path: Path) -> None:
     assert j2.query("PRAGMA synchronous") == [(2,)]  # FULL
 
 
+def test_progress_a_robot_took_back_is_withdrawn_so_a_resume_redoes_those_moves(tmp_path: Path) -> None:
+    # a lying robot's EXEs for tickets 106-110 (points 6-10), then its real EXE of 105: the
+    # build withdraws the progress past point 5; a resume re-arcs there, not at point 10
+    j = Journal(tmp_path / "j.sqlite")
+    j.start_job("h1", "part", "robot", "{}")
+    j.pass_state(0, 0, "started")
+    j.pass_state(0, 0, "arc_on")
+    for idx in range(1, 11):
+        j.progress(100 + idx, 0, 0, idx)
+    j.progress(300, 0, 1, 4)                        # another pass: untouched
+    j.retract(0, 0, 5, "robot took back its EXEs after ticket 105")
+    j.pass_state(0, 0, "interrupted", reason="protocol fault")
+    j.close()
+    j2 = Journal(tmp_path / "j.sqlite")
+    prog = j2.pass_progress()
+    assert prog[(0, 0)].done_idx == 5 and prog[(0, 1)].done_idx == 4
+    assert j2.query("SELECT max(ticket) FROM progress WHERE pass=0") == [(105,)]
+    alarms = [m for (m,) in j2.query("SELECT message FROM events WHERE kind='alarm'")]
+    assert any("took back" in m for m in alarms), alarms
+
+
 def test_background_writer_commits_in_order_and_reads_see_every_write(tmp_path: Path) -> None:
     j = Journal(tmp_path / "j.sqlite", background=True)
     j.start_job("h", "part", "robot", "{}")
