@@ -37,9 +37,9 @@ def pytest_configure(config: pytest.Config) -> None:
 
 @contextlib.contextmanager
 def _cpus(exclusive: bool) -> Iterator[None]:
-    """A readers-writer lock across the test workers: real-time tests share the CPUs, a test
-    marked `owns_cpus` waits until no other worker runs one and holds them alone. The turnstile
-    keeps a stream of shared holders from starving the exclusive one."""
+    """A readers-writer lock across the test workers: tests share the CPUs, a test marked `owns_cpus`
+    (or a rerun) waits until the other worker's test ends and holds them alone. The turnstile keeps a
+    stream of shared holders from starving the exclusive one."""
     d = Path(os.environ["CELL_TEST_LOCKS"])
     with open(d / "turnstile", "a") as gate, open(d / "cpus", "a") as cpus:
         fcntl.flock(gate, fcntl.LOCK_EX)
@@ -57,17 +57,13 @@ def _cpus(exclusive: bool) -> Iterator[None]:
 
 @pytest.fixture(autouse=True)
 def _share_the_cpus(request: pytest.FixtureRequest) -> Iterator[None]:
-    """Real-time tests (`realtime`) share the CPUs with each other; an `owns_cpus` test has them alone
-    (the demo's figures: no bead flagged, travel speed within 5 %; docs/testing.md)."""
+    """Tests share the CPUs with each other; an `owns_cpus` test, or a real-time test's rerun, has them
+    alone: the other worker waits (the demo's figures: no bead flagged, speed within 5 %; docs/testing.md)."""
     # a rerun (pytest-rerunfailures counts executions) owns the CPUs: the first run's bound may
     # have been starved by the other worker's cell, so the second runs without one beside it
-    if request.node.get_closest_marker("owns_cpus") is not None or getattr(request.node, "execution_count", 1) > 1:
-        with _cpus(exclusive=True):
-            yield
-    elif request.node.get_closest_marker("realtime") is not None:
-        with _cpus(exclusive=False):
-            yield
-    else:
+    # every other test shares them (a planner test beside the demo is a CPU hog on a 2-core machine)
+    alone = request.node.get_closest_marker("owns_cpus") is not None or getattr(request.node, "execution_count", 1) > 1
+    with _cpus(exclusive=alone):
         yield
 
 
