@@ -59,9 +59,8 @@ def _cpus(exclusive: bool) -> Iterator[None]:
 def _share_the_cpus(request: pytest.FixtureRequest) -> Iterator[None]:
     """Tests share the CPUs with each other; an `owns_cpus` test, or a real-time test's rerun, has them
     alone: the other worker waits (the demo's figures: no bead flagged, speed within 5 %; docs/testing.md)."""
-    # a rerun (pytest-rerunfailures counts executions) owns the CPUs: the first run's bound may
-    # have been starved by the other worker's cell, so the second runs without one beside it
-    # every other test shares them (a planner test beside the demo is a CPU hog on a 2-core machine)
+    # a rerun (pytest-rerunfailures counts executions): the first run may have been starved by the
+    # other worker's test (a cell, or a planner test: a CPU hog on two cores)
     alone = request.node.get_closest_marker("owns_cpus") is not None or getattr(request.node, "execution_count", 1) > 1
     with _cpus(exclusive=alone):
         yield

@@ -6,6 +6,8 @@ the journal at the last committed row, and replaying the rows gives the build's 
 - `job`       the job's hash, name and canonical JSON (one row);
 - `moves`     write-ahead: every weld move's ticket and the point it reaches, before it is sent;
 - `progress`  a weld move executed while the arc was stable: (layer, pass, point index);
+- `retractions` a device took its word back: this run's progress rows of a pass up to `upto` (a
+              progress row id) beyond point `idx` no longer count (the rows themselves stay);
 - `passes`    each pass's state changes (started, arc_on, done, interrupted);
 - `beads`     per bead: arc-on/off times, I/U/WFS statistics, heat input (+ bead_measures, bead_extra);
 - `events`    state transitions, alarms and notes, with the torch position (kind `arc`: the arc
@@ -60,6 +62,8 @@ CREATE TABLE IF NOT EXISTS defects (id INTEGER PRIMARY KEY, layer INTEGER NOT NU
     run INTEGER NOT NULL, t REAL NOT NULL, reason TEXT NOT NULL, x REAL, y REAL, z REAL, measured_mm REAL);
 CREATE TABLE IF NOT EXISTS bead_extra (id INTEGER PRIMARY KEY, layer INTEGER NOT NULL, pass INTEGER NOT NULL,
     run INTEGER NOT NULL, info TEXT NOT NULL DEFAULT '{}');
+CREATE TABLE IF NOT EXISTS retractions (id INTEGER PRIMARY KEY, layer INTEGER NOT NULL, pass INTEGER NOT NULL,
+    idx INTEGER NOT NULL, upto INTEGER NOT NULL, run INTEGER NOT NULL, t REAL NOT NULL);
 CREATE INDEX IF NOT EXISTS progress_lp ON progress(layer, pass);
 CREATE INDEX IF NOT EXISTS passes_lp ON passes(layer, pass);
 """
@@ -239,8 +243,10 @@ class Journal(JournalQueries):
         )
 
     def retract(self, layer: int, pass_: int, idx: int, why: str) -> None:
-        """Withdraw this run's progress of a pass beyond point `idx` (a device took its word back)."""
-        self._write("DELETE FROM progress WHERE run=? AND layer=? AND pass=? AND idx>?", (self.run, layer, pass_, idx))
+        """Withdraw this run's progress of a pass beyond point `idx`, as written so far (a device took
+        its word back); appended, like every row: the writer's order makes `upto` exactly those rows."""
+        self._write("INSERT INTO retractions (layer, pass, idx, upto, run, t) "
+                    "SELECT ?, ?, ?, coalesce(max(id), 0), ?, ? FROM progress", (layer, pass_, idx, self.run, time.time()))
         self.event("alarm", why, layer=layer, pass_=pass_)
 
     def pass_state(self, layer: int, pass_: int, state: str, **info: Any) -> None:
@@ -310,7 +316,11 @@ class Journal(JournalQueries):
             "SELECT layer, pass, state FROM passes WHERE id IN (SELECT max(id) FROM passes GROUP BY layer, pass)"
         ):
             out[(layer, pass_)] = PassProgress(layer, pass_, state, -1)
-        for layer, pass_, idx in self.query("SELECT layer, pass, max(idx) FROM progress GROUP BY layer, pass"):
+        for layer, pass_, idx in self.query(
+            "SELECT layer, pass, max(idx) FROM progress p WHERE NOT EXISTS (SELECT 1 FROM retractions r WHERE "
+            "r.layer = p.layer AND r.pass = p.pass AND r.run = p.run AND p.id <= r.upto AND p.idx > r.idx) "
+            "GROUP BY layer, pass"
+        ):
             p = out.get((layer, pass_))
             state = p.state if p else "started"
             out[(layer, pass_)] = PassProgress(layer, pass_, state, int(idx))

@@ -425,8 +425,9 @@ class BuildRunner:
     def _on_retract(self, ticket: int, idx: int | None) -> None:
         """The robot took back EXEs past `ticket`: count, and journal, the bead only up to it."""
         item, back = self.current, self.cur_idx
-        idx = max(idx if idx is not None else -1, item.start_idx) if item is not None else None
-        if item is None or back is None or idx is None or idx >= back or not self._pts:
+        if item is None or back is None or not self._pts:
+            return
+        if (idx := max(item.start_idx, -1 if idx is None else idx)) >= back:   # never before this bead's start
             return
         self._measured_mm = max(0.0, self._measured_mm - (self._cum[back] - max(self._cum[idx], self._start_mm)))
         self.cur_idx = self._acct_idx = idx
