@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import asyncio
+import time
 
 import numpy as np
 import pytest
@@ -143,3 +144,30 @@ async def test_power_sim_current_falls_as_the_stick_out_grows_over_modbus():
     assert means[0] == pytest.approx(i_syn, rel=0.01)        # nominal stick-out: the synergic line
     assert means[0] > means[1] + 5.0 > means[2] + 10.0       # about 2.5 A per mm at 133 A
     assert means[2] == pytest.approx(phys.current_a(6.0, 21.0), rel=0.01)
+
+
+def _one_long_bead(defer: bool) -> World:
+    """One 80 mm bead across a plate (a block's infill line), its segment closed at the end."""
+    w = World(defer_lays=defer)
+    w.use_physics(ProcessPhysics(MAT, ProcessSim()))
+    pp = inverse(MAT, 6.0)
+    w.set_arc(True, synergic_current(MAT.ribeiro, pp.wfs_m_min), 20.0, 0.0, pp.wfs_m_min)
+    w.torch_moved("robot", 1, (0.0, 0.0, pp.height_mm), (80.0, 0.0, pp.height_mm), 0.0, 80.0 / pp.speed_mm_min * 60)
+    w.motion_stopped("robot")
+    return w
+
+
+def test_a_deferred_long_bead_is_laid_a_piece_at_a_time_and_ends_as_one_laid_at_once():
+    # The simulators lay deferred beads in their spare time, up to a deadline: a whole 80 mm bead
+    # held their loop (the power source's and the cell I/O's replies) for 10-30 ms. It is now laid
+    # in pieces of at most 10 mm, the deadline checked between them.
+    now = _one_long_bead(defer=False)
+    later = _one_long_bead(defer=True)
+    unfinished = 0
+    while not later.settle(deadline=time.perf_counter() + 1e-4):   # a piece takes 0.5-2 ms
+        unfinished += 1
+        assert later._segments == [] and unfinished < 1000   # the row is logged once its bead is laid
+    assert unfinished >= 7                       # 8 pieces, at most one past each deadline
+    assert later.segments == now.segments        # the same row, bead height included
+    a, b = now.physics.maps["robot"], later.physics.maps["robot"]
+    assert [a.surface(x, 0.0) for x in range(2, 80, 3)] == pytest.approx([b.surface(x, 0.0) for x in range(2, 80, 3)])

@@ -33,3 +33,23 @@ print(held())
 """
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert out.stdout.split() == ["False", "True", "True", "False"], out.stderr[-2000:]
+
+
+def _threads_after_numpy(prelude: str) -> int:
+    code = prelude + "\nimport numpy, os\nprint(len(os.listdir('/proc/self/task')))\n"
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60, env=env)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return int(out.stdout.split()[-1])
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="counts threads in /proc")
+def test_a_cell_process_runs_numpy_on_one_thread():
+    # OpenBLAS's workers are time-shared threads the real-time device loop waited on: 50-60 ms
+    # stalls of the simulators beside a CPU hog (docs/false-trips.md). Every `cell` process (its
+    # entry point imports the controller package first) keeps numpy to the thread that calls it.
+    bare = _threads_after_numpy("")
+    cell = _threads_after_numpy("import controller.cli.main")
+    assert cell == 1, (bare, cell)
+    if (os.cpu_count() or 1) > 1:
+        assert bare > 1          # the hazard is real here: numpy alone starts worker threads

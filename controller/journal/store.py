@@ -37,6 +37,7 @@ from controller.journal.check import Row, inspect, uri
 from controller.journal.extra import BEAD_EXTRA
 from controller.journal.queries import JournalQueries
 from core.errors import CellError
+from core.realtime import RT_PRIORITY, elevate
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS job (id INTEGER PRIMARY KEY, hash TEXT NOT NULL, name TEXT NOT NULL,
@@ -137,6 +138,9 @@ class Journal(JournalQueries):
 
     def _writer(self) -> None:
         assert self._q is not None
+        # just below the device cycles (when the cell may): a time-shared writer preempted by a
+        # CPU-bound neighbour while it holds the interpreter lock would stall those cycles with it
+        elevate("journal writer", RT_PRIORITY - 1)
         while True:
             item = self._q.get()
             if item is None:
