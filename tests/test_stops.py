@@ -52,8 +52,13 @@ def _last_json(out: str) -> dict:
     return json.loads(out.strip().splitlines()[-1])
 
 
+# One 15 mm square perimeter (60 mm, 6 s of arc at time scale 1): a signal 2.5 s after the arc is
+# established lands mid-bead, and the resume has 3.5 s of the bead left to lay.
+SIDE_MM = 15.0
+
+
 def _write_job(c: SimCell, n_layers: int = 1) -> tuple[Path, dict]:
-    jd = job(n_layers)
+    jd = job(n_layers, side=SIDE_MM)
     p = c.work / "job.json"
     p.write_text(json.dumps(jd))
     return p, jd
@@ -81,7 +86,7 @@ def test_sigterm_on_a_robot_build_drops_weld_start_holds_journals_and_resumes(si
     watch = WeldStartWatch(c.url("power_source"))
     p = c.run("run", str(jobp))
     wait_arc(p)
-    time.sleep(4.0)                                     # mid-bead
+    time.sleep(2.5)                                     # mid-bead
     t_sig = time.monotonic()
     os.kill(p.pid, signal.SIGTERM)
     out, _ = p.communicate(timeout=120)
@@ -107,7 +112,7 @@ def test_sigint_twice_on_a_cnc_build_safe_stops_the_firmware(sim_cell):
     jobp, jd = _write_job(c)
     p = c.run("run", str(jobp))
     lines = wait_arc(p)
-    time.sleep(4.0)
+    time.sleep(2.5)
     os.kill(p.pid, signal.SIGINT)
     time.sleep(0.05)
     os.kill(p.pid, signal.SIGINT)                       # a second signal: noted, not obeyed
@@ -133,7 +138,7 @@ def test_sigint_twice_on_a_cnc_build_safe_stops_the_firmware(sim_cell):
 
 
 def test_sighup_on_an_in_process_sim_build(tmp_path):
-    jd = job(1)
+    jd = job(1, side=SIDE_MM)
     jobp = tmp_path / "job.json"
     jobp.write_text(json.dumps(jd))
     logs, runs = tmp_path / "simlog", tmp_path / "runs"
@@ -227,7 +232,7 @@ def test_a_full_disk_mid_build_is_a_fault_naming_the_path_and_free_space(sim_cel
         p = cell("run", str(jobp), "--cell-config", str(c.cfg_path), "--runs", str(runs), "--json",
                  "--max-step", "0.5", stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         wait_arc(p)
-        time.sleep(3.0)
+        time.sleep(2.0)
         filler = fill(runs)
         out, err = p.communicate(timeout=120)
         assert p.returncode == 1, err[-2000:]
@@ -245,7 +250,7 @@ def test_a_full_disk_mid_build_is_a_fault_naming_the_path_and_free_space(sim_cel
 
 
 def test_run_refuses_before_any_device_when_the_runs_dir_cannot_hold_the_journal(tmp_path):
-    jd = job(1)
+    jd = job(1, side=SIDE_MM)
     jobp = tmp_path / "job.json"
     jobp.write_text(json.dumps(jd))
     with small_fs(tmp_path / "tiny", "1m") as runs:

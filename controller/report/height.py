@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from controller.journal.store import Journal
+from controller.report.figures import new_figure, save
 
 COLUMNS = ("layer", "planned_top_mm", "z_mm", "measured_top_mm", "height_error_mm", "source", "stick_out_mm",
            "stick_out_min_mm", "stick_out_max_mm", "true_stick_out_mm", "true_stick_out_min_mm",
@@ -95,15 +96,8 @@ def _num(rows: list[dict[str, Any]], key: str) -> list[float]:
 
 def plot_height(rows: list[dict[str, Any]], path: Path, window: tuple[float, float] | None = None) -> Path:
     """height.png: planned and measured top per layer, the stick-out (estimate, truth) and the correction."""
-    # lazy: matplotlib loads only when this path runs (start-up time)
-    import matplotlib
-
-    matplotlib.use("Agg")
-    # lazy: matplotlib loads only when this path runs (start-up time)
-    import matplotlib.pyplot as plt
-
     x = [int(r["layer"]) + 1 for r in rows]
-    fig, ax = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
+    fig, ax = new_figure(3, 1, (9, 8), sharex=True)
     ax[0].plot(x, _num(rows, "planned_top_mm"), "k--", lw=1, label="planned top")
     ax[0].plot(x, _num(rows, "measured_top_mm"), "o-", ms=3, color="tab:blue", label="measured top")
     planned = [float(r["planned_top_mm"]) for r in rows if r.get("planned_top_mm") is not None and not r.get("added")]
@@ -128,10 +122,7 @@ def plot_height(rows: list[dict[str, Any]], path: Path, window: tuple[float, flo
     ax[2].set_xlabel("layer")
     ax[2].legend(loc="lower left")
     fig.suptitle("Layer height: plan, measurement, stick-out and correction")
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return save(fig, path)
 
 
 def add_height(summary: dict[str, Any], journal: Journal, out: Path, plots: bool, sim_log: Path | None = None) -> None:

@@ -11,6 +11,7 @@ from typing import Any
 
 from controller.journal.queries import SampleRow
 from controller.journal.store import Journal
+from controller.report.figures import new_figure, save
 from planner.job import Job
 
 GAP_FACTOR = 20.0  # a sample interval this many times the median breaks the line
@@ -37,16 +38,9 @@ def _with_gaps(t: list[float], cols: list[list[Any]]) -> tuple[list[float], list
 
 def plot_report(journal: Journal, out: Path, job: Job | None, summary: dict[str, Any]) -> list[Path]:
     """Write layers.png, process.png, temperature.png and defects.png into `out`."""
-    # lazy: matplotlib loads only when this path runs (start-up time)
-    import matplotlib
-
-    matplotlib.use("Agg")
-    # lazy: matplotlib loads only when this path runs (start-up time)
-    import matplotlib.pyplot as plt
-
     paths: list[Path] = []
     pl = summary["per_layer"]
-    fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    fig, ax = new_figure(2, 1, (8, 6), sharex=True)
     ax[0].bar([d["layer"] + 1 for d in pl], [d["arc_time_s"] for d in pl], color="tab:blue")
     ax[0].set_ylabel("arc time [s]")
     ax[1].bar([d["layer"] + 1 for d in pl], [d["heat_input_j_mm"] or 0 for d in pl], color="tab:red")
@@ -61,8 +55,8 @@ def plot_report(journal: Journal, out: Path, job: Job | None, summary: dict[str,
     t = [(r[0] - t0) * scale for r in rows]
     tt, (temp,) = _with_gaps(t, [[r[4] for r in rows]])
     marks = _layer_marks(rows, t)
-    paths.append(_process_per_bead(plt, out, summary))
-    fig, ax = plt.subplots(figsize=(12, 4))
+    paths.append(_process_per_bead(out, summary))
+    fig, ax = new_figure(1, 1, (12, 4))
     ax.plot(tt, temp, lw=0.8, color="tab:red", label="part temperature")
     limits = [la.get("interpass_limit_c") for la in summary.get("layers", []) if la.get("interpass_limit_c")]
     if limits:
@@ -73,7 +67,7 @@ def plot_report(journal: Journal, out: Path, job: Job | None, summary: dict[str,
     ax.set_xlabel("process time [s]")
     ax.legend(loc="upper right")
     paths.append(_save(fig, out / "temperature.png"))
-    paths.append(_defects(plt, out, job, summary))
+    paths.append(_defects(out, job, summary))
     return paths
 
 
@@ -90,7 +84,7 @@ _SIGNALS = (
 )
 
 
-def _process_per_bead(plt: Any, out: Path, summary: dict[str, Any]) -> Path:
+def _process_per_bead(out: Path, summary: dict[str, Any]) -> Path:
     """process.png: per bead (x: beads in build order), each signal's mean (dot) and 5-95 %
     spread (bar), min/max (thin ticks), against the plan (black steps) and its tolerance band
     (grey); beads with a defect shaded red, layer starts as grey lines: the weld-monitoring view
@@ -99,7 +93,7 @@ def _process_per_bead(plt: Any, out: Path, summary: dict[str, Any]) -> Path:
     tol = summary.get("tolerance") or {}
     n = len(beads)
     x = list(range(1, n + 1))
-    fig, axes = plt.subplots(len(_SIGNALS), 1, figsize=(max(10.0, min(24.0, 6 + n * 0.06)), 11), sharex=True)
+    fig, axes = new_figure(len(_SIGNALS), 1, (max(10.0, min(24.0, 6 + n * 0.06)), 11), sharex=True)
     layer_starts = [i + 1 for i, b in enumerate(beads) if i == 0 or b["layer"] != beads[i - 1]["layer"]]
     bad = [i + 1 for i, b in enumerate(beads) if b.get("defects_count")]
     pct = {"current": tol.get("current_pct"), "wfs": tol.get("wfs_pct"), "speed": tol.get("speed_pct")}
@@ -203,8 +197,8 @@ def _layer_marks(rows: list[SampleRow], t: list[float]) -> list[float]:
     return marks
 
 
-def _defects(plt: Any, out: Path, job: Job | None, summary: dict[str, Any]) -> Path:
-    fig, ax = plt.subplots(figsize=(7, 7))
+def _defects(out: Path, job: Job | None, summary: dict[str, Any]) -> Path:
+    fig, ax = new_figure(1, 1, (7, 7))
     if job:
         for li, la in enumerate(job.layers):
             if li % max(1, len(job.layers) // 5):
@@ -224,10 +218,4 @@ def _defects(plt: Any, out: Path, job: Job | None, summary: dict[str, Any]) -> P
 
 
 def _save(fig: Any, path: Path) -> Path:
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    # lazy: matplotlib loads only when this path runs (start-up time)
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    return path
+    return save(fig, path)
