@@ -19,7 +19,7 @@ demo: $(STAMP)
 	$(VENV)/bin/cell demo || [ $$? -eq 3 ]
 
 test: $(STAMP)
-	$(VENV)/bin/python -m pytest -q -n 2 --dist worksteal --durations=25
+	$(VENV)/bin/python -m pytest -q -n 2 --dist loadfile --durations=25
 
 # ruff, mypy and the import contracts (docs/architecture.md)
 lint: $(STAMP)
