@@ -265,5 +265,5 @@ async def test_exported_gcode_runs_on_real_firmware_every_line_ok(tmp_path, kind
                      travel_mm_min=3000.0, trunnion=Trunnion())
     lines = list(res.files.values())[0]
     code = [ln for ln in lines if not ln.startswith("(")]
-    out, _axes = await firmware.stream_program(kind, lines)   # GrblError names the first refused line
+    out, _axes = await firmware.stream_program(kind, lines, fast=True)   # GrblError names the first refused line
     assert out.acked == out.lines >= len(code)

@@ -138,14 +138,15 @@ async def test_executor_gcode_runs_on_grblhal_five_axes(tmp_path: Path):
     assert res.state == "complete", res
     gcode = [json.loads(s)["line"] for s in (log / "cnc.jsonl").read_text().splitlines()]
     # what leads to the first bead of the tube, its first ten moves and its closing lines: the
-    # firmware runs at real time (the whole bead is 3 min of motion; its dialect is in any part)
+    # firmware runs at real time (the whole bead is 3 min of motion; its dialect is in any part),
+    # set up as a fast machine (its defaults: 500 °/min and 10 mm/s² on every axis)
     g93 = gcode.index("G93")
     first_m5 = next(i for i, g in enumerate(gcode) if g.startswith("M5") and i > g93)
     prog = gcode[:min(g93 + 11, first_m5)] + gcode[first_m5:first_m5 + 2]
     assert "G93" in prog and any("A" in g and "B" in g for g in prog if g.startswith("G1"))
     # the firmware simulator is time-shared: beside the other test worker's real-time simulators
     # it can go quiet for seconds, which says nothing about the G-code (a 30 s link timeout)
-    out, axes = await firmware.stream_program("grblhal", prog)
+    out, axes = await firmware.stream_program("grblhal", prog, fast=True)
     assert axes == 5, axes   # read from the firmware's status report
     assert out.acked == out.lines == len(prog)
 

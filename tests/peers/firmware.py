@@ -117,10 +117,19 @@ def _children(pid: int) -> list[int]:
         return []
 
 
+# A fast machine: the simulators' defaults are 500 mm/min (or °/min) and 10 mm/s² on every axis, so
+# a few rotary moves take seconds each in real time. A dialect check (every line answered ok, in
+# order) does not depend on them; a real machine has settings of its own.
+def fast_machine(axes: int) -> list[str]:
+    """Max rates ($110…) and accelerations ($120…) of a fast machine, for each of `axes` axes."""
+    return [f"${base + axis}={value}" for base, value in ((110, 20000), (120, 2000)) for axis in range(axes)]
+
+
 async def stream_program(kind: str, lines: list[str], *, attempts: int = 2, link_timeout_s: float = 30.0,
-                         stuck_after_s: float = 10.0) -> tuple[Any, int]:
+                         stuck_after_s: float = 10.0, fast: bool = False) -> tuple[Any, int]:
     """Stream `lines` to a fresh firmware `kind` (unlocked if it powers up in Alarm); returns the
-    StreamResult and the axis count the firmware reported. A firmware simulator that stops
+    StreamResult and the axis count the firmware reported. `fast`: the machine is set
+    up as a fast one first (`fast_machine`, each setting answered ok). A firmware simulator that stops
     reading its input (GrblStuck: a hang of the simulator under CPU contention, not a verdict on
     the G-code) is started afresh, up to `attempts` times; anything else is raised."""
     from drivers.grbl import CncLink, GrblStuck
@@ -134,6 +143,8 @@ async def stream_program(kind: str, lines: list[str], *, attempts: int = 2, link
                 st = await link.status()
                 if st.state.startswith("Alarm"):
                     await link.unlock()
+                for setting in fast_machine(link.axes or 3) if fast else []:
+                    await link.command(setting)
                 return await link.stream(lines), link.axes   # GrblError names the first refused line
             except GrblStuck:
                 if attempt == attempts:
