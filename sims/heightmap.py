@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Generator, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,6 +48,19 @@ class Laid:
 
     rise_mm: float | None
     lost_mm3: float
+
+
+T = TypeVar("T")
+
+
+def finish(steps: Generator[None, None, T]) -> T:
+    """Run a resumable pour (`HeightMap.lay_steps`) to its end; its value."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            value: T = done.value
+            return value
 
 
 def pour_level(old: FloatArray, env: FloatArray, need: float) -> float:
@@ -198,6 +211,12 @@ class HeightMap:
 
     def lay(self, p0: tuple[float, float], p1: tuple[float, float], width_mm: float, area_mm2: float) -> Laid:
         """Pour a bead of `area_mm2` metal per mm, `width_mm` wide, along p0→p1 (substrate xy)."""
+        return finish(self.lay_steps(p0, p1, width_mm, area_mm2))
+
+    def lay_steps(self, p0: tuple[float, float], p1: tuple[float, float], width_mm: float, area_mm2: float,
+                  chunks_per_step: int = 10) -> Generator[None, None, Laid]:
+        """`lay`, resumable: a yield after every `chunks_per_step` chunks (1 mm each), the same
+        cells poured in the same order as in one call; the Laid is the generator's value."""
         a, b = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
         d = b - a
         length = float(np.hypot(d[0], d[1]))
@@ -227,6 +246,8 @@ class HeightMap:
         carry, lost = 0.0, 0.0
         centres: list[tuple[int, int]] = []
         for k in range(n_chunks):
+            if k and k % chunks_per_step == 0:
+                yield
             sel = chunk == k
             need = area_mm2 * step / cell2 + carry
             if not np.any(sel):

@@ -18,7 +18,7 @@ Conventions and figures: docs/process-physics.md.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Callable, Generator
 
 import numpy as np
 
@@ -26,7 +26,7 @@ from core.bead_model import ribeiro_forward, wire_area_mm2
 from core.config import ProcessSim
 from core.material import Material
 from core.melting import MeltingRelation, current_at, relation_for, stick_out_factor
-from sims.heightmap import HeightMap, Laid, Substrate
+from sims.heightmap import HeightMap, Laid, Substrate, finish
 from core.config import load_material
 
 if TYPE_CHECKING:
@@ -90,6 +90,11 @@ class ProcessPhysics:
             wfs_m_min: float, factor: float | None = None) -> Laid | None:
         """The bead of one deposited segment (substrate frame); None when it lays no metal.
         `factor`: the height factor as it was when the segment was deposited (else now's)."""
+        return finish(self.lay_steps(device, q0, q1, duration_s, current_a, wfs_m_min, factor))
+
+    def lay_steps(self, device: str, q0: Vec3, q1: Vec3, duration_s: float, current_a: float,
+                  wfs_m_min: float, factor: float | None = None) -> Generator[None, None, Laid | None]:
+        """`lay`, resumable (HeightMap.lay_steps: a yield every 10 mm of bead)."""
         length = math.dist(q0[:2], q1[:2])
         if length < 1e-9 or duration_s <= 0 or current_a <= 0 or wfs_m_min <= 0:
             return None
@@ -100,7 +105,7 @@ class ProcessPhysics:
         hm = self.height_map(device)
         if hm.bead == 0:
             hm.new_bead()
-        laid = hm.lay((q0[0], q0[1]), (q1[0], q1[1]), width, area)
+        laid = yield from hm.lay_steps((q0[0], q0[1]), (q1[0], q1[1]), width, area)
         if laid.rise_mm is not None:
             self._rise[device] = laid.rise_mm
         return laid

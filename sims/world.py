@@ -17,7 +17,6 @@ Times are simulated seconds (wall time × time scale), supplied by the callers.
 from __future__ import annotations
 
 import json
-import math
 import threading
 import time
 from collections import deque
@@ -31,11 +30,10 @@ if TYPE_CHECKING:
 Vec3 = tuple[float, float, float]
 PartSeg = tuple[Vec3, Vec3, Vec3]   # (from, to, tool axis) in the workpiece frame
 
-# A segment's bead is poured in pieces of at most this length: one piece is the unit of work
-# between two deadline checks of `settle`. A whole 80 mm segment held the simulators' loop for
-# 10-17 ms (30+ ms beside a CPU hog, with the power source's and the cell I/O's replies waiting);
-# a 10 mm piece takes 1-2 ms, at about 25 % more work per segment than one pour.
-LAY_PIECE_MM = 10.0
+# A deferred segment's bead is poured 10 mm at a time (HeightMap.lay_steps), the deadline of
+# `settle` checked in between: a whole 80 mm segment held the simulators' loop for 10-17 ms (30+ ms
+# beside a CPU hog, with the power source's and the cell I/O's replies waiting). The same cells
+# are poured in the same order as in one call: the bead is the same.
 
 
 @dataclass
@@ -258,31 +256,19 @@ class World:
 
 
     def _lay(self, o: _Open, seg: dict[str, Any]) -> Iterator[None]:
-        """The bead of a deposited segment into the height map, in pieces of at most
-        LAY_PIECE_MM (a yield after each); its truth into the row."""
+        """The bead of a deposited segment into the height map, 10 mm at a time (a yield in
+        between); its truth into the row."""
         assert self.physics is not None
         q0, q1 = (o.part[0], o.part[1]) if o.part is not None else (o.start, o.end)
         wfs = sum(o.wfs) / len(o.wfs) if o.wfs else 0.0
-        n = max(1, math.ceil(math.hypot(q1[0] - q0[0], q1[1] - q0[1]) / LAY_PIECE_MM))
-        laid_any = False
-        for k in range(n):
-            # each piece at the segment's speed: its share of the length in its share of the time
-            a, b = _lerp(q0, q1, k / n), _lerp(q0, q1, (k + 1) / n)
-            laid = self.physics.lay(o.device, a, b, (o.t1 - o.t0) / n, seg["current_a"], wfs, o.factor)
-            laid_any = laid_any or laid is not None
-            if k < n - 1:
-                yield
+        laid = yield from self.physics.lay_steps(o.device, q0, q1, o.t1 - o.t0, seg["current_a"], wfs, o.factor)
         if o.ctwds:
             seg["ctwd_mm"] = round(sum(o.ctwds) / len(o.ctwds), 3)
-        if laid_any:
+        if laid is not None:
             seg["bead_height_mm"] = round(self.physics.rise_mm(o.device), 4)
 
 
 _DONE = object()
-
-
-def _lerp(a: Vec3, b: Vec3, f: float) -> Vec3:
-    return (a[0] + (b[0] - a[0]) * f, a[1] + (b[1] - a[1]) * f, a[2] + (b[2] - a[2]) * f)
 
 
 def _dist(a: Vec3, b: Vec3) -> float:
