@@ -17,8 +17,8 @@ from bench.false_trips import block_job, host_explained, one_build, pct
 
 
 # A soak: it owns the machine. Under `make test` the other worker runs a real-time cell of its own
-# (simulators at SCHED_FIFO 30, a controller at 20) on the same two cores, which no cell has; CI
-# runs it alone before `make test` (.ci/run: python -m bench.soak -k no_false_trips).
+# (simulators at SCHED_FIFO 30, a controller at 20) on the same two cores, which no cell has. Run it
+# alone: `python -m bench.soak -k no_false_trips` (docs/testing.md says why CI does not).
 @pytest.mark.slow
 def test_three_builds_beside_a_cpu_hog_complete_without_a_false_trip(tmp_path: Path) -> None:
     job = block_job(tmp_path, 8.0)
