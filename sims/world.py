@@ -30,11 +30,6 @@ if TYPE_CHECKING:
 Vec3 = tuple[float, float, float]
 PartSeg = tuple[Vec3, Vec3, Vec3]   # (from, to, tool axis) in the workpiece frame
 
-# A deferred segment's bead is poured 10 mm at a time (HeightMap.lay_steps), the deadline of
-# `settle` checked in between: a whole 80 mm segment held the simulators' loop for 10-17 ms (30+ ms
-# beside a CPU hog, with the power source's and the cell I/O's replies waiting). The same cells
-# are poured in the same order as in one call: the bead is the same.
-
 
 @dataclass
 class _Open:
@@ -68,7 +63,7 @@ class World:
         # segments do not change, plus the bead's settled rise (laid up to a few segments ago).
         self.defer_lays = defer_lays
         self._pending: deque[tuple[_Open, dict[str, Any]]] = deque()
-        self._laying: Iterator[None] | None = None   # the segment being laid, piece by piece
+        self._laying: Iterator[None] | None = None   # the segment being laid, 10 mm at a time
         self.arc_stable = False
         self.current_a = 0.0
         self.voltage_v = 0.0
@@ -185,6 +180,9 @@ class World:
             return self._settle(deadline)
 
     def _settle(self, deadline: float | None) -> bool:
+        # A deferred bead is poured 10 mm at a time (HeightMap.lay_steps), the deadline checked in
+        # between: a whole 80 mm segment held the simulators' loop for 10-17 ms (30+ ms beside a CPU
+        # hog, the power source's and the cell I/O's replies waiting). Same cells, same order: same bead.
         while self._laying is not None or self._pending:
             if deadline is not None and time.perf_counter() > deadline:
                 return False
@@ -244,7 +242,7 @@ class World:
             pass
 
     def _record_steps(self, o: _Open, seg: dict[str, Any]) -> Iterator[None]:
-        """`_record` one piece of the bead at a time (a yield after each piece)."""
+        """`_record`, a yield after every 10 mm of the bead poured."""
         if self.physics is not None:
             yield from self._lay(o, seg)
         self._segments.append(seg)

@@ -10,11 +10,12 @@ from typing import Iterator
 
 import pytest
 
+from controller import one_blas_thread
+
 ROOT = Path(__file__).resolve().parent.parent
 # One BLAS thread in the tests' in-process cells too, as in every `cell` process (controller/__init__.py
-# says why); set before any test module imports numpy.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+# says why): the import above already asked for it, before any test module imports numpy.
+one_blas_thread()
 
 # One controller per cell (controller/runtime/cell_lock.py): each test worker process gets a lock
 # directory of its own, so two test files building the demo cell at once on two workers are not

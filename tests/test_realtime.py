@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from controller import BLAS_THREAD_VARS
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -37,7 +39,7 @@ print(held())
 
 def _threads_after_numpy(prelude: str) -> int:
     code = prelude + "\nimport numpy, os\nprint(len(os.listdir('/proc/self/task')))\n"
-    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    env = {k: v for k, v in os.environ.items() if k not in BLAS_THREAD_VARS}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60, env=env)
     assert out.returncode == 0, out.stderr[-2000:]
     return int(out.stdout.split()[-1])

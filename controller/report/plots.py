@@ -47,7 +47,7 @@ def plot_report(journal: Journal, out: Path, job: Job | None, summary: dict[str,
     ax[1].set_ylabel("heat input [J/mm]")
     ax[1].set_xlabel("layer")
     fig.suptitle("Per-layer arc time and heat input")
-    paths.append(_save(fig, out / "layers.png"))
+    paths.append(save(fig, out / "layers.png"))
 
     rows = journal.sample_rows()
     t0 = rows[0][0] if rows else 0.0
@@ -66,7 +66,7 @@ def plot_report(journal: Journal, out: Path, job: Job | None, summary: dict[str,
     ax.set_ylabel("part temperature [°C]")
     ax.set_xlabel("process time [s]")
     ax.legend(loc="upper right")
-    paths.append(_save(fig, out / "temperature.png"))
+    paths.append(save(fig, out / "temperature.png"))
     paths.append(_defects(out, job, summary))
     return paths
 
@@ -106,7 +106,7 @@ def _process_per_bead(out: Path, summary: dict[str, Any]) -> Path:
 
     axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
     fig.suptitle(f"Process per bead: {n} beads, {len(bad)} with a defect")
-    return _save(fig, out / "process.png")
+    return save(fig, out / "process.png")
 
 
 def _bead_panel(ax: Any, signal: tuple[Any, ...], beads: list[dict[str, Any]], x: list[int], bad: list[int],
@@ -214,8 +214,4 @@ def _defects(out: Path, job: Job | None, summary: dict[str, Any]) -> Path:
     ax.set_title(f"Defects: {len(summary['defects'])}")
     ax.set_xlabel("x [mm]")
     ax.set_ylabel("y [mm]")
-    return _save(fig, out / "defects.png")
-
-
-def _save(fig: Any, path: Path) -> Path:
-    return save(fig, path)
+    return save(fig, out / "defects.png")
