@@ -24,6 +24,10 @@ os.environ["CELL_LOCK_DIR"] = tempfile.mkdtemp(prefix=f"cell-locks-{os.environ.g
 # Validated configuration remembered by `cell plan` (core/config_cache.py): a directory per test
 # worker, never the user's ~/.cache.
 os.environ["CELL_CACHE_DIR"] = tempfile.mkdtemp(prefix=f"cell-cache-{os.environ.get('PYTEST_XDIST_WORKER', 'main')}-")
+# The build-end record without its PNGs (controller/report/worker.py, docs/build-record.md): drawing
+# them is about 1.5 s of every build's 2 s record, and most tests look at what was built, not at
+# pictures of it. The tests that check the plots ask for them (the `record_plots` fixture).
+os.environ["CELL_RECORD_PLOTS"] = "0"
 SHARED_PARTS = ROOT.parent / "shared" / "parts"
 
 
@@ -77,6 +81,12 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if item.get_closest_marker("realtime") is not None and item.get_closest_marker("flaky") is None:
             item.add_marker(pytest.mark.flaky(reruns=RERUNS_BESIDE_ANOTHER_WORKER))
+
+
+@pytest.fixture
+def record_plots(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Build-end records draw their plots, as they do by default outside the tests."""
+    monkeypatch.setenv("CELL_RECORD_PLOTS", "1")
 
 
 @pytest.fixture

@@ -14,6 +14,7 @@ from tests.test_build_robot import Cell, small_job
 pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
 
 
+@pytest.mark.usefixtures("record_plots")  # checks the PNGs (tests/conftest.py)
 async def test_every_build_leaves_a_record_with_one_csv_row_per_bead(tmp_path: Path, capsys) -> None:
     job = small_job(n_layers=2)
     async with Cell(tmp_path, scale=20) as c:
@@ -60,6 +61,25 @@ async def test_every_build_leaves_a_record_with_one_csv_row_per_bead(tmp_path: P
     assert main(["runs", "--runs", str(tmp_path / "runs"), "--json"]) == 0
     runs = json.loads(capsys.readouterr().out)["runs"]
     assert [(r["dir"], r["state"], r["layers_done"]) for r in runs] == [(str(run_dir), "complete", 2)]
+
+
+async def test_a_record_without_plots_has_its_numbers_and_cell_report_draws_them_later(tmp_path: Path,
+                                                                                   capsys) -> None:
+    """CELL_RECORD_PLOTS=0 (the tests' default, tests/conftest.py): report.json and beads.csv at the
+    build's end, no PNG, and the message line says how to draw them."""
+    job = small_job(n_layers=1)
+    async with Cell(tmp_path, scale=20) as c:
+        run_dir = c.ctl.open_job(job_from_dict(job))
+        res = await c.ctl.start()
+        msg = c.ctl.bus.latest.message
+    assert res.state == "complete"
+    rep = json.loads((run_dir / "report.json").read_text())
+    assert rep["plots"] == [] and len(list(csv.DictReader((run_dir / "beads.csv").open()))) == 2
+    assert not list(run_dir.glob("*.png"))
+    assert "no plots" in msg and f"cell report {run_dir}" in msg, msg
+    assert main(["report", str(run_dir), "--json"]) == 0
+    assert {"layers.png", "process.png", "temperature.png", "defects.png"} <= {p.name for p in run_dir.glob("*.png")}
+    assert json.loads((run_dir / "report.json").read_text())["beads"] == rep["beads"]
 
 
 def test_report_of_a_directory_without_a_journal_is_one_error_line(tmp_path: Path, capsys) -> None:

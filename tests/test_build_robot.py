@@ -74,6 +74,7 @@ class Cell:
             await asyncio.sleep(0.002)
 
 
+@pytest.mark.usefixtures("record_plots")  # checks the PNGs (tests/conftest.py)
 async def test_a_build_deposits_every_planned_segment_exactly_once(tmp_path: Path) -> None:
     job = small_job()
     async with Cell(tmp_path, scale=20) as c:

@@ -244,6 +244,7 @@ def _build(job: CellJob, tmp: Path, **kw: Any) -> Any:
 
 
 @pytest.mark.timeout(600)
+@pytest.mark.usefixtures("record_plots")  # checks the PNGs (tests/conftest.py)
 def test_a_closed_loop_wall_ends_nearer_the_plan_with_the_ctwd_in_band(tmp_path: Path):
     job = wall_job(8)
     kw = dict(part="wall", platform="robot", gain=0.85, scale=30.0)

@@ -32,6 +32,7 @@ def _flagged(stdout: str) -> object:
 
 
 @pytest.mark.owns_cpus  # the main job's figures (no bead flagged, speed within 5 %), not the other worker's cell
+@pytest.mark.usefixtures("record_plots")  # checks the PNGs (tests/conftest.py)
 def test_demo_plans_aligns_builds_and_reports(tmp_path: Path) -> None:
     r = cell("demo", "--json", "--layers", "2", "--runs", str(tmp_path))
     assert r.returncode == 0, (_flagged(r.stdout), r.stderr[-1500:])

@@ -128,6 +128,7 @@ def _assert_record(run_dir: Path, job: dict) -> dict:
     return rep
 
 
+@pytest.mark.usefixtures("record_plots")  # checks the PNGs (tests/conftest.py)
 async def test_a_tui_build_leaves_its_record_complete_and_estopped(tmp_path: Path) -> None:
     from textual.events import Key
 

@@ -35,6 +35,15 @@ if TYPE_CHECKING:  # the typed job only annotates: the controller has it loaded 
     from controller.job.model import CellJob
 
 TIMEOUT_S = 300.0   # a record that takes longer is abandoned (the journal keeps everything)
+# CELL_RECORD_PLOTS=0 leaves the PNGs out of the build-end record (report.json and beads.csv are
+# written all the same; `cell report RUN_DIR` draws them later from the journal). Drawing them is
+# about 1.5 s of a 2 s record: a cell that runs many short builds, or the test suite, may skip it.
+PLOTS_ENV = "CELL_RECORD_PLOTS"
+
+
+def build_end_plots() -> bool:
+    """Whether the build-end record draws its plots: yes, unless CELL_RECORD_PLOTS is 0/no/off/false."""
+    return os.environ.get(PLOTS_ENV, "1").strip().lower() not in ("0", "no", "off", "false")
 
 
 def write_record(run_dir: str | Path, job: CellJob | None, plots: bool = True,
@@ -81,9 +90,11 @@ async def record_build_end(journal: Any, bus: Any, run_dir: Path, job: CellJob |
     in the run directory, its path journaled and on the views' message line. A record that could
     not be written never turns the build's end into an error: the reason is journaled and shown,
     and `cell report RUN_DIR` writes it later from the journal."""
+    plots = build_end_plots()
     try:
-        path: Path | None = await write_report_elsewhere(run_dir, job, state=state)
-        msg = f"{state or 'build'}: record in {run_dir} (report.json, beads.csv, plots)"
+        path: Path | None = await write_report_elsewhere(run_dir, job, plots=plots, state=state)
+        drawn = "plots" if plots else f"no plots ({PLOTS_ENV}=0): `cell report {run_dir}` draws them"
+        msg = f"{state or 'build'}: record in {run_dir} (report.json, beads.csv, {drawn})"
     except Exception as exc:   # noqa: BLE001  (whatever went wrong, the build's end stands)
         path, msg = None, f"{state or 'build'}: no record written: {exc}"
     try:
