@@ -315,7 +315,10 @@ def test_a_3_axis_firmware_refuses_an_aligned_job_and_a_leveling_alignment_befor
 def test_align_no_level_measures_the_tilt_and_commands_no_ab(tmp_path):
     import numpy as np
 
-    cfgp = SimCell(tmp_path / "cell", platform="cnc", time_scale=60.0).cfg_path
+    # time scale 200: two alignments are probing moves alone (no bead to feed), and the simulator
+    # ends a touch at the surface however far one tick carries it (sims/cnc_motion.py); at 60 the
+    # two took 20 s
+    cfgp = SimCell(tmp_path / "cell", platform="cnc", time_scale=200.0).cfg_path
     runs = {}
     for flag in ((), ("--no-level",)):
         r = cell("align", "run", "--sim", "--json", "--cell-config", str(cfgp), *flag,

@@ -155,8 +155,12 @@ async def stream_program(kind: str, lines: list[str], *, attempts: int = 2, link
 
 
 @contextlib.contextmanager
-def serve(kind: str, env: dict[str, str] | None = None, ready_s: float = 1.2) -> Iterator[str]:
-    """Serve firmware `kind` on a fresh pty (socat); yields the pty path, stops it by PID after."""
+def serve(kind: str, env: dict[str, str] | None = None) -> Iterator[str]:
+    """Serve firmware `kind` on a fresh pty (socat); yields the pty path as soon as it exists, stops
+    the firmware by PID after. No fixed wait for the firmware to come up: grbl-sim reads nothing in
+    its first simulated second (about 2.7 s of wall time at its 0.37x), and the link's `connect()`
+    sends `?` until a status report or the banner comes back (drivers/grbl.py), as with a board
+    still booting."""
     exe = build(kind)
     run = Path(tempfile.mkdtemp(prefix=f"cell-{kind}-"))
     pty = run / "tty"
@@ -181,7 +185,6 @@ def serve(kind: str, env: dict[str, str] | None = None, ready_s: float = 1.2) ->
             if proc.poll() is not None or time.monotonic() > deadline:
                 raise PeerUnavailable(f"socat did not make {pty}; see {run / 'socat.log'}")
             time.sleep(0.02)
-        time.sleep(ready_s)     # grbl-sim reads nothing during its first simulated second
         yield str(pty)
     finally:
         # socat's EXEC with `pty` makes the firmware a session leader of its own, outside socat's
