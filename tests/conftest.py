@@ -32,7 +32,7 @@ SHARED_PARTS = ROOT.parent / "shared" / "parts"
 
 
 # A cell on the wall clock (`pytestmark = pytest.mark.realtime`): its bounds are device cycles and
-# latencies. Under `make test` the other xdist worker runs a real-time cell of its own on the same
+# latencies. Under `make test` the other xdist workers run real-time cells of their own on the same
 # two cores, and a test whose bound that starved gets one more run (pytest-rerunfailures; the
 # summary counts the reruns). Run alone (no worker beside it, e.g. `pytest tests/test_stops.py`)
 # every real-time test is strict. docs/testing.md says why.
@@ -47,7 +47,7 @@ def pytest_configure(config: pytest.Config) -> None:
 @contextlib.contextmanager
 def _cpus(exclusive: bool) -> Iterator[None]:
     """A readers-writer lock across the test workers: tests share the CPUs, a test marked `owns_cpus`
-    (or a rerun) waits until the other worker's test ends and holds them alone. The turnstile keeps a
+    (or a rerun) waits until the other workers' tests end and holds them alone. The turnstile keeps a
     stream of shared holders from starving the exclusive one."""
     d = Path(os.environ["CELL_TEST_LOCKS"])
     with open(d / "turnstile", "a") as gate, open(d / "cpus", "a") as cpus:
@@ -67,9 +67,9 @@ def _cpus(exclusive: bool) -> Iterator[None]:
 @pytest.fixture(autouse=True)
 def _share_the_cpus(request: pytest.FixtureRequest) -> Iterator[None]:
     """Tests share the CPUs with each other; an `owns_cpus` test, or a real-time test's rerun, has them
-    alone: the other worker waits (the demo's figures: no bead flagged, speed within 5 %; docs/testing.md)."""
+    alone: the other workers wait (the demo's figures: no bead flagged, speed within 5 %; docs/testing.md)."""
     # a rerun (pytest-rerunfailures counts executions): the first run may have been starved by the
-    # other worker's test (a cell, or a planner test: a CPU hog on two cores)
+    # other workers' tests (a cell, or a planner test: a CPU hog on two cores)
     alone = request.node.get_closest_marker("owns_cpus") is not None or getattr(request.node, "execution_count", 1) > 1
     with _cpus(exclusive=alone):
         yield

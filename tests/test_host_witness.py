@@ -21,6 +21,8 @@ from sims.cellio_sim import CellIOSim, serve_modbus_tcp
 from sims.clock import SimClock
 from sims.thread import SimThread
 
+pytestmark = pytest.mark.realtime  # a device cycle and a stopped CPU on the wall clock (tests/conftest.py)
+
 
 @pytest.fixture
 def witness():

@@ -12,6 +12,7 @@ Cache: ~/.cache/cell-peers (override: CELL_PEERS_CACHE); a build is redone only 
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import hashlib
 import os
 import shutil
@@ -155,6 +156,27 @@ async def stream_program(kind: str, lines: list[str], *, attempts: int = 2, link
 
 
 @contextlib.contextmanager
+def _a_core_of_its_own() -> Iterator[int]:
+    """A CPU no other firmware peer of this test session runs on (an exclusive lock per CPU, shared by
+    the test workers): a free one if there is one, else this worker's own, once it is free."""
+    cpus = sorted(os.sched_getaffinity(0))
+    locks = Path(os.environ.get("CELL_TEST_LOCKS", tempfile.gettempdir()))
+    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").lstrip("gw") or 0)
+    order = cpus[worker % len(cpus):] + cpus[:worker % len(cpus)]
+    with contextlib.ExitStack() as files:
+        held = [files.enter_context(open(locks / f"firmware-cpu{cpu}", "a")) for cpu in order]
+        for cpu, f in zip(order, held):
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                continue
+            yield cpu
+            return
+        fcntl.flock(held[0], fcntl.LOCK_EX)
+        yield order[0]
+
+
+@contextlib.contextmanager
 def serve(kind: str, env: dict[str, str] | None = None) -> Iterator[str]:
     """Serve firmware `kind` on a fresh pty (socat); yields the pty path as soon as it exists, stops
     the firmware by PID after. No fixed wait for the firmware to come up: grbl-sim reads nothing in
@@ -165,43 +187,42 @@ def serve(kind: str, env: dict[str, str] | None = None) -> Iterator[str]:
     run = Path(tempfile.mkdtemp(prefix=f"cell-{kind}-"))
     pty = run / "tty"
     cmd = f"{exe} -n -b /dev/null -s /dev/null"
-    if shutil.which("taskset"):
-        # grbl-sim shares its serial ring between two threads: one core keeps it stable (README).
-        # So does grblHAL's Simulator (its SysTick and serial run on a thread of their own): on
-        # two cores it was seen to hang now and then, reporting Idle but reading no more input.
-        # (parallel test workers each take their own core: two busy simulators on one starve)
-        cpus = sorted(os.sched_getaffinity(0))
-        worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0").lstrip("gw")
-        cpu = cpus[int(worker or 0) % len(cpus)]
-        cmd = f"taskset -c {cpu} {cmd}"
-    penv = {**os.environ, "GRBLSIM_PINS": "1", **(env or {})}
-    log = (run / "socat.log").open("w")
-    proc = subprocess.Popen(["socat", f"PTY,link={pty},raw,echo=0", f"EXEC:{cmd},pty,raw,echo=0"],
-                            cwd=run, env=penv, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
-                            start_new_session=True)
-    try:
-        deadline = time.monotonic() + 5
-        while not pty.exists():
-            if proc.poll() is not None or time.monotonic() > deadline:
-                raise PeerUnavailable(f"socat did not make {pty}; see {run / 'socat.log'}")
-            time.sleep(0.02)
-        yield str(pty)
-    finally:
-        # socat's EXEC with `pty` makes the firmware a session leader of its own, outside socat's
-        # group: note it before socat goes, and end it by PID (else it spins on, orphaned)
-        firmware_pids = _children(proc.pid)
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGTERM)
-        for pid in firmware_pids:
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(pid, signal.SIGKILL)
+    with contextlib.ExitStack() as core:   # the core is free once its firmware is gone
+        if shutil.which("taskset"):
+            # grbl-sim shares its serial ring between two threads: one core keeps it stable (README).
+            # So does grblHAL's Simulator (its SysTick and serial run on a thread of their own): on
+            # two cores it was seen to hang now and then, reporting Idle but reading no more input.
+            # Both spin a whole core even when idle, so two on one core starve: each takes a core of
+            # its own across the test workers (there are more workers than cores)
+            cmd = f"taskset -c {core.enter_context(_a_core_of_its_own())} {cmd}"
+        penv = {**os.environ, "GRBLSIM_PINS": "1", **(env or {})}
+        log = (run / "socat.log").open("w")
+        proc = subprocess.Popen(["socat", f"PTY,link={pty},raw,echo=0", f"EXEC:{cmd},pty,raw,echo=0"],
+                                cwd=run, env=penv, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
+                                start_new_session=True)
         try:
-            proc.wait(3)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-        log.close()
-        shutil.rmtree(run, ignore_errors=True)
+            deadline = time.monotonic() + 5
+            while not pty.exists():
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    raise PeerUnavailable(f"socat did not make {pty}; see {run / 'socat.log'}")
+                time.sleep(0.02)
+            yield str(pty)
+        finally:
+            # socat's EXEC with `pty` makes the firmware a session leader of its own, outside socat's
+            # group: note it before socat goes, and end it by PID (else it spins on, orphaned)
+            firmware_pids = _children(proc.pid)
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGTERM)
+            for pid in firmware_pids:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+            try:
+                proc.wait(3)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+            log.close()
+            shutil.rmtree(run, ignore_errors=True)
 
 
 def main(argv: list[str]) -> int:
