@@ -106,8 +106,13 @@ def build_grblhal(axes: int = GRBLHAL_AXES) -> Path:
 
 
 def build(kind: str) -> Path:
-    """Build (or take from the cache) the firmware `kind`: 'grbl' or 'grblhal'."""
-    return build_grbl() if kind == "grbl" else build_grblhal()
+    """Build (or take from the cache) the firmware `kind`: 'grbl' or 'grblhal'. One build at a time per
+    kind across processes (test workers on a fresh machine all ask for it at once): the others wait
+    for it and take it from the cache."""
+    CACHE.mkdir(parents=True, exist_ok=True)
+    with open(CACHE / f"{kind}.lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        return build_grbl() if kind == "grbl" else build_grblhal()
 
 
 def _children(pid: int) -> list[int]:
