@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +30,7 @@ def test_three_axis_plan_names_the_overhanging_layers_and_five_axis_brings_them_
     assert named >= {1, 2, 3}  # the overhanging layers are named
     rc = main(["plan", str(stl), "--width", "3", "--five-axis", "--out", str(tmp_path / "j5.json"), "--json"])
     assert rc == 0, capsys.readouterr().err
-    job = load_job(__import__("json").loads((tmp_path / "j5.json").read_text()))
+    job = load_job(json.loads((tmp_path / "j5.json").read_text()))
     assert job.summary["overhang"]["remaining"] == []
     assert len(job.summary["overhang"]["three_axis_layers"]) == len(job.layers) - 1  # every layer above the first
     tilts = np.degrees(np.arccos(np.vstack([p.axes for L in job.layers for p in L.passes])[:, 2]))
@@ -97,7 +98,8 @@ _TUBE_AB_GCODE: list[list[str]] = []
 
 
 def _gcode(log: Path) -> list[str]:
-    return [__import__("json").loads(s)["line"] for s in (log / "cnc.jsonl").read_text().splitlines()]
+    """The lines the CNC simulator received, from its log."""
+    return [json.loads(s)["line"] for s in (log / "cnc.jsonl").read_text().splitlines()]
 
 
 @pytest.mark.parametrize("part,table", [("tube", "AB"), ("frustum", "AC")])
@@ -152,9 +154,9 @@ async def test_executor_gcode_runs_on_grblhal_five_axes(tmp_path: Path):
         assert res.state == "complete", res
         gcode = _gcode(log)
     # what leads to the first bead of the tube, its first four moves and its closing lines: the
-    # firmware runs at real time (the whole bead is 3 min of motion; its dialect is in any part, and
-    # its simulator takes about 1.1 s per 5-axis move, whatever the feed: measured), set up as a fast
-    # machine (its defaults: 500 °/min and 10 mm/s² on every axis)
+    # firmware runs at real time (the whole bead is 3 min of motion; its dialect is in any part), set
+    # up as a fast machine (its defaults: 500 °/min and 10 mm/s² on every axis); even so its simulator
+    # took about 1.1 s per move of this program, whatever the feed (measured)
     g93 = gcode.index("G93")
     first_m5 = next(i for i, g in enumerate(gcode) if g.startswith("M5") and i > g93)
     prog = gcode[:min(g93 + 5, first_m5)] + gcode[first_m5:first_m5 + 2]
