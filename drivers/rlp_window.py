@@ -232,7 +232,9 @@ class TicketWindow:
     def after_abort(self, st: Sta) -> RobotStatus:
         """The robot flushed its queue (!ABORT answered by `st`): every move not executed is dropped."""
         rx_t = rlp.unwrap(st.last_rx, self.last_ack)
-        if st.state == "IDLE":  # standing still: its free-slot count is the whole queue
+        if st.state == "IDLE" and not self.capacity:  # standing still: its free-slot count is the whole queue
+            # learned only when unknown: the queue size from the connect is what the readiness
+            # check holds a flushed queue against (a flush that leaves entries must not shrink it)
             self.capacity = st.queue_free
         self.last_ack = self.max_sent = rx_t
         self.next_ticket = self.send_next = rx_t + 1

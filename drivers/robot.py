@@ -8,9 +8,8 @@ an adaptive timeout (Jacobson/Karn), sends control frames ahead of the queue, wa
 heartbeat (link lost after `link_timeout_s` of silence or when the port closes), and after a
 reconnect resynchronises from the robot's last received / last executed sequence numbers.
 
-Usage: `open_robot(cfg)` (drivers/registry.py), `connect(resume_ticket=...)`, `send_move(...)` (waits for window
-space), `wait_executed(ticket)`. Waiters get LinkLost (naming device and URL) when the link drops; auto_reconnect
-reconnects in the background and emits `link_restored` (motion held by the silence rule stays held until `go()`).
+Usage: `open_robot(cfg)` (drivers/registry.py), `connect(resume_ticket=...)`, `send_move(...)`, `wait_executed(ticket)`.
+Waiters get LinkLost (naming device and URL) when the link drops; auto_reconnect emits `link_restored` (held stays held).
 """
 from __future__ import annotations
 
@@ -29,8 +28,7 @@ from drivers.robot_records import (Ack, Err, EventHub, Exe, Hb, LinkStats, Mrk, 
 from drivers.serial_async import SerialPort
 from drivers.waiting import Changes
 
-# the link's records are part of its interface (controller/ports.py imports them from here)
-__all__ = ["LinkStats", "RobotEvent", "RobotLink", "RobotStatus"]
+__all__ = ["LinkStats", "RobotEvent", "RobotLink", "RobotStatus"]  # its records are part of its interface (ports.py)
 
 _HOLD_FRAME = rlp.encode("!HOLD")
 
@@ -80,18 +78,15 @@ class RobotLink(LinkLiveness[LinkStats]):
         self.protocol_fault: str | None = None  # latched: holds motion until reset()
         self._suspect_held = False         # we wrote !HOLD because the robot went quiet
         self.held_at: float | None = None  # monotonic time the link itself last wrote !HOLD
-        # when !HOLD frames actually went out on the line (a bead cut blind is timed to the first)
-        self.hold_tx: deque[float] = deque(maxlen=16)
+        self.hold_tx: deque[float] = deque(maxlen=16)  # !HOLD frames on the line (a blind cut is timed to the first)
 
-    # -- public properties ---------------------------------------------------------------------
     @property
     def max_sent(self) -> int:
         """The highest ticket ever transmitted (the last weld move the robot can have executed)."""
         return self._w.max_sent
 
     @property
-    def link_timeout_s(self) -> float:
-        """Lost after this long without a valid frame (LinkLiveness.lost_after_s)."""
+    def link_timeout_s(self) -> float:  # lost after this long without a valid frame (LinkLiveness)
         return self.lost_after_s
 
     @property
@@ -106,6 +101,11 @@ class RobotLink(LinkLiveness[LinkStats]):
     @property
     def last_ack_ticket(self) -> int:
         return self._w.last_ack
+
+    @property
+    def queue_capacity(self) -> int:
+        """The robot's queue size as learned at connect (0 before): a flushed queue has this many free."""
+        return self._w.capacity
 
     @property
     def next_ticket(self) -> int:

@@ -47,6 +47,9 @@ KEYS: dict[str, tuple[str, str]] = {
     "mute": ("dur", "no reply at all from then on; when: mute@t=... / @move=N"),
     # a motion device that stops executing (issue 26; robot: RUN, no EXE; CNC: Run, MPos still)
     "freeze": ("dur", "accept moves but stop executing them from then on; when: freeze@t=... / @move=N"),
+    # a robot whose flush leaves phantom entries: from the first !ABORT on, this many queue slots
+    # stay taken while it reports IDLE (the readiness check must see the queue is not empty)
+    "phantom": ("int", "robot: queue slots still taken after !ABORT while it reports IDLE"),
     # a power source whose error stays latched across restarts (kept in its log/state dir)
     "latched_error": ("int", "power source starts with this error number latched (e.g. 50, watchdog)"),
     # device faults (power source, cell I/O), read by their simulators

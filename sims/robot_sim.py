@@ -93,6 +93,9 @@ class RobotSim:
         self._tasks: list[asyncio.Task[None]] = []
         # flood / lie / garble / mute (issue 13): the robot misbehaving on the wire
         self.lies = Misbehaviour(self, faults, fault_log, line_rate)
+        # slots a flush leaves taken (fault `phantom`): set by the first !ABORT
+        self.phantom_on_abort = int(faults.value("phantom", 0)) if faults is not None else 0
+        self.phantom = 0
 
     # -- lifecycle --------------------------------------------------------------------------------
     def start(self) -> None:
@@ -124,6 +127,10 @@ class RobotSim:
             return "WAIT"
         return "RUN" if self.queue else "IDLE"
 
+    def free_slots(self) -> int:
+        """Free queue slots as the robot reports them (ACK credits, STA queue_free)."""
+        return self.slots - len(self.queue) - self.phantom
+
     @property
     def expected(self) -> int:
         return rlp.seq_add(self.last_rx, 1)
@@ -143,7 +150,7 @@ class RobotSim:
             self._line(line)
         if self._ack_due:  # one cumulative ACK per received chunk keeps the return line free
             self._ack_due = False
-            self._send(rlp.ack(self.last_rx, self.slots - len(self.queue)))
+            self._send(rlp.ack(self.last_rx, self.free_slots()))
 
     # -- receiving --------------------------------------------------------------------------------
     def _send(self, body: str) -> None:
@@ -157,7 +164,7 @@ class RobotSim:
         self.discarding = True
         if self._ack_due:  # what was accepted before the bad frame is acknowledged first
             self._ack_due = False
-            self._send(rlp.ack(self.last_rx, self.slots - len(self.queue)))
+            self._send(rlp.ack(self.last_rx, self.free_slots()))
         self._send(rlp.nak(self.expected, reason))
 
     def _line(self, line: bytes) -> None:
@@ -177,7 +184,7 @@ class RobotSim:
             return
         d = rlp.seq_diff(msg.seq, self.expected)
         if d == 0:
-            if len(self.queue) >= self.slots:
+            if self.free_slots() <= 0:
                 self._nak("FULL")
                 return
             self.queue.append(msg)
@@ -202,10 +209,12 @@ class RobotSim:
                 self._finish(self.queue[0], self.clock.now())
         elif verb == "ABORT":
             self.queue.clear()
+            self.phantom = self.phantom_on_abort
             self.held = self.silence_held = self.waiting = False
             self._stopped()
         elif verb == "RESET":
             self.queue.clear()
+            self.phantom = 0
             self.held = self.silence_held = self.waiting = self.fault = False
             self.discarding = False
             self.last_rx = self.last_exec = 0
@@ -219,7 +228,7 @@ class RobotSim:
 
     def send_status(self) -> None:
         self._flush_exe()
-        self._send(rlp.sta(self.state, self.last_rx, self.last_exec, self.slots - len(self.queue), self.pos))
+        self._send(rlp.sta(self.state, self.last_rx, self.last_exec, self.free_slots(), self.pos))
 
     # -- execution --------------------------------------------------------------------------------
     def _stopped(self) -> None:

@@ -117,3 +117,15 @@ def test_power_error_latched_across_sim_restarts_is_refused_before_motion(tmp_pa
         assert r2.returncode == 0 and out2["state"] == "complete", (r2.stdout, r2.stderr)
     finally:
         stop(proc)
+
+
+def test_a_robot_whose_flush_leaves_moves_queued_is_refused_before_motion(tmp_path):
+    """The robot says IDLE after `!ABORT` but two queue slots stay taken: the readiness check holds
+    the flushed queue against the queue size learned at connect and refuses before any motion."""
+    job = tmp_path / "job.json"
+    job.write_text(json.dumps(small_job(1)))
+    r, out = _cell_run([str(job), "--sim", "--fault", "phantom=2"], tmp_path)
+    assert r.returncode == 1 and out["state"] == "fault", (r.stdout, r.stderr)
+    msg = " ".join(a["message"] for a in out["alarms"])
+    assert "robot at" in msg and "62 of 64 queue slots free" in msg, msg
+    assert out["passes_done"] == 0 and out["arc_starts"] == 0, out

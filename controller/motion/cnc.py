@@ -51,6 +51,14 @@ class CncExecutor:
         self.stop_result: Any = None                # its SafeStopResult (drivers/grbl_stop.py)
         self.accel_mm_s2 = 10.0                     # the hold's deceleration bound (grbl default)
 
+    @property
+    def robot_link(self) -> None:
+        return None
+
+    @property
+    def cnc_link(self) -> CncLinkPort:
+        return self.link
+
     def on_link_lost(self, fn: Callable[[Any], None]) -> None:
         self._lost_cbs.append(fn)
 

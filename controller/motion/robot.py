@@ -47,6 +47,14 @@ class RobotExecutor:
         self._weld_pts: list[Point] | None = None
         self._subscribe()
 
+    @property
+    def robot_link(self) -> RobotLinkPort:
+        return self.link
+
+    @property
+    def cnc_link(self) -> None:
+        return None
+
     def post_job(self, job: CellJob, max_step_mm: float) -> None:
         """The planned tool axis per weld point of every 5-axis pass (`axes`), before any motion."""
         if job.frame == "cad" and job.alignment is None:

@@ -19,9 +19,12 @@ from __future__ import annotations
 
 import asyncio
 import time
-from typing import Any
+from typing import Callable
 
+from controller.journal.store import Journal
+from controller.ports import ArcControl, CncLinkPort, MotionExecutor, PowerSourcePort, RobotLinkPort
 from core.errors import CellError
+from drivers.power import PowerStatus
 
 POWER_SETTLE_S = 2.0   # wall seconds for the source to report idle after an error reset
 
@@ -30,19 +33,20 @@ class NotReady(CellError):
     """A device is not ready for motion; the message names it and says what to do."""
 
 
-async def _power_status(power: Any, timeout: float = 1.0) -> Any:
+async def _power_status(power: PowerSourcePort, timeout: float = 1.0) -> PowerStatus:
     st = power.status
     if st is None:
         st = await asyncio.wait_for(power.next_status(), timeout)
     return st
 
 
-async def check_power(power: Any, journal: Any, *, reset_errors: bool, arc: Any = None) -> None:
+async def check_power(power: PowerSourcePort, journal: Journal | None, *, reset_errors: bool,
+                      arc: ArcControl | None = None) -> None:
     """No latched error (cleared by a journaled error reset when allowed) and no process active."""
     st = await _power_status(power)
-    err = int(getattr(st, "error_number", 0) or 0)
+    err = int(st.error_number or 0)
     if err:
-        where = getattr(power, "url", "power source")
+        where = power.url
         if not reset_errors:
             raise NotReady(f"power source at {where}: error {err} is latched from an earlier run; nothing "
                            "moved. Check the source, then clear it with `cell run JOB --reset-errors` "
@@ -63,11 +67,12 @@ async def check_power(power: Any, journal: Any, *, reset_errors: bool, arc: Any 
             journal.event("info", "readiness: power source error cleared")
     st = await _wait_power(power, lambda s: not s.process_active and not s.arc_stable)
     if st.process_active or st.arc_stable:
-        raise NotReady(f"power source at {getattr(power, 'url', '?')}: process still active "
+        raise NotReady(f"power source at {power.url}: process still active "
                        f"{POWER_SETTLE_S:.0f} s after weld start was dropped; check the source")
 
 
-async def _wait_power(power: Any, ok: Any, timeout: float = POWER_SETTLE_S) -> Any:
+async def _wait_power(power: PowerSourcePort, ok: Callable[[PowerStatus], bool],
+                      timeout: float = POWER_SETTLE_S) -> PowerStatus:
     st = await _power_status(power)
     t0 = time.monotonic()
     while not ok(st) and time.monotonic() - t0 < timeout:
@@ -75,34 +80,34 @@ async def _wait_power(power: Any, ok: Any, timeout: float = POWER_SETTLE_S) -> A
     return st
 
 
-async def check_robot(link: Any) -> None:
-    """State IDLE, queue empty, no latched protocol fault."""
-    if getattr(link, "protocol_fault", None):
+async def check_robot(link: RobotLinkPort) -> None:
+    """State IDLE, queue empty (every slot of the queue size learned at connect free), no latched protocol fault."""
+    if link.protocol_fault:
         raise NotReady(f"robot at {link.url}: {link.fault}; reset the cell to clear it")
     st = await link.status()
-    cap = getattr(link, "_capacity", None)
+    cap = link.queue_capacity
     if st.state != "IDLE" or (cap and st.queue_free != cap):
-        raise NotReady(f"robot at {link.url}: state {st.state} with {st.queue_free} free queue slots "
+        raise NotReady(f"robot at {link.url}: state {st.state} with {st.queue_free} of {cap} queue slots free "
                        f"after the flush (expected IDLE, empty queue); check the robot controller")
 
 
-async def check_cnc(link: Any) -> None:
+async def check_cnc(link: CncLinkPort) -> None:
     """Not in alarm, the process off."""
     st = await link.status()
-    state = str(getattr(st, "state", "Idle"))
-    if state.startswith("Alarm"):
-        raise NotReady(f"CNC at {getattr(link, 'url', '?')}: in {state} after the unlock; home or reset it")
+    if st.state.startswith("Alarm"):
+        raise NotReady(f"CNC at {link.url}: in {st.state} after the unlock; home or reset it")
     # the process off whatever the CNC reports (grbl's FS speed is the programmed S, not the output)
     await link.command("M5")
 
 
-async def ensure_ready(executor: Any, power: Any, journal: Any, *, reset_errors: bool, arc: Any = None) -> None:
+async def ensure_ready(executor: MotionExecutor, power: PowerSourcePort, journal: Journal | None, *,
+                       reset_errors: bool, arc: ArcControl | None = None) -> None:
     """Every device ready for motion, or NotReady. Journaled when it passes."""
     await check_power(power, journal, reset_errors=reset_errors, arc=arc)
-    link = getattr(executor, "link", None)
-    if getattr(executor, "platform", None) == "robot" and link is not None:
-        await check_robot(link)
-    elif link is not None and hasattr(link, "status"):
-        await check_cnc(link)
+    robot, cnc = executor.robot_link, executor.cnc_link
+    if robot is not None:
+        await check_robot(robot)
+    if cnc is not None:
+        await check_cnc(cnc)
     if journal is not None:
         journal.event("info", "readiness: every device ready before motion")
