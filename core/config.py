@@ -283,6 +283,26 @@ class ThermalSim(_Frozen):
     cooling_time_constant_s: float = Field(default=120.0, gt=0.0)
 
 
+class SimRegion(_Frozen):
+    """A box of the substrate frame (xy, mm) where the world lays with its own hidden gains
+    (they replace the global `height_gain` / `height_temp_coeff` there; the last region listed wins)."""
+
+    box_mm: tuple[float, float, float, float]
+    height_gain: float = Field(default=1.0, gt=0.0, le=3.0)
+    height_temp_coeff: float = Field(default=0.0, ge=-0.01, le=0.01)
+
+    @model_validator(mode="after")
+    def _box(self) -> "SimRegion":
+        x0, y0, x1, y1 = self.box_mm
+        if not (x0 < x1 and y0 < y1):
+            raise ValueError(f"box_mm: needs [x0, y0, x1, y1] with x0 < x1 and y0 < y1 (got {list(self.box_mm)})")
+        return self
+
+    def contains(self, x: float, y: float) -> bool:
+        x0, y0, x1, y1 = self.box_mm
+        return x0 <= x <= x1 and y0 <= y <= y1
+
+
 class ProcessSim(_Frozen):
     """The simulated world's process physics (DESIGN.md §6b, docs/process-physics.md).
 
@@ -300,6 +320,12 @@ class ProcessSim(_Frozen):
     # null: the material's (`melting.resistive_share`, or its fitted alpha/beta)
     resistive_share: float | None = Field(default=None, ge=0.05, le=0.8)
     cell_mm: float = Field(default=0.5, ge=0.1, le=0.5, description="height-map cell size")
+    # the world's hidden disturbances along the path (docs/process-physics.md "Disturbances")
+    regions: tuple[SimRegion, ...] = ()
+    start_run_in_mm: float = Field(default=0.0, ge=0.0, le=100.0,
+                                   description="a bead's first mm lay thinner (half the metal at its start), linearly to nominal")
+    end_sag: float = Field(default=0.0, ge=0.0, le=0.9,
+                           description="share of the metal of a bead's last width that runs off an open end")
 
 
 class SimConfig(_Frozen):

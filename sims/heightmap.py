@@ -32,8 +32,10 @@ from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
 Substrate = Callable[[FloatArray, FloatArray], FloatArray]
+Scale = Callable[[float, float, float], float]    # (x, y, mm along the segment) -> metal factor
 CHUNK_MM = 1.0
 _GROW = 64          # cells of margin added on every side when the grid grows
+TAIL_MM = 40.0      # the bead's last centre cells kept for its end (sag)
 
 
 def flat_substrate(xs: FloatArray, ys: FloatArray) -> FloatArray:
@@ -98,6 +100,7 @@ class HeightMap:
         self.bead = 0
         self.volume_mm3 = 0.0
         self._trail: deque[tuple[float, int, int]] = deque()   # (path mm, centre cell) of this bead
+        self._tail: deque[tuple[float, int, int]] = deque()    # the same, its last TAIL_MM (end sag)
         self._path = 0.0
 
     # -- grid ----------------------------------------------------------------------------------
@@ -206,6 +209,7 @@ class HeightMap:
     def new_bead(self) -> int:
         self.bead += 1
         self._trail.clear()
+        self._tail.clear()
         self._path = 0.0
         return self.bead
 
@@ -214,9 +218,11 @@ class HeightMap:
         return finish(self.lay_steps(p0, p1, width_mm, area_mm2))
 
     def lay_steps(self, p0: tuple[float, float], p1: tuple[float, float], width_mm: float, area_mm2: float,
-                  chunks_per_step: int = 10) -> Generator[None, None, Laid]:
+                  chunks_per_step: int = 10, scale: Scale | None = None) -> Generator[None, None, Laid]:
         """`lay`, resumable: a yield after every `chunks_per_step` chunks (1 mm each), the same
-        cells poured in the same order as in one call; the Laid is the generator's value."""
+        cells poured in the same order as in one call; the Laid is the generator's value.
+        `scale(x, y, s)`: the metal of the chunk centred at (x, y), s mm along the segment, is
+        `area_mm2` times it (its parabola as high in proportion)."""
         a, b = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
         d = b - a
         length = float(np.hypot(d[0], d[1]))
@@ -243,25 +249,30 @@ class HeightMap:
         chunk = np.minimum((t / step).astype(np.int64), n_chunks - 1)
         peak = 1.5 * area_mm2 / width_mm
         cell2 = self.cell * self.cell
-        carry, lost = 0.0, 0.0
+        carry, lost, poured = 0.0, 0.0, 0.0
         centres: list[tuple[int, int]] = []
         for k in range(n_chunks):
             if k and k % chunks_per_step == 0:
                 yield
             sel = chunk == k
-            need = area_mm2 * step / cell2 + carry
+            mid = a + u * (k + 0.5) * step
+            f = 1.0 if scale is None else float(scale(float(mid[0]), float(mid[1]), (k + 0.5) * step))
+            poured += area_mm2 * f * step
+            need = area_mm2 * f * step / cell2 + carry
             if not np.any(sel):
                 carry = need
                 continue
             carry = 0.0
-            mid = a + u * (k + 0.5) * step
             centres.append(self.index(float(mid[0]), float(mid[1])))
-            lost += self._pour(ii[sel], jj[sel], s[sel], centres[-1], width_mm, peak, need) * cell2
+            lost += self._pour(ii[sel], jj[sel], s[sel], centres[-1], width_mm, peak * f, need) * cell2
         lost += carry * cell2
-        self.volume_mm3 += area_mm2 * length - lost
+        self.volume_mm3 += poured - lost
         for k, cell in enumerate(centres):
             self._trail.append((self._path + (k + 0.5) * step, cell[0], cell[1]))
+            self._tail.append(self._trail[-1])
         self._path += length
+        while self._tail and self._tail[0][0] < self._path - TAIL_MM:
+            self._tail.popleft()
         return Laid(self._settled_rise(half + self.cell), lost)
 
     def _settled_rise(self, behind_mm: float) -> float | None:
@@ -276,6 +287,48 @@ class HeightMap:
         if self._stamp[r, c] != self.bead:
             return None
         return float(self._surface_idx(np.array([i]), np.array([j]))[0] - self._before[r, c])
+
+    def sag_end(self, direction: tuple[float, float], width_mm: float, share: float) -> float:
+        """The bead just ended: when its end is open (the surface one bead half-width and two cells
+        beyond it lies lower than the bead's base there plus half its rise), `share` of the metal
+        this bead added over its last width runs off (lost to the 2.5-D map). Returns the mm³ lost."""
+        if share <= 0.0 or not self._tail or self.bead == 0:
+            return 0.0
+        _, ie, je = self._tail[-1]
+        r, c = je - self._j0, ie - self._i0
+        if self._stamp[r, c] != self.bead:
+            return 0.0
+        base = float(self._before[r, c])
+        rise = float(self._surface_idx(np.array([ie]), np.array([je]))[0]) - base
+        u = np.asarray(direction, dtype=float)
+        u = u / (float(np.hypot(u[0], u[1])) or 1.0)
+        ahead = ((ie + 0.5) * self.cell + u[0] * (width_mm / 2 + 2 * self.cell),
+                 (je + 0.5) * self.cell + u[1] * (width_mm / 2 + 2 * self.cell))
+        ia, ja = self.index(*ahead)
+        self._ensure(ia, ia, ja, ja)
+        there = float(self._surface_idx(np.array([ia]), np.array([ja]))[0])
+        if rise <= 0.0 or there >= base + 0.5 * rise:
+            return 0.0    # the end rests against metal (a closed loop, the next bead): not open
+        end = self._path
+        last = np.array([(i, j) for s_mm, i, j in self._tail if s_mm >= end - width_mm], dtype=np.int64)
+        reach = int(math.ceil(width_mm / 2 / self.cell)) + 1
+        i_lo, j_lo = int(last[:, 0].min()) - reach, int(last[:, 1].min()) - reach
+        i_hi, j_hi = int(last[:, 0].max()) + reach, int(last[:, 1].max()) + reach
+        self._ensure(i_lo, i_hi, j_lo, j_hi)
+        gi, gj = np.meshgrid(np.arange(i_lo, i_hi + 1, dtype=np.int64), np.arange(j_lo, j_hi + 1, dtype=np.int64))
+        ii, jj = gi.ravel(), gj.ravel()
+        d = np.hypot(ii[:, None] - last[None, :, 0], jj[:, None] - last[None, :, 1]).min(axis=1) * self.cell
+        rr, cc = jj - self._j0, ii - self._i0
+        m = (d <= width_mm / 2 + self.cell) & (self._stamp[rr, cc] == self.bead)
+        rr, cc = rr[m], cc[m]
+        top = self.top[rr, cc]
+        before = self._before[rr, cc]
+        ok = np.isfinite(top) & (before > -1e8) & (top > before)   # not off the substrate's edge
+        cut = (top[ok] - before[ok]) * share
+        self.top[rr[ok], cc[ok]] = top[ok] - cut
+        lost = float(np.sum(cut)) * self.cell * self.cell
+        self.volume_mm3 -= lost
+        return lost
 
     def _pour(self, ii: NDArray[np.int64], jj: NDArray[np.int64], s: FloatArray, centre: tuple[int, int],
               width_mm: float, peak: float, need: float) -> float:

@@ -44,7 +44,7 @@ class _Open:
     voltages: list[float] = field(default_factory=list)
     wfs: list[float] = field(default_factory=list)
     ctwds: list[float] = field(default_factory=list)
-    factor: float | None = None   # the height factor when the segment closed (a deferred lay)
+    temp_c: float | None = None   # the part temperature when the segment closed (a deferred lay)
 
 
 class World:
@@ -62,7 +62,7 @@ class World:
         # reads the surface before the current bead, which the current bead's own pending
         # segments do not change, plus the bead's settled rise (laid up to a few segments ago).
         self.defer_lays = defer_lays
-        self._pending: deque[tuple[_Open, dict[str, Any]]] = deque()
+        self._pending: deque[tuple[_Open, dict[str, Any]] | None] = deque()   # None: a bead's end
         self._laying: Iterator[None] | None = None   # the segment being laid, 10 mm at a time
         self.arc_stable = False
         self.current_a = 0.0
@@ -93,6 +93,8 @@ class World:
             self._integrate_heat(t)
             if stable != self.arc_stable and self._open is not None:
                 self._flush()
+            if not stable and self.arc_stable and self.physics is not None:
+                self._end_bead()
             if stable and not self.arc_stable and self.physics is not None:
                 self._settle(None)   # the previous bead's metal, before the new bead's "before"
                 self.physics.new_bead()
@@ -187,8 +189,12 @@ class World:
             if deadline is not None and time.perf_counter() > deadline:
                 return False
             if self._laying is None:
-                o, seg = self._pending.popleft()
-                self._laying = self._record_steps(o, seg)
+                item = self._pending.popleft()
+                if item is None:
+                    assert self.physics is not None
+                    self.physics.end_bead()
+                    continue
+                self._laying = self._record_steps(*item)
             if next(self._laying, _DONE) is _DONE:
                 self._laying = None
         return True
@@ -231,10 +237,18 @@ class World:
             seg["part"] = {"from": [round(float(v), 4) for v in o.part[0]], "to": [round(float(v), 4) for v in o.part[1]]}
             seg["axis"] = [round(float(v), 5) for v in o.part[2]]
         if self.defer_lays and self.physics is not None:
-            o.factor = self.physics.height_factor()   # the part's temperature now, not at laying
+            o.temp_c = self.physics.part_temperature_c()   # the part's temperature now, not at laying
             self._pending.append((o, seg))
         else:
             self._record(o, seg)
+
+    def _end_bead(self) -> None:
+        """The arc went out: the bead's open end sags (after its last segment is laid)."""
+        assert self.physics is not None
+        if self.defer_lays:
+            self._pending.append(None)
+        else:
+            self.physics.end_bead()
 
     def _record(self, o: _Open, seg: dict[str, Any]) -> None:
         """Lay a closed segment's bead and log it."""
@@ -259,7 +273,7 @@ class World:
         assert self.physics is not None
         q0, q1 = (o.part[0], o.part[1]) if o.part is not None else (o.start, o.end)
         wfs = sum(o.wfs) / len(o.wfs) if o.wfs else 0.0
-        laid = yield from self.physics.lay_steps(o.device, q0, q1, o.t1 - o.t0, seg["current_a"], wfs, o.factor)
+        laid = yield from self.physics.lay_steps(o.device, q0, q1, o.t1 - o.t0, seg["current_a"], wfs, o.temp_c)
         if o.ctwds:
             seg["ctwd_mm"] = round(sum(o.ctwds) / len(o.ctwds), 3)
         if laid is not None:
