@@ -41,6 +41,7 @@ from controller.runtime.interlocks import Interlocks
 from controller.job.model import CellJob
 from controller.job.read import read_job
 from controller.journal.store import Journal
+from controller.journal.trace import Trace, require_lot, trace_message
 from controller.runtime.machine import CellMachine, State, TransitionRefused
 from controller.runtime.resume import remaining_work
 from core.errors import CellError
@@ -101,6 +102,8 @@ class CellController:
         self.realtime = ""      # what elevate() obtained for the device cycles (a log line)
         self.witness: HostWitness | None = None   # watches this host's CPUs while connected
         self.opcua: Any = None   # controller.opcua.attach.OpcuaProcess when cell.yaml enables it
+        # wire lot, gas, operator (docs/records.md): cell.yaml's; the command or the TUI's dialog replace it
+        self.trace = Trace.from_config(cfg)
         self.machine.subscribe(self._on_transition)
         self._publish_state()
 
@@ -347,6 +350,7 @@ class CellController:
         if not self.machine.can("start"):
             raise self._refuse("start")
         assert self.devices is not None and self.interlocks is not None
+        require_lot(self.cfg, self.trace)   # before any motion (docs/records.md)
         if not self._journal_faults(self.journal, self.interlocks):
             self.last_result = BuildResult(state=self.machine.state.value, layers_done=0, passes_done=0, arc_starts=0)
             return self.last_result
@@ -356,6 +360,9 @@ class CellController:
         work = control.adjust_work(work, self.journal.done_passes())
         quiet_gc()
         self.journal.event("info", f"run {self.journal.run}: {len(work)} passes to deposit")
+        trace = self.trace.given(gas=self.material.gas) if self.trace.gas is None else self.trace  # the material's
+        self.journal.event("trace", trace_message(trace, self.journal.run))
+        self.bus.update(wire_lot=trace.wire_lot, gas=trace.gas, operator=trace.operator)
         self.journal.event("run", json.dumps({"run": self.journal.run, "time_scale": self.options.time_scale,
                                               "passes_left": len(work)}))
         self.runner = ControlledRunner(control=control, job=self.job, journal=self.journal, machine=self.machine,

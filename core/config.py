@@ -244,6 +244,36 @@ class ProcessControl(_Frozen):
         return self
 
 
+def _records_url(v: str | None) -> str | None:
+    """`sqlite:///PATH` (a shop-wide file) or `postgresql://...` (the reference): docs/records.md."""
+    if v is None:
+        return None
+    if v.startswith("sqlite:///") and len(v) > len("sqlite:///"):
+        return v
+    if v.startswith(("postgresql://", "postgres://")):
+        return v
+    raise ValueError(f"expected sqlite:///PATH or postgresql://USER@HOST:PORT/DB (got {v!r})")
+
+
+RecordsUrl = Annotated[str | None, AfterValidator(_records_url)]
+
+
+class RecordsSettings(_Frozen):
+    """Traceability of every build and the shop's record store (DESIGN.md §9, docs/records.md).
+
+    `wire_lot`, `gas`, `operator`: what is loaded on the cell and who runs it, unless the command
+    (`--wire-lot`, `--gas`, `--operator`) or the TUI's start dialog gives them. `require_lot`: a
+    build without a wire lot is refused before any motion. `url`: the shop's database each build's
+    record is sent to (none: the run directories only)."""
+
+    url: RecordsUrl = None
+    require_lot: bool = False
+    wire_lot: str | None = Field(default=None, min_length=1, max_length=200)
+    gas: str | None = Field(default=None, min_length=1, max_length=200)
+    operator: str | None = Field(default=None, min_length=1, max_length=200)
+    connect_timeout_s: float = Field(default=5.0, gt=0.0, le=120.0)
+
+
 class CellConfig(_Frozen):
     cell: CellInfo = CellInfo()
     devices: Devices
@@ -253,6 +283,7 @@ class CellConfig(_Frozen):
     probe: ProbeSettings = ProbeSettings()
     opcua: OpcUaSettings = OpcUaSettings()
     process_control: ProcessControl = ProcessControl()
+    records: RecordsSettings = RecordsSettings()
 
 
 # --- sim.yaml --------------------------------------------------------------------------------

@@ -34,13 +34,16 @@ def _flagged(stdout: str) -> object:
 @pytest.mark.owns_cpus  # the main job's figures (no bead flagged, speed within 5 %), not the other worker's cell
 @pytest.mark.usefixtures("record_plots")  # checks the PNGs (tests/conftest.py)
 def test_demo_plans_aligns_builds_and_reports(tmp_path: Path) -> None:
-    r = cell("demo", "--json", "--layers", "2", "--runs", str(tmp_path))
+    r = cell("demo", "--json", "--layers", "2", "--runs", str(tmp_path), "--wire-lot", "DEMO-LOT-1",
+             "--operator", "demo")
     assert r.returncode == 0, (_flagged(r.stdout), r.stderr[-1500:])
     out = json.loads(r.stdout)
     assert out["state"] == "complete" and out["layers_done"] == 2 and out["passes_done"] == 8
     report = Path(out["report"])
     rep = json.loads(report.read_text())
     assert rep["passes_done"] == 8 and rep["state"] == "complete"
+    # traceability from the command (docs/records.md); the gas is the material's when none is given
+    assert (rep["wire_lot"], rep["operator"], rep["gas"]) == ("DEMO-LOT-1", "demo", "Ar 99.99 % (argon), 15 L/min")
     assert {"layers.png", "process.png", "temperature.png", "defects.png"} <= set(rep["plots"])
     assert report.parent.name.startswith("square-hole-") and (report.parent / "journal.sqlite").exists()
     # the substrate of config/sim.yaml is tilted 0.8° / -0.5° and turned 1.5°: the probe finds it

@@ -17,6 +17,7 @@ from textual.events import Key
 from textual.widgets import Button, Input
 
 from controller.tui.app import CellApp, ConfirmQuit, OpenDialog
+from controller.tui.start_dialog import StartDialog
 from controller.tui.session import CellSession
 
 pytestmark = [pytest.mark.timeout(180), pytest.mark.realtime]
@@ -113,9 +114,19 @@ async def test_main_flow_against_the_simulators(tmp_path: Path) -> None:
             await until(pilot, lambda: (app.view.snap.job_name or "").endswith("-aligned"), 15, "the aligned job")
             await until(pilot, lambda: state(app) == "ready", 5, "ready")
 
-            # Start on the Build screen; pause (at the end of a bead), resume.
+            # Start on the Build screen: cell.yaml gives no wire lot, gas or operator, so the start
+            # dialog asks for them; they show on the banner and go into the journal (docs/records.md).
             await press(pilot, "f3", "s")
+            await until(pilot, lambda: isinstance(app.screen, StartDialog) and app.screen.query("#start-wire-lot"), 5,
+                        "the start dialog")
+            app.screen.query_one("#start-wire-lot", Input).value = "LOT-4711"
+            app.screen.query_one("#start-operator", Input).value = "A. Welder"
+            await click(pilot, "#start-ok")
             await until(pilot, lambda: state(app).startswith("running_"), 15, "the build to start")
+            await pilot.pause(0.3)
+            banner = str(app.query_one("#build-state").render())
+            assert "lot LOT-4711" in banner and "operator A. Welder" in banner
+            # pause (at the end of a bead), resume
             await press(pilot, "p")
             await until(pilot, lambda: state(app) == "paused", 30, "the pause at the end of a bead")
             keys = footer_keys(app)
@@ -177,6 +188,8 @@ async def test_quit_during_a_build_asks_and_stops_the_arc(tmp_path: Path) -> Non
         await click(pilot, "#open-ok")
         await until(pilot, lambda: state(app) == "ready", 15, "the job to open")
         await press(pilot, "s")
+        await until(pilot, lambda: isinstance(app.screen, StartDialog), 5, "the start dialog")
+        await click(pilot, "#start-ok")   # nothing given: the build starts untraced (cell.yaml requires no lot)
         await until(pilot, lambda: state(app) == "running_depositing", 20, "an arc")
         # Quit (Textual's Ctrl+Q as well as q) asks first; "Stay" leaves the build running.
         await press(pilot, "ctrl+q")

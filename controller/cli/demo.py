@@ -33,6 +33,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     d.add_argument("--repair", action="store_true",
                    help="hybrid repair instead: a block with a milled pocket, posed on the CNC table, "
                         "repaired end to end (cell repair run --sim)")
+    runargs.add_trace_args(d)
     d.set_defaults(func=guard.command(_demo))
 
 
@@ -54,7 +55,7 @@ def _demo(args: argparse.Namespace) -> int:
         return demo_repair(args)
     say = _err if args.json else _out
     t0 = time.monotonic()
-    cfg = load_cell()
+    cfg = runargs.with_trace(load_cell(), args)
     cfg = with_urls(cfg, {}, time_scale=args.time_scale)
     if getattr(args, "process_control", None):  # docs/closed-loop.md
         cfg = cfg.model_copy(update={"process_control": cfg.process_control.model_copy(update={"mode": args.process_control})})

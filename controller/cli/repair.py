@@ -27,6 +27,7 @@ def _own_options(msg: str) -> str:
 def register(sub: Any) -> None:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.plan import _fraction, _positive
+    from controller.cli.runargs import add_trace_args
 
     p = sub.add_parser("repair", help="hybrid repair: plan the missing volume of a part, and run it",
                        description="Plan a repair: nominal CAD minus the machined stock (+ allowance), "
@@ -61,6 +62,7 @@ def register(sub: Any) -> None:
     rr.add_argument("--tolerance", type=float, default=0.1, metavar="MM",
                     help="verify: height error beyond this is a defect (default 0.1 mm)")
     rr.add_argument("--json", action="store_true", help="print the report as one JSON object")
+    add_trace_args(rr)
     rr.set_defaults(func=guard.command(run_repair))
 
 
@@ -130,6 +132,7 @@ def run_repair(args: argparse.Namespace) -> int:
 
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
+    from controller.cli.runargs import with_trace
     from controller.harness.repair import repair_run_sim
     from controller.job.read import read_job
     from controller.repair import repair_run
@@ -137,7 +140,7 @@ def run_repair(args: argparse.Namespace) -> int:
 
     path = Path(args.job)
     job = read_job(path)
-    cell = load_cell(args.cell_config)
+    cell = with_trace(load_cell(args.cell_config), args)
     sim_cfg = load_sim(Path(args.sim_config) if args.sim_config else None) if args.sim else None
     if sim_cfg is not None and args.sim_config:
         wp = sim_cfg.cnc.workpiece
@@ -175,13 +178,14 @@ def demo_repair(args: argparse.Namespace) -> int:
     from controller.harness.repair_parts import make_parts, posed_sim
     from controller.runtime.devices import with_urls
     from controller.cli.main import emit_json
+    from controller.cli.runargs import with_trace
     from controller.job.read import read_job
     from controller.job.repair_volume import repair_volume
     from core.config import load_cell, load_material
     from planner.job import job_to_dict
     from planner.plan import PlanOptions, plan_part
 
-    cell = load_cell()
+    cell = with_trace(load_cell(), args)
     runs = Path(args.runs or cell.cell.runs_dir)
     work = runs / time.strftime("repair-demo-%Y%m%d-%H%M%S")
     work.mkdir(parents=True, exist_ok=True)

@@ -45,6 +45,7 @@ def _report(args: argparse.Namespace) -> int:
     if ts.get("beads_measured"):
         print(f"travel speed: worst bead {100 * ts['worst_deviation']:+.1f} % from plan, "
               f"{ts['starved_beads']} bead(s) with the motion queue run empty")
+    print(f"wire lot {rep.get('wire_lot') or '-'}, gas {rep.get('gas') or '-'}, operator {rep.get('operator') or '-'}")
     print(f"report: {path}; csv: {rep['csv']} ({len(rep['beads'])} beads)")
     return 0
 
@@ -61,7 +62,8 @@ def _runs(args: argparse.Namespace) -> int:
         emit_json({"runs_dir": str(runs), "runs": rows})
         return 0
     for r in rows:
-        print(f"{r['dir']}  {r['job']}  {r['state']}  {r['started']}  layers {r['layers_done']}/{r['layers_total']}")
+        print(f"{r['dir']}  {r['job']}  {r['state']}  {r['started']}  layers {r['layers_done']}/{r['layers_total']}  "
+              f"lot {r['wire_lot'] or '-'}  operator {r['operator'] or '-'}")
     if not rows:
         print(f"no runs in {runs}")
     return 0

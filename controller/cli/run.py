@@ -66,6 +66,7 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="split weld moves to at most this length (bounds the re-arc overlap; default 2)")
     p.add_argument("--sim-log", default=None, metavar="DIR",
                    help="with --sim: write the simulators' logs here (default RUN_DIR/sim)")
+    runargs.add_trace_args(p)
 
 
 # -- helpers -------------------------------------------------------------------------------------
@@ -188,7 +189,7 @@ def _run(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.job.identity import run_dir_for
 
-    cfg = load_cell(args.cell_config)
+    cfg = runargs.with_trace(load_cell(args.cell_config), args)
     job = read_job(args.job)
     sim_faults, scen = split_faults(args.fault)
     if (args.fault and not args.sim):
@@ -231,7 +232,7 @@ def _resume(args: argparse.Namespace) -> int:
     from controller.journal.store import Journal
     from controller.runtime.resume import latest_run_dir
 
-    cfg = load_cell(args.cell_config)
+    cfg = runargs.with_trace(load_cell(args.cell_config), args)
     runs = runargs.dir_arg(args.runs or cfg.cell.runs_dir, "--runs", must_exist=not args.run_dir)
     if args.sim_log:
         runargs.dir_arg(args.sim_log, "--sim-log")

@@ -76,3 +76,26 @@ def new_run_dir(run_dir: Path) -> Path:
         if not cand.exists():
             return cand
         n += 1
+
+
+def add_trace_args(p: argparse.ArgumentParser) -> None:
+    """--wire-lot, --gas, --operator: the build's traceability (docs/records.md)."""
+    p.add_argument("--wire-lot", default=None, metavar="LOT",
+                   help="the wire lot this build is made from (default cell.yaml's records.wire_lot)")
+    p.add_argument("--gas", default=None, metavar="GAS", help="the shielding gas (and its lot) (default records.gas)")
+    p.add_argument("--operator", default=None, metavar="NAME",
+                   help="who runs the build (default records.operator, then $CELL_OPERATOR)")
+
+
+def with_trace(cfg: CellConfig, args: argparse.Namespace) -> CellConfig:
+    """cell.yaml with the command's --wire-lot / --gas / --operator in its `records:` section, the
+    build refused when cell.yaml requires a lot and none is given (before any device: exit 2)."""
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
+    from controller.journal.trace import Trace, require_lot
+
+    given = {k: v.strip() for k in ("wire_lot", "gas", "operator")
+             if isinstance(v := getattr(args, k, None), str) and v.strip()}
+    if given:
+        cfg = cfg.model_copy(update={"records": cfg.records.model_copy(update=given)})
+    require_lot(cfg, Trace.from_config(cfg))
+    return cfg

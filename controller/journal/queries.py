@@ -7,6 +7,7 @@ from typing import Any, Sequence, TypeAlias
 
 from controller.journal.check import Row
 from controller.journal.extra import BEAD_EXTRA, _extra
+from controller.journal.trace import parse_trace
 
 SampleRow: TypeAlias = tuple[float, float | None, float | None, float | None, float | None, int | None, int | None]
 """(t, current, voltage, wfs, temperature, layer, pass): one journaled process sample."""
@@ -127,6 +128,15 @@ class JournalQueries:
         """(id, t, kind, state, message, layer, pass) of events after `last_id`."""
         return self.query("SELECT id, t, kind, state, message, layer, pass FROM events WHERE id > ? ORDER BY id"
                           " LIMIT ?", (last_id, limit))
+
+    def trace_rows(self) -> list[dict[str, Any]]:
+        """Per run, the wire lot, gas, operator and cell it was traced to (controller/journal/trace.py)."""
+        out = []
+        for run, t, msg in self.query("SELECT run, t, message FROM events WHERE kind='trace' ORDER BY id"):
+            d = parse_trace(msg)
+            if d is not None:
+                out.append({"run": run, "t": t, **{k: d.get(k) for k in ("cell", "wire_lot", "gas", "operator")}})
+        return out
 
     def defect_rows(self) -> list[dict[str, Any]]:
         """Beads the measurements say were not deposited as planned, oldest first."""

@@ -55,6 +55,9 @@ PROCESS = {  # node name → (snapshot field, OPC UA type)
 JOB = {
     "JobName": ("job_name", ua.VariantType.String),
     "JobHash": ("job_hash", ua.VariantType.String),
+    "WireLot": ("wire_lot", ua.VariantType.String),      # the feedstock lot of the running job (OPC 40540)
+    "ShieldingGas": ("gas", ua.VariantType.String),
+    "Operator": ("operator", ua.VariantType.String),
     "LayersTotal": ("layers_total", ua.VariantType.Int32),
     "LayersDone": ("layers_done", ua.VariantType.Int32),
     "PassesTotal": ("passes_total", ua.VariantType.Int32),

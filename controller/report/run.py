@@ -50,7 +50,8 @@ def write_run_report(run_dir: str | Path, job: CellJob | None = None, *, plots: 
 
 
 def run_rows(runs: Path) -> list[dict[str, Any]]:
-    """dir, job, state, started, layers_done, layers_total of every run directory with a journal."""
+    """dir, job, state, started, layers_done, layers_total, wire_lot, operator (the latest run's) of
+    every run directory with a journal."""
     out = []
     for d in sorted(p.parent for p in runs.glob("*/journal.sqlite")):
         j = open_run(d)
@@ -59,8 +60,10 @@ def run_rows(runs: Path) -> list[dict[str, Any]]:
             job = journal_job(j)
             s = summarize(j, job.job if job is not None else None)
             started, _ = j.wall_clock_span()
+            trace = (j.trace_rows() or [{}])[-1]
         finally:
             j.close()
         out.append({"dir": str(d), "job": meta.get("name"), "state": s["state"], "started": iso(started),
-                    "layers_done": s["layers_done"], "layers_total": s["layers_total"]})
+                    "layers_done": s["layers_done"], "layers_total": s["layers_total"],
+                    "wire_lot": trace.get("wire_lot"), "operator": trace.get("operator")})
     return out

@@ -8,6 +8,7 @@ from __future__ import annotations
 import importlib.metadata
 import json
 import os
+import uuid
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +48,7 @@ def summarize(journal: Journal, job: Job | None = None, state: str | None = None
         "job": {"name": meta.get("name"), "hash": meta.get("hash"), "platform": meta.get("platform")},
         "state": state or journal.last_build_state(),
         "started": iso(started), "ended": iso(ended),
-        **_provenance(job, operator),
+        **_provenance(journal, job, operator),
         "layers_total": layers_total,
         "passes_total": passes_total,
         "layers_done": layers_done,
@@ -131,23 +132,42 @@ def _tolerance_dict(job: Job | None) -> dict[str, Any] | None:
             if hasattr(tol, k)}
 
 
-def _provenance(job: Job | None, operator: str | None) -> dict[str, Any]:
-    """Material, wire, gas, software version and operator of the build."""
+def build_id(meta: dict[str, Any]) -> str | None:
+    """The build's id, unique across cells and stable over its runs: a UUID of the job's hash and the
+    moment its journal was created (the shop's record store keys on it: docs/records.md)."""
+    if not meta.get("hash") or meta.get("created") is None:
+        return None
+    return str(uuid.uuid5(uuid.NAMESPACE_URL, f"cell-build:{meta['hash']}:{float(meta['created'])!r}"))
+
+
+def _provenance(journal: Journal, job: Job | None, operator: str | None) -> dict[str, Any]:
+    """Material, wire and its lot, gas, operator, cell and software version of the build.
+
+    Wire lot, gas and operator are the latest run's trace (controller/journal/trace.py); every
+    run's is in `traceability`. The gas falls back to the material's, the operator to `--operator`
+    of `cell report` first and $CELL_OPERATOR last."""
     name = _material_name(job)
-    wire = gas = None
+    wire: dict[str, Any] = {"alloy": None, "diameter_mm": None}
+    gas = None
     if name:
         try:
             m = load_material(str(name))
-            wire = {"alloy": getattr(m, "name", None), "diameter_mm": getattr(m, "wire_diameter_mm", None)}
-            gas = getattr(m, "shielding_gas", None) or getattr(m, "gas", None)
+            wire = {"alloy": m.name, "diameter_mm": m.wire_diameter_mm}
+            gas = m.gas
         except CellError:
             pass  # a material the cell no longer knows: the record keeps its name only
+    runs = journal.trace_rows()
+    last = runs[-1] if runs else {}
+    lot = last.get("wire_lot")
+    wire["lot"] = lot
     try:
         version = importlib.metadata.version("cell-controller")
     except importlib.metadata.PackageNotFoundError:
         version = "unknown"
-    return {"material": name, "wire": wire, "gas": gas, "software_version": version,
-            "operator": operator or os.environ.get("CELL_OPERATOR")}
+    return {"build_id": build_id(journal.job() or {}), "cell": last.get("cell"), "material": name, "wire": wire,
+            "wire_lot": lot, "gas": last.get("gas") or gas, "software_version": version,
+            "operator": operator or last.get("operator") or os.environ.get("CELL_OPERATOR"),
+            "traceability": runs}
 
 
 def _outside(job: Job | None) -> list[dict[str, int]]:

@@ -73,6 +73,9 @@ class Snapshot:
     layer_height_error_mm: float | None = None  # the last layer's measured top − its planned top
     z_correction_mm: float | None = None        # z offset the current layer is laid with
     record_path: str | None = None   # the build record (report.json) of the last build that ended
+    wire_lot: str | None = None      # the running build's trace (docs/records.md)
+    gas: str | None = None
+    operator: str | None = None
 
     @property
     def progress(self) -> float:
@@ -112,6 +115,9 @@ class SnapshotChanges(TypedDict, total=False):
     allowed_commands: tuple[str, ...]
     message: str
     record_path: str | None
+    wire_lot: str | None
+    gas: str | None
+    operator: str | None
     stick_out_mm: float | None
     layer_height_error_mm: float | None
     z_correction_mm: float | None

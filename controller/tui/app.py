@@ -27,6 +27,7 @@ from controller.tui.devices import DevicesPane
 from controller.tui.job import JobPane
 from controller.tui.log import LogPane
 from controller.defaults import DEMO_PART
+from controller.tui.start_dialog import StartDialog
 from controller.tui.session import View, freeze_heap
 from controller.defaults import DEMO_WIDTH_MM
 from controller.tui.help import HelpScreen, help_text
@@ -200,6 +201,7 @@ class CellApp(App[int]):
         self.last_message = ""
         self._allowed_key: tuple[str, ...] = ()
         self._abort_confirmed = False
+        self._trace_asked = False   # the start dialog was answered: the next `start` goes through
         self._quitting = False
         self.pending: set[concurrent.futures.Future[Any]] = set()
         self._prev_state: str | None = None   # to say the build's end on the message line, once
@@ -328,6 +330,11 @@ class CellApp(App[int]):
             if name == "open":
                 self.push_screen(OpenDialog(_display_path(self.default_part), self.default_width), self._opened)
                 return
+            if name == "start" and self.view.allowed("start") and not self._trace_asked and s.trace_to_ask():
+                # wire lot, gas, operator where cell.yaml gives none (docs/records.md)
+                self.push_screen(StartDialog(s.trace_values(), s.cfg.records.require_lot), self._start_answer)
+                return
+            self._trace_asked = False
             if name == "plan":
                 fut = s.plan()
             elif name == "connect":
@@ -341,6 +348,14 @@ class CellApp(App[int]):
             return
         self.say(f"{name}…")
         self._watch(fut, name)
+
+    def _start_answer(self, values: dict[str, str] | None) -> None:
+        if values is None:
+            self.say("start: cancelled")
+            return
+        self.session.set_trace(values)
+        self._trace_asked = True
+        self.send("start")
 
     def _abort_answer(self, yes: bool | None) -> None:
         if yes:

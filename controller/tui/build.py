@@ -79,7 +79,7 @@ class BuildPane(Vertical):
                 where += f", pass {s.pass_ + 1}/{s.passes_in_layer}"
         self.query_one("#build-state", Static).update(
             f"[{state_style(s.state)}] {s.state.upper().replace('_', ' ')} [/] {arc_lamp(s)}"
-            f"  job {s.job_name or '—'}  arc starts {s.arc_starts}{where}{msg}")
+            f"  job {s.job_name or '—'}{trace_text(s)}  arc starts {s.arc_starts}{where}{msg}")
         self.query_one("#build-record", Static).update(record_where(s))
         self._bar("passes", s.passes_done, s.passes_total)
         self._bar("layers", s.layers_done, s.layers_total)
@@ -138,6 +138,12 @@ def record_line(s: Snapshot) -> str:
     """The record writer's own line (controller/report/worker.py), once it is written or failed."""
     m = s.message or ""
     return m if (": record in " in m or ": no record written" in m) else ""
+
+
+def trace_text(s: Snapshot) -> str:
+    """The running build's wire lot and operator (docs/records.md); nothing when none was given."""
+    out = f"  lot {s.wire_lot}" if s.wire_lot else ""
+    return out + (f"  operator {s.operator}" if s.operator else "")
 
 
 def record_where(s: Snapshot) -> str:

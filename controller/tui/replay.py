@@ -63,3 +63,7 @@ class ReplaySession:
 
     def close(self, timeout: float = 10.0) -> None:
         pass
+
+    def trace_to_ask(self) -> list[str]:
+        """A replay starts no build: the start dialog never asks (docs/records.md)."""
+        return []

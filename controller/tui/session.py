@@ -32,6 +32,7 @@ from typing import Any, Callable
 from controller.runtime.events import Snapshot
 from controller.job.model import CellJob
 from controller.job.read import read_job
+from controller.tui.trace_ask import TraceAsk
 from core.errors import CellError, InputError
 
 from controller.tui.planning import _plan_main, probe_plan  # noqa: F401  (re-exported)
@@ -64,7 +65,7 @@ def freeze_heap() -> None:
     gc.freeze()
 
 
-class CellSession:
+class CellSession(TraceAsk):
     """A live cell for the TUI: the controller on its own thread and loop, read as `View`s."""
 
     def __init__(self, cfg: Any = None, *, sim: bool = False, sim_cfg: Any = None, runs_dir: str | Path | None = None,
