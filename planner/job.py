@@ -1,9 +1,19 @@
-"""The job file `cell-job/1`: frozen dataclasses, canonical JSON bytes, and a validating reader."""
+"""The job file (`cell-job/1`, `cell-job/2`): frozen dataclasses, canonical JSON bytes, and a
+validating reader.
+
+`cell-job/2` lets a pass carry `speed_mm_min` and `wfs_m_min` as arrays of one value per segment
+(segment i runs from point i to i + 1) instead of one number (docs/along-the-path.md). A job with
+any array is written as `cell-job/2`; a `cell-job/1` file reads as before; any other schema is
+refused by name. The typed `Pass` keeps the scalars (for an array: its length-weighted mean, what
+a summary or a record's "planned speed" shows) and the arrays beside them (`seg_speed_mm_min`,
+`seg_wfs_m_min`); a consumer that moves the torch or feeds the wire asks `speeds()` /
+`wire_feeds()`, which give one value per segment whichever form the file had.
+"""
 from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -11,6 +21,8 @@ import numpy as np
 from core.errors import InputError
 
 SCHEMA = "cell-job/1"
+SCHEMA_V2 = "cell-job/2"      # a pass may carry per-segment speed / wire feed arrays
+SCHEMAS = (SCHEMA, SCHEMA_V2)
 ROLES = ("perimeter", "infill", "gap")
 FRAMES = ("substrate", "cad")
 
@@ -43,10 +55,73 @@ class Pass:
     normals: np.ndarray | None = None  # (n, 3) unit facet normals (perimeters), optional
     axes: np.ndarray | None = None     # (n, 3) unit tool axes in the part frame (5-axis plans)
     inside_envelope: bool = True       # False only under --allow-outside (written only then)
+    seg_speed_mm_min: np.ndarray | None = None  # (n - 1,) travel speed per segment (cell-job/2), else None
+    seg_wfs_m_min: np.ndarray | None = None     # (n - 1,) wire feed per segment (cell-job/2), else None
 
     @property
     def length_mm(self) -> float:
         return float(np.linalg.norm(np.diff(self.points, axis=0), axis=1).sum())
+
+    @property
+    def per_segment(self) -> bool:
+        """True when the pass carries per-segment speed or wire feed (cell-job/2)."""
+        return self.seg_speed_mm_min is not None or self.seg_wfs_m_min is not None
+
+    def segment_lengths(self) -> np.ndarray:
+        """(n - 1,) mm: the length of every segment."""
+        out: np.ndarray = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
+        return out
+
+    def speeds(self) -> np.ndarray:
+        """(n - 1,) mm/min: the travel speed of every segment (the pass's one speed when it has no array)."""
+        if self.seg_speed_mm_min is not None:
+            return self.seg_speed_mm_min
+        return np.full(len(self.points) - 1, self.speed_mm_min)
+
+    def wire_feeds(self) -> np.ndarray:
+        """(n - 1,) m/min: the wire feed of every segment (the pass's one wire feed when it has no array)."""
+        if self.seg_wfs_m_min is not None:
+            return self.seg_wfs_m_min
+        return np.full(len(self.points) - 1, self.wfs_m_min)
+
+    @property
+    def arc_time_s(self) -> float:
+        """Seconds of arc at the planned speeds (each segment at its own)."""
+        return float(np.sum(self.segment_lengths() / self.speeds()) * 60.0)
+
+    def with_process(self, speeds: np.ndarray | None, wfs: np.ndarray | None) -> "Pass":
+        """A copy with per-segment speeds and/or wire feeds (None: the pass's own kept); the scalars
+        become their length-weighted means. Arrays whose values are all one are stored as that number."""
+        sp = _seg(speeds, self.seg_speed_mm_min, len(self.points))
+        wf = _seg(wfs, self.seg_wfs_m_min, len(self.points))
+        lens = self.segment_lengths()
+        return replace(self, speed_mm_min=self.speed_mm_min if sp is None else weighted_mean(sp, lens),
+                       wfs_m_min=self.wfs_m_min if wf is None else weighted_mean(wf, lens),
+                       seg_speed_mm_min=sp, seg_wfs_m_min=wf)
+
+    def scaled(self, speed_factor: float = 1.0, wfs_factor: float = 1.0) -> "Pass":
+        """A copy with every speed (scalar and per segment) times `speed_factor`, every wire feed times `wfs_factor`."""
+        sp = None if self.seg_speed_mm_min is None else self.seg_speed_mm_min * speed_factor
+        wf = None if self.seg_wfs_m_min is None else self.seg_wfs_m_min * wfs_factor
+        return replace(self, speed_mm_min=self.speed_mm_min * speed_factor, wfs_m_min=self.wfs_m_min * wfs_factor,
+                       seg_speed_mm_min=sp, seg_wfs_m_min=wf)
+
+
+def weighted_mean(values: np.ndarray, lengths: np.ndarray) -> float:
+    """The length-weighted mean of per-segment values (the plain mean when the pass has no length)."""
+    total = float(np.sum(lengths))
+    if total <= 0.0:
+        return float(np.mean(values))
+    return float(np.sum(values * lengths) / total)
+
+
+def _seg(new: np.ndarray | None, old: np.ndarray | None, n_points: int) -> np.ndarray | None:
+    if new is None:
+        return old
+    a = np.asarray(new, dtype=np.float64)
+    if a.shape != (n_points - 1,):
+        raise ValueError(f"{a.shape[0] if a.ndim else 0} per-segment values for {n_points - 1} segments")
+    return a.copy()
 
 
 @dataclass(frozen=True)
@@ -87,14 +162,22 @@ def _arr(a: np.ndarray, nd: int) -> list[Any]:
     return out
 
 
+def schema_of(job: Job) -> str:
+    """`cell-job/2` when any pass carries a per-segment array, else the job's own schema."""
+    if any(p.per_segment for L in job.layers for p in L.passes):
+        return SCHEMA_V2
+    return job.schema
+
+
 def job_to_dict(job: Job) -> dict[str, Any]:
     layers = []
     for L in job.layers:
         passes = []
         for p in L.passes:
+            speed: Any = _num(p.speed_mm_min, 1) if p.seg_speed_mm_min is None else _arr(p.seg_speed_mm_min, 1)
+            wfs: Any = _num(p.wfs_m_min, 3) if p.seg_wfs_m_min is None else _arr(p.seg_wfs_m_min, 3)
             d = {"role": p.role, "width_mm": _num(p.width_mm, 3), "current_a": _num(p.current_a, 2),
-                 "speed_mm_min": _num(p.speed_mm_min, 1), "wfs_m_min": _num(p.wfs_m_min, 3),
-                 "points": _arr(p.points, 3)}
+                 "speed_mm_min": speed, "wfs_m_min": wfs, "points": _arr(p.points, 3)}
             if p.normals is not None:
                 d["normals"] = _arr(p.normals, 4)
             if p.axes is not None:
@@ -108,7 +191,7 @@ def job_to_dict(job: Job) -> dict[str, Any]:
             ld["interpass"] = {"max_temperature_c": L.interpass.max_temperature_c, "dwell_s": L.interpass.dwell_s}
         ld.update(L.extra)
         layers.append(ld)
-    return {"schema": job.schema,
+    return {"schema": schema_of(job),
             "source": {"file": job.source.file, "sha256": job.source.sha256, "units": job.source.units},
             "material": job.material,
             "bead": {"width_mm": _num(job.bead.width_mm, 4), "height_mm": _num(job.bead.height_mm, 4),
@@ -161,7 +244,25 @@ def _axes(p: dict[str, Any], pw: str, n: int) -> np.ndarray | None:
     return ax
 
 
-def _pass(p: Any, pw: str) -> Pass:
+def _per_segment(p: dict[str, Any], key: str, pw: str, n: int, schema: str) -> tuple[float, np.ndarray | None]:
+    """A pass's speed or wire feed: one number, or (cell-job/2) one number > 0 per segment."""
+    v = _get(p, key, pw)
+    if not isinstance(v, list):
+        return _number(p, key, pw, True), None
+    if schema != SCHEMA_V2:
+        raise InputError(f"job file: {pw}.{key} is a list (per-segment values): that is {SCHEMA_V2}, "
+                         f"but the file says schema {schema!r}; set \"schema\": \"{SCHEMA_V2}\"")
+    if len(v) != n - 1:
+        raise InputError(f"job file: {pw}.{key} has {len(v)} values for {n - 1} segments ({n} points); "
+                         "give one per segment (segment i runs from point i to i + 1)")
+    for k, x in enumerate(v):
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) or x <= 0:
+            raise InputError(f"job file: {pw}.{key}[{k}] must be a number > 0, got {x!r}")
+    a = np.asarray(v, dtype=np.float64)
+    return float(np.mean(a)), a   # the caller weighs the mean by the segments' lengths
+
+
+def _pass(p: Any, pw: str, schema: str = SCHEMA) -> Pass:
     role = _get(p, "role", pw)
     if role not in ROLES:
         raise InputError(f"job file: {pw}.role is {role!r}, expected one of {', '.join(ROLES)}")
@@ -177,16 +278,23 @@ def _pass(p: Any, pw: str) -> Pass:
     inside = p.get("inside_envelope", True)
     if not isinstance(inside, bool):
         raise InputError(f"job file: {pw}.inside_envelope must be true or false")
-    return Pass(role, _number(p, "width_mm", pw, True), _number(p, "current_a", pw, True),
-                _number(p, "speed_mm_min", pw, True), _number(p, "wfs_m_min", pw, True),
-                pts, normals, axes, inside)
+    lens = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    speed, seg_speed = _per_segment(p, "speed_mm_min", pw, len(pts), schema)
+    wfs, seg_wfs = _per_segment(p, "wfs_m_min", pw, len(pts), schema)
+    if seg_speed is not None:
+        speed = weighted_mean(seg_speed, lens)
+    if seg_wfs is not None:
+        wfs = weighted_mean(seg_wfs, lens)
+    return Pass(role, _number(p, "width_mm", pw, True), _number(p, "current_a", pw, True), speed, wfs,
+                pts, normals, axes, inside, seg_speed, seg_wfs)
 
 
 def load_job(d: Any) -> Job:
-    """Validate a parsed `cell-job/1` object; a bad field raises InputError naming it."""
+    """Validate a parsed `cell-job/1` or `cell-job/2` object; a bad field raises InputError naming it."""
     schema = _get(d, "schema", "")
-    if schema != SCHEMA:
-        raise InputError(f"job file: schema is {schema!r}, expected {SCHEMA!r}")
+    if schema not in SCHEMAS:
+        raise InputError(f"job file: schema is {schema!r}, which this controller does not know "
+                         f"(it reads {' and '.join(repr(s) for s in SCHEMAS)}); plan the job again or use a newer controller")
     src = _get(d, "source", "")
     source = Source(str(_get(src, "file", "source")), str(_get(src, "sha256", "source")),
                     str(_get(src, "units", "source")))
@@ -208,7 +316,7 @@ def load_job(d: Any) -> Job:
         raw_passes = _get(L, "passes", w)
         if not isinstance(raw_passes, list):
             raise InputError(f"job file: {w}.passes must be a list")
-        passes = [_pass(p, f"{w}.passes[{j}]") for j, p in enumerate(raw_passes)]
+        passes = [_pass(p, f"{w}.passes[{j}]", schema) for j, p in enumerate(raw_passes)]
         ip = None
         if "interpass" in L:
             ip = Interpass(_number(L["interpass"], "max_temperature_c", f"{w}.interpass"),
@@ -221,7 +329,7 @@ def load_job(d: Any) -> Job:
     frame = d.get("frame", "substrate")
     if frame not in FRAMES:
         raise InputError(f"job file: frame is {frame!r}, expected one of {', '.join(FRAMES)}")
-    return Job(source, material, bead, tuple(layers), summary, frame=frame)
+    return Job(source, material, bead, tuple(layers), summary, schema=schema, frame=frame)
 
 
 def loads_job(data: bytes | str) -> Job:

@@ -108,7 +108,7 @@ def test_a_journal_written_before_the_job_was_typed_is_finished_by_cell_run(tmp_
     (lambda d: d["layers"][1]["passes"][0].pop("wfs_m_min"), "missing field layers[1].passes[0].wfs_m_min"),
     (lambda d: d["layers"][0]["passes"][1].update(points=[[0, 0, "x"], [1, 1, 1]]),
      "layers[0].passes[1].points must be a list of [x, y, z] numbers"),
-    (lambda d: d.update(schema="cell-job/2"), "schema is 'cell-job/2', expected 'cell-job/1'"),
+    (lambda d: d.update(schema="cell-job/9"), "schema is 'cell-job/9', which this controller does not know"),
     (lambda d: d.update(alignment={"transform": [[1, 0, 0], [0, 1, 0]]}), "alignment.transform must be a 4x4 matrix"),
     (lambda d: d.update(repair={"cad": "c.stl", "bounds_mm": [1, 2, 3]}), "repair.bounds_mm must be [[x, y, z], [x, y, z]]"),
 ], ids=["missing", "points", "schema", "alignment", "repair"])

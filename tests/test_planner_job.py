@@ -57,7 +57,7 @@ def test_reader_round_trips(job_bytes):
 
 
 @pytest.mark.parametrize("path, value, field", [
-    (("schema",), "cell-job/2", "schema"),
+    (("schema",), "cell-job/9", "schema"),
     (("layers", 1, "passes", 0, "role"), "weave", "layers[1].passes[0].role"),
     (("layers", 0, "passes", 2, "current_a"), "high", "layers[0].passes[2].current_a"),
     (("layers", 2, "passes", 1, "points"), [[1, 2]], "layers[2].passes[1].points"),

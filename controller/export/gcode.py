@@ -39,7 +39,7 @@ def _five_axis_pass(prog: Program, p: ProgramPass, post: Post5, letters: str, pr
     up[2] += clearance_mm
     lines = [_pass_comment(p), "G94", move_line(up, letters, verb="G0"), f"G1 Z{_f(m[0][2])} F{travel_mm_min:.0f}",
              f"M3 S{power_s}"]
-    lines += weld_lines(m, inverse_time(p.points, p.speed_mm_min), letters)
+    lines += weld_lines(m, inverse_time(p.points, p.segment_speeds()), letters)   # per move (cell-job/2)
     lines += ["M5", f"G0 Z{_f(m[-1][2] + clearance_mm)}"]
     return lines, (float(m[-1][3]), float(m[-1][4]))
 
@@ -75,14 +75,27 @@ def write_gcode(prog: Program, *, clearance_mm: float, travel_mm_min: float, pow
         x0, y0, z0 = pts[0]
         out += [_pass_comment(p), f"G0 Z{_f(z0 + clearance_mm)}", f"G0 X{_f(x0)} Y{_f(y0)}",
                 f"G1 Z{_f(z0)} F{travel_mm_min:.0f}", f"M3 S{power_s}"]
-        feed = f"{p.speed_mm_min:.1f}"
-        for i, (x, y, z) in enumerate(pts[1:]):
-            out.append(f"G1 X{_f(x)} Y{_f(y)} Z{_f(z)}" + (f" F{feed}" if i == 0 else ""))
+        out += _weld_moves(pts, p)
         out += ["M5", f"G0 Z{_f(pts[-1][2] + clearance_mm)}"]
     out += ["M5", "M30"]
     too_long = [ln for ln in out if len(ln) > MAX_LINE]
     if too_long:
         raise InputError(f"G-code line longer than grbl's {MAX_LINE} characters: {too_long[0]!r}")
+    return out
+
+
+def _weld_moves(pts: np.ndarray, p: ProgramPass) -> list[str]:
+    """The G1 weld moves of a 3-axis pass: F on the first, and again on every move whose speed
+    differs (F is modal); a wire feed that changes (cell-job/2) as a `(WFS …)` comment before its
+    move: grbl has no wire feed, the controller sets it on the power source."""
+    out: list[str] = []
+    feed = wfs = ""
+    for (x, y, z), v, w in zip(pts[1:], p.segment_speeds(), p.segment_wfs()):
+        f, wf = f"{v:.1f}", f"{w:.3f}"
+        if p.wfs is not None and wf != wfs:
+            out.append(f"(WFS{wf})")
+        out.append(f"G1 X{_f(x)} Y{_f(y)} Z{_f(z)}" + (f" F{f}" if f != feed else ""))
+        feed, wfs = f, wf
     return out
 
 
@@ -100,10 +113,12 @@ class ParsedPass:
     points: np.ndarray
     rotary: np.ndarray | None = None   # (n, 2) A and B|C of a 5-axis pass, machine frame
     feeds: np.ndarray | None = None    # F of each weld move (G93: 1/min)
+    wfs: np.ndarray | None = None      # the wire feed of each weld move where the program gives it per move
 
 
 _WORD = re.compile(r"([A-Z])(-?\d+(?:\.\d*)?)")
 _PASS = re.compile(r"\(PASS L(\d+) P(\d+) (\w+) W([\d.]+) I([\d.]+) WFS([\d.]+)\)")
+_WFS = re.compile(r"\(WFS([\d.]+)\)")
 
 
 def parse_gcode(lines: list[str]) -> list[ParsedPass]:
@@ -125,6 +140,8 @@ class _Reader:
     header: tuple[int, int, str, float, float, float] | None = None
     pts: list[dict[str, float]] = field(default_factory=list)
     feeds: list[float] = field(default_factory=list)
+    wfs_now: float | None = None
+    wfs: list[float] = field(default_factory=list)
     seen: set[str] = field(default_factory=set)
     speed: float = 0.0
     out: list[ParsedPass] = field(default_factory=list)
@@ -133,6 +150,10 @@ class _Reader:
         m = _PASS.fullmatch(raw.strip())
         if m:
             self.header = (int(m[1]), int(m[2]), m[3], float(m[4]), float(m[5]), float(m[6]))
+            self.wfs_now, self.wfs = None, []
+            return
+        if m := _WFS.fullmatch(raw.strip()):
+            self.wfs_now = float(m[1])
             return
         code = re.sub(r"\(.*?\)|;.*", "", raw).strip().upper()
         if not code:
@@ -153,6 +174,8 @@ class _Reader:
             self.seen |= {k for k in "ABC" if k in words}
             self.pts.append(dict(self.pos))
             self.feeds.append(self.feed)
+            if self.wfs_now is not None:
+                self.wfs.append(self.wfs_now)
             self.speed = self.feed
 
     def _process_off(self) -> None:
@@ -164,5 +187,5 @@ class _Reader:
         pts = self.pts
         rotary = np.asarray([[q[k] for k in rot] for q in pts]) if rot else None
         self.out.append(ParsedPass(L, i, role, w, cur, wfs, self.speed, np.asarray([[q["X"], q["Y"], q["Z"]] for q in pts]),
-                                   rotary, np.asarray(self.feeds)))
+                                   rotary, np.asarray(self.feeds), np.asarray(self.wfs) if self.wfs else None))
         self.header = None

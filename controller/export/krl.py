@@ -3,7 +3,9 @@
 - `$BASE` is the alignment (part → robot base) as a FRAME, so the points stay in the part frame;
 - the weld is switched by two local subprograms, `WELD_ON(current A, wire feed m/min)` and
   `WELD_OFF()`, over the synergic source's digital and analog outputs (the I/O numbers are the
-  cell's; see docs/export.md); the travel speed of each pass is `$VEL.CP` in m/s;
+  cell's; see docs/export.md); the travel speed of each pass is `$VEL.CP` in m/s; a pass with
+  per-segment speed or wire feed (cell-job/2) sets `$VEL.CP` (and the wire feed's `$ANOUT[2]`)
+  before every move whose value changes;
 - the interpass wait before each layer is `WAIT SEC`;
 - positions are `E6POS` in the `.dat`, orientation A/B/C from the tool axis.
 """
@@ -15,7 +17,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from controller.export.orient import kuka_abc, kuka_tool_axis
-from controller.export.program import Program, RobotPass
+from controller.export.program import Program, ProgramPass, RobotPass
 from core.errors import InputError
 
 CURRENT_FULL_SCALE_A = 500.0   # $ANOUT is -1…1: the source's command range
@@ -74,11 +76,11 @@ def write_krl(prog: Program, *, travel_mm_min: float, clearance_mm: float) -> tu
             names.append(f"XP{n}")
             dat.append(_e6pos(names[-1], pt, ax))
         dat += [_e6pos(f"XA{n}", p.points[0] + lift, p.axes[0]), _e6pos(f"XR{n}", p.points[-1] + lift, p.axes[-1])]
+        wfs0 = float(p.segment_wfs()[0])
         src += [f"$VEL.CP = {_n(travel, 5)}", f"LIN XA{n}", f"LIN {names[0]}",
-                f"WELD_ON({_n(p.current_a, 2)}, {_n(p.wfs_m_min)})",
-                f"$VEL.CP = {_n(p.speed_mm_min / 60000.0, 8)}"]
-        src += [f"LIN {t} C_DIS" for t in names[1:-1]] + [f"LIN {names[-1]}", "WELD_OFF( )",
-                                                           f"$VEL.CP = {_n(travel, 5)}", f"LIN XR{n}"]
+                f"WELD_ON({_n(p.current_a, 2)}, {_n(wfs0)})"]
+        src += _weld_moves(p, names)
+        src += ["WELD_OFF( )", f"$VEL.CP = {_n(travel, 5)}", f"LIN XR{n}"]
     src += ["END", "",
             "DEF WELD_ON(CURRENT_A:IN, WFS_M_MIN:IN)",
             "REAL CURRENT_A, WFS_M_MIN",
@@ -88,6 +90,22 @@ def write_krl(prog: Program, *, travel_mm_min: float, clearance_mm: float) -> tu
             "DEF WELD_OFF( )", "$OUT[1] = FALSE", "WAIT FOR NOT $IN[1]", "END"]
     dat += ["ENDDAT"]
     return src, dat
+
+
+def _weld_moves(p: ProgramPass, names: list[str]) -> list[str]:
+    """The LINs of a pass with the arc on: `$VEL.CP` before the first and before every move whose
+    speed changes, the wire feed's analog output before every move whose wire feed changes."""
+    out: list[str] = []
+    vel = wfs = ""
+    for i, (t, v, w) in enumerate(zip(names[1:], p.segment_speeds(), p.segment_wfs())):
+        vv, ww = _n(v / 60000.0, 8), _n(float(w))
+        if ww != wfs and i > 0:
+            out.append(f"$ANOUT[2] = {ww} / {_n(WFS_FULL_SCALE_M_MIN, 1)}")
+        if vv != vel:
+            out.append(f"$VEL.CP = {vv}")
+        out.append(f"LIN {t}" + (" C_DIS" if i < len(names) - 2 else ""))
+        vel, wfs = vv, ww
+    return out
 
 
 # ---- reading it back --------------------------------------------------------------------------
@@ -100,6 +118,7 @@ _PASS = re.compile(r"; PASS L(\d+) P(\d+) (\w+) W([\d.]+)")
 _ON = re.compile(rf"WELD_ON\(({_NUM}), ({_NUM})\)")
 _VEL = re.compile(rf"\$VEL\.CP = ({_NUM})")
 _LIN = re.compile(r"LIN (X[PAR]\d+)(?: C_DIS)?$")
+_WFS = re.compile(rf"\$ANOUT\[2\] = ({_NUM}) / ")
 
 
 def parse_krl(src: list[str], dat: list[str]) -> list[RobotPass]:
@@ -116,13 +135,17 @@ def parse_krl(src: list[str], dat: list[str]) -> list[RobotPass]:
     last: str | None = None
     pts: list[np.ndarray | None] = []  # [None] while WELD_ON has no LIN target before it
     axes: list[np.ndarray | None] = []
+    moves: list[tuple[float, float]] = []   # (speed, wire feed) of each weld move
+    wfs = 0.0
     for ln in (s.strip() for s in src):
         if m := _PASS.match(ln):
             head = (int(m[1]), int(m[2]), m[3], float(m[4]))
         elif m := _ON.match(ln):
             weld = (float(m[1]), float(m[2]))
             p, a = pos[last] if last else (None, None)
-            pts, axes = [p], [a]
+            pts, axes, moves, wfs = [p], [a], [], weld[1]
+        elif m := _WFS.match(ln):
+            wfs = float(m[1])
         elif m := _VEL.match(ln):
             vel = float(m[1]) * 60000.0
         elif m := _LIN.match(ln):
@@ -130,9 +153,11 @@ def parse_krl(src: list[str], dat: list[str]) -> list[RobotPass]:
             if weld is not None:
                 pts.append(pos[last][0])
                 axes.append(pos[last][1])
+                moves.append((vel, wfs))
         elif ln.startswith("WELD_OFF") and weld is not None:
             if head is None or pts[0] is None:
                 raise InputError("KRL: a WELD_ON … WELD_OFF block has no '; PASS' header or start")
-            out.append(RobotPass(*head, vel, weld[1], weld[0], np.asarray(pts), np.asarray(axes)))
+            mv = np.asarray(moves)
+            out.append(RobotPass(*head, vel, weld[1], weld[0], np.asarray(pts), np.asarray(axes), mv[:, 0], mv[:, 1]))
             weld = None
     return out

@@ -29,6 +29,16 @@ class ProgramPass:
     points: np.ndarray    # (n, 3) in the part frame (the job's frame)
     axes: np.ndarray      # (n, 3) unit tool axes in the part frame (+Z: vertical torch)
     five_axis: bool       # the job gave tool axes for this pass
+    speeds: np.ndarray | None = None   # (n - 1,) mm/min per segment (a cell-job/2 pass), else None
+    wfs: np.ndarray | None = None      # (n - 1,) m/min per segment (a cell-job/2 pass), else None
+
+    def segment_speeds(self) -> np.ndarray:
+        """(n - 1,) mm/min: every segment's travel speed (the pass's one when it has no array)."""
+        return self.speeds if self.speeds is not None else np.full(len(self.points) - 1, self.speed_mm_min)
+
+    def segment_wfs(self) -> np.ndarray:
+        """(n - 1,) m/min: every segment's wire feed (the pass's one when it has no array)."""
+        return self.wfs if self.wfs is not None else np.full(len(self.points) - 1, self.wfs_m_min)
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,7 +113,7 @@ def build_program(job: CellJob, *, name: str) -> Program:
                 if given is not None:
                     axes = axes @ back[:3, :3].T
             passes.append(ProgramPass(layer.index, pi, p.role, p.width_mm, p.current_a, p.speed_mm_min,
-                                      p.wfs_m_min, pts, axes, given is not None))
+                                      p.wfs_m_min, pts, axes, given is not None, p.seg_speed_mm_min, p.seg_wfs_m_min))
     mat = parsed.material.get("name", "") if isinstance(parsed.material, dict) else ""
     return Program(name=name, source=parsed.source.file, sha256=parsed.source.sha256, material=str(mat),
                    passes=tuple(passes), layer_dwell_s=dwell, transform=t, aligned=m is not None)
@@ -122,3 +132,5 @@ class RobotPass:
     current_a: float
     points: np.ndarray
     axes: np.ndarray
+    speeds: np.ndarray | None = None   # (n - 1,) mm/min of each weld move as the program gives it
+    wfs: np.ndarray | None = None      # (n - 1,) m/min of each weld move as the program gives it

@@ -85,22 +85,30 @@ class _Checker:
         self.out.extend(Violation(li, pi, None, "point outside the workspace") for _ in range(max(0, extra)))
 
     def process(self, p: Pass, li: int, pi: int) -> None:
-        s = p.speed_mm_min
+        """The pass's speed, current and wire feed; a cell-job/2 pass's every segment (the first
+        one outside named: `speed_mm_min[k]`)."""
+        sp = p.speeds()
+        k, s = _worst(sp, (sp <= 0.0) | (sp > self.vmax) | (sp < self.vmin))
+        key = "speed_mm_min" if p.seg_speed_mm_min is None else f"speed_mm_min[{k}] (segment {k})"
         if not (0.0 < s <= self.vmax):
-            self.out.append(Violation(li, pi, None, f"speed_mm_min {s:g} is outside (0, {self.vmax:g}] mm/min "
+            self.out.append(Violation(li, pi, None, f"{key} {s:g} is outside (0, {self.vmax:g}] mm/min "
                                       "(limits.max_speed_mm_min)"))
         elif s < self.vmin:
-            self.out.append(Violation(li, pi, None, f"speed_mm_min {s:g} is below the slowest weld "
+            self.out.append(Violation(li, pi, None, f"{key} {s:g} is below the slowest weld "
                                       f"{self.vmin:g} mm/min (limits.min_weld_speed_mm_min): a standing torch"))
         outside = not p.inside_envelope and self.allow_outside
-        for key, val, env, src, unit in (("current_a", p.current_a, self.env_i, self.source_i, "A"),
-                                         ("wfs_m_min", p.wfs_m_min, self.env_wfs, self.source_wfs, "m/min")):
+        for key, vals, seg, env, src, unit in (
+                ("current_a", np.array([p.current_a]), False, self.env_i, self.source_i, "A"),
+                ("wfs_m_min", p.wire_feeds(), p.seg_wfs_m_min is not None, self.env_wfs, self.source_wfs, "m/min")):
             lo, hi = src if outside else env
-            ok = (lo < val <= hi) if outside else (lo - 1e-9 <= val <= hi + 1e-9)
+            ok_all = ((lo < vals) & (vals <= hi)) if outside else ((lo - 1e-9 <= vals) & (vals <= hi + 1e-9))
+            k, val = _worst(vals, ~ok_all)
+            ok = bool(ok_all.all())
             if not ok:
                 rng = f"the power source's range ({lo:g}, {hi:g}]" if outside \
                     else f"{self.material}'s envelope [{lo:g}, {hi:g}]"
-                self.out.append(Violation(li, pi, None, f"{key} {val:g} {unit} is outside {rng}"))
+                name = f"{key}[{k}] (segment {k})" if seg else key
+                self.out.append(Violation(li, pi, None, f"{name} {val:g} {unit} is outside {rng}"))
 
     def interpass(self, layer: Layer, li: int) -> None:
         ip = layer.interpass
@@ -131,6 +139,13 @@ def violations(job: CellJob, cfg: CellConfig, material: Material) -> list[Violat
             c.points(pts, la.index, pi)
             c.process(p, la.index, pi)
     return c.out
+
+
+def _worst(values: np.ndarray, bad: np.ndarray) -> tuple[int, float]:
+    """The first value where `bad` is true, with its index; else the first value."""
+    hit = np.flatnonzero(bad)
+    k = int(hit[0]) if len(hit) else 0
+    return k, float(values[k]) if len(values) else 0.0
 
 
 def _something_to_build(job: CellJob, source: str) -> None:

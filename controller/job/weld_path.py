@@ -15,11 +15,36 @@ def weld_points(points: Sequence[Sequence[float]] | np.ndarray, max_step_mm: flo
     Point indices of this list are what the journal records, so they must not change between
     a run and its resume: they depend on the job and the step only.
     """
+    return _subdivide(points, max_step_mm)[0]
+
+
+def weld_segments(points: Sequence[Sequence[float]] | np.ndarray, max_step_mm: float) -> list[int]:
+    """For every weld move of `weld_points` (move k ends at weld point k + 1), the job segment it
+    lies on (segment i runs from the pass's point i to i + 1): how a per-segment speed or wire
+    feed (cell-job/2) reaches the moves."""
+    return _subdivide(points, max_step_mm)[1]
+
+
+def move_speed(speed: float | Sequence[float], k: int) -> float:
+    """The travel speed of weld move k (from weld point k to k + 1): the bead's one speed, or its
+    per-move list's k-th (clamped to the list)."""
+    if isinstance(speed, (int, float)):
+        return float(speed)
+    return float(speed[min(max(k, 0), len(speed) - 1)])
+
+
+def move_values(seg_values: np.ndarray, segments: Sequence[int]) -> list[float]:
+    """The per-segment values (one per job segment) as one per weld move."""
+    return [float(seg_values[i]) for i in segments]
+
+
+def _subdivide(points: Sequence[Sequence[float]] | np.ndarray, max_step_mm: float) -> tuple[list[Point], list[int]]:
     if isinstance(points, np.ndarray):   # a typed pass's points: the same floats as the file's list
         points = points.tolist()
     # a job point is x y z (a longer one carries more: only the first three are the position)
     out: list[Point] = [cast(Point, tuple(float(v) for v in points[0][:3]))]
-    for p in points[1:]:
+    seg: list[int] = []
+    for j, p in enumerate(points[1:]):
         q = tuple(float(v) for v in p[:3])
         a = out[-1]
         d = math.dist(a, q)
@@ -29,4 +54,5 @@ def weld_points(points: Sequence[Sequence[float]] | np.ndarray, max_step_mm: flo
         for k in range(1, n + 1):
             f = k / n
             out.append((a[0] + (q[0] - a[0]) * f, a[1] + (q[1] - a[1]) * f, a[2] + (q[2] - a[2]) * f))
-    return out
+            seg.append(j)
+    return out, seg

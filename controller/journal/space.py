@@ -44,10 +44,7 @@ def journal_estimate(job: CellJob, max_step_mm: float, time_scale: float = 1.0) 
         for p in la.passes:
             pts = weld_points(p.points, max_step_mm)
             points += len(pts)
-            length = sum(sum((b - a) ** 2 for a, b in zip(u, v)) ** 0.5 for u, v in zip(pts, pts[1:]))
-            speed = p.speed_mm_min
-            if speed > 0:
-                arc_s += length / speed * 60.0 / max(time_scale, 1e-9)
+            arc_s += p.arc_time_s / max(time_scale, 1e-9)   # each segment at its own speed (cell-job/2)
     total = (BASE_BYTES + len(job.json) + points * BYTES_PER_WELD_POINT
              + int(arc_s * BYTES_PER_ARC_SECOND) + WAL_PEAK_BYTES + RECORD_BYTES)
     return JournalEstimate(points, arc_s, total)

@@ -15,11 +15,12 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from controller.ports import CncLinkPort, PowerSourcePort
 from controller.motion.cnc5 import Five, check_feed
 from controller.job.model import CellJob
+from controller.job.weld_path import move_speed
 from drivers.errors import DeviceError
 from core.errors import CellError
 
@@ -145,7 +146,7 @@ class CncExecutor:
     def next_tickets(self, n: int) -> list[int] | None:
         return None  # grbl lines carry no sequence numbers
 
-    def queue_weld(self, pts: list[Point], i0: int, speed: float,
+    def queue_weld(self, pts: list[Point], i0: int, speed: float | Sequence[float],
                    on_exec: Callable[[int, int], None]) -> "asyncio.Task[int]":
         self._release = asyncio.Event()
         self.go_t = 0.0
@@ -154,7 +155,9 @@ class CncExecutor:
             lines += self.five.weld_lines(i0, speed)
             track, t0, on_track = self.five.track(i0, on_exec)
         else:
-            lines += [f"G1 X{_f(p[0])} Y{_f(p[1])} Z{_f(p[2])} F{speed:.0f}" for p in pts[i0 + 1:]]
+            # F on every line: each move at its own speed (cell-job/2), grbl's F being modal anyway
+            lines += [f"G1 X{_f(pts[i][0])} Y{_f(pts[i][1])} Z{_f(pts[i][2])} F{move_speed(speed, i - 1):.0f}"
+                      for i in range(i0 + 1, len(pts))]
             track, t0, on_track = pts, i0, on_exec
         lines.append("M5")
         along = _Along(pts, i0, self.five.part_point if self.five.active else _xyz)

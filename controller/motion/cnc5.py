@@ -12,7 +12,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from controller.motion.post5 import Post5, inverse_time, linearise, move_line, weld_axes
-from controller.job.weld_path import weld_points
+from controller.job.weld_path import move_speed, move_values, weld_points, weld_segments
 from controller.job.model import CellJob
 from core.errors import InputError
 from planner.job import Pass
@@ -142,11 +142,12 @@ class Five:
         return ["G94", f"G0 Z{up[2]:.3f}", move_line(up, self.letters, verb="G0"),
                 f"G1 Z{m[2]:.3f} F{speed:.0f}"]
 
-    def weld_lines(self, i0: int, speed: float) -> list[str]:
+    def weld_lines(self, i0: int, speed: float | Sequence[float]) -> list[str]:
         """G93 inverse-time moves from the approached start to the end of the pass, then G94.
 
         The moves are the pass's chord-tolerance split (post5.linearise); a start inside a planned
-        move (a resume) has its first move split afresh. F = speed / part-frame length of each move.
+        move (a resume) has its first move split afresh. F = speed / part-frame length of each move,
+        at the speed of the weld move it lies in (one for the bead, or one per weld move: cell-job/2).
         """
         pts, axes, m = self._current()
         fp, fa, fm, fs = self.cur_fine if self.cur_fine is not None else (pts, axes, m, np.arange(len(pts)))
@@ -170,7 +171,9 @@ class Five:
         part = np.vstack([start_part, head_p, fp[j0:]])
         mach = np.vstack([start_m, head_m, fm[j0:]])
         self._stream = (mach[:, :3], np.r_[i0, head_s, fs[j0:]])
-        feeds = inverse_time(part, speed)
+        planned = np.r_[i0, head_s, fs[j0:]]
+        # the machine move from entry e - 1 to e lies in the weld move its start lies on or after
+        feeds = inverse_time(part, np.array([move_speed(speed, int(k)) for k in planned[:-1]]))
         lines = ["G93"] + [move_line(mach[k], self.letters, float(feeds[k - 1])) for k in range(1, len(mach))]
         return lines + ["G94"]
 
@@ -232,20 +235,22 @@ class FeedLimit:
 
 def _pass_moves(five: Five, post: Post5 | None, p: Pass, max_step_mm: float) -> tuple[np.ndarray, np.ndarray]:
     """(process seconds, bytes) per streamed weld line of one pass, as the executor sends them."""
-    speed = p.speed_mm_min / 60.0
+    # mm/s per weld move (each at its segment's speed: cell-job/2)
+    speed = np.asarray(move_values(p.speeds(), weld_segments(p.points, max_step_mm))) / 60.0
     if post is not None and p.axes is not None:
         pts = np.asarray(_weld_points(p.points.tolist(), max_step_mm))
         axes = np.asarray(weld_axes(p.points.tolist(), _axes(p), max_step_mm))
         tol = float(getattr(five.trunnion, "chord_tolerance_mm", 0.02)) * _ROUNDING_SHARE
-        fp, _, fm, _ = linearise(post, pts, axes, post.machine(pts, axes), tol)
+        fp, _, fm, fs = linearise(post, pts, axes, post.machine(pts, axes), tol)
         length = np.linalg.norm(np.diff(fp, axis=0), axis=1)
+        speed = speed[np.minimum(fs[:-1], len(speed) - 1)]
         nbytes = np.array([len(move_line(r, five.letters, 1000.0)) + 1 for r in fm[1:]], dtype=float)
     else:
         pts = np.asarray(_weld_points(p.points.tolist(), max_step_mm))
         length = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-        nbytes = np.array([len(f"G1 X{x:.3f} Y{y:.3f} Z{z:.3f} F{speed * 60:.0f}") + 1 for x, y, z in pts[1:]],
-                          dtype=float)
-    return length / max(speed, 1e-9), nbytes
+        nbytes = np.array([len(f"G1 X{x:.3f} Y{y:.3f} Z{z:.3f} F{v * 60:.0f}") + 1
+                           for (x, y, z), v in zip(pts[1:], speed)], dtype=float)
+    return length / np.maximum(speed, 1e-9), nbytes
 
 
 def feed_limit(job: CellJob, trunnion: Any, baud: int = 115200, max_step_mm: float = 2.0) -> FeedLimit | None:

@@ -178,8 +178,8 @@ def _rot(axis: np.ndarray, deg: np.ndarray) -> np.ndarray:
     return out
 
 
-def inverse_time(points: np.ndarray, speed_mm_min: float) -> np.ndarray:
-    """G93 F per move (1/min): planned speed over the part-frame length of each move."""
+def inverse_time(points: np.ndarray, speed_mm_min: float | np.ndarray) -> np.ndarray:
+    """G93 F per move (1/min): planned speed (one, or one per move) over the part-frame length of each move."""
     seg = np.linalg.norm(np.diff(np.asarray(points, dtype=float), axis=0), axis=1)
     out: np.ndarray = speed_mm_min / np.maximum(seg, 1e-6)
     return out

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import asyncio
 import time
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from controller.motion.post5 import weld_axes
-from controller.job.weld_path import weld_points
+from controller.job.weld_path import move_speed, weld_points
 from controller.job.model import CellJob
 from controller.ports import RobotLinkPort
 from drivers.robot import RobotStatus
@@ -153,9 +153,10 @@ class RobotExecutor:
         first = self.link.next_ticket
         return list(range(first, first + n))
 
-    def queue_weld(self, pts: list[Point], i0: int, speed: float,
+    def queue_weld(self, pts: list[Point], i0: int, speed: float | Sequence[float],
                    on_exec: Callable[[int, int], None]) -> "asyncio.Task[int]":
-        """Stream MOVL to pts[i0+1:]; the task's result is the last ticket."""
+        """Stream MOVL to pts[i0+1:], each at its move's speed (one for all, or one per move:
+        cell-job/2); the task's result is the last ticket."""
         self._weld = {}
         self._on_exec = on_exec
         self._all_sent = False
@@ -166,7 +167,7 @@ class RobotExecutor:
             for i in range(i0 + 1, len(pts)):
                 if self.ahead is not None and len(sent) >= self.ahead:  # runs dry if the host dies
                     await self.link.wait_executed(sent[-self.ahead])
-                last = await self.link.send_move("MOVL", *pts[i], *self._axis(i), speed)
+                last = await self.link.send_move("MOVL", *pts[i], *self._axis(i), move_speed(speed, i - 1))
                 sent.append(last)
                 self._weld[last] = i
                 self._sent_last = last

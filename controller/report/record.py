@@ -27,7 +27,8 @@ CSV_COLUMNS = (
     "voltage_window_min_v", "voltage_window_max_v",
     "voltage_mean_v", "voltage_p5_v", "voltage_p95_v", "voltage_min_v", "voltage_max_v",
     "wfs_planned_m_min", "wfs_mean_m_min", "wfs_p5_m_min", "wfs_p95_m_min", "wfs_min_m_min", "wfs_max_m_min",
-    "speed_planned_mm_min", "speed_measured_mm_min", "starved_count", "heat_input_j_mm", "defects_count",
+    "speed_planned_mm_min", "speed_planned_min_mm_min", "speed_planned_max_mm_min", "speed_measured_mm_min",
+    "starved_count", "heat_input_j_mm", "defects_count",
     "defect_reasons",
 )
 ARC_TIME_TOLERANCE = 0.02  # the three arc-time figures must agree within 2 %
@@ -172,7 +173,10 @@ def bead_records(journal: Journal, job: Job | None, scale: float, defects: list[
             "wfs_planned_m_min": plan.wfs_m_min if plan else None, "wfs_mean_m_min": _r(_wmean(rows, "w_mean", "arc_s"), 3),
             "wfs_p5_m_min": _r(_ext(rows, "w_p5", min), 3), "wfs_p95_m_min": _r(_ext(rows, "w_p95", max), 3),
             "wfs_min_m_min": _r(_ext(rows, "w_min", min), 3), "wfs_max_m_min": _r(_ext(rows, "w_max", max), 3),
-            "speed_planned_mm_min": plan.speed_mm_min if plan else (rows[0]["speed_plan"] if rows else None),
+            # the plan's speed: its length-weighted mean, and the range of its segments' (cell-job/2)
+            "speed_planned_mm_min": _r(plan.speed_mm_min, 1) if plan else (rows[0]["speed_plan"] if rows else None),
+            "speed_planned_min_mm_min": _r(float(plan.speeds().min()), 1) if plan else None,
+            "speed_planned_max_mm_min": _r(float(plan.speeds().max()), 1) if plan else None,
             "speed_measured_mm_min": _r(speed, 1),
             "starved_count": _sum(rows, "starved"),
             "heat_input_j_mm": _r(_wmean(rows, "heat", "length_mm")),
@@ -220,8 +224,17 @@ def planned_arc_s(job: Job | None, beads: list[dict[str, Any]]) -> float:
             continue
         p = _planned(job, b["layer"], b["pass"])
         if p is not None and p.speed_mm_min:
-            total += _polyline_mm(p.points.tolist()) / p.speed_mm_min * 60.0
+            total += p.arc_time_s   # each segment at its own speed (cell-job/2)
     return total
+
+
+def _planned_s_per_mm(job: Job | None, b: dict[str, Any]) -> float | None:
+    """Planned arc seconds per mm of a bead: its plan's arc time over its length (a cell-job/2
+    pass's segments each at their own speed), else 60 / its planned speed."""
+    p = _planned(job, b["layer"], b["pass"]) if job else None
+    if p is not None and p.per_segment and p.length_mm > 0:
+        return p.arc_time_s / p.length_mm
+    return 60.0 / b["speed_planned_mm_min"] if b.get("speed_planned_mm_min") else None
 
 
 def arc_time_figures(journal: Journal, job: Job | None, scale: float, beads: list[dict[str, Any]]) -> dict[str, Any]:
@@ -238,8 +251,7 @@ def arc_time_figures(journal: Journal, job: Job | None, scale: float, beads: lis
     del journal
     plan = planned_arc_s(job, beads)
     built = [b for b in beads if b.get("status") != "not built"]
-    planned = sum((b["length_measured_mm"] or 0.0) / b["speed_planned_mm_min"] * 60.0
-                  for b in built if b.get("speed_planned_mm_min"))
+    planned = sum((b["length_measured_mm"] or 0.0) * (_planned_s_per_mm(job, b) or 0.0) for b in built)
     measured = sum(b["motion_time_s"] for b in built if b.get("motion_time_s") is not None)
     arc_on = sum(b["arc_time_s"] or 0.0 for b in built)
     figs: dict[str, Any] = {"plan_s": round(plan, 1), "planned_s": round(planned, 1),

@@ -10,9 +10,14 @@ from __future__ import annotations
 from typing import Any
 
 
-def judge(stats: dict[str, float | None], planned_i: float, planned_wfs: float, tol: Any,
+def judge(stats: dict[str, float | None], planned_i: float, planned_wfs: float | tuple[float, float], tol: Any,
           arc_faltered: bool, planned_speed: float | None = None) -> str | None:
-    """None for a good bead, else the reason it is a defect (one line)."""
+    """None for a good bead, else the reason it is a defect (one line).
+
+    `planned_wfs` is the pass's wire feed, or (cell-job/2) the lowest and highest of its segments':
+    the measured wire feed is judged against that range ± the tolerance, and the current, which a
+    synergic source sets from the wire feed, against the set-point scaled by the same range
+    (docs/along-the-path.md)."""
     if arc_faltered:
         return "arc not stable all along the bead"
     if not stats or stats.get("i_mean") is None:
@@ -32,14 +37,17 @@ def judge(stats: dict[str, float | None], planned_i: float, planned_wfs: float, 
     # time scale on a loaded host their jitter (k x a few ms of process time) would make false
     # defects. The record flags beads outside `tolerance.speed_pct` instead (travel_speed).
     del planned_speed
-    i_lo, i_hi = planned_i * (1 - tol.current_pct / 100), planned_i * (1 + tol.current_pct / 100)
+    wl, wh = planned_wfs if isinstance(planned_wfs, tuple) else (planned_wfs, planned_wfs)
+    w_ref = 0.5 * (wl + wh)
+    i_set = f"{planned_i:.1f} A" if wl == wh else f"{planned_i * wl / w_ref:.1f}-{planned_i * wh / w_ref:.1f} A"
+    i_lo, i_hi = planned_i * wl / w_ref * (1 - tol.current_pct / 100), planned_i * wh / w_ref * (1 + tol.current_pct / 100)
     if stats["i_min"] < i_lo or stats["i_max"] > i_hi:
-        out.append(f"current {stats['i_min']:.1f}-{stats['i_max']:.1f} A outside "
-                   f"{planned_i:.1f} A ±{tol.current_pct:g} %")
-    w_lo, w_hi = planned_wfs * (1 - tol.wfs_pct / 100), planned_wfs * (1 + tol.wfs_pct / 100)
+        out.append(f"current {stats['i_min']:.1f}-{stats['i_max']:.1f} A outside {i_set} ±{tol.current_pct:g} %")
+    w_lo, w_hi = wl * (1 - tol.wfs_pct / 100), wh * (1 + tol.wfs_pct / 100)
     w_min, w_max = stats.get("wfs_min", stats["wfs_mean"]), stats.get("wfs_max", stats["wfs_mean"])
+    w_set = f"{wl:.2f} m/min" if wl == wh else f"{wl:.2f}-{wh:.2f} m/min"
     if w_min < w_lo or w_max > w_hi:
-        out.append(f"wire feed {w_min:.2f}-{w_max:.2f} m/min outside {planned_wfs:.2f} m/min ±{tol.wfs_pct:g} %")
+        out.append(f"wire feed {w_min:.2f}-{w_max:.2f} m/min outside {w_set} ±{tol.wfs_pct:g} %")
     if stats["u_min"] < tol.voltage_min_v or stats["u_max"] > tol.voltage_max_v:
         out.append(f"voltage {stats['u_min']:.1f}-{stats['u_max']:.1f} V outside "
                    f"[{tol.voltage_min_v:g}, {tol.voltage_max_v:g}] V")

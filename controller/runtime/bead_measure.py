@@ -16,10 +16,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
+
 BUS_CYCLE_S = 0.010   # the power source's bus cycle (wall): how finely the controller sees the process
 # wall: how late a device's report may come without the torch having stood; the arc time forgives
 # that much at the bead's start and end (DESIGN.md §6a: the simulators answer within 5 ms, p99)
 REPORT_LATENCY_S = 0.005
+_PLANNED = -1.0      # Pace._wall_speed: "at the plan's own pace" (per move where the plan has per-move speeds)
 
 
 @dataclass
@@ -92,6 +95,21 @@ class Pace:
     planned_mm_min: float | None = None   # the pass's planned travel speed (process mm/min)
     speed_tol: float = 0.10               # the material's tolerance.speed_pct as a fraction
     t_go: float | None = None             # when a device that sets off at once was sent its first move (CNC)
+    # per-move planned speeds (cell-job/2): mm along the weld points and the process s to reach them
+    plan_s: list[float] | None = None
+    plan_t: list[float] | None = None
+
+    def planned_wall(self, s: float, time_scale: float) -> float:
+        """Wall seconds the plan takes from the pass's first point to `s` mm along it (each move at
+        its own speed when the pass has per-move speeds, else at `planned_mm_min`)."""
+        if self.plan_s is not None and self.plan_t is not None and len(self.plan_s) >= 2:
+            s_end, t_end = self.plan_s[-1], self.plan_t[-1]
+            if s <= s_end:
+                return float(np.interp(s, self.plan_s, self.plan_t)) / time_scale
+            v_last = (s_end - self.plan_s[-2]) / max(t_end - self.plan_t[-2], 1e-12)
+            return (t_end + (s - s_end) / max(v_last, 1e-12)) / time_scale
+        v = (self.planned_mm_min or 0.0) / 60.0 * time_scale
+        return s / v if v > 0 else 0.0
 
     def arc_lost(self, t: float) -> None:
         """The source's arc-stable bit fell at wall time `t` (the first fall counts)."""
@@ -154,7 +172,11 @@ class Pace:
         v = self._wall_speed(time_scale)
         if v is None or not self.points:
             return self.t_release
-        est = min(t - max(0.0, s - self.s_release) / v for t, s in self.points)
+        if v == _PLANNED:   # at the plan's pace (per move where it has per-move speeds)
+            w0 = self.planned_wall(self.s_release, time_scale)
+            est = min(t - max(0.0, self.planned_wall(s, time_scale) - w0) for t, s in self.points)
+        else:
+            est = min(t - max(0.0, s - self.s_release) / v for t, s in self.points)
         if self.t_go is not None:
             go = max(self.t_release, self.t_go)
             return go + min(max(0.0, est - go), REPORT_LATENCY_S)
@@ -165,7 +187,8 @@ class Pace:
         self.t_go = t_go
 
     def _wall_speed(self, time_scale: float, cycle_s: float = BUS_CYCLE_S) -> float | None:
-        """The plan's pace, or the measured one where the device clearly ran faster than its plan:
+        """The plan's pace (`_PLANNED`: per move where the plan has per-move speeds), or the measured
+        one (wall mm/s) where the device clearly ran faster than its plan:
         by more than the speed tolerance and the two bus cycles each report may be late by, over
         the span of the reports. A stand-still mid-bead lowers the measured pace, which would push
         the start estimate early; two reports a few milliseconds late apart raise it (a CNC's two
@@ -176,7 +199,7 @@ class Pace:
         if v_plan is None or (v is not None and span > 0
                               and v > v_plan * (1.0 + self.speed_tol + 2 * cycle_s / span)):
             return v
-        return v_plan
+        return _PLANNED
 
     def arc_time(self, time_scale: float) -> dict[str, float | None]:
         """The bead's arc time in process seconds: from the torch setting off along the bead
@@ -210,18 +233,17 @@ class Pace:
         delays and the rise allowed (`standstill`); None without a plan or reports."""
         if not self.planned_mm_min or not self.points:
             return None
-        v = self.planned_mm_min / 60.0 * time_scale   # wall mm/s
         t0 = self.motion_start(time_scale)
         pts = [(t0, self.s_release)] + sorted(self.points)
         if self.t_arc_lost is not None:
             pts = [p for p in pts if p[0] <= self.t_arc_lost] or pts[:1]
-        d = [t - s / v for t, s in pts]
+        w = [self.planned_wall(s, time_scale) for _, s in pts]   # wall s at the planned pace
+        d = [t - wk for (t, _), wk in zip(pts, w)]
         suffix = d[:]
         for k in range(len(d) - 2, -1, -1):
             suffix[k] = min(suffix[k], suffix[k + 1])
         # the reports opening and closing the stretch are each seen to within one bus cycle
-        return pts, d, [(suffix[k + 1] - suffix[k],
-                         self.speed_tol * max(0.0, pts[k + 1][1] - pts[k][1]) / v + 2 * cycle_s)
+        return pts, d, [(suffix[k + 1] - suffix[k], self.speed_tol * max(0.0, w[k + 1] - w[k]) + 2 * cycle_s)
                         for k in range(len(pts) - 1)]
 
     def standstill(self, time_scale: float, cycle_s: float = BUS_CYCLE_S) -> dict[str, float | int | None]:
@@ -243,9 +265,8 @@ class Pace:
             return {"still_n": None, "still_s": None, "still_max_s": None, "lag_s": None}
         pts, _, stretches = st
         rises = [rise for rise, allowed in stretches if rise > allowed]
-        v = (self.planned_mm_min or 0.0) / 60.0 * time_scale
         t_end, s_end = pts[-1]
-        lag = (t_end - pts[0][0]) - max(0.0, s_end - self.s_release) / v
+        lag = (t_end - pts[0][0]) - max(0.0, self.planned_wall(s_end, time_scale) - self.planned_wall(self.s_release, time_scale))
         return {"still_n": len(rises), "still_s": sum(rises) * time_scale,
                 "still_max_s": max(rises, default=0.0) * time_scale, "lag_s": lag * time_scale}
 

@@ -23,6 +23,7 @@ from controller.runtime.arc_out import RunOn, arc_lengths, point_at
 from controller.runtime.bead_cut import BeadCut, run_on_after_trip
 from controller.runtime.bead_check import judge
 from controller.runtime.bead_measure import BeadStats, Pace
+from controller.runtime.bead_plan import MovePlan, move_plan
 from controller.runtime.events import EventBus
 from controller.journal.queries import SampleRow
 from controller.journal.store import Journal
@@ -36,6 +37,7 @@ from core.errors import CellError
 from core.material import ProcessTolerance
 from planner.job import Layer
 from controller.runtime.readiness import ensure_ready
+from controller.runtime.interpass import interpass_wait
 
 STALE_STATUS_S = 0.1  # a power-source status older than its watchdog (100 ms) does not vouch for a move
 
@@ -119,6 +121,7 @@ class BuildRunner:
         self._faltered = False                # the arc was not stable at some point of this bead
         self._unstable_since_exe = False
         self._defect_at: Point | None = None  # where the bead first went wrong
+        self._plan: MovePlan | None = None    # the current pass's speed and wire feed per weld move
         self._samples: list[SampleRow] = []
         self._last_sample = 0.0
         self._unsub: list[Callable[[], None]] = []
@@ -230,30 +233,9 @@ class BuildRunner:
     async def _interpass(self, layer: int) -> None:
         """Before a layer's first arc: pyrometer below the limit, or the dwell without a reading."""
         rule = self.layers[layer].interpass
-        limit = rule.max_temperature_c if rule is not None else self.o.interpass_limit_c
-        dwell = rule.dwell_s if rule is not None else self.o.interpass_dwell_s
-        t0 = time.monotonic()
-        scale = self.o.time_scale
-        temp = self._temperature()
-        if temp is None:
-            if layer == 0:
-                return
-            dwell_wall = dwell / scale
-            self.journal.event("info", f"interpass dwell {dwell:.0f} s (no pyrometer)", layer=layer)
-            while (left := dwell_wall - (time.monotonic() - t0)) > 0:
-                self.bus.update(interpass_remaining_s=left * scale)
-                await asyncio.sleep(min(left, 0.1))
-            self.bus.update(interpass_remaining_s=None)
-            return
-        self.bus.update(interpass_limit_c=limit, temperature_c=temp)
-        if temp < limit:
-            return
-        self.journal.event("info", f"interpass wait: part at {temp:.0f} °C, limit {limit:.0f} °C", layer=layer)
-        while (temp := self._temperature()) is not None and temp >= limit:
-            if (time.monotonic() - t0) * scale > self.o.interpass_timeout_s:
-                raise BuildError(f"interpass: the part stays above {limit:.0f} °C ({temp:.0f} °C); check the pyrometer")
-            self.bus.update(temperature_c=temp)
-            await asyncio.sleep(0.02)
+        await interpass_wait(layer, rule.max_temperature_c if rule is not None else self.o.interpass_limit_c,
+                             rule.dwell_s if rule is not None else self.o.interpass_dwell_s, self.o.interpass_timeout_s,
+                             self.o.time_scale, self._temperature, self.journal, self.bus)
 
     def _temperature(self) -> float | None:
         if self.cellio is None:
@@ -301,18 +283,18 @@ class BuildRunner:
     async def _one_pass(self, item: WorkItem) -> None:
         la, pa = item.layer, item.pass_
         p = self.layers[la].passes[pa]
-        pts = weld_points(p.points, self.o.max_step_mm)
-        speed = p.speed_mm_min
+        pts, plan = weld_points(p.points, self.o.max_step_mm), move_plan(p, self.o.max_step_mm)
+        speed = plan.speed   # the pass's (length-weighted mean); per weld move in plan.speeds (cell-job/2)
         start_idx, start_pt, start_mm = self._start_point(item, pts, speed)
         self.current, self.cur_idx, self._acct_idx = item, start_idx, start_idx
-        self._pts, self._measured_mm, self._faltered, self._defect_at = pts, 0.0, False, None
+        self._pts, self._measured_mm, self._faltered, self._defect_at, self._plan = pts, 0.0, False, None, plan
         self._cum, self._start_mm = arc_lengths(pts), start_mm
         self.bus.update(layer=la, pass_=pa, passes_in_layer=len(self.layers[la].passes))
         if start_idx >= len(pts) - 1:  # nothing left of this bead (it stopped on its last point)
             self._pass_done(la, pa)
             return
         # the robot's lookahead: set on the executor, journaled with the arc (device_record.py)
-        lookahead = dry_lookahead(self.ex, pts, start_idx, speed, self.o.time_scale, self.o.run_on.watchdog_s)
+        lookahead = dry_lookahead(self.ex, pts, start_idx, plan.slowest, self.o.time_scale, self.o.run_on.watchdog_s)
         if hasattr(self.ex, "use_pass"):
             self.ex.use_pass(la, pa)  # the executor's tool axes for this pass
         self.m.send("travel")
@@ -323,10 +305,10 @@ class BuildRunner:
         ahead = self.ex.next_tickets(len(pts) - 1 - start_idx)
         if ahead:  # write-ahead: the tickets of this bead's weld moves and the points they reach
             self.journal.moves_sent([(tk, la, pa, start_idx + 1 + k, "weld") for k, tk in enumerate(ahead)])
-        tickets = self._stream = self.ex.queue_weld(pts, start_idx, speed, self._on_exec)
+        tickets = self._stream = self.ex.queue_weld(pts, start_idx, plan.speeds, self._on_exec)
         await self.ex.at_start()
         self.m.send("arc_start")
-        self.power.set_wire_feed(p.wfs_m_min)
+        self.power.set_wire_feed(plan.wfs_at(start_idx))
         await self.arc.start()
         self.arc_starts += 1
         self._arc_lit = True
@@ -337,7 +319,8 @@ class BuildRunner:
         self.bus.update(arc_starts=self.bus.latest.arc_starts + 1, travel_speed_mm_min=speed)
         self.m.send("arc_on")
         self._t_exe = time.monotonic()
-        self._pace = Pace(self._t_exe, start_mm, starved=-getattr(self.ex, "starved", 0), planned_mm_min=speed, speed_tol=self._tolerance().speed_pct / 100)
+        self._pace = Pace(self._t_exe, start_mm, starved=-getattr(self.ex, "starved", 0), planned_mm_min=speed,
+                          speed_tol=self._tolerance().speed_pct / 100, plan_s=plan.plan_s, plan_t=plan.plan_t)
         self.ex.release()
         self.watchdog = ProgressWatchdog.of(self.ex, self.power, self.progress_s, self.o.time_scale,
                                             lambda: f"layer {la} pass {pa} point {self.cur_idx} of {len(pts) - 1}")
@@ -347,7 +330,7 @@ class BuildRunner:
         await self.arc.stop()
         self.bus.update(travel_speed_mm_min=None)
         stats = self._close_bead(la, pa, pts, start_idx, len(pts) - 1, speed, interrupted=False)
-        why = judge(stats or {}, p.current_a, p.wfs_m_min, self._tolerance(),
+        why = judge(stats or {}, p.current_a, plan.wfs_range(), self._tolerance(),
                     self._faltered, planned_speed=speed)
         if why is not None:
             self._defect(la, pa, why)
@@ -355,7 +338,6 @@ class BuildRunner:
 
     def _tolerance(self) -> Any:
         if self.o.tolerance is None:
-
             self.o.tolerance = ProcessTolerance()
         return self.o.tolerance
 
@@ -415,6 +397,8 @@ class BuildRunner:
         if not faltered and self._pts and 0 < idx < len(self._pts):
             self._measured_mm += max(0.0, self._cum[idx] - max(self._cum[min(prev, idx)], self._start_mm))
         self._t_exe = time.monotonic()
+        if self._plan is not None and self._plan.wfs is not None and self._arc_lit:  # the move now running: its wire feed
+            self.power.set_wire_feed(self._plan.wfs_at(idx))
         # when the robot's report arrived (the port's reader thread), else now
         self._t_exe_rx = getattr(self.ex, "exe_t", 0.0) or self._t_exe
         if self._pace is not None and not faltered and 0 <= idx < len(self._cum):

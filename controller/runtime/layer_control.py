@@ -99,7 +99,7 @@ class LayerControl:
         self.est = StickOutEstimator(material, cfg.steady_share)
         self.l0 = self.est.nominal_mm
         self.p = 1.0   # the rise follows the metal (controller/runtime/layer_plan.py)
-        top_speed = max(p.speed_mm_min for la in self.job_layers for p in la.passes)
+        top_speed = max(float(p.speeds().max()) for la in self.job_layers for p in la.passes)
         trim = cfg.speed_trim_pct / 100.0
         self.k_range = (max(1.0 - trim, 0.05), max(min(1.0 + trim, max_speed_mm_min / top_speed), 1e-3))
         self.final_mm = layer_z(self.job_layers[-1])

@@ -49,8 +49,8 @@ def shift_layer(layer: Layer, dz: float) -> Layer:
 
 
 def trim_layer(layer: Layer, speed_factor: float) -> Layer:
-    """A copy of the layer with every pass's travel speed times `speed_factor`."""
-    return replace(layer, passes=tuple(replace(p, speed_mm_min=p.speed_mm_min * speed_factor) for p in layer.passes))
+    """A copy of the layer with every pass's travel speed (each segment's, cell-job/2) times `speed_factor`."""
+    return replace(layer, passes=tuple(p.scaled(speed_factor) for p in layer.passes))
 
 
 def adjusted_layer(layer: Layer, dz: float, speed_factor: float) -> Layer:

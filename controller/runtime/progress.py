@@ -35,20 +35,18 @@ SAMPLE_TIMEOUT_S = 1.0   # a status request that takes longer is not a sample (t
 
 def longest_move_s(job: CellJob, max_step_mm: float) -> float:
     """Process seconds of the longest weld move of the job (its polylines subdivided to at most
-    `max_step_mm`, as controller/job/weld_path.py does), at each pass's planned speed."""
+    `max_step_mm`, as controller/job/weld_path.py does), each at its segment's planned speed."""
     worst = 0.0
     for la in job.layers:
         for p in la.passes:
-            v = p.speed_mm_min / 60.0
             pts = p.points.tolist()
-            if v <= 0 or len(pts) < 2:
+            if len(pts) < 2:
                 continue
-            longest = 0.0
-            for a, b in zip(pts, pts[1:]):
+            for a, b, v in zip(pts, pts[1:], (p.speeds() / 60.0).tolist()):
                 seg = math.dist(a[:3], b[:3])
                 n = max(1, math.ceil(seg / max_step_mm - 1e-9))
-                longest = max(longest, seg / n)
-            worst = max(worst, longest / v)
+                if v > 0:
+                    worst = max(worst, seg / n / v)
     return worst
 
 
