@@ -235,6 +235,13 @@ class ProcessControl(_Frozen):
     max_layer_change_pct: float = Field(default=50.0, ge=0.0, le=200.0)  # at most this share of layers added / dropped
     gain_window_layers: int = Field(default=6, ge=2, le=100)    # measured tops the gain is fitted over
     steady_share: float = Field(default=0.6, gt=0.0, le=1.0)    # middle share of a bead's samples estimated
+    # the path loop (mode path, docs/closed-loop.md "Along the path")
+    probe_spacing_mm: float = Field(default=10.0, gt=0.0, le=1000.0)  # CNC: probe points along every pass
+    path_bin_mm: float | None = Field(default=None, gt=0.0, le=100.0)  # robot: samples binned this long (null: the bead width)
+    path_filter_mm: float | None = Field(default=None, gt=0.0, le=200.0)  # filter length along the path (at least the bead width)
+    path_kp: float = Field(default=0.6, ge=0.0, le=2.0)         # learning on the change of the error since the last layer
+    path_ki: float = Field(default=0.25, ge=0.0, le=2.0)        # learning on the error
+    path_max_error_mm: float = Field(default=1.0, gt=0.0, le=50.0)  # off the layer's mean by more, at the bound: pause
 
     @model_validator(mode="after")
     def _window(self) -> "ProcessControl":

@@ -51,6 +51,10 @@ PROCESS = {  # node name → (snapshot field, OPC UA type)
     "StickOut": ("stick_out_mm", ua.VariantType.Double),             # CTWD estimate (docs/closed-loop.md)
     "LayerHeightError": ("layer_height_error_mm", ua.VariantType.Double),  # last layer's top − plan
     "ZCorrection": ("z_correction_mm", ua.VariantType.Double),       # z offset of the current layer
+    "PathHeightRms": ("path_rms_mm", ua.VariantType.Double),         # path loop: last layer's RMS along the path
+    "PathHeightSpread": ("path_spread_mm", ua.VariantType.Double),   # ... its top's spread along the path
+    "PathSpeedFactorMin": ("path_factor_min", ua.VariantType.Double),  # current layer's per-segment speed factors
+    "PathSpeedFactorMax": ("path_factor_max", ua.VariantType.Double),
 }
 JOB = {
     "JobName": ("job_name", ua.VariantType.String),

@@ -72,6 +72,10 @@ class Snapshot:
     stick_out_mm: float | None = None           # the latest stick-out (CTWD) estimate (docs/closed-loop.md)
     layer_height_error_mm: float | None = None  # the last layer's measured top − its planned top
     z_correction_mm: float | None = None        # z offset the current layer is laid with
+    path_rms_mm: float | None = None            # the path loop: last layer's RMS height error along the path
+    path_spread_mm: float | None = None         # ... its top's spread (max − min) along the path
+    path_factor_min: float | None = None        # the current layer's smallest per-segment speed factor
+    path_factor_max: float | None = None        # ... and largest
     record_path: str | None = None   # the build record (report.json) of the last build that ended
     wire_lot: str | None = None      # the running build's trace (docs/records.md)
     gas: str | None = None
@@ -121,6 +125,10 @@ class SnapshotChanges(TypedDict, total=False):
     stick_out_mm: float | None
     layer_height_error_mm: float | None
     z_correction_mm: float | None
+    path_rms_mm: float | None
+    path_spread_mm: float | None
+    path_factor_min: float | None
+    path_factor_max: float | None
 
 
 class AlarmWhere(TypedDict, total=False):

@@ -198,7 +198,15 @@ def process_text(s: Snapshot) -> str:
         parts.append(f"layer top {s.layer_height_error_mm:+.2f} mm vs plan")
     if s.z_correction_mm is not None:
         parts.append(f"z correction {s.z_correction_mm:+.2f} mm")
-    return ("\n" + " · ".join(parts)) if parts else ""
+    line = ("\n" + " · ".join(parts)) if parts else ""
+    path = []
+    if s.path_rms_mm is not None:
+        path.append(f"along the path: RMS {s.path_rms_mm:.2f} mm")
+    if s.path_spread_mm is not None:
+        path.append(f"spread {s.path_spread_mm:.2f} mm")
+    if s.path_factor_min is not None and s.path_factor_max is not None:
+        path.append(f"speed × {s.path_factor_min:.2f}–{s.path_factor_max:.2f}")
+    return line + (("\n" + " · ".join(path)) if path else "")
 
 
 def alarms_text(v: View, n: int = 5) -> str:

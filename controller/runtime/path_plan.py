@@ -1,0 +1,154 @@
+"""The path loop, the pure half (docs/closed-loop.md "Along the path"): heights along a pass from
+samples binned by position, fields indexed by position in the part, and the learning law that
+turns the last layer's height error into the next layer's per-segment speed factors.
+
+No I/O, no clocks: numpy arrays and frozen dataclasses, unit-tested on their own.
+
+The law (PD-type iterative learning control over layers, indexed by xy in the part, not by point
+number, so alternating or re-planned passes line up): after layer i, with d_i(x) its measured top
+minus the layer's mean top (the layer loop holds the mean), the speed factor of the next layer's
+segment at x is
+
+    m_{i+1}(x) = m_i(x) + (kp·(d_i(x) − d_{i−1}(x)) + ki·d_i(x)) / r
+
+r the layer's rise: a bead's rise follows its metal, 1/speed, so a factor change Δm changes the
+rise by about −r·Δm. d, m are fields: kernel means (Gaussian, σ a quarter of the filter length, so its ±2σ span
+it) of the samples near x, the nearest within the filter length where none is that near; the
+samples themselves are means over bins of about one bead width, so the correction is filtered
+along the path over at least one bead width. The
+factors are scaled so their length-weighted mean of 1/m is 1 (the layer's metal stays the layer
+loop's), then bounded by the speed trim.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+__all__ = ["Field", "resample", "arc_length", "point_at", "bin_samples", "plan_factors", "PathLaw", "spots_along"]
+
+
+@dataclass(frozen=True)
+class Field:
+    """A quantity sampled at positions of the part (substrate xy, mm)."""
+
+    xy: FloatArray     # (n, 2)
+    v: FloatArray      # (n,)
+
+    @staticmethod
+    def of(rows: Sequence[Sequence[float]]) -> "Field":
+        a = np.asarray(rows, dtype=float).reshape(-1, 3)
+        return Field(a[:, :2].copy(), a[:, 2].copy())
+
+    def rows(self, nd: int = 4) -> list[list[float]]:
+        return [[round(float(x), 3), round(float(y), 3), round(float(v), nd)] for (x, y), v in zip(self.xy, self.v)]
+
+    def at(self, q: FloatArray, sigma: float, reach: float | None = None) -> FloatArray:
+        """Kernel mean at each query point (n, 2) over the samples within 2σ; where there is none,
+        the nearest sample within `reach` (else NaN)."""
+        q = np.asarray(q, dtype=float).reshape(-1, 2)
+        out = np.full(len(q), np.nan)
+        if not len(self.v) or not len(q):
+            return out
+        d2 = ((q[:, None, :] - self.xy[None, :, :]) ** 2).sum(axis=2)
+        w = np.exp(-0.5 * d2 / (sigma * sigma))
+        w[d2 > (2.0 * sigma) ** 2] = 0.0
+        s = w.sum(axis=1)
+        ok = s > 1e-9
+        out[ok] = (w[ok] @ self.v) / s[ok]
+        near = np.argmin(d2, axis=1)
+        fill = ~ok & (d2[np.arange(len(q)), near] <= (reach if reach is not None else 2.0 * sigma) ** 2)
+        out[fill] = self.v[near[fill]]
+        return out
+
+
+def arc_length(points: FloatArray) -> FloatArray:
+    """Cumulative xy length at every point (0 at the first)."""
+    p = np.asarray(points, dtype=float)
+    if len(p) < 2:
+        return np.zeros(len(p))
+    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p[:, :2], axis=0).T))])
+
+
+def point_at(points: FloatArray, cum: FloatArray, s: float) -> FloatArray:
+    """The point (all columns) at length s along the polyline."""
+    s = min(max(s, 0.0), float(cum[-1]))
+    k = min(int(np.searchsorted(cum, s, side="right")) - 1, len(cum) - 2)
+    seg = cum[k + 1] - cum[k]
+    t = 0.0 if seg <= 0 else (s - cum[k]) / seg
+    out: FloatArray = points[k] + t * (points[k + 1] - points[k])
+    return out
+
+
+def resample(points: FloatArray, spacing: float) -> tuple[FloatArray, FloatArray]:
+    """The polyline with points inserted so that no segment is longer than `spacing` (every
+    original point kept); also each new point's fractional index into the original points (for
+    interpolating per-point arrays: normals, axes)."""
+    p = np.asarray(points, dtype=float)
+    out, idx = [p[0]], [0.0]
+    for i in range(len(p) - 1):
+        n = max(1, math.ceil(float(np.hypot(*(p[i + 1, :2] - p[i, :2]))) / spacing - 1e-9))
+        for k in range(1, n + 1):
+            f = k / n
+            out.append(p[i] + f * (p[i + 1] - p[i]))
+            idx.append(i + f)
+    return np.asarray(out), np.asarray(idx)
+
+
+def bin_samples(samples: Sequence[tuple[float, float]], length: float, bin_mm: float,
+                min_n: int = 1) -> list[tuple[float, float, int]]:
+    """Samples (s along the pass, value) binned by position: (bin centre s, mean, n) for every bin
+    of about `bin_mm` (the pass split into equal bins) holding at least `min_n` samples."""
+    if length <= 0 or not samples:
+        return []
+    nb = max(1, int(round(length / bin_mm)))
+    size = length / nb
+    acc: dict[int, list[float]] = {}
+    for s, v in samples:
+        if math.isfinite(v):
+            acc.setdefault(min(max(int(s / size), 0), nb - 1), []).append(v)
+    return [((b + 0.5) * size, float(np.mean(vs)), len(vs)) for b, vs in sorted(acc.items()) if len(vs) >= min_n]
+
+
+def spots_along(points: FloatArray, spacing: float, end_mm: float) -> list[FloatArray]:
+    """Probe spots along a pass: every ~`spacing` mm from `end_mm` after its start to `end_mm`
+    before its end (ends included), at least one (its middle)."""
+    p = np.asarray(points, dtype=float)
+    cum = arc_length(p)
+    total = float(cum[-1]) if len(cum) else 0.0
+    if total <= 2 * end_mm:
+        return [point_at(p, cum, total / 2)] if total > 0 else []
+    n = max(1, int(round((total - 2 * end_mm) / spacing)))
+    return [point_at(p, cum, end_mm + (total - 2 * end_mm) * k / n) for k in range(n + 1)]
+
+
+@dataclass(frozen=True)
+class PathLaw:
+    kp: float = 0.6            # on the change of the error since the last layer (damping)
+    ki: float = 0.25           # on the error (learning)
+    filter_mm: float = 7.0     # the kernel spans it: σ = filter_mm / 4
+    bounds: tuple[float, float] = (0.75, 1.25)
+
+
+def plan_factors(mid_xy: FloatArray, seg_len: FloatArray, d_now: Field, d_prev: Field | None,
+                 m_now: Field | None, rise_mm: float, law: PathLaw) -> tuple[FloatArray, FloatArray]:
+    """The next layer's speed factor per segment (midpoints `mid_xy`, lengths `seg_len`, all the
+    layer's passes together): (bounded factors, needed factors before the bound)."""
+    sigma, reach = law.filter_mm / 4.0, law.filter_mm
+    dn = d_now.at(mid_xy, sigma, reach)
+    dp = d_prev.at(mid_xy, sigma, reach) if d_prev is not None else np.full(len(dn), np.nan)
+    mn = m_now.at(mid_xy, sigma, reach) if m_now is not None else np.full(len(dn), np.nan)
+    mn = np.where(np.isfinite(mn), mn, 1.0)
+    dp = np.where(np.isfinite(dp), dp, 0.0)       # first measured layer: the one under it level
+    step = np.where(np.isfinite(dn), law.kp * (dn - dp) + law.ki * dn, 0.0) / max(rise_mm, 1e-3)
+    m = np.maximum(mn + step, 0.05)
+    w = np.asarray(seg_len, dtype=float)
+    if w.sum() > 0:
+        m = m * float(np.sum(w / m) / np.sum(w))   # the layer's metal unchanged
+    lo, hi = law.bounds
+    return np.clip(m, lo, hi), m

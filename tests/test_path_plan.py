@@ -1,0 +1,77 @@
+"""The path loop's pure half (issue 35, docs/closed-loop.md "Along the path"): fields by position,
+binning, and the learning law levelling a top whose local gain differs along the path."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from controller.runtime.path_plan import Field, PathLaw, bin_samples, plan_factors, resample, spots_along
+
+
+def test_resample_keeps_every_point_and_caps_the_segments():
+    pts = np.array([[0.0, 0.0, 1.0], [10.0, 0.0, 1.0], [10.0, 3.0, 1.0]])
+    out, idx = resample(pts, 3.5)
+    assert len(out) == 1 + 3 + 1
+    assert np.allclose(out[[0, 3, 4]], pts)
+    assert np.hypot(*np.diff(out[:, :2], axis=0).T).max() <= 3.5 + 1e-9
+    assert idx[3] == pytest.approx(1.0) and idx[-1] == pytest.approx(2.0)
+
+
+def test_samples_binned_by_position_not_by_arrival():
+    samples = [(s, 100.0 + (10.0 if s > 50 else 0.0)) for s in np.linspace(0, 99.9, 300)]
+    bins = bin_samples(samples[::-1], 100.0, 7.0)           # order does not matter
+    assert len(bins) == 14
+    assert bins[0][1] == pytest.approx(100.0) and bins[-1][1] == pytest.approx(110.0)
+    assert sum(n for *_, n in bins) == 300
+
+
+def test_a_field_is_a_kernel_mean_and_empty_far_from_its_samples():
+    f = Field.of([[0.0, 0.0, 1.0], [1.0, 0.0, 3.0]])
+    v = f.at(np.array([[0.5, 0.0], [50.0, 0.0]]), 2.0)
+    assert v[0] == pytest.approx(2.0) and np.isnan(v[1])
+
+
+def test_spots_along_a_pass_reach_its_ends():
+    pts = np.array([[0.0, 0.0, 0.0], [40.0, 0.0, 0.0]])
+    sp = spots_along(pts, 10.0, 1.75)
+    xs = [float(p[0]) for p in sp]
+    assert xs[0] == pytest.approx(1.75) and xs[-1] == pytest.approx(38.25) and len(xs) == 5
+
+
+def _run(layers: int, law: PathLaw, noise: float = 0.0, seed: int = 1) -> list[float]:
+    """A wall 100 mm long laid on positions x; its local gain is 1.25 on the last quarter and 0.8
+    at the ends (a run-down): the rise at x is g(x)·h/m(x). The spread of the top after each layer."""
+    rng = np.random.default_rng(seed)
+    x = np.arange(1.75, 100.0, 3.5)
+    xy = np.c_[x, np.zeros_like(x)]
+    g = np.where(x > 75, 1.25, 1.0) * np.where((x < 5) | (x > 95), 0.85, 1.0)
+    h, top, m = 0.77, np.zeros_like(x), np.ones_like(x)
+    fields: list[tuple[Field, Field]] = []
+    spread = []
+    for _ in range(layers):
+        top = top + g * h / m
+        meas = top + rng.normal(0.0, noise, len(x))
+        d = Field(xy, meas - meas.mean())
+        fields = (fields + [(d, Field(xy, m.copy()))])[-2:]
+        m, _need = plan_factors(xy, np.full(len(x), 3.5), fields[-1][0], fields[-2][0] if len(fields) > 1 else None,
+                                fields[-1][1], h * float(np.mean(g)), law)
+        spread.append(float(top.max() - top.min()))
+    return spread
+
+
+def test_the_law_levels_a_top_whose_gain_differs_along_the_path():
+    open_loop = _run(20, PathLaw(kp=0.0, ki=0.0))
+    closed = _run(20, PathLaw())
+    assert open_loop[-1] > 4.0                                   # open: the region and the ends run away
+    assert max(closed[8:]) < 0.4                                 # learned within a few layers, and it stays
+    noisy = _run(30, PathLaw(), noise=0.1)
+    assert max(noisy[10:]) < 0.9                                 # 0.1 mm of sensor noise a bin: bounded
+
+
+def test_the_factors_keep_the_layers_metal_and_their_bound():
+    xy = np.c_[np.arange(0.0, 50.0, 5.0), np.zeros(10)]
+    d = Field(xy, np.where(xy[:, 0] > 25, 2.0, -2.0))
+    m, need = plan_factors(xy, np.full(10, 5.0), d, None, None, 0.7, PathLaw(bounds=(0.75, 1.25)))
+    assert need.max() > 1.25 and m.max() == pytest.approx(1.25)
+    assert m.min() >= 0.75
+    assert float(np.mean(1.0 / need)) == pytest.approx(1.0)
