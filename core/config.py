@@ -12,6 +12,7 @@ from core.config_cache import CONFIG_DIR as CONFIG_DIR  # re-exported: the light
 from core.config_cache import material_path as material_path
 from core.errors import ConfigError
 from core.material import Material
+from core.tools import Machining, Tools
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -291,6 +292,15 @@ class CellConfig(_Frozen):
     opcua: OpcUaSettings = OpcUaSettings()
     process_control: ProcessControl = ProcessControl()
     records: RecordsSettings = RecordsSettings()
+    tools: Tools = Tools()
+    machining: Machining = Machining()
+
+    @model_validator(mode="after")
+    def _cutter_known(self) -> "CellConfig":
+        name = self.machining.cutter
+        if name is not None and name not in self.tools.cutters:
+            raise ValueError(f"machining.cutter {name!r} is not in tools.cutters ({', '.join(self.tools.cutters)})")
+        return self
 
 
 # --- sim.yaml --------------------------------------------------------------------------------

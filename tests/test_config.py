@@ -79,3 +79,23 @@ def test_a_key_given_twice_is_an_error_naming_its_line(tmp_path: Path):
     with pytest.raises(ConfigError) as e:
         load_cell(bad)
     assert f"line {line}" in str(e.value) and "'cycle_ms' is given twice" in str(e.value)
+
+
+def test_tools_are_validated_like_the_rest_of_the_config(tmp_path: Path):
+    cell = load_cell()
+    name, ball = cell.tools.cutter(cell.machining.cutter)
+    assert (name, ball.type, ball.diameter_mm) == ("ball6", "ball", 6.0) and ball.spindle_rpm <= ball.max_rpm
+    assert cell.tools.deposition.number not in {c.number for c in cell.tools.cutters.values()}
+    text = (CONFIG_DIR / "cell.yaml").read_text()
+    f = tmp_path / "cell.yaml"
+    for bad, match in (("max_depth_of_cut_mm: 1.0, max_stepover_mm: 2.0", r"tools\.cutters\.ball6.*deeper than the flutes"),
+                       ("rpm: 12000,", r"tools\.cutters\.ball6.*rpm 30000 is above max_rpm"),
+                       ("cutter: ball6 ", r"machining\.cutter 'ball9' is not in tools\.cutters"),
+                       ("{number: 2, type: flat", r"tool number 1 is also ball6's")):
+        good = {"max_depth_of_cut_mm: 1.0, max_stepover_mm: 2.0": "max_depth_of_cut_mm: 20, max_stepover_mm: 2.0",
+                "rpm: 12000,": "rpm: 30000,", "cutter: ball6 ": "cutter: ball9 ",
+                "{number: 2, type: flat": "{number: 1, type: flat"}[bad]
+        f.write_text(text.replace(bad, good, 1))
+        with pytest.raises(ConfigError, match=match) as e:
+            load_cell(f)
+        assert str(f) in str(e.value) and "line " in str(e.value)
