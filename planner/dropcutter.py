@@ -147,7 +147,7 @@ def _edge(tool: ToolShape, px: F, py: F, p0: F, p1: F) -> F:
 
 
 def _drop_block(tool: ToolShape, px: F, py: F, tri: F) -> F:
-    z = np.full(len(px), -np.inf)
+    z: F = np.full(len(px), -np.inf)
     if len(tri) == 0:
         return z
     z = np.maximum(z, _facet(tool, px, py, tri).max(axis=1))
