@@ -272,7 +272,7 @@ class CellController:
             self.devices.power_source().drop_all()
         except Exception:
             pass
-        stopping = getattr(self.executor, "stopping", None)  # a CNC safe stop ends before the link closes
+        stopping = self.executor.stopping if self.executor is not None else None  # a CNC safe stop ends first
         if stopping is not None and not stopping.done():
             await asyncio.wait([stopping], timeout=30.0)
         await self.devices.close()
@@ -292,9 +292,8 @@ class CellController:
             job = read_job(job)
         # the whole job against the cell before it can start (once: `cell run` checked it before connecting)
         check_job(job, self.cfg, job_material(job, self.cfg))
-        axes = getattr(self.executor, "require_job_axes", None)
-        if axes is not None:  # the firmware's axes against the job, before any motion (exit 2)
-            axes(job)
+        if self.executor is not None:  # the firmware's axes against the job, before any motion (exit 2)
+            self.executor.require_job_axes(job)
         self.job = job
         self.run_dir = Path(run_dir) if run_dir else run_dir_for(job, self.runs_dir)
         if self.journal is not None:

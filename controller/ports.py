@@ -9,12 +9,14 @@ controller.motion.robot.RobotExecutor and controller.motion.cnc.CncExecutor.
 from __future__ import annotations
 
 import asyncio
-from typing import Callable, Iterable, Protocol, Sequence
+from typing import Callable, Deque, Iterable, Protocol, Sequence
 
+from controller.job.model import CellJob
 from core.errors import CellError
 from drivers.cellio import CellInputs
 from drivers.cyclic import CycleStats
 from drivers.grbl import ProbeResult, StreamResult
+from drivers.grbl_stop import SafeStopResult
 from drivers.power import PowerStatus
 from drivers.robot import LinkStats, RobotEvent, RobotStatus
 from wire.grbl_protocol import GrblStatus
@@ -78,11 +80,15 @@ class RobotLinkPort(Protocol):
     last_status: RobotStatus | None
     fault: str | None
     protocol_fault: str | None
+    held_at: float | None           # monotonic time the link itself last wrote !HOLD
+    hold_tx: Deque[float]           # when !HOLD frames actually went out on the line
 
     @property
     def connected(self) -> bool: ...
     @property
     def queue_capacity(self) -> int: ...
+    @property
+    def max_sent(self) -> int: ...
     @property
     def next_ticket(self) -> int: ...
     async def connect(self, resume_ticket: int | None = None) -> RobotStatus: ...
@@ -115,6 +121,13 @@ class CncLinkPort(ProbePort, Protocol):
     """The 5-axis CNC running grbl (drivers.grbl.CncLink): the probe plus streaming and holds."""
 
     url: str
+    baud: int
+    line_scale: float               # the simulated line rate's share of the configured baud (1 on hardware)
+    status_period: float            # seconds between the background status reports
+    latest_status: GrblStatus | None
+    status_t: float                 # when latest_status came off the wire (monotonic)
+    answer_t: float                 # when the latest `ok` / `error:N` came off the wire (monotonic)
+    reset_at: float                 # wall time of the last power-up, reset or homing seen
 
     @property
     def connected(self) -> bool: ...
@@ -123,10 +136,24 @@ class CncLinkPort(ProbePort, Protocol):
     async def stream(self, lines: Iterable[str], progress: Callable[[int, int], None] | None = None) -> StreamResult: ...
     async def feed_hold(self) -> None: ...
     async def soft_reset(self, timeout: float = 5.0) -> None: ...
+    def require_axes(self, names: str, why: str) -> None: ...
+    async def safe_stop(self, reason: str, *, hold_timeout_s: float | None = None, reset_timeout_s: float | None = None,
+                        verify_timeout_s: float | None = None) -> SafeStopResult: ...
 
 
 class MotionExecutor(Protocol):
     """Runs the build's motion on one platform (controller.motion.robot / controller.motion.cnc)."""
+
+    platform: str                    # "robot" | "cnc"
+    starved: int                     # times the motion queue ran empty inside a bead
+    exec_count: int                  # weld moves (robot) or progress reports (CNC) seen executed
+    exe_t: float                     # when the latest progress came off the wire (monotonic)
+    go_t: float                      # CNC: when the bead's weld lines began to go out (robot: 0)
+    min_ahead: int | None            # fewest weld moves queued ahead at an EXE inside a bead
+    ahead: int | None                # robot: weld moves left unexecuted at most (None: the window)
+    stopped_at: Point | None         # robot: where prepare() found it stopped (queue flushed)
+    stopping: asyncio.Task[SafeStopResult] | None   # CNC: the safe stop of the latest hold_now()
+    stop_result: SafeStopResult | None               # CNC: its verified result
 
     @property
     def robot_link(self) -> RobotLinkPort | None:
@@ -134,6 +161,19 @@ class MotionExecutor(Protocol):
     @property
     def cnc_link(self) -> CncLinkPort | None:
         """The CNC link when this executor drives a CNC."""
+    @property
+    def robot_record(self) -> RobotStatus | None:
+        """Robot: its STA before prepare() flushed or reset it (None on a CNC)."""
+    async def post_job(self, job: CellJob, max_step_mm: float) -> None:
+        """Before any motion: the job's passes to the machine (5-axis axes), refused naming the point."""
+    def require_job_axes(self, job: CellJob) -> None:
+        """The device's axes against the job, before homing or any motion."""
+    def use_pass(self, layer: int, pass_: int) -> None:
+        """The pass the next weld moves belong to (its tool axes)."""
+    def on_position(self, fn: Callable[[float, float], None]) -> None:
+        """`fn(t, s)` as the device reports the tool s mm along the pass (CNC; a robot reports by EXE)."""
+    def weld_points_by_ticket(self) -> dict[int, int]:
+        """Robot: the weld point each sent move ends at, by ticket (a CNC: empty)."""
     def on_link_lost(self, fn: Callable[[CellError], None]) -> None: ...
     def on_retract(self, fn: Callable[[int, int | None], None]) -> None: ...
     async def prepare(self) -> None: ...

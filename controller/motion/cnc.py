@@ -22,6 +22,7 @@ from controller.motion.cnc5 import Five, check_feed
 from controller.job.model import CellJob
 from controller.job.weld_path import move_speed
 from drivers.errors import DeviceError
+from drivers.grbl_stop import SafeStopResult
 from core.errors import CellError
 
 Point = tuple[float, float, float]
@@ -48,8 +49,10 @@ class CncExecutor:
         self._pos_cbs: list[Callable[[float, float], None]] = []
         self.exe_t = 0.0   # when the latest progress (status report, the closing `ok`) came off the wire
         self.go_t = 0.0    # when the current bead's weld lines began to go out (grbl sets off at once)
-        self.stopping: asyncio.Task[Any] | None = None   # the safe stop of the latest hold_now()
-        self.stop_result: Any = None                # its SafeStopResult (drivers/grbl_stop.py)
+        self.stopping: asyncio.Task[SafeStopResult] | None = None   # the safe stop of the latest hold_now()
+        self.stop_result: SafeStopResult | None = None
+        self.ahead: int | None = None      # a robot's lookahead setting; the CNC streams by its buffer
+        self.stopped_at: Point | None = None   # a robot's flushed position; the CNC reports its own
         self.accel_mm_s2 = 10.0                     # the hold's deceleration bound (grbl default)
 
     @property
@@ -59,6 +62,13 @@ class CncExecutor:
     @property
     def cnc_link(self) -> CncLinkPort:
         return self.link
+
+    @property
+    def robot_record(self) -> None:
+        return None
+
+    def weld_points_by_ticket(self) -> dict[int, int]:
+        return {}
 
     def on_link_lost(self, fn: Callable[[Any], None]) -> None:
         self._lost_cbs.append(fn)
@@ -96,7 +106,7 @@ class CncExecutor:
     async def post_job(self, job: CellJob, max_step_mm: float) -> None:
         """Before any motion: every 5-axis pass to machine axes, or InputError naming the point."""
         self.require_job_axes(job)
-        self.five.check_alignment(job, float(getattr(self.link, "reset_at", 0.0)))
+        self.five.check_alignment(job, self.link.reset_at)
         if job.alignment is not None and job.alignment.no_level:
             self.five.level = None   # aligned without leveling: the tilt is in the transform, no A/B move
         await self.five.post_job(job, max_step_mm)
@@ -106,9 +116,8 @@ class CncExecutor:
         """The firmware's axes against the job, before homing or any motion (DESIGN.md §5):
         GrblAxesMissing (exit 2) naming the firmware and the axes it lacks."""
         why = job_axes_need(job)
-        require = getattr(self.link, "require_axes", None)
-        if why is not None and require is not None:
-            require("XYZ" + self.five.letters[3:5], why)
+        if why is not None:
+            self.link.require_axes("XYZ" + self.five.letters[3:5], why)
 
     def use_pass(self, layer: int, pass_: int) -> None:
         self.five.use(layer, pass_)
@@ -119,7 +128,7 @@ class CncExecutor:
         if _setting(await self.link.command("$$"), 32) != "1":
             await self.link.command("$32=1")
             if _setting(await self.link.command("$$"), 32) != "1":
-                raise DeviceError(f"cnc at {getattr(self.link, 'url', '?')}: laser mode ($32=1) did not stick; "
+                raise DeviceError(f"cnc at {self.link.url}: laser mode ($32=1) did not stick; "
                                   "check the controller's settings before running a job")
 
     async def process_off(self) -> Any:
@@ -172,7 +181,7 @@ class CncExecutor:
                 poll.cancel()
             last = len(pts) - 1
             # the closing G4 P0's `ok` as it came off the wire: the last weld move had ended
-            self.exe_t = float(getattr(self.link, "answer_t", 0.0) or 0.0) or time.monotonic()
+            self.exe_t = self.link.answer_t or time.monotonic()
             on_exec(last, last)
             self.exec_count += len(lines)
             return last
@@ -185,8 +194,8 @@ class CncExecutor:
         k = i0
         while True:
             st = await self.link.status()
-            fresh = getattr(self.link, "latest_status", None) is st
-            self.exe_t = float(getattr(self.link, "status_t", 0.0) or 0.0) if fresh else 0.0
+            fresh = self.link.latest_status is st
+            self.exe_t = self.link.status_t if fresh else 0.0
             self.exe_t = self.exe_t or time.monotonic()
             at = along.locate(st.mpos)
             pos = _xyz(st.mpos)
@@ -217,18 +226,15 @@ class CncExecutor:
         self.stopping = asyncio.get_running_loop().create_task(self._safe_stop(reason))
         self.stopping.add_done_callback(lambda f: f.cancelled() or f.exception())
 
-    async def _safe_stop(self, reason: str) -> Any:
-        """The one call of the CNC stop sequence: CncLink.safe_stop where the driver has it.
+    async def _safe_stop(self, reason: str) -> SafeStopResult:
+        """The one call of the CNC stop sequence: CncLink.safe_stop.
 
         The hold is given the time to decelerate from the reported feed at `accel_mm_s2` (grbl's
         default $120-$122) plus 0.5 s: a firmware still in `Hold:1` after that is not slowing down
         (it reports Run without moving) and is reset, process off, rather than left at M3."""
-        stop = getattr(self.link, "safe_stop", None)
-        if stop is None:
-            return await self.process_off()
-        st = getattr(self.link, "latest_status", None)
-        feed = float(getattr(st, "feed", 0.0) or 0.0)
-        self.stop_result = await stop(reason, hold_timeout_s=0.5 + feed / 60.0 / self.accel_mm_s2)
+        st = self.link.latest_status
+        feed = st.feed if st is not None else 0.0
+        self.stop_result = await self.link.safe_stop(reason, hold_timeout_s=0.5 + feed / 60.0 / self.accel_mm_s2)
         return self.stop_result
 
     async def held_position(self) -> Point:

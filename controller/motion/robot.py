@@ -15,6 +15,7 @@ from controller.motion.post5 import weld_axes
 from controller.job.weld_path import move_speed, weld_points
 from controller.job.model import CellJob
 from controller.ports import RobotLinkPort
+from drivers.grbl_stop import SafeStopResult
 from drivers.robot import RobotStatus
 from core.errors import InputError
 
@@ -41,6 +42,9 @@ class RobotExecutor:
         self.stopped_at: Point | None = None    # where prepare() found the robot stopped (queue flushed)
         self.record: RobotStatus | None = None  # the robot's STA before prepare() flushed or reset it
         self.ahead: int | None = None           # weld moves left unexecuted at most (None: the window)
+        self.go_t = 0.0                         # a robot sets off on !GO, timed by its EXEs (CNC only)
+        self.stopping: asyncio.Task[SafeStopResult] | None = None   # a CNC's safe stop; never on a robot
+        self.stop_result: SafeStopResult | None = None
         self._axes: dict[tuple[int, int], list[Point]] = {}
         self._cur_axes: list[Point] | None = None  # the planned tool axis per weld point (5-axis)
         self._pts: dict[tuple[int, int], list[Point]] = {}
@@ -55,7 +59,20 @@ class RobotExecutor:
     def cnc_link(self) -> None:
         return None
 
-    def post_job(self, job: CellJob, max_step_mm: float) -> None:
+    @property
+    def robot_record(self) -> RobotStatus | None:
+        return self.record
+
+    def weld_points_by_ticket(self) -> dict[int, int]:
+        return dict(self._weld)
+
+    def require_job_axes(self, job: CellJob) -> None:
+        """A robot carries any tool axis: nothing to refuse."""
+
+    def on_position(self, fn: Callable[[float, float], None]) -> None:
+        """Never called: a robot's pace comes from its EXEs (runtime/bead_measure.py)."""
+
+    async def post_job(self, job: CellJob, max_step_mm: float) -> None:
         """The planned tool axis per weld point of every 5-axis pass (`axes`), before any motion."""
         if job.frame == "cad" and job.alignment is None:
 
@@ -123,7 +140,7 @@ class RobotExecutor:
     async def prepare(self) -> None:
         """Before a run: an empty, released queue (after a crash the robot may hold old moves)."""
         st = self.record = await self.link.status()
-        if st.state == "FAULT" or getattr(self.link, "protocol_fault", None):
+        if st.state == "FAULT" or self.link.protocol_fault:
             # a robot fault (workspace) or a latched protocol fault (a robot that lied) needs
             # !RESET; the sequence numbers restart at 0001
             st = await self.link.reset()

@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import asyncio
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Sequence
 
 from controller.job.weld_path import Point
+from controller.ports import MotionExecutor
 from controller.runtime.arc_out import project
 
 
@@ -22,7 +23,7 @@ class BeadCut:
     time_scale: float
 
 
-async def run_on_after_trip(ex: Any, cut: BeadCut, t_trip: float, t_exe: float) -> tuple[float, str | None]:
+async def run_on_after_trip(ex: MotionExecutor, cut: BeadCut, t_trip: float, t_exe: float) -> tuple[float, str | None]:
     """(mm deposited after the last EXE, a note for the journal when it is an estimate)."""
     try:
         pos = await asyncio.wait_for(ex.held_position(), 1.0)
@@ -36,17 +37,19 @@ async def run_on_after_trip(ex: Any, cut: BeadCut, t_trip: float, t_exe: float) 
                    "estimated from the time and the planned speed")
 
 
-def _blind_run_on(ex: Any, cut: BeadCut, t_trip: float, t_exe: float) -> float:
+def _blind_run_on(ex: MotionExecutor, cut: BeadCut, t_trip: float, t_exe: float) -> float:
     """The robot went on at the planned speed from the last EXE until it held: it stopped (and the
     deposit with it) when the first !HOLD after the last EXE reached it, timed from when those bytes
     left, else from the link's own hold; never beyond the last weld move it was sent (it may have
     starved on the way)."""
-    link = getattr(ex, "link", None)
-    holds = [t for t in getattr(link, "hold_tx", ()) if t > t_exe]
-    held = holds[0] if holds else getattr(link, "held_at", None)
+    link = ex.robot_link
+    if link is None:  # a CNC stops where its status report says (run_on_after_trip)
+        return 0.0
+    holds = [t for t in link.hold_tx if t > t_exe]
+    held = holds[0] if holds else link.held_at
     t_stop = min(t_trip, held) if held is not None and held > t_exe else t_trip
-    sent = getattr(link, "max_sent", None)
-    weld = getattr(ex, "_weld", {}) or {}
+    sent = link.max_sent
+    weld = ex.weld_points_by_ticket()
     n = len(cut.pts)
     reach = max((i for tk, i in weld.items() if sent is not None and tk <= sent), default=n - 1)
     run_on = max(0.0, t_stop - t_exe) * cut.speed_mm_min / 60.0 * cut.time_scale

@@ -136,9 +136,8 @@ class BuildRunner:
         # to be committed (fsync), which would stall the device cycles at the end of the build
         self._defects_before = journal.defect_count()
         self._defects_new = 0
-        on_position = getattr(executor, "on_position", None)   # the CNC's status positions: the bead's pace
-        if on_position is not None:
-            on_position(lambda t, s: self._pace.at(t, s) if self._pace is not None else None)
+        # the CNC's status positions: the bead's pace (a robot's pace comes from its EXEs)
+        executor.on_position(lambda t, s: self._pace.at(t, s) if self._pace is not None else None)
         self.progress_s = progress_timeout_s(job, self.o.max_step_mm, self.o.progress_timeout_s)
         self.watchdog: ProgressWatchdog | None = None
 
@@ -157,11 +156,7 @@ class BuildRunner:
     # -- the run --------------------------------------------------------------------------------
     async def _before_motion(self) -> None:
         """Everything checked and prepared before the first move (5-axis post, devices ready)."""
-        post = getattr(self.ex, "post_job", None)
-        if post is not None:  # 5-axis: every pass to machine axes, refused before any motion
-            done = post(self.job, self.o.max_step_mm)
-            if asyncio.iscoroutine(done):
-                await done
+        await self.ex.post_job(self.job, self.o.max_step_mm)  # 5-axis: machine axes, refused before any motion
         await self._arc_out()
         await self.ex.prepare()
         await ensure_ready(self.ex, self.power, self.journal, reset_errors=self.o.reset_errors, arc=self.arc)
@@ -295,8 +290,7 @@ class BuildRunner:
             return
         # the robot's lookahead: set on the executor, journaled with the arc (device_record.py)
         lookahead = dry_lookahead(self.ex, pts, start_idx, plan.slowest, self.o.time_scale, self.o.run_on.watchdog_s)
-        if hasattr(self.ex, "use_pass"):
-            self.ex.use_pass(la, pa)  # the executor's tool axes for this pass
+        self.ex.use_pass(la, pa)  # the executor's tool axes for this pass
         self.m.send("travel")
         self.journal.pass_state(la, pa, "started", start_idx=start_idx, points=len(pts),
                                 start_mm=round(start_mm, 4))
@@ -319,7 +313,7 @@ class BuildRunner:
         self.bus.update(arc_starts=self.bus.latest.arc_starts + 1, travel_speed_mm_min=speed)
         self.m.send("arc_on")
         self._t_exe = time.monotonic()
-        self._pace = Pace(self._t_exe, start_mm, starved=-getattr(self.ex, "starved", 0), planned_mm_min=speed,
+        self._pace = Pace(self._t_exe, start_mm, starved=-self.ex.starved, planned_mm_min=speed,
                           speed_tol=self._tolerance().speed_pct / 100, plan_s=plan.plan_s, plan_t=plan.plan_t)
         self.ex.release()
         self.watchdog = ProgressWatchdog.of(self.ex, self.power, self.progress_s, self.o.time_scale,
@@ -366,8 +360,8 @@ class BuildRunner:
         stats = b.as_dict()
         pace, self._pace = self._pace, None
         if pace is not None:
-            pace.starved += getattr(self.ex, "starved", 0)   # starvations inside this bead
-            if go := float(getattr(self.ex, "go_t", 0.0) or 0.0):   # a CNC sets off when its first weld line arrives
+            pace.starved += self.ex.starved   # starvations inside this bead
+            if go := self.ex.go_t:   # a CNC sets off when its first weld line arrives
                 pace.set_off(go)
             stats.update(pace.figures(self.o.time_scale, length))
         hi = None
@@ -386,7 +380,7 @@ class BuildRunner:
         st = self.power.status
         faltered, self._unstable_since_exe = self._unstable_since_exe, False
         # a CNC status report may pass several points; a robot's EXE vouches for its own move only
-        prev = self._acct_idx if getattr(self.ex, "platform", "") == "cnc" else idx - 1
+        prev = self._acct_idx if self.ex.platform == "cnc" else idx - 1
         self._acct_idx = max(self._acct_idx, idx)
         if item is None or st is None or not st.arc_stable or not self._arc_lit:
             return
@@ -400,7 +394,7 @@ class BuildRunner:
         if self._plan is not None and self._plan.wfs is not None and self._arc_lit:  # the move now running: its wire feed
             self.power.set_wire_feed(self._plan.wfs_at(idx))
         # when the robot's report arrived (the port's reader thread), else now
-        self._t_exe_rx = getattr(self.ex, "exe_t", 0.0) or self._t_exe
+        self._t_exe_rx = self.ex.exe_t or self._t_exe
         if self._pace is not None and not faltered and 0 <= idx < len(self._cum):
             self._pace.reached(self._t_exe_rx, self._cum[idx])
         self.cur_idx = idx

@@ -13,6 +13,7 @@ from typing import Any
 
 from controller.align.layer_probe import probe_layer_top, probe_spots
 from controller.job.model import CellJob
+from controller.ports import MotionExecutor
 from controller.journal.store import Journal
 from controller.runtime.build import BuildResult, BuildRunner, WorkItem
 from controller.runtime.events import EventBus
@@ -68,12 +69,12 @@ class ControlledRunner(BuildRunner):
 
 
 def make_control(cfg: CellConfig, job: CellJob, material: Material, journal: Journal, bus: EventBus | None,
-                 executor: Any) -> LayerControl:
+                 executor: MotionExecutor) -> LayerControl:
     """The build's layer control (restored from the journal on a resume); the CNC's probe when it has one."""
     pc = cfg.process_control
     probe: ProbeFn | None = None
-    link = getattr(executor, "link", None)
-    if cfg.cell.platform == "cnc" and link is not None and hasattr(link, "probe"):
+    link = executor.cnc_link
+    if link is not None:
         async def probe(la: int, layer: Layer) -> list[float]:
             spots = probe_spots(layer.passes, pc.probe_points)
             return await probe_layer_top(link, cfg.probe, spots, cfg.probe.clearance_mm, name=f"layer {la} top")

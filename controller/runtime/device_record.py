@@ -16,9 +16,10 @@ placed on the pass is a refusal before any motion, naming what is known.
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Sequence
 
 from controller.journal.store import Journal, PassResume
+from controller.ports import MotionExecutor
 from controller.runtime.arc_out import RunOn, arc_out_lower_bound, project
 from core.errors import CellError
 
@@ -33,12 +34,12 @@ class ResumeRefused(CellError):
     """The devices' records cannot tell where a cut bead ends: no motion, the message says what is known."""
 
 
-def dry_lookahead(ex: Any, pts: Sequence[Point], i0: int, speed: float, time_scale: float,
+def dry_lookahead(ex: MotionExecutor, pts: Sequence[Point], i0: int, speed: float, time_scale: float,
                   watchdog_s: float) -> int | None:
     """Weld moves the robot may hold unexecuted so that it runs dry before the source's watchdog
     drops the arc after a crash (set as the executor's `ahead`); None (the whole window) where two
     moves outlast that, or for an executor without the setting (CNC)."""
-    if not hasattr(ex, "ahead"):
+    if ex.robot_link is None:  # a CNC streams by its buffer: no lookahead setting
         return None
     if time_scale > EXACT_RESUME_MAX_SCALE:
         # the whole watchdog is a few ms of wall time per move here: a queue that short starves
@@ -60,18 +61,18 @@ def _fmt(pos: Sequence[float] | None) -> str:
     return "?" if pos is None else " ".join(f"{float(v):.3f}" for v in pos[:3])
 
 
-def device_record(ex: Any, journal: Journal, layer: int, pass_: int, run: int, pts: Sequence[Point],
+def device_record(ex: MotionExecutor, journal: Journal, layer: int, pass_: int, run: int, pts: Sequence[Point],
                   cum: Sequence[float], s: float) -> float | None:
     """Where the robot's own record says it stopped along the pass (length), from its position
     after the flush, else its last executed sequence number; ResumeRefused when the record
     contradicts the journal or cannot be placed on the pass. A CNC: its reported position only."""
-    stopped = getattr(ex, "stopped_at", None)
-    rec = getattr(ex, "record", None)
+    stopped = ex.stopped_at
+    rec = ex.robot_record
     s_robot = project(pts, cum, stopped, s) if stopped is not None else None
     if rec is None:
         return s_robot
     known = journal.max_progress_ticket() or 0
-    last = int(getattr(rec, "last_exec_ticket", 0) or 0)
+    last = rec.last_exec_ticket
     where = (f"layer {layer} pass {pass_}: the journal knows the deposit reached {s:.2f} mm of {cum[-1]:.2f} mm "
              f"(ticket {known}) and run {run} died with the arc on")
     if last < known:
@@ -92,7 +93,7 @@ def device_record(ex: Any, journal: Journal, layer: int, pass_: int, run: int, p
                         "cannot be told; inspect the part")
 
 
-def crash_rearc(ex: Any, journal: Journal, layer: int, pass_: int, hist: PassResume, pts: Sequence[Point],
+def crash_rearc(ex: MotionExecutor, journal: Journal, layer: int, pass_: int, hist: PassResume, pts: Sequence[Point],
                 cum: Sequence[float], s: float, speed: float, time_scale: float, run_on: RunOn) -> tuple[float, str]:
     """(re-arc length, journal line) for a bead whose controller died with the arc on; `s` is
     where the journal knows the deposit reached."""

@@ -149,7 +149,7 @@ class Interlocks:
         rec.position = (float(pos[0]), float(pos[1]), float(pos[2])) if pos is not None else None
         if self.journal is not None:
             self.journal.event("alarm", rec.message, state=rec.kind, layer=rec.layer, pass_=rec.pass_, pos=pos)
-            stop = getattr(self.ex, "stop_result", None)  # the CNC's verified safe stop
+            stop = self.ex.stop_result  # the CNC's verified safe stop
             if stop is not None:
                 self.journal.event("info", f"cnc safe stop: {stop.summary()}", layer=rec.layer, pass_=rec.pass_)
         self.bus.alarm(rec.kind, rec.message, layer=rec.layer, pass_=rec.pass_, position=rec.position)
