@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, Callable, Generic, Protocol, Sequence, Ty
 from shapely.geometry import Polygon
 
 from planner.layer import LayerCtx, LayerGroups, layer_groups
-from planner.nearnet import grow
+from planner.nearnet import grow_layers
 from planner.regions import islands
 from planner.slicer import LayerSlice
 
@@ -67,7 +67,9 @@ class Ahead:
         self.threads = workers() if threads is None else threads
         self._pool: ThreadPoolExecutor | None = None
         # in turn: islands are cheap, and a tall prism's many layers would only pass the GIL around
-        self.prepared: list[Prepared] = [self._prepare(j) for j in zip(slices, tops)]
+        nets = [islands([c.points for c in sl.contours if c.closed], simplify_mm=0.005 * ctx.width) for sl in slices]
+        grown = grow_layers(nets, ctx.allowance, ctx.height)
+        self.prepared: list[Prepared] = [(n, g, key(g, sl.index, top)) for n, g, sl, top in zip(nets, grown, slices, tops)]
         miss = misses([p[2] for p in self.prepared])
         self._todo = deque(i for i, m in enumerate(miss) if m)
         self._running: dict[int, Future[LayerGroups]] = {}
@@ -77,12 +79,6 @@ class Ahead:
 
             self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="plan")
         self._fill()
-
-    def _prepare(self, job: tuple[LayerSlice, bool]) -> Prepared:
-        sl, top = job
-        net = islands([c.points for c in sl.contours if c.closed], simplify_mm=0.005 * self.ctx.width)
-        polys = grow(net, self.ctx.allowance)
-        return net, polys, self._key(polys, sl.index, top)
 
     def _fill(self) -> None:
         """Keep a few layers planning ahead of the one the plan is at (bounded memory)."""

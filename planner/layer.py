@@ -9,7 +9,7 @@ import shapely
 from shapely.geometry import Polygon
 
 from planner.balance import partition_shares
-from planner.nearnet import allowance_for
+from planner.nearnet import allowance_for, fits, leaning_bead, small_loop, stretched
 from planner.gapfill import centre_lines, pocket_line
 from planner.infill import scan_fill
 from planner.ordering import join_chains, link_into_loops, order_passes, seam_at
@@ -38,6 +38,7 @@ class LayerCtx:
     min_length: float
     allowance: float = 0.0  # machining allowance the islands were grown by (mm)
     min_coverage: float = 0.97  # an island covered less gets narrower legal beads where they fit
+    height: float = 0.0  # layer height (mm): how far the allowance reaches to the layers around (near-net)
 
 
 @dataclass
@@ -72,10 +73,14 @@ def layer_groups(polys: list[Polygon], index: int, ctx: LayerCtx) -> LayerGroups
     per_island = []
     for poly in polys:
         groups = _island(poly, index, angle, ctx, stats, issues)
-        groups[2] += reach_fill(poly, [b for g in groups for b in g], ctx.widths, ctx.min_coverage, ctx.min_length)
+        groups[2] += reach_fill(poly, [b for g in groups for b in g], ctx.widths, ctx.min_coverage, ctx.min_length,
+                                ctx.allowance)
         groups = no_stubs(groups, ctx.min_length, poly, index, stubs, 1.5 * ctx.width)
         # two stubs welded together can still be short: dropped before the shares are drawn
         groups = [drop_short(g, ctx.min_length, index, stubs) for g in groups]
+        if not any(groups):  # near-net: a small island gets one loop standing out into its stock
+            loop = small_loop(poly, ctx.widths, ctx.allowance, ctx.min_length)
+            groups[0] += [seam_at(loop, index)] if loop is not None else []
         if not any(groups) and poly.area > 0.05 * ctx.width ** 2:
             c = poly.representative_point()
             b = poly.bounds
@@ -106,13 +111,22 @@ def _island(poly: Polygon, index: int, angle: float, ctx: LayerCtx, stats: dict[
         if not n:
             _thick(t, index, angle, ctx, groups, stats)
     for t in thin:
-        _thin(t, index, ctx, groups, stats, issues)
+        _thin(t, poly, index, ctx, groups, stats, issues)
     return groups
 
 
-def _thin(t: Polygon, index: int, ctx: LayerCtx, groups: Groups, stats: dict[str, int], issues: list[str]) -> None:
+def _thin(t: Polygon, island: Polygon, index: int, ctx: LayerCtx, groups: Groups, stats: dict[str, int],
+          issues: list[str]) -> None:
     """A thin piece: its width from the process (planner.thin), or an issue naming it."""
     W = wall_width(t, 0.02 * ctx.width)
+    if not fits(W, ctx.widths):  # near-net: widened into the stock where that builds it
+        wider = stretched(t, W, ctx.widths, ctx.allowance)
+        if wider is not None:
+            t, W = wider
+        elif (bead := leaning_bead(t, island, ctx.widths, ctx.allowance)) is not None:
+            stats["regions"] += 1
+            groups[2].append(bead)
+            return
     lay = layout(W, ctx.widths)
     c = t.representative_point()
     if lay is None:
@@ -133,7 +147,7 @@ def _thin(t: Polygon, index: int, ctx: LayerCtx, groups: Groups, stats: dict[str
 
 def _hint(W: float, ctx: LayerCtx) -> str:
     """What machining allowance would make a refused feature buildable (near-net, DESIGN §3.9)."""
-    extra = allowance_for(W, ctx.widths, 2.0 * ctx.width)
+    extra = allowance_for(W, ctx.widths, 2.0 * ctx.width, ctx.allowance)
     if extra is None:
         return ""
     return f" ({ALLOWANCE_HINT} {ctx.allowance + extra:.2f} mm)"

@@ -1,10 +1,17 @@
 """Near-net planning (DESIGN.md §3.9): the part built oversize by a machining allowance, then machined.
 
-* Every layer's islands grow outward by the allowance `a` (round offsets: a distance from the
-  surface), holes shrink by it; the part's top grows by `a` too: layers repeating the top
-  layer's grown region are added until the deposit stands at least `a` above the net top. The
-  bottom stands on the substrate and is not grown (it is cut off the plate).
-* Coverage, outside and mass balance are then judged against the grown region.
+* The grown region is the part grown by the allowance `a` in 3-D (every point within `a` of the
+  part, issue 40): a layer's islands grow outward by `a` (round offsets, holes shrink by it), and
+  a layer within `a` of another (dz < a) also holds that layer grown by sqrt(a² − dz²) — the stock
+  under an overhang or over a step belongs to the layer it lies in. The part's top grows by `a`
+  too: layers repeating the top layer's grown region are added until the deposit stands at least
+  `a` above the net top. The bottom stands on the substrate and is not grown.
+* Coverage, outside and mass balance are then judged against the grown region, and so is what
+  is too narrow for a bead: a bead may stand out of the grown region by up to `a` (the stock there
+  at most 2a), so a thin piece of the grown region narrower than the smallest legal bead, or
+  between fits, is built with beads for the nearest width that fits (`stretch`), and only what no
+  legal bead fills even so is refused, naming the allowance that would build it (`allowance_for`).
+  A small island no bead of the minimum length fits in gets one closed loop (`small_loop`).
 * Stock left to machine per face: on the sides, the distance from the net contour out to the
   edge of the beads' footprint (min and max over the layers; negative where the beads do not
   reach the net surface), on the top the deposit's height over the net top, at the bottom 0.
@@ -21,6 +28,8 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
+from planner.gapfill import centre_lines
+from planner.path2d import Path2D
 from planner.regions import polygons_of
 from planner.thin import Widths, layout
 
@@ -33,6 +42,33 @@ def grow(polys: list[Polygon], allowance_mm: float) -> list[Polygon]:
         return polys
     grown = shapely.union_all(shapely.buffer(np.asarray(polys, dtype=object), allowance_mm, quad_segs=8))
     return [p for p in polygons_of(grown) if p.area > 1e-9]
+
+
+def grow_layers(nets: list[list[Polygon]], allowance_mm: float, layer_mm: float) -> list[list[Polygon]]:
+    """Every layer's region grown by the allowance in 3-D (the part's points within `a`): its own
+    islands grown by a, and those of each layer dz < a away grown by sqrt(a² − dz²). A neighbour
+    with the same islands adds nothing (its offset is inside this layer's own)."""
+    if allowance_mm <= 0.0:
+        return nets
+    reach = int(math.floor(allowance_mm / layer_mm - 1e-9))
+    keys = [shapely.to_wkb(shapely.normalize(shapely.set_precision(shapely.union_all(n), 1e-6))) if n else b""
+            for n in nets]
+    out: list[list[Polygon]] = []
+    for i, net in enumerate(nets):
+        parts = list(net)
+        radii = [allowance_mm] * len(net)
+        for k in range(max(0, i - reach), min(len(nets), i + reach + 1)):
+            if k == i or not nets[k] or keys[k] == keys[i]:
+                continue
+            r = math.sqrt(max(allowance_mm ** 2 - ((k - i) * layer_mm) ** 2, 0.0))
+            parts += nets[k]
+            radii += [r] * len(nets[k])
+        if not parts:
+            out.append([])
+            continue
+        grown = shapely.union_all(shapely.buffer(np.asarray(parts, dtype=object), np.asarray(radii), quad_segs=8))
+        out.append([p for p in polygons_of(grown) if p.area > 1e-9])
+    return out
 
 
 def layer_count(height_mm: float, layer_mm: float, allowance_mm: float, net_layers: int) -> int:
@@ -52,14 +88,84 @@ def fits(W: float, wd: Widths) -> bool:
     return lay.filled >= 0.97 * W
 
 
-def allowance_for(W: float, wd: Widths, limit_mm: float) -> float | None:
-    """The smallest allowance (a multiple of 0.05 mm, at most `limit_mm`) that makes a feature W
-    wide buildable, or None."""
-    for k in range(int(limit_mm / STEP_MM) + 1):
-        a = k * STEP_MM
-        if fits(W + 2.0 * a, wd):
-            return round(a, 2)
+def stretch(W: float, wd: Widths, allowance_mm: float) -> float | None:
+    """Near-net: the nearest width W' in [W, W + 2a] (a multiple of 0.05 mm over W) that a legal
+    bead layout fills — the beads stand out of the grown region by at most `a` a side — or None."""
+    if fits(W, wd):
+        return W
+    if allowance_mm <= 0.0:
+        return None
+    for k in range(1, int(2.0 * allowance_mm / STEP_MM + 1e-9) + 1):
+        if fits(W + k * STEP_MM, wd):
+            return W + k * STEP_MM
     return None
+
+
+def stretched(piece: Polygon, W: float, wd: Widths, allowance_mm: float) -> tuple[Polygon, float] | None:
+    """Near-net: a thin piece of the grown region too narrow for a legal bead layout (or between
+    fits) widened by up to the allowance a side until one fills it, as (piece, width), or None."""
+    if allowance_mm <= 0.0:
+        return None
+    W2 = stretch(W, wd, allowance_mm)
+    if W2 is None:
+        return None
+    return piece.buffer(0.5 * (W2 - W), quad_segs=8), W2
+
+
+def leaning_bead(piece: Polygon, island: Polygon, wd: Widths, allowance_mm: float) -> Path2D | None:
+    """Near-net: one narrowest legal bead for a piece too narrow for it that leans on the rest of the
+    island (a piece the thin/thick split cut off): along the piece's axis, moved where the bead stays
+    within the allowance of the island; kept when it covers 90 % of the piece."""
+    if allowance_mm <= 0.0:
+        return None
+    w = wd.lo
+    room = island.buffer(allowance_mm - 0.49 * w, quad_segs=8)
+    if room.is_empty:
+        return None
+    for axis in centre_lines(piece, w, depth=1):
+        pts = np.array(axis.points, dtype=np.float64)
+        out = ~shapely.contains_xy(room, pts[:, 0], pts[:, 1])
+        if out.any():
+            edge = room.boundary
+            pts[out] = shapely.get_coordinates(shapely.line_interpolate_point(
+                edge, shapely.line_locate_point(edge, shapely.points(pts[out]))))
+        pts = pts[np.r_[True, np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-6]]
+        if len(pts) < 2:
+            continue
+        fp = shapely.buffer(shapely.linestrings(pts), 0.5 * w, quad_segs=4)
+        if float(piece.intersection(fp).area) >= 0.9 * piece.area:
+            return Path2D("gap", pts, w, False, w, lone=True)
+    return None
+
+
+def allowance_for(W: float, wd: Widths, limit_mm: float, allowance_mm: float = 0.0) -> float | None:
+    """The smallest extra allowance e (a multiple of 0.05 mm, at most `limit_mm`) that makes a feature
+    W wide at allowance `a` buildable (W + 2e wide, stretched by up to a + e a side), or None."""
+    for k in range(int(limit_mm / STEP_MM) + 1):
+        e = k * STEP_MM
+        ok = fits(W + 2.0 * e, wd) if allowance_mm <= 0.0 else stretch(W + 2.0 * e, wd, allowance_mm + e) is not None
+        if ok:
+            return round(e, 2)
+    return None
+
+
+def small_loop(island: Polygon, wd: Widths, allowance_mm: float, min_length: float) -> Path2D | None:
+    """Near-net: one closed bead for an island too small for a bead of the minimum length, standing
+    out of it by at most the allowance; the legal width whose loop covers the island best, or None."""
+    if allowance_mm <= 0.0:
+        return None
+    best: tuple[float, Path2D] | None = None
+    room = island.buffer(allowance_mm, quad_segs=8)
+    for w in np.linspace(wd.lo, wd.hi, 5):
+        core = room.buffer(-0.5 * w, quad_segs=8)
+        if not isinstance(core, Polygon) or core.is_empty or core.exterior.length < min_length:
+            continue
+        ring = np.asarray(core.exterior.coords)[:, :2]
+        fp = shapely.buffer(shapely.linestrings(ring), 0.5 * w, quad_segs=4)
+        cov = float(island.intersection(fp).area) / island.area
+        if best is None or cov > best[0] + 1e-9:
+            best = (cov, Path2D("perimeter", ring, float(w), closed=True, share_mm=float(w)))
+    return best[1] if best is not None and best[0] >= 0.9 else None
 
 
 def side_stock(net: shapely.Geometry, footprint: shapely.Geometry, width: float) -> tuple[float, float] | None:

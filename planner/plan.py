@@ -103,7 +103,7 @@ class _Run:
         self.ctx = LayerCtx(w, step, perimeters, options.infill_angle_deg,
                             legal_widths(material, height, w, step / w, options.allow_outside),
                             area_factor(material.bead.profile), material.min_bead_length_mm or 2.0 * w,
-                            _allowance(options, material), options.min_coverage)
+                            _allowance(options, material), options.min_coverage, height)
         self.options, self.material, self.height = options, material, height
         self.proc = Process(material, height, options.allow_outside, w)
         self.verdict = Verdict(options, material, self.ctx)

@@ -27,8 +27,9 @@ def footprint(beads: list[Path2D]) -> shapely.Geometry:
 
 
 def reach_fill(island: Polygon, beads: list[Path2D], wd: Widths, min_coverage: float,
-               min_length: float) -> list[Path2D]:
-    """Extra narrow beads for an island whose beads cover less than `min_coverage` of it."""
+               min_length: float, allowance_mm: float = 0.0) -> list[Path2D]:
+    """Extra narrow beads for an island whose beads cover less than `min_coverage` of it; near-net
+    (`allowance_mm` > 0) a bead may stand out of the (grown) island by up to the allowance."""
     if not beads or island.area <= 0:
         return []
     rest = island.difference(footprint(beads))
@@ -40,18 +41,36 @@ def reach_fill(island: Polygon, beads: list[Path2D], wd: Widths, min_coverage: f
             continue
         for axis in centre_lines(piece, wd.lo, depth=1):
             w = float(np.clip(axis.width_mm, wd.lo, wd.hi))
-            pts = _inside(axis.points, island, w)
+            pts = _inside(axis.points, island, w, allowance_mm)
             if pts is None:
                 continue
             bead = Path2D("gap", pts, w, axis.closed)
-            if bead.length >= min_length:
+            if allowance_mm > 0.0 and not axis.closed and bead.length < min_length:
+                # near-net: a pocket bead runs on over its neighbours to the minimum length (their
+                # shares are drawn after it, so the metal stays balanced); still short, no_stubs
+                # welds it onto a neighbour or drops it, named
+                longer = _inside(_extended(pts, min_length), island, w, allowance_mm)
+                bead = Path2D("gap", longer, w) if longer is not None else bead
+                if bead.length >= w:
+                    out.append(bead)
+            elif bead.length >= min_length:
                 out.append(bead)
     return out
 
 
-def _inside(points: np.ndarray, island: Polygon, width: float) -> np.ndarray | None:
-    """The centre line moved where a bead `width` wide stays inside the island; None if it cannot."""
-    room = island.buffer(-0.49 * width, quad_segs=8)
+def _extended(pts: np.ndarray, length: float) -> np.ndarray:
+    """An open centre line run on straight at both ends to `length` (half the shortfall each)."""
+    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    more = 0.5 * (length - float(seg.sum())) + 1e-3
+    d0, d1 = pts[0] - pts[1], pts[-1] - pts[-2]
+    d0, d1 = d0 / max(float(np.hypot(*d0)), 1e-12), d1 / max(float(np.hypot(*d1)), 1e-12)
+    return np.vstack([pts[0] + more * d0, pts, pts[-1] + more * d1])
+
+
+def _inside(points: np.ndarray, island: Polygon, width: float, allowance_mm: float = 0.0) -> np.ndarray | None:
+    """The centre line moved where a bead `width` wide stays inside the island (near-net: within the
+    allowance of it); None if it cannot."""
+    room = island.buffer(allowance_mm - 0.49 * width, quad_segs=8)
     if room.is_empty:
         return None
     pts = np.array(points, dtype=np.float64)  # a copy: the medial-axis points are shared, read-only

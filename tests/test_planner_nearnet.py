@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import shapely
+import trimesh
 from shapely.geometry import box
 
 from core.config import load_material
@@ -65,3 +66,72 @@ def test_grow_and_allowance_for():
     assert allowance_for(3.0, wd, 12.0) == pytest.approx(0.75)  # 3 + 2·0.75 = 4.5 ≥ 4.47
     assert allowance_for(5.0, wd, 12.0) == 0.0
     assert allowance_for(7.0, wd, 12.0) > 0.0  # between one widest and two narrowest beads
+
+
+def _covered(job, grown_of) -> list[float]:
+    """Share of each layer's grown region (grown_of(layer)) the beads' footprint covers."""
+    out = []
+    for layer in job.layers:
+        fp = shapely.union_all([shapely.buffer(shapely.linestrings(p.points[:, :2]), p.width_mm / 2)
+                                for p in layer.passes])
+        g = grown_of(layer)
+        out.append(fp.intersection(g).area / g.area)
+    return out
+
+
+def test_a_fin_narrower_than_a_bead_even_grown_is_built_standing_out_into_its_stock():
+    """Issue 40: a 0.3 mm fin 4 mm beside a block (the octagonal pocket's edge) is 3.3 mm wide grown
+    by 1.5 mm, narrower than the smallest legal bead at 8 mm (5.46 mm): the bead stands out of the
+    grown region by at most the allowance (stock up to 2a there), so it is built, not refused."""
+    fin = box(0, 0, 0.3, 80)
+    part = trimesh.util.concatenate([extrude(fin, 6.0), extrude(box(4.3, 0, 40, 80), 6.0)])
+    job = plan_part(part, PlanOptions(width_mm=8.0, machining_allowance_mm=1.5), MAT)
+    for layer in job.layers:
+        fp = shapely.union_all([shapely.buffer(shapely.linestrings(p.points[:, :2]), p.width_mm / 2)
+                                for p in layer.passes])
+        assert fp.buffer(1e-6).contains(fin)  # the net fin is inside the deposit
+        assert fp.difference(fin.buffer(3.0 + 1e-3)).intersection(box(-10, -10, 2.0, 90)).area < 1.0  # within 2a
+    grown = shapely.union_all([fin, box(4.3, 0, 40, 80)]).buffer(1.5, quad_segs=8)
+    assert min(_covered(job, lambda L: grown)) >= 0.97
+
+
+def test_a_pad_too_small_for_a_bead_of_the_minimum_length_gets_one_loop_into_its_stock():
+    """A 7 x 5 mm pad (the riser's feet) at 8 mm beads: no bead of 16 mm fits in it grown by 1.5 mm;
+    one closed loop standing out of it by at most the allowance covers it."""
+    pad = box(0, 0, 7, 5)
+    part = trimesh.util.concatenate([extrude(pad, 4.0), extrude(box(20, 0, 60, 20), 4.0)])
+    job = plan_part(part, PlanOptions(width_mm=8.0, machining_allowance_mm=1.5), MAT)
+    for layer in job.layers:
+        on_pad = [p for p in layer.passes if p.points[:, 0].max() < 15.0]
+        assert len(on_pad) == 1 and on_pad[0].length_mm >= 16.0
+        fp = shapely.buffer(shapely.linestrings(on_pad[0].points[:, :2]), on_pad[0].width_mm / 2)
+        assert fp.contains(pad) and pad.buffer(3.0).contains(fp)
+    with pytest.raises(MeshError, match="gets no bead of at least 16.0 mm"):
+        plan_part(part, PlanOptions(width_mm=8.0), MAT)
+
+
+def test_the_region_is_grown_in_3d_so_a_small_step_out_is_no_overhang():
+    """A block whose upper part steps out 0.6 mm (beyond the 0.38 mm rule at 0.66 mm layers): net, an
+    overhang; near-net, the stock under the step belongs to the layers below it (the part grown by
+    the allowance in 3-D), so nothing steps out beyond the rule."""
+    part = trimesh.util.concatenate([extrude(box(0, 0, 40, 20), 3.3), extrude(box(0, 0, 40.6, 20), 3.3, z0=3.3)])
+    with pytest.raises(MeshError, match="overhang rule"):
+        plan_part(part, PlanOptions(width_mm=6.0), MAT)
+    job = plan_part(part, PlanOptions(width_mm=6.0, machining_allowance_mm=1.5), MAT)
+    assert job.summary["overhang_layers"] == []
+    h = job.layers[0].height_mm
+    first_up = round(3.3 / h)  # the first layer of the wider part; the layer under it holds its stock
+    reach = max(p.points[:, 0].max() + p.width_mm / 2 for p in job.layers[first_up - 1].passes)
+    assert reach >= 40.6 + np.sqrt(1.5 ** 2 - h ** 2) - 0.2
+
+
+def test_a_refusal_in_the_grown_region_names_the_allowance_that_builds_it():
+    """A free-standing 0.3 mm fin at 8 mm beads with 0.5 mm of allowance: 1.3 mm grown, 2.3 mm with the
+    bead standing out 0.5 mm a side, still narrower than 5.46 mm: refused, naming the allowance at
+    which it is built (0.3 + 2a + 2a >= 5.46: 1.30 mm); planned at that allowance."""
+    fin = extrude(box(0, 0, 0.3, 80), 4.0)
+    with pytest.raises(MeshError) as err:
+        plan_part(fin, PlanOptions(width_mm=8.0, machining_allowance_mm=0.5), MAT)
+    assert "narrower than the smallest legal bead (5.46 mm) (buildable with --machining-allowance 1.30 mm)" in str(err.value)
+    job = plan_part(fin, PlanOptions(width_mm=8.0, machining_allowance_mm=1.3), MAT)
+    assert job.summary["underfill_features"] == 0
