@@ -3,10 +3,14 @@
 Pure: a planned Job in, a Job (with `axes` per pass) or findings out. Choices (docs/kinematics.md,
 docs/planner.md "5-axis"):
 
-* Tool axis = the local build direction, so the table turns it vertical (down-hand). On a
-  perimeter with a usable facet normal n and bead tangent t it is the steepest ascent in the wall,
-  ``n × t`` oriented up; elsewhere (infill, gap, near-horizontal facets) the layer's build
-  direction from the shift of the layer's centroid over one layer height.
+* Tool axis = the local build direction, so the table turns it vertical (down-hand): where the
+  next layer lies over this one. The layer moves like its centroid (the shift s of the sliced
+  region's centroid over one layer height, per mm of height) and, at a boundary bead (perimeter or
+  lone bead) with a usable facet normal n and bead tangent t, its outline steps out along the
+  wall: the steepest ascent g = ``n × t`` (oriented up) gives the step across the bead, s·t the
+  slide along it, so the axis is ``g / g_z + (s·t) t``. A tilted tube's wall gets the tube's axis
+  at every point of the ring (the steepest ascent alone is vertical on its flanks), a frustum's
+  wall its slope. Elsewhere (infill, near-horizontal facets) the axis is the centroid's shift.
 * Smoothed along the bead (moving average over ± `smooth_mm` of arc length, wrapping on closed
   beads), then held within `tilt_limit_deg` of the part's vertical.
 * Overhang rule, at the perimeter beads: the step out Δx is how much farther out the layer's outline
@@ -76,7 +80,11 @@ def _tangents(pts: np.ndarray) -> np.ndarray:
     return _unit_rows(np.gradient(pts, axis=0))
 
 
-def _centroid(layer: Layer) -> np.ndarray | None:
+def _centroid(layer: Layer, region: shapely.Geometry | None = None) -> np.ndarray | None:
+    """The layer's centroid: its sliced region's (area), else its beads' (length-weighted)."""
+    if region is not None and not region.is_empty and region.area > 0:
+        c = region.centroid
+        return np.array([c.x, c.y, layer.z_mm])
     acc, total = np.zeros(3), 0.0
     for p in layer.passes:
         seg = np.linalg.norm(np.diff(p.points, axis=0), axis=1)
@@ -86,28 +94,58 @@ def _centroid(layer: Layer) -> np.ndarray | None:
     return acc / total if total > 0 else None
 
 
-def _layer_directions(job: Job) -> list[np.ndarray]:
-    """Build direction per layer from the shift of the layer centroid over one layer height."""
-    out, prev = [], None
-    for layer in job.layers:
-        c = _centroid(layer)
+def _layer_directions(job: Job, regions: list[shapely.Geometry] | None = None
+                      ) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    """Build direction per layer from the shift of the layer centroid over one layer height (the
+    first layer takes the second's), and the layer's centroid."""
+    out: list[tuple[np.ndarray, np.ndarray | None]] = []
+    prev = None
+    for k, layer in enumerate(job.layers):
+        c = _centroid(layer, regions[k] if regions is not None and k < len(regions) else None)
         d = Z.copy()
         if c is not None and prev is not None and c[2] - prev[2] > 1e-9:
             d = (c - prev) / np.linalg.norm(c - prev)
-        out.append(d)
+        out.append((d, c))
         prev = c if c is not None else prev
+    if len(out) > 1:  # the first layer has none below: it grows where the second one does
+        out[0] = (out[1][0], out[0][1])
     return out
 
 
-def _raw_axes(p: Pass, layer_dir: np.ndarray) -> np.ndarray:
+def _slide(across: np.ndarray, t: np.ndarray, r: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """The layer's slide along the bead per mm of height, (u·t)·t, with u = s + κ·r.
+
+    The sections of a cone by parallel planes are homothetic about its apex: the layer above is
+    this one shifted (s, the centroid's shift) and scaled about its centroid (κ per mm, r = the
+    point's offset from the centroid). The step across the bead (`across`, from the facets) is
+    u's component across it; κ is fitted to it (least squares over the bead), and u's component
+    along the bead is the slide (an ellipse scaled about its centre slides along itself)."""
+    nu = np.column_stack([t[:, 1], -t[:, 0]])
+    rn = (r * nu).sum(axis=1)
+    den = float((rn * rn).sum())
+    kappa = float((rn * ((across[:, :2] - s[:2]) * nu).sum(axis=1)).sum()) / den if den > 1e-9 else 0.0
+    u = s[:2] + kappa * r
+    out: np.ndarray = (u * t[:, :2]).sum(axis=1)[:, None] * t
+    return out
+
+
+def _raw_axes(p: Pass, layer_dir: np.ndarray, centre: np.ndarray | None = None) -> np.ndarray:
+    """Where the next layer lies over each point: the wall's step across the bead (its steepest
+    ascent) plus the layer's slide along it (the centroid's shift); see the module docstring."""
     ax = np.tile(layer_dir, (len(p.points), 1))
     if p.normals is None:  # boundary beads (perimeters, lone beads of a single-bead wall) carry normals
         return ax
     n = _unit_rows(np.asarray(p.normals, dtype=float))
-    g = np.cross(n, _tangents(p.points))
+    t = _tangents(p.points)
+    g = np.cross(n, t)
     g = np.where(g[:, 2:3] < 0, -g, g)
     ok = (np.abs(n[:, 2]) < 0.95) & (np.linalg.norm(g, axis=1) > 0.5)
-    ax[ok] = _unit_rows(g[ok])
+    if not ok.any():
+        return ax
+    shift = layer_dir / max(float(layer_dir[2]), 1e-6)   # the centroid's shift per mm of height
+    across = g[ok] / np.maximum(g[ok, 2:3], 1e-6)         # the wall's step across the bead, per mm
+    r = p.points[ok, :2] - (centre[:2] if centre is not None else p.points[:, :2].mean(axis=0))
+    ax[ok] = _unit_rows(across + _slide(across, t[ok], r, shift))
     return ax
 
 
@@ -152,15 +190,17 @@ def clamp_tilt(axes: np.ndarray, limit_deg: float) -> np.ndarray:
     return out
 
 
-def tool_axes(job: Job, opt: FiveAxisOptions) -> Job:
-    """The job with `axes` on every pass: local build direction, smoothed, within the tilt limit."""
-    dirs = _layer_directions(job)
+def tool_axes(job: Job, opt: FiveAxisOptions, regions: list[shapely.Geometry] | None = None) -> Job:
+    """The job with `axes` on every pass: local build direction, smoothed, within the tilt limit.
+
+    `regions`: each layer's sliced outline (the centroids' shift), else the layer's beads."""
+    dirs = _layer_directions(job, regions)
     window = opt.smooth_mm if opt.smooth_mm is not None else job.bead.width_mm
     layers = []
-    for layer, d in zip(job.layers, dirs):
+    for layer, (d, c) in zip(job.layers, dirs):
         passes = []
         for p in layer.passes:
-            ax = clamp_tilt(smooth(p.points, _raw_axes(p, d), window), opt.tilt_limit_deg)
+            ax = clamp_tilt(smooth(p.points, _raw_axes(p, d, c), window), opt.tilt_limit_deg)
             passes.append(dataclasses.replace(p, axes=np.round(ax, 5)))
         layers.append(dataclasses.replace(layer, passes=tuple(passes)))
     return dataclasses.replace(job, layers=tuple(layers))
@@ -289,7 +329,7 @@ def apply(job: Job, opt: FiveAxisOptions | None, allow_overhang: bool = False,
         rule["remaining"] = three
         summary["overhang"] = rule
         return dataclasses.replace(job, summary=summary)
-    out = tool_axes(job, opt)
+    out = tool_axes(job, opt, regions)
     remaining = overhangs(out, opt.max_overhang_deg, regions)
     rule["remaining"] = remaining
     if remaining and not allow_overhang:

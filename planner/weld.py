@@ -130,23 +130,14 @@ def weld_passes(paths: list[Path2D], sl: LayerSlice, z: float, proc: Process, li
 
     `findings` receives (message, fatal even under --allow-outside) for beads the cell cannot weld.
     """
-    closed = [c for c in sl.contours if c.closed]
-    nrm = np.vstack([c.normals for c in closed]) if closed else None
-    # Boundary beads carry the facet normals: perimeters, and lone beads (a single-bead wall's
-    # surface normal gives its build direction for a 5-axis plan).
-    per = [p for p in paths if p.role == "perimeter" or p.lone]
-    near: list[np.ndarray] = []
-    if per and closed:  # one nearest-point query for every perimeter point of the layer
-        idx = _nearest(np.vstack([p.points for p in per]), np.vstack([c.points for c in closed]))
-        near = np.split(idx, np.cumsum([len(p.points) for p in per])[:-1])
-    near_it = iter(near)
+    nrm, near = _boundary_normals(paths, sl)
     out: list[Pass] = []
     worst, adjusted = 0.0, 0
     d = proc.material.wire_diameter_mm
     for i, p in enumerate(paths):
         pp = proc.point(p.width_mm)
         pts = np.column_stack([p.points, np.full(len(p.points), z)])
-        normals = nrm[next(near_it)] if (p.role == "perimeter" or p.lone) and nrm is not None else None
+        normals = nrm[near[id(p)]] if nrm is not None and id(p) in near else None
         filled = max(p.share_mm, 0.05 * p.width_mm) * proc.height
         wd = balanced_weld(pp, filled, proc.material, lim)
         speed = round(wd.speed_mm_min, 1)
@@ -158,6 +149,27 @@ def weld_passes(paths: list[Path2D], sl: LayerSlice, z: float, proc: Process, li
         out.append(Pass(p.role, pp.width_mm, wd.current_a, speed, wd.wfs_m_min, pts, normals,
                         inside_envelope=wd.inside_envelope))
     return out, worst, adjusted
+
+
+def _boundary_normals(paths: list[Path2D], sl: LayerSlice) -> tuple[np.ndarray | None, dict[int, np.ndarray]]:
+    """The layer's contour normals, and per boundary bead (by id) its points' nearest contour points.
+
+    Boundary beads carry the facet normals: perimeters, lone beads, and gap beads that run along
+    the outline (within 3/4 of their width: the one bead of a wall a little wider than a bead).
+    A wall's surface normal gives its build direction for a 5-axis plan (planner/five_axis.py)."""
+    closed = [c for c in sl.contours if c.closed]
+    cand = [p for p in paths if p.role in ("perimeter", "gap") or p.lone]
+    near: dict[int, np.ndarray] = {}
+    if not (cand and closed):
+        return None, near
+    cpts = np.vstack([c.points for c in closed])[:, :2]
+    idx = _nearest(np.vstack([p.points for p in cand]), cpts)  # one query for the whole layer
+    for p, k in zip(cand, np.split(idx, np.cumsum([len(p.points) for p in cand])[:-1])):
+        along = p.role == "gap" and not p.lone and bool(
+            (np.linalg.norm(cpts[k] - p.points, axis=1) <= 0.75 * p.width_mm).all())
+        if p.role == "perimeter" or p.lone or along:
+            near[id(p)] = k
+    return np.vstack([c.normals for c in closed]), near
 
 
 def _nearest(q: np.ndarray, pts: np.ndarray) -> np.ndarray:
