@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from core.realtime import elevate, is_realtime, quiet_gc, relax
-from controller.report.worker import record_build_end
+from controller.report.worker import record_build_end, records_target
 from controller.runtime.arc_out import RunOn
 from controller.job.check import check_job, job_material
 from controller.runtime.build import BuildOptions, BuildResult, BuildRunner
@@ -390,7 +390,8 @@ class CellController:
         await asyncio.to_thread(self.journal.flush)
         assert self.run_dir is not None
         state = self.last_result.state if self.last_result is not None else None
-        self.last_report = await record_build_end(self.journal, self.bus, self.run_dir, self.job, state)
+        self.last_report = await record_build_end(self.journal, self.bus, self.run_dir, self.job, state,
+                                                  records_target(self.cfg, self.runs_dir))  # docs/records.md
         return self.last_result
 
     def write_report(self, plots: bool = True) -> Path:

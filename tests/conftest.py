@@ -11,6 +11,7 @@ from typing import Iterator
 import pytest
 
 from controller import one_blas_thread
+from tests.records_fixtures import pg_server, store_url  # noqa: F401  (the record store's fixtures: docs/records.md)
 
 ROOT = Path(__file__).resolve().parent.parent
 # One BLAS thread in the tests' in-process cells too, as in every `cell` process (controller/__init__.py

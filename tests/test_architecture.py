@@ -32,6 +32,7 @@ PRODUCT = ("core", "wire", "planner", "drivers", "sims", "controller")
 PACKAGES = (*PRODUCT, "bench")
 _PURE = frozenset({"core", "wire", "planner"})
 _BELOW_RUNTIME = frozenset({"controller.ports", "controller.job", "controller.journal", "controller.report",
+                            "controller.records",
                             "controller.motion", "controller.align", "controller.export", "controller.defaults"})
 RULES: dict[str, frozenset[str]] = {
     "core": frozenset(),
@@ -44,7 +45,8 @@ RULES: dict[str, frozenset[str]] = {
     "controller.job": _PURE,
     "controller.ports": frozenset({"core", "wire", "drivers", "controller.job"}),
     "controller.journal": _PURE | {"controller.job"},
-    "controller.report": _PURE | {"controller.journal", "controller.job"},
+    "controller.report": _PURE | {"controller.journal", "controller.job", "controller.records"},
+    "controller.records": _PURE,   # the shop's record store: report.json dicts and run directories only
     "controller.motion": _PURE | {"drivers", "controller.ports", "controller.job"},
     "controller.align": _PURE | {"drivers", "controller.ports", "controller.job", "controller.motion"},
     "controller.export": _PURE | {"controller.job", "controller.motion"},

@@ -115,6 +115,12 @@ async def _demo_drive(ctl: Any, job: CellJob, session: Any, say: Callable[[str],
         rep = json.loads(report.read_text(encoding="utf-8"))
         rep["alignment"] = align
         report.write_text(json.dumps(rep, indent=2) + "\n", encoding="utf-8")
+        if ctl.cfg.records.url:   # the store's copy is the run directory's (docs/records.md)
+            # lazy: the records room loads only for a cell with a store
+            from controller.records.queue import resend
+
+            await asyncio.to_thread(resend, report.parent, ctl.cfg.records.url, cell=ctl.cfg.cell.name,
+                                    timeout_s=ctl.cfg.records.connect_timeout_s)
     return res, report, align
 
 

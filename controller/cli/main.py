@@ -31,6 +31,7 @@ COMMANDS: dict[str, str] = {
     "repair": "controller.cli.repair",
     "report": "controller.cli.report",
     "runs": "controller.cli.report",
+    "records": "controller.cli.records",
 }
 
 

@@ -1,0 +1,132 @@
+"""`cell records sync [--url URL]` and `cell records query ...`: the shop's record store
+(DESIGN.md §9, docs/records.md).
+
+- `sync`: send every record queued in the runs directory (`records.pending.json`); a run whose
+  record was never written gets it from its journal first. Exit 0 when nothing stays queued,
+  1 when the store could not take every record (each keeps its queue file and the reason).
+- `query`: builds (or, with `--defects`, beads with a defect) by material, wire lot, cell and
+  date, with arc time and heat input per part; `--csv FILE` writes the rows, `--json` prints them.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("records", help="the shop's record store: send queued records, query builds and beads")
+    rs = p.add_subparsers(dest="records_command", metavar="SUBCOMMAND")
+    rs.required = True
+    s = rs.add_parser("sync", help="send every record queued in the runs directory to the record store")
+    _common(s)
+    s.add_argument("--runs", metavar="DIR", help="runs directory (default: cell.yaml's runs_dir)")
+    s.set_defaults(func=_sync)
+    q = rs.add_parser("query", help="builds, or beads with defects, by material, wire lot, cell and date")
+    _common(q)
+    q.add_argument("--defects", action="store_true", help="beads with a defect instead of builds")
+    q.add_argument("--material", metavar="M", help="the job's material (e.g. inconel718-1.0mm)")
+    q.add_argument("--wire-lot", metavar="L", help="the wire lot")
+    q.add_argument("--cell", metavar="C", help="the cell's name (cell.yaml cell.name)")
+    q.add_argument("--since", metavar="DATE", help="builds started on or after DATE (ISO 8601; UTC unless an offset is given)")
+    q.add_argument("--limit", type=int, default=10000, metavar="N", help="at most N rows (default 10000)")
+    q.add_argument("--csv", metavar="FILE", help="write the rows as CSV")
+    q.set_defaults(func=_query)
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--url", metavar="URL", help="the store (default cell.yaml's records.url): sqlite:///PATH or "
+                                                "postgresql://USER@HOST:PORT/DB")
+    p.add_argument("--cell-config", metavar="FILE", help="cell config (default config/cell.yaml)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def _url(args: argparse.Namespace) -> tuple[str, Any]:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
+    from core.config import load_cell
+    from core.errors import InputError
+
+    cfg = load_cell(args.cell_config)
+    url = args.url or cfg.records.url
+    if not url:
+        raise InputError("no record store: give --url sqlite:///PATH or postgresql://..., or records.url in cell.yaml")
+    if not url.startswith(("sqlite:///", "postgresql://", "postgres://")):
+        raise InputError(f"--url {url!r}: expected sqlite:///PATH or postgresql://USER@HOST:PORT/DB")
+    return url, cfg
+
+
+def _sync(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
+    from controller.api import write_run_report
+    from controller.cli.main import emit_json
+    from controller.records.db import redact
+    from controller.records.queue import pending_dirs, sync
+
+    url, cfg = _url(args)
+    runs = Path(args.runs or cfg.cell.runs_dir)
+    dirs = pending_dirs([runs])
+    for d in dirs:   # a record the build's end could not write: from the journal now
+        if not (d / "report.json").is_file() and (d / "journal.sqlite").is_file():
+            write_run_report(d, plots=False)
+    res = sync(dirs, url, cell=cfg.cell.name, timeout_s=cfg.records.connect_timeout_s)
+    out = {"url": redact(url), "runs_dir": str(runs), **res.as_dict()}
+    if args.json:
+        emit_json(out)
+    else:
+        print(f"records: {out['sent']} sent, {out['unchanged']} already in the store, {out['queued']} still queued "
+              f"({redact(url)})")
+        for e in out["errors"]:
+            print(f"  {e}")
+    return 1 if out["queued"] else 0
+
+
+def _query(args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
+    import csv
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
+    from controller.cli.main import emit_json
+    from controller.records.db import connect, redact
+    from controller.records.query import Filters, builds, defective_beads, since_arg
+    from core.errors import InputError
+
+    url, cfg = _url(args)
+    if args.limit < 1:
+        raise InputError(f"--limit {args.limit}: give a positive number of rows")
+    f = Filters(material=args.material, wire_lot=args.wire_lot, cell=args.cell,
+                since=since_arg(args.since) if args.since else None, limit=args.limit)
+    store = connect(url, cfg.records.connect_timeout_s)
+    try:
+        rows = defective_beads(store, f) if args.defects else builds(store, f)
+    finally:
+        store.close()
+    kind = "beads" if args.defects else "builds"
+    if args.csv:
+        cols = list(rows[0]) if rows else []
+        try:
+            with open(args.csv, "w", newline="", encoding="utf-8") as fh:
+                w = csv.DictWriter(fh, fieldnames=cols)
+                w.writeheader()
+                w.writerows(rows)
+        except OSError as exc:
+            raise InputError(f"--csv {args.csv}: cannot write ({exc.strerror or exc})") from None
+    if args.json:
+        emit_json({"url": redact(url), "kind": kind, "count": len(rows), "rows": rows,
+                   "csv": args.csv, "truncated": len(rows) >= args.limit})
+        return 0
+    _print_rows(kind, rows)
+    return 0
+
+
+def _print_rows(kind: str, rows: list[dict[str, Any]]) -> None:
+    if not rows:
+        print(f"no {kind}")
+        return
+    for r in rows:
+        if kind == "builds":
+            print(f"{r['started'] or '-'}  {r['cell']}  {r['job_name']}  {r['material']}  lot {r['wire_lot'] or '-'}  "
+                  f"{r['state']}  arc {r['arc_time_s'] or 0:.1f} s  heat {r['heat_input_kj'] or 0:.1f} kJ  "
+                  f"defects {r['bead_defects'] or 0}")
+        else:
+            print(f"{r['started'] or '-'}  {r['cell']}  {r['job_name']}  lot {r['wire_lot'] or '-'}  layer {r['layer']} "
+                  f"pass {r['pass']}: {r['defect_reasons'] or r['defects_count']}")
+    print(f"{len(rows)} {kind}")
