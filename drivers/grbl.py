@@ -438,6 +438,18 @@ class CncLink(GrblReceiver):
         self.reset_at = time.time()  # homing: an alignment probed before it no longer holds
         return await self.status()
 
+    async def laser_mode(self, on: bool) -> None:
+        """Set `$32` for the program about to stream and read it back: 1 for deposition (the process
+        power drops on feed hold and rapids), 0 for machining (the spindle keeps turning on
+        rapids). DeviceError when the controller does not keep it."""
+        want = "1" if on else "0"
+        if _setting(await self.command("$$"), 32) != want:
+            await self.command(f"$32={want}")
+            if _setting(await self.command("$$"), 32) != want:
+                what = "laser mode ($32=1)" if on else "spindle mode ($32=0)"
+                raise DeviceError(f"cnc at {self.url}: {what} did not stick; check the controller's settings "
+                                  "before running a job")
+
     async def unlock(self) -> list[str]:
         """`$X`: clear the alarm lock ("[MSG:Caution: Unlocked]"); the position is not re-homed."""
         return await self.command("$X")
@@ -448,3 +460,11 @@ class CncLink(GrblReceiver):
         position in machine coordinates and `contact`; ProbeError on ALARM:4/5 (then `$X`, Z
         retracted to where the probe started, unless `unlock_on_fail=False`)."""
         return await Prober(self).run(target, feed_mm_min, mode=mode, unlock_on_fail=unlock_on_fail)
+
+
+def _setting(lines: list[str], n: int) -> str | None:
+    """The value of `$n=` in a `$$` listing (None: not listed)."""
+    for text in lines:
+        if text.startswith(f"${n}="):
+            return text.split("=", 1)[1].strip()
+    return None

@@ -31,6 +31,7 @@ class LineModes:
     motion: str | None = None
     dwell: bool = False
     machine: bool = False
+    tlo: str | None = None     # "set" (G43.1 Z…) | "clear" (G49)
 
 
 def _g_motion(m: LineModes, code: float) -> None:
@@ -59,6 +60,10 @@ def _g_feed_mode(m: LineModes, code: float) -> None:
     m.inverse = code == 93
 
 
+def _g_tlo(m: LineModes, code: float) -> None:
+    m.tlo = "set" if code == 43.1 else "clear"
+
+
 def _g_accepted(m: LineModes, code: float) -> None:
     pass  # accepted; the simulator keeps G54 with zero offsets
 
@@ -70,7 +75,8 @@ G_CODES: dict[float, Callable[[LineModes, float], None]] = {
     **dict.fromkeys((90, 91), _g_distance),
     **dict.fromkeys((20, 21), _g_units),
     **dict.fromkeys((93, 94), _g_feed_mode),
-    **dict.fromkeys((17, 40, 49, 54, 55, 56, 57, 58, 59, 61, 91.1), _g_accepted),
+    **dict.fromkeys((43.1, 49), _g_tlo),
+    **dict.fromkeys((17, 40, 54, 55, 56, 57, 58, 59, 61, 91.1), _g_accepted),
 }
 # M word -> spindle on (M3/M4) / off (M5), or None: accepted without effect
 M_CODES: dict[int, bool | None] = {3: True, 4: True, 5: False, **dict.fromkeys((0, 1, 2, 30, 7, 8, 9), None)}
@@ -142,6 +148,19 @@ def _set_modal(sim: CncSim, modes: LineModes, words: dict[str, float]) -> float:
     return unit
 
 
+def _tool_words(sim: CncSim, modes: LineModes, words: dict[str, float], unit: float) -> None:
+    """`T<n>` selects a tool (M0, the operator, loads it: grbl 1.1h has no M6); `G43.1 Z…` sets the
+    dynamic tool length offset (its Z word is no move), `G49` clears it."""
+    if "T" in words:
+        sim.spindle.selected = int(words["T"])
+    if modes.tlo == "set":
+        if "Z" not in words:
+            raise GrblError(37)
+        sim.tlo = words.pop("Z") * unit
+    elif modes.tlo == "clear":
+        sim.tlo = 0.0
+
+
 async def run_gcode(sim: CncSim, line: str) -> list[str]:
     """Execute one G-code line: the lines to print before `ok`; GrblError for `error:N`."""
     words, gs, ms = split_words(line)
@@ -158,6 +177,7 @@ async def run_gcode(sim: CncSim, line: str) -> list[str]:
     _check_words(words, sim.letters, modes.dwell)
 
     unit = _set_modal(sim, modes, words)
+    _tool_words(sim, modes, words, unit)
     axes = {k: v for k, v in words.items() if k in sim.letters}
     mode = sim.motion_mode
     if spindle is not None:
@@ -166,8 +186,11 @@ async def run_gcode(sim: CncSim, line: str) -> list[str]:
         await sim._sync()
         await asyncio.sleep(sim.clock.wall(max(words["P"], 0.0)))
         sim._log_block(Block(seq, "G4", line), sim.clock.now())
-    if axes:
-        return await _move(sim, seq, line, mode, words, axes, modes, unit)
+    if axes or 0 in ms:
+        out = await _move(sim, seq, line, mode, words, axes, modes, unit) if axes else []
+        if 0 in ms:
+            sim._push(Block(seq, "M0", line))   # program pause once the motion before it is done
+        return out
     if modes.motion is not None and modes.motion.startswith("G38"):
         raise GrblError(26)
     if spindle is None and not modes.dwell:
@@ -185,6 +208,8 @@ async def _move(sim: CncSim, seq: int, line: str, mode: str, words: dict[str, fl
         j = sim.letters.index(k)
         v = v * unit if j < 3 else v
         target[j] = v if (modes.absolute or modes.machine) else target[j] + v
+    if "Z" in axes and modes.absolute and not modes.machine:
+        target[2] += sim.tlo   # machine Z = programmed Z + the tool length offset
     tgt = pos5(target)
     if mode.startswith("G38"):
         return await probe_cycle(sim, seq, mode, line, tgt)

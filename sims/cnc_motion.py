@@ -17,7 +17,7 @@ def move_block(sim: CncSim, b: Block, target: Pos5, t: float, now: float) -> flo
     if not b.started:
         b.started = True
         if b.probe:
-            sim._start_probe(b)
+            start_probe(sim, b)
             # the move ends where the stylus touches: when the whole probing move fits in this
             # tick it must not run on to the commanded end (it went through the part, 1 run in 3)
             target = b.target if b.target is not None else target
@@ -63,3 +63,20 @@ def _decelerate(sim: CncSim, b: Block, target: Pos5, p0: Pos5, delta: list[float
         if sim.world is not None:
             sim.world.motion_stopped(DEVICE)
         sim._notify()
+
+
+def start_probe(sim: CncSim, b: Block) -> None:
+    """At the start of a probing move: cut it short where the stylus will touch the part."""
+    if b.target is None:
+        return
+    f = sim.spindle.setter_hit(pos5(sim.pos), b.target)
+    if f is not None:   # the tool setter (any tool): its switch is on the probe input
+        b.target = pos5([a + f * (e - a) for a, e in zip(sim.pos, b.target)])
+        b.contact = True
+        return
+    if sim.workpiece is None or sim.spindle.is_cutter:
+        return
+    hit = sim.workpiece.probe(sim.pos[:3], b.target[:3], sim.pos[3], sim.pos[4])
+    if hit is not None:
+        b.target = (hit[0], hit[1], hit[2], sim.pos[3], sim.pos[4])
+        b.contact = True

@@ -19,7 +19,6 @@ from collections import deque
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Callable
 
-import numpy as np
 
 from wire.grbl_protocol import GrblStatus, format_status
 from sims.clock import SimClock
@@ -28,12 +27,13 @@ from sims.cnc_gcode import run_gcode
 from sims.cnc_motion import move_block
 from sims.cnc_system import DEFAULT_SETTINGS, VERSION, system_command
 from sims.faults import parse_fault_spec
-from sims.process_world import attach
+from sims.cnc_cut import Breakage, Spindle, sim_tools, use_deposit_map
 from sims.transport import SerialServer, serve_serial
 from sims.workpiece import Workpiece
 from sims.world import World
 
 if TYPE_CHECKING:
+    from core.tools import Tools
     from sims.up import Served, SimContext
 
 BANNER = f"Grbl {VERSION} ['$' for help]"
@@ -49,7 +49,8 @@ class CncSim:
     def __init__(self, *, clock: SimClock, world: World | None = None, workpiece: Workpiece | None = None,
                  log_path: str | Path | None = None, rx_buffer_bytes: int = 128,
                  planner_blocks: int = PLANNER_BLOCKS, homing_enabled: bool = True,
-                 home: Pos5 | None = None, tick_s: float = 0.002, letters: str = "XYZAB") -> None:
+                 home: Pos5 | None = None, tick_s: float = 0.002, letters: str = "XYZAB",
+                 tools: Tools | None = None) -> None:
         self.clock = clock
         self.letters = letters  # XYZAB or XYZAC: the rotary letters of the configured table
         self.world = world
@@ -103,6 +104,9 @@ class CncSim:
         if log_path is not None:
             Path(log_path).parent.mkdir(parents=True, exist_ok=True)
             self._log = open(log_path, "a", encoding="utf-8")
+        self.tlo = 0.0   # G43.1 Z: the tool length offset in effect
+        self.spindle = Spindle(sim_tools(tools), workpiece, Path(log_path).parent / "cut.jsonl" if log_path else None,
+                               tools.setter_mm if tools is not None else (-150.0, -150.0, 0.0))
 
     def _default_home(self) -> Pos5:
         # Parked 50 mm above the workpiece's highest point (rounded up to 10 mm), so the probe
@@ -110,10 +114,7 @@ class CncSim:
         top = 0.0
         if self.workpiece is not None:
             m = self.workpiece.part_to_machine()
-            wp = self.workpiece
-            pts = np.concatenate([wp._v0, wp._v0 + wp._e1, wp._v0 + wp._e2])
-            v = pts @ m[:3, :3].T + m[:3, 3]
-            top = max(float(v[:, 2].max()), 0.0)
+            top = max(float((self.workpiece.vertices() @ m[:3, :3].T + m[:3, 3])[:, 2].max()), 0.0)
         return (0.0, 0.0, 50.0 + math.ceil(top / 10.0) * 10.0, 0.0, 0.0)
 
     def _reset_modal(self) -> None:
@@ -144,6 +145,7 @@ class CncSim:
         if self._log is not None:
             self._log.close()
             self._log = None
+        self.spindle.close()
 
     # -- ByteSim ----------------------------------------------------------------------------
     def attach(self, write: Callable[[bytes], None]) -> None:
@@ -223,7 +225,7 @@ class CncSim:
                              planner_free=self.planner_blocks - self._motion_in_queue)
 
     def probe_tripped(self) -> bool:
-        if self.workpiece is None:
+        if self.workpiece is None or self.spindle.is_cutter:
             return False
         p = tuple(self.pos)
         if self._latch is not None:
@@ -392,7 +394,11 @@ class CncSim:
             self._log_dirty = True
 
     def _finish(self, b: Block, t: float) -> None:
+        if not self._queue or self._queue[0] is not b:   # flushed by an alarm while it moved
+            b.done = True
+            return
         self._queue.popleft()
+        self.spindle.finished(b, t)
         b.done = True
         if b.motion:
             self._motion_in_queue -= 1
@@ -402,15 +408,6 @@ class CncSim:
         if not any(x.motion for x in self._queue) and self._rx:
             self.starved += 1
         self._notify()
-
-    def _start_probe(self, b: Block) -> None:
-        """At the start of a probing move: cut it short where the stylus will touch the part."""
-        if self.workpiece is None or b.target is None:
-            return
-        hit = self.workpiece.probe(self.pos[:3], b.target[:3], self.pos[3], self.pos[4])
-        if hit is not None:
-            b.target = (hit[0], hit[1], hit[2], self.pos[3], self.pos[4])
-            b.contact = True
 
     def advance(self, t: float, now: float) -> None:
         """Execute queued blocks over simulated time [t, now] (every block due: grbl's planner has its own CPU)."""
@@ -424,6 +421,10 @@ class CncSim:
                     self.spindle_on = b.spindle
                     self.spindle_s = b.s
                 self._finish(b, t)
+                if b.verb == "M0":   # program pause: Hold:0 until `~`; the operator changes the tool
+                    self.hold, self.hold_sub = True, 0
+                    self.spindle.load_selected()
+                    self._notify()
                 continue
             done = move_block(self, b, b.target, t, now)
             if done is None:
@@ -435,6 +436,17 @@ class CncSim:
 
     def _moved(self, b: Block, p0: Pos5, p1: Pos5, t0: float, t1: float) -> None:
         self.pos = list(p1)
+        try:   # laser mode ($32=1) stops the spindle on rapids
+            self.spindle.moved(b, p0, p1, self.spindle_on and self.spindle_s > 0
+                               and not (int(self.settings[32]) and b.verb == "G0"), self.spindle_s)
+        except Breakage as exc:
+            self._send(f"[MSG:Tool breakage: {exc}]")
+            self._queue.clear()
+            self._motion_in_queue = 0
+            self.spindle_on = False
+            self.homed = False
+            self._raise_alarm(1)
+            self._notify()
         if self.world is not None and p0 != p1:
             part = None
             if self.workpiece is not None:  # the segment on the part, from the sim's own true pose
@@ -473,7 +485,7 @@ async def serve(ctx: SimContext) -> list[Served]:
     wp = Workpiece.from_config(ctx.sim.cnc.workpiece, ctx.sim.cnc.probe_noise_mm, seed=spec.seed,
                                kinematics=ctx.cell.kinematics, base_dir=ctx.config_dir)
     sim = CncSim(clock=ctx.clock, world=ctx.world, workpiece=wp, rx_buffer_bytes=dev.rx_buffer_bytes,
-                 letters=wp.kin.letters, log_path=(Path(ctx.log_dir) / "cnc.jsonl") if ctx.log_dir else None)
+                 letters=wp.kin.letters, tools=ctx.cell.tools, log_path=(Path(ctx.log_dir) / "cnc.jsonl") if ctx.log_dir else None)
     for cond, v in spec.events("freeze"):
         sim.freeze = (cond, float(v))
     if "freeze" in spec.values:
@@ -481,13 +493,3 @@ async def serve(ctx: SimContext) -> list[Served]:
     use_deposit_map(ctx, wp)
     return await serve_serial(sim, DEVICE, dev, ctx, spec, {"protocol": "grbl 1.1"})
 
-
-def use_deposit_map(ctx: SimContext, wp: Workpiece) -> None:
-    """Metal the CNC deposits is the World's height map in the workpiece frame (its substrate the
-    workpiece mesh): the touch probe reads it, so probing after a repair sees the deposit."""
-    phys = attach(ctx)
-    if phys is None:
-        return
-    phys.set_substrate(DEVICE, wp.top_z)
-    wp.deposit_map = phys.height_map(DEVICE)
-    wp.settle = ctx.world.settle if ctx.world is not None else None   # a touch sees every bead laid before it

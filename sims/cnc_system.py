@@ -50,7 +50,7 @@ async def _settings(sim: CncSim) -> list[str]:
 async def _parameters(sim: CncSim) -> list[str]:
     z = ",".join(fmt(0.0) for _ in range(5))
     out = [f"[{g}:{z}]" for g in ("G54", "G55", "G56", "G57", "G58", "G59", "G28", "G30", "G92")]
-    out += ["[TLO:0.000]", format_probe(sim.probe_pos, sim.probe_ok)]
+    out += [f"[TLO:{sim.tlo:.3f}]", format_probe(sim.probe_pos, sim.probe_ok)]
     return out
 
 

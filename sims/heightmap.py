@@ -97,6 +97,7 @@ class HeightMap:
         self._base: FloatArray = np.full((0, 0), np.nan)   # substrate top (NaN: not asked yet)
         self._stamp = np.zeros((0, 0), dtype=np.int64)     # bead that last raised the cell
         self._before: FloatArray = np.full((0, 0), np.nan)  # its surface before that bead
+        self.carved = np.zeros((0, 0), dtype=bool)        # the substrate under the cell was cut
         self.bead = 0
         self.volume_mm3 = 0.0
         self._trail: deque[tuple[float, int, int]] = deque()   # (path mm, centre cell) of this bead
@@ -123,7 +124,10 @@ class HeightMap:
 
         stamp = np.zeros(shape, dtype=np.int64)
         stamp[rows, cols] = self._stamp
+        carved = np.zeros(shape, dtype=bool)
+        carved[rows, cols] = self.carved
         self.top, self._base, self._before, self._stamp = grown(self.top), grown(self._base), grown(self._before), stamp
+        self.carved = carved
         self._i0, self._j0 = i0, j0
 
     def index(self, x: float, y: float) -> tuple[int, int]:
@@ -176,6 +180,27 @@ class HeightMap:
         out[ok] = self.top[jj[ok], ii[ok]]
         return out
 
+    def solid_tops(self, xs: FloatArray, ys: FloatArray) -> FloatArray:
+        """The top the map knows at each point: the deposit's, or a cut substrate's (NaN: the
+        untouched substrate, which the workpiece mesh answers)."""
+        ii = np.floor(np.asarray(xs) / self.cell).astype(np.int64) - self._i0
+        jj = np.floor(np.asarray(ys) / self.cell).astype(np.int64) - self._j0
+        ny, nx = self.top.shape
+        ok = (ii >= 0) & (ii < nx) & (jj >= 0) & (jj < ny)
+        out = np.full(np.shape(ii), np.nan)
+        t = self.top[jj[ok], ii[ok]]
+        cut = self.carved[jj[ok], ii[ok]]
+        out[ok] = np.where(cut, np.fmax(t, self._base[jj[ok], ii[ok]]), t)
+        return out
+
+    def cut_away(self, q: FloatArray) -> bool:
+        """Was the substrate at point q cut away (above a carved cell's new top)?"""
+        t = self.solid_tops(np.array([q[0]]), np.array([q[1]]))[0]
+        i, j = self.index(float(q[0]), float(q[1]))
+        ny, nx = self.top.shape
+        r, c = j - self._j0, i - self._i0
+        return bool(0 <= r < ny and 0 <= c < nx and self.carved[r, c] and q[2] > t + 1e-9)
+
     def inside(self, q: FloatArray) -> bool:
         """Is the point inside deposited metal (below the deposit's top in a deposited cell)?"""
         t = self.deposit_tops(np.array([q[0]]), np.array([q[1]]))[0]
@@ -185,12 +210,12 @@ class HeightMap:
         """Distance along q0→q1 to the first point inside deposited metal, or None."""
         d = np.asarray(q1, dtype=float) - np.asarray(q0, dtype=float)
         length = float(np.linalg.norm(d))
-        if length < 1e-12 or not self.top.size or np.all(np.isnan(self.top)):
+        if length < 1e-12 or not self.top.size or (np.all(np.isnan(self.top)) and not self.carved.any()):
             return None
         n = max(2, int(math.ceil(length / (self.cell / 8.0))) + 1)
         s = np.linspace(0.0, length, n)
         pts = np.asarray(q0, dtype=float)[None, :] + s[:, None] * (d / length)[None, :]
-        tops = self.deposit_tops(pts[:, 0], pts[:, 1])
+        tops = self.solid_tops(pts[:, 0], pts[:, 1])
         hit = np.isfinite(tops) & (pts[:, 2] <= tops)
         if not np.any(hit):
             return None
@@ -350,3 +375,44 @@ class HeightMap:
         raised = new > old
         self.top[r[raised], c[raised]] = new[raised]
         return max(need - float(np.sum(new - old)), 0.0)
+
+    # -- machining -----------------------------------------------------------------------------
+    def carve(self, q0: FloatArray, q1: FloatArray, radius_mm: float, ball: bool) -> tuple[float, float]:
+        """Sweep a cutter's tip from q0 to q1 (part frame, tool along +z): every cell's top (deposit
+        and substrate alike) comes down to the tool's lower envelope. Returns (volume removed mm³,
+        deepest cut mm below the surface it met)."""
+        a, b = np.asarray(q0, dtype=float), np.asarray(q1, dtype=float)
+        R = float(radius_mm)
+        lo, hi = np.minimum(a[:2], b[:2]) - R, np.maximum(a[:2], b[:2]) + R
+        i_lo, j_lo = self.index(float(lo[0]), float(lo[1]))
+        i_hi, j_hi = self.index(float(hi[0]), float(hi[1]))
+        self._ensure(i_lo, i_hi, j_lo, j_hi)
+        gi, gj = np.meshgrid(np.arange(i_lo, i_hi + 1, dtype=np.int64), np.arange(j_lo, j_hi + 1, dtype=np.int64))
+        ii, jj = gi.ravel(), gj.ravel()
+        cx, cy = (ii + 0.5) * self.cell, (jj + 0.5) * self.cell
+        n = max(2, int(math.ceil(math.dist(a[:2], b[:2]) / (self.cell / 4.0))) + 1)
+        env = np.full(len(ii), np.inf)
+        for k0 in range(0, n, 256):
+            f = np.linspace(0.0, 1.0, n)[k0:k0 + 256]
+            sx, sy, sz = a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2])
+            d2 = (cx[:, None] - sx[None, :]) ** 2 + (cy[:, None] - sy[None, :]) ** 2
+            lift = (R - np.sqrt(np.clip(R * R - d2, 0.0, None))) if ball else np.zeros_like(d2)
+            z = np.where(d2 <= R * R, sz[None, :] + lift, np.inf)
+            env = np.minimum(env, z.min(axis=1))
+        m = np.isfinite(env)
+        ii, jj, env = ii[m], jj[m], env[m]
+        r, c = jj - self._j0, ii - self._i0
+        base = self._base_at(ii, jj)
+        surf = np.fmax(self.top[r, c], base)
+        below = env < surf - 1e-12
+        if not np.any(below):
+            return 0.0, 0.0
+        r, c, env, surf, base = r[below], c[below], env[below], surf[below], base[below]
+        removed = float(np.sum(surf - env) * self.cell * self.cell)
+        depth = float(np.max(surf - env))
+        top = self.top[r, c]
+        self.top[r, c] = np.where(np.isnan(top), np.nan, np.minimum(top, env))
+        lower = env < base
+        self._base[r[lower], c[lower]] = env[lower]
+        self.carved[r[lower], c[lower]] = True
+        return removed, depth

@@ -117,6 +117,11 @@ class Workpiece:
         out: np.ndarray = pts @ inv[:3, :3].T + inv[:3, 3]
         return out
 
+    def vertices(self) -> np.ndarray:
+        """Every triangle corner of the mesh (part frame), (3n, 3)."""
+        out: np.ndarray = np.concatenate([self._v0, self._v0 + self._e1, self._v0 + self._e2])
+        return out
+
     # -- the deposit -------------------------------------------------------------------------
     def top_z(self, xs: FloatArray, ys: FloatArray) -> FloatArray:
         """The mesh's highest surface over each (x, y) of the part frame (NaN where none): the
@@ -166,13 +171,16 @@ class Workpiece:
         length = float(np.linalg.norm(d))
         if length < 1e-12:
             return None
-        t = self._ray_hits(q0, d / length)
+        t = np.sort(self._ray_hits(q0, d / length))
         t = t[(t >= -1e-9) & (t <= length + 1e-9)]
+        dm = self.deposit_map
+        if dm is not None and dm.carved.any():   # the mesh's faces where a cutter took them away
+            t = np.array([x for x in t if not dm.cut_away(q0 + d / length * x)])
         best = float(t.min()) if len(t) else None
-        if self.deposit_map is not None:
+        if dm is not None:
             if self.settle is not None:
                 self.settle()
-            dep = self.deposit_map.ray_hit(q0, q1)
+            dep = dm.ray_hit(q0, q1)
             if dep is not None and (best is None or dep < best):
                 best = dep
         return best
@@ -183,6 +191,8 @@ class Workpiece:
         d = np.array([0.2672612, 0.5345225, 0.8017837])  # skewed: avoids hitting edges exactly
         if self.deposit_map is not None and self.deposit_map.inside(q):
             return True
+        if self.deposit_map is not None and self.deposit_map.cut_away(q):
+            return False
         t = self._ray_hits(q, d)  # parity over the (closed) mesh
         return bool(np.count_nonzero(t > 1e-9) % 2)
 

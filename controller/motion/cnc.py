@@ -21,7 +21,6 @@ from controller.ports import CncLinkPort, PowerSourcePort
 from controller.motion.cnc5 import Five, check_feed
 from controller.job.model import CellJob
 from controller.job.weld_path import move_speed
-from drivers.errors import DeviceError
 from drivers.grbl_stop import SafeStopResult
 from core.errors import CellError
 
@@ -125,11 +124,7 @@ class CncExecutor:
     async def _laser_mode(self) -> None:
         """`$32=1` before any M3 (power-up default is 0): in laser mode grbl drops the process
         power on feed hold and between motions; checked by reading it back."""
-        if _setting(await self.link.command("$$"), 32) != "1":
-            await self.link.command("$32=1")
-            if _setting(await self.link.command("$$"), 32) != "1":
-                raise DeviceError(f"cnc at {self.link.url}: laser mode ($32=1) did not stick; "
-                                  "check the controller's settings before running a job")
+        await self.link.laser_mode(True)
 
     async def process_off(self) -> Any:
         """Process off and motion held: feed hold (laser mode drops S), then confirm `FS:f,0`
@@ -263,13 +258,6 @@ def job_axes_need(job: CellJob) -> str | None:
 def _xyz(pos: tuple[float, ...]) -> Point:
     """X, Y, Z of a reported machine position."""
     return (float(pos[0]), float(pos[1]), float(pos[2]))
-
-
-def _setting(lines: list[str], n: int) -> str | None:
-    for text in lines:
-        if text.startswith(f"${n}="):
-            return text.split("=", 1)[1]
-    return None
 
 
 class _Along:
