@@ -39,6 +39,7 @@ class LayerCtx:
     allowance: float = 0.0  # machining allowance the islands were grown by (mm)
     min_coverage: float = 0.97  # an island covered less gets narrower legal beads where they fit
     height: float = 0.0  # layer height (mm): how far the allowance reaches to the layers around (near-net)
+    min_share: float = 0.0  # the narrowest strip (mm) the cell can weld: wire at its least feed, its max speed
 
 
 @dataclass
@@ -86,7 +87,7 @@ def layer_groups(polys: list[Polygon], index: int, ctx: LayerCtx) -> LayerGroups
             b = poly.bounds
             issues.append(f"layer {index}: feature at ({c.x:.1f}, {c.y:.1f}), {b[2] - b[0]:.2f} x {b[3] - b[1]:.2f} mm, "
                           f"gets no bead of at least {ctx.min_length:.1f} mm (min_bead_length_mm)")
-        _balance_island(groups, poly, ctx.width, ctx.widths.lo)
+        _balance_island(groups, poly, ctx.width, ctx.widths.lo, ctx.min_share, stubs, index)
         per_island.append(groups)
     return region, per_island, stats, issues, stubs
 
@@ -203,13 +204,17 @@ def _pockets(rest: shapely.Geometry, reach: list[Path2D], w: float, stats: dict[
     return out
 
 
-def _balance_island(groups: list[list[Path2D]], poly: Polygon, width: float, narrowest: float) -> None:
+def _balance_island(groups: list[list[Path2D]], poly: Polygon, width: float, narrowest: float,
+                    min_share: float = 0.0, dropped: list[str] | None = None, index: int = 0) -> None:
     """Each bead's share: the part of the island nearest to it (planner.balance.partition_shares),
     so the island's beads lay its area × h exactly, lone beads their wall's whole section.
 
     A gap bead left less than a quarter of its width (at least the narrowest legal bead's: it is
     welded at least that wide) lies on its neighbours: there is nothing for it to fill and the cell
-    could not weld so little; it is removed and the island shared again.
+    could not weld so little; it is removed and the island shared again. So is any other bead left a
+    share under `min_share` — less metal a mm than the cell lays at its fastest with the least wire
+    feed (issue 40: a Fang sliver loop would need 9,402 mm/min) — when its neighbours cover it;
+    it is named in `dropped`.
     """
     for attempt in range(3):
         beads = [b for g in groups for b in g]
@@ -217,13 +222,36 @@ def _balance_island(groups: list[list[Path2D]], poly: Polygon, width: float, nar
             return
         shares = partition_shares(poly, beads, width).tolist()
         idle = {id(b) for b, s in zip(beads, shares) if b.role == "gap" and s < 0.25 * max(b.width_mm, narrowest)}
+        weak = _unweldable(beads, shares, min_share, idle)
+        idle |= weak
         if not idle or len(idle) == len(beads) or attempt == 2:
             break
+        for b, s in zip(beads, shares):
+            if id(b) in weak and dropped is not None:
+                c = b.points.mean(axis=0)
+                dropped.append(f"layer {index}: {b.role} bead at ({c[0]:.1f}, {c[1]:.1f}) of {b.length:.1f} mm dropped: "
+                               f"its {s:.2f} mm share is less metal than the cell lays at its max speed "
+                               f"({min_share:.2f} mm), and its neighbours cover it")
         for g in groups:
             g[:] = [b for b in g if id(b) not in idle]
     it = iter(shares)
     for g in groups:
         g[:] = [Path2D(b.role, b.points, b.width_mm, b.closed, next(it), b.lone) for b in g]
+
+
+def _unweldable(beads: list[Path2D], shares: list[float], min_share: float, idle: set[int]) -> set[int]:
+    """Beads whose share is under what the cell can weld and whose footprint the others cover (95 %)."""
+    low = [i for i, (b, s) in enumerate(zip(beads, shares)) if s < min_share and not b.lone and id(b) not in idle]
+    if not low or len(low) == len(beads):
+        return set()
+    fps = shapely.buffer(np.array([shapely.linestrings(b.points) for b in beads], dtype=object),
+                         np.array([0.5 * b.width_mm for b in beads]), quad_segs=4)
+    out: set[int] = set()
+    for i in low:
+        others = shapely.union_all(np.delete(fps, [i, *[j for j, b in enumerate(beads) if id(b) in out | idle]]))
+        if shapely.area(shapely.difference(fps[i], others)) <= 0.05 * shapely.area(fps[i]):
+            out.add(id(beads[i]))
+    return out
 
 
 def reseamed(lp: LayerPlan, index: int, pos: np.ndarray) -> LayerPlan:

@@ -27,7 +27,7 @@ from planner.summary import ARC_START_S, TRAVEL_MM_MIN, LayerQuality, layer_qual
 from planner.thin import legal_widths
 from planner.options import PlanOptions
 from planner.verdict import Verdict
-from planner.weld import Process, as_welded, weld_passes
+from planner.weld import CellLimits, Process, as_welded, weld_passes
 
 if TYPE_CHECKING:  # annotations only: `cell plan` passes a remembered material (core.config_cache) and
     # never imports pydantic
@@ -103,7 +103,8 @@ class _Run:
         self.ctx = LayerCtx(w, step, perimeters, options.infill_angle_deg,
                             legal_widths(material, height, w, step / w, options.allow_outside),
                             area_factor(material.bead.profile), material.min_bead_length_mm or 2.0 * w,
-                            _allowance(options, material), options.min_coverage, height)
+                            _allowance(options, material), options.min_coverage, height,
+                            _min_share(material, options.cell_limits, height))
         self.options, self.material, self.height = options, material, height
         self.proc = Process(material, height, options.allow_outside, w)
         self.verdict = Verdict(options, material, self.ctx)
@@ -237,6 +238,13 @@ class _LayerMemo:
         if len(self.seen) >= self.BOUND:
             self.seen.clear()
         self.seen[key] = (lp, judged)
+
+
+def _min_share(material: Material, lim: CellLimits, height: float) -> float:
+    """The narrowest strip (mm) a bead can fill inside the cell's limits and the envelope: the wire at
+    the material's least feed over the cell's max speed, per layer height (DESIGN §3.10)."""
+    wire = np.pi * material.wire_diameter_mm ** 2 / 4.0
+    return float(wire * material.ribeiro.wfs_min_m_min * 1000.0 / lim.max_speed_mm_min / height)
 
 
 def _allowance(options: PlanOptions, material: Material) -> float:

@@ -73,3 +73,23 @@ def test_allow_outside_never_extrapolates_to_no_wire():
     proc = Process(MAT, 2.0, True, 6.0)
     pp = proc.point(1.8)
     assert pp.wfs_m_min > 0 and pp.current_a > 0 and pp.speed_mm_min > 0
+
+
+def test_a_bead_too_small_for_the_cell_is_dropped_where_its_neighbours_cover_it_not_refused():
+    """Issue 40 item 2: a wall 5.2 mm thick at 4 mm beads gets a lone bead and two short beads at its
+    ends that mostly lie on it. A cell of 2,000 mm/min cannot lay so little metal a mm even at the
+    least wire feed: the plan was refused naming them; now they are dropped (named in the summary)
+    and the wall is planned inside the cell's limits, its coverage within 1 % of the unlimited plan."""
+    wall = extrude(box(0, 0, 80, 5.2), 2.0)
+    free = plan_part(wall, PlanOptions(width_mm=4.0, allow_underfill=True), MAT)
+    job = plan_part(wall, PlanOptions(width_mm=4.0, allow_underfill=True,
+                                      cell_limits=CellLimits(max_speed_mm_min=2000.0)), MAT)
+    k = MAT.ribeiro
+    for L in job.layers:
+        for p in L.passes:
+            assert p.speed_mm_min <= 2000.0 and p.inside_envelope
+            assert k.i_min_a <= p.current_a <= k.i_max_a and k.wfs_min_m_min <= p.wfs_m_min <= k.wfs_max_m_min
+    assert job.summary["limits"]["outside_passes"] == 0
+    assert job.summary["coverage_min"] >= free.summary["coverage_min"] - 0.01
+    assert job.summary["mass_balance_layer_max"] <= 0.03
+    assert any("dropped: its" in s and "share is less metal than the cell lays" in s for s in job.summary["stubs"])
