@@ -421,6 +421,11 @@ class CellController:
             raise self._refuse("abort")
         self.runner.request_abort()
 
+    @property
+    def building(self) -> bool:
+        """A build runner exists (a signal then stops it on the fault path, not by cancelling the task)."""
+        return self.runner is not None
+
     def stop_now(self, reason: str) -> bool:
         """A stop from outside (a signal): the fault path, as a lost link takes it: weld start
         dropped, motion held, Fault latched, the cause journaled. False when no device is

@@ -106,6 +106,7 @@ class RobotLinkPort(Protocol):
 class ProbePort(Protocol):
     """A touch probe on a grbl machine: what the probe cycle and the alignment need (drivers.grbl.CncLink)."""
 
+    latest_status: GrblStatus | None   # the newest background status report
     @property
     def homed(self) -> bool: ...
     async def command(self, line: str, timeout: float | None = None) -> list[str]: ...
@@ -124,7 +125,6 @@ class CncLinkPort(ProbePort, Protocol):
     baud: int
     line_scale: float               # the simulated line rate's share of the configured baud (1 on hardware)
     status_period: float            # seconds between the background status reports
-    latest_status: GrblStatus | None
     status_t: float                 # when latest_status came off the wire (monotonic)
     answer_t: float                 # when the latest `ok` / `error:N` came off the wire (monotonic)
     reset_at: float                 # wall time of the last power-up, reset or homing seen

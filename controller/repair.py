@@ -266,7 +266,7 @@ async def repair_run(job: CellJob, cell: Any, *, job_path: Path | None = None, r
         stops.detach()
         await ctl.close()
     v = ver.as_dict()
-    report = str(ctl.last_report) if getattr(ctl, "last_report", None) else None
+    report = str(ctl.last_report) if ctl.last_report else None
     return {"state": result.state, "level_a_deg": round(res.level_a_deg, 5), "level_b_deg": round(res.level_b_deg, 5),
             "face_angle_deg": round(res.face_angle_deg, 5),
             "transform": np.round(np.asarray(res.transform, dtype=float), 9).tolist(),

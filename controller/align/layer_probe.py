@@ -66,7 +66,7 @@ async def probe_layer_top(link: ProbePort, settings: Any, spots: Sequence[Point]
                           name: str = "layer", log: ProbeLog | None = None) -> list[float]:
     """The z of the deposit's top under each spot (machine z), by the probe cycle."""
     st = await link.status()
-    if getattr(st, "spindle", 0):
+    if st.spindle:
         raise CellError(f"{name}: the process is still on (spindle {st.spindle}); no probing with the process on")
     if not link.homed:
         await link.home()

@@ -82,12 +82,12 @@ async def _probe_once(link: CncLinkLike, t: ProbeTarget, frm: F, d: F, travel: f
         res = await link.probe((float(target[0]), float(target[1]), float(target[2])), feed, mode="G38.2")
     except ProbeError as exc:
         text = str(exc)
-        if getattr(exc, "code", None) == 4:
+        if exc.code == 4:
             raise ProbeCycleError(f"probe point {_where(t)}: the probe was already tripped at the {what} touch "
                                   f"({text}); clear the stylus and unlock ($X)") from None
         raise ProbeCycleError(f"probe point {_where(t)}: no contact within {travel:.3f} mm of travel on the {what} "
                               f"touch ({text}); check the workpiece position and the probe plan") from None
-    if not getattr(res, "contact", True):
+    if not res.contact:
         raise ProbeCycleError(f"probe point {_where(t)}: no contact within {travel:.3f} mm of travel on the {what} touch")
     return np.asarray(res.position[:3], dtype=float)
 
@@ -100,7 +100,7 @@ async def probe_point(link: CncLinkLike, t: ProbeTarget, s: Any, log: ProbeLog |
     d = d / np.linalg.norm(d)
     start = np.asarray(t.start, dtype=float)
     # The rotary axes do not move while probing: the newest background report is enough.
-    st = getattr(link, "latest_status", None) or await link.status()
+    st = link.latest_status or await link.status()
     table = (float(st.mpos[3]), float(st.mpos[4])) if len(st.mpos) >= 5 else (0.0, 0.0)
     await link.command(f"G90 G0 Z{fmt(max(t.safe_z, float(st.mpos[2])))}")
     await link.command(f"G0 X{fmt(start[0])} Y{fmt(start[1])}")

@@ -30,6 +30,8 @@ from controller.align.leveling import FaceAngle, Leveling, face_angle, leveling_
 from controller.align.probe_cycle import ProbedPoint, ProbeLog, ProbeTarget, probe_points
 from drivers.registry import open_cnc
 from wire.grbl_protocol import fmt
+from controller.ports import CncLinkPort, ProbePort
+from core.config import CellConfig, ProbeSettings
 from core.errors import InputError
 
 F = NDArray[np.float64]
@@ -221,7 +223,7 @@ def solve_alignment(top_pts_table: F, side_pts: F, tertiary_pt: F, side_approach
 # --- the routine over the wire ------------------------------------------------------------------------
 
 
-async def _ensure_ready(link: Any, log: ProbeLog) -> None:
+async def _ensure_ready(link: ProbePort, log: ProbeLog) -> None:
     st = await link.status()
     if not link.homed:
         log.add("homing ($H)")
@@ -249,7 +251,8 @@ def _safe_z(plan: ProbePlan, m: F, clearance: float) -> float:
     return float(apply_transform(m, corners)[:, 2].max() + clearance)
 
 
-async def align(link: Any, cell: Any, plan: ProbePlan, *, settings: Any = None, verify: bool = True,
+async def align(link: CncLinkPort, cell: CellConfig, plan: ProbePlan, *, settings: ProbeSettings | None = None,
+                verify: bool = True,
                 on_point: Callable[[ProbedPoint], None] | None = None, no_level: bool = False) -> AlignResult:
     """Run the whole routine on a connected CncLink; returns the frozen result.
 
@@ -258,9 +261,8 @@ async def align(link: Any, cell: Any, plan: ProbePlan, *, settings: Any = None, 
     homing: a 3-axis firmware is refused naming what it lacks (exit 2)."""
     s = settings or cell.probe
     table = Trunnion.from_config(cell.kinematics)
-    require = getattr(link, "require_axes", None)
-    if require is not None and not no_level:
-        require("XYZ" + table.table, "alignment (it levels the table with the rotary axes; "
+    if not no_level:
+        link.require_axes("XYZ" + table.table, "alignment (it levels the table with the rotary axes; "
                 "`cell align run --no-level` measures the tilt without moving them)")
     log = ProbeLog()
     await _ensure_ready(link, log)
@@ -323,7 +325,7 @@ async def align(link: Any, cell: Any, plan: ProbePlan, *, settings: Any = None, 
 # --- CLI glue ------------------------------------------------------------------------------------------
 
 
-async def run_on_url(url: str, cell: Any, plan: ProbePlan, *, settings: Any = None,
+async def run_on_url(url: str, cell: CellConfig, plan: ProbePlan, *, settings: ProbeSettings | None = None,
                      on_point: Callable[[ProbedPoint], None] | None = None, no_level: bool = False) -> AlignResult:
     """Open the CNC link at `url`, align, close the link (also when cancelled)."""
     link = open_cnc(cell.devices.cnc, time_scale=cell.cell.time_scale, url=url)
@@ -333,9 +335,8 @@ async def run_on_url(url: str, cell: Any, plan: ProbePlan, *, settings: Any = No
     except BaseException as exc:
         # any error or stop (a signal cancels the task): never leave the CNC in Hold with lines
         # queued (DESIGN.md §6): feed hold, M5 or a soft reset, verified
-        stop = getattr(link, "safe_stop", None)
-        if stop is not None and link.connected:
-            await stop(f"alignment stopped: {exc or type(exc).__name__}")
+        if link.connected:
+            await link.safe_stop(f"alignment stopped: {exc or type(exc).__name__}")
         raise
     finally:
         await link.close()
@@ -347,5 +348,5 @@ def alignment_record(res: "AlignResult") -> dict[str, Any]:
     return {"transform": res.transform.tolist(), "level_a_deg": res.level_a_deg, "level_b_deg": res.level_b_deg,
             **({"no_level": True, "tilt_deg": res.leveling.tilt_deg} if no_level else {}),
             "table_deg": {"a": res.level_a_deg, "b": res.level_b_deg}, "face_angle_deg": res.face_angle_deg,
-            "probed_at": getattr(res, "probed_at", None) or time.time()}
+            "probed_at": time.time()}
 

@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from controller.job.model import CellJob
 from controller.job.read import edited
+from core.config import Kinematics
 from core.errors import InputError
 
 F = NDArray[np.float64]
@@ -171,12 +172,12 @@ class Trunnion:
     chord_tolerance_mm: float = 0.02              # 5-axis moves split until the tip stays this close
 
     @classmethod
-    def from_config(cls, kin: Any) -> "Trunnion":
+    def from_config(cls, kin: Kinematics) -> "Trunnion":
         """From core.config.Kinematics (cell.yaml `kinematics:`)."""
-        return cls(table=kin.table, pivot=tuple(kin.pivot_mm), axis_a=tuple(kin.axis_a),
-                   axis_second=tuple(kin.axis_second), offset=tuple(kin.offset_mm),
-                   a_limits_deg=tuple(kin.a_limits_deg), second_limits_deg=tuple(kin.second_limits_deg),
-                   chord_tolerance_mm=float(getattr(kin, "chord_tolerance_mm", 0.02)))
+        return cls(table=kin.table, pivot=kin.pivot_mm, axis_a=kin.axis_a,
+                   axis_second=kin.axis_second, offset=kin.offset_mm,
+                   a_limits_deg=kin.a_limits_deg, second_limits_deg=kin.second_limits_deg,
+                   chord_tolerance_mm=kin.chord_tolerance_mm)
 
     # (inner axis, outer axis) as unit vectors; angles are always reported as (a, second).
     def _axes(self) -> tuple[F, F]:

@@ -13,6 +13,7 @@ from typing import Any, Sequence
 
 from controller.journal.queries import SampleRow
 from controller.journal.store import Journal
+from core.material import ProcessTolerance
 from planner.job import Job, Pass
 
 # One row per planned bead (DESIGN.md §7); every name carries its unit. How each figure is
@@ -129,7 +130,7 @@ def _bead_status(key: tuple[int, int], done: Any, rows: list[dict[str, Any]], mi
 
 
 def bead_records(journal: Journal, job: Job | None, scale: float, defects: list[dict[str, Any]],
-                 tolerance: Any = None) -> list[dict[str, Any]]:
+                 tolerance: ProcessTolerance | None = None) -> list[dict[str, Any]]:
     """One record per planned bead (every pass of the job, built or not): planned against measured.
 
     A bead deposited in several runs (cut by a stop, finished by `cell resume`) is one row: its
@@ -165,8 +166,8 @@ def bead_records(journal: Journal, job: Job | None, scale: float, defects: list[
             "current_planned_a": plan.current_a if plan else None, "current_mean_a": _r(i_mean),
             "current_p5_a": _r(_ext(rows, "i_p5", min)), "current_p95_a": _r(_ext(rows, "i_p95", max)),
             "current_min_a": _r(_ext(rows, "i_min", min)), "current_max_a": _r(_ext(rows, "i_max", max)),
-            "voltage_window_min_v": getattr(tolerance, "voltage_min_v", None),
-            "voltage_window_max_v": getattr(tolerance, "voltage_max_v", None),
+            "voltage_window_min_v": tolerance.voltage_min_v if tolerance is not None else None,
+            "voltage_window_max_v": tolerance.voltage_max_v if tolerance is not None else None,
             "voltage_mean_v": _r(u_mean),
             "voltage_p5_v": _r(_ext(rows, "u_p5", min)), "voltage_p95_v": _r(_ext(rows, "u_p95", max)),
             "voltage_min_v": _r(_ext(rows, "u_min", min)), "voltage_max_v": _r(_ext(rows, "u_max", max)),

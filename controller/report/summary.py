@@ -24,6 +24,7 @@ from controller.report.record import (
     write_csv,
 )
 from core.config import load_material
+from core.material import ProcessTolerance
 from core.errors import CellError
 from planner.job import Job
 
@@ -113,7 +114,7 @@ def _material_name(job: Job | None) -> Any:
     return job.material.get("name") if job else None
 
 
-def _tolerance(job: Job | None) -> Any:
+def _tolerance(job: Job | None) -> ProcessTolerance | None:
     """The process tolerance of the job's material (None when the cell no longer knows it)."""
     name = _material_name(job)
     if not name:
@@ -128,8 +129,8 @@ def _tolerance_dict(job: Job | None) -> dict[str, Any] | None:
     tol = _tolerance(job)
     if tol is None:
         return None
-    return {k: getattr(tol, k) for k in ("current_pct", "wfs_pct", "speed_pct", "voltage_min_v", "voltage_max_v")
-            if hasattr(tol, k)}
+    return {"current_pct": tol.current_pct, "wfs_pct": tol.wfs_pct, "speed_pct": tol.speed_pct,
+            "voltage_min_v": tol.voltage_min_v, "voltage_max_v": tol.voltage_max_v}
 
 
 def build_id(meta: dict[str, Any]) -> str | None:

@@ -25,8 +25,9 @@ import sys
 import time
 from contextlib import contextmanager
 from types import FrameType
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, Protocol
 
+from controller.journal.store import Journal
 from core.errors import CellError
 
 SIGNALS: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -159,7 +160,17 @@ def installed(stops: StopSignals) -> Iterator[StopSignals]:
         _current = prev
 
 
-def attach(ctl: Any = None, say: Callable[[str], None] | None = None) -> StopSignals | None:
+class Stoppable(Protocol):
+    """What a signal stops (controller.api.CellController): its build runner and journal, and the fault path."""
+
+    @property
+    def building(self) -> bool: ...
+    @property
+    def journal(self) -> Journal | None: ...
+    def stop_now(self, reason: str) -> bool: ...
+
+
+def attach(ctl: Stoppable | None = None, say: Callable[[str], None] | None = None) -> StopSignals | None:
     """On the running loop: the first signal stops `ctl` on the fault path (`ctl.stop_now`) or,
     before its build (no runner yet) or without a controller, cancels the current task (whose
     `finally` blocks stop and release the devices); a second one is noted in the journal and on
@@ -173,14 +184,14 @@ def attach(ctl: Any = None, say: Callable[[str], None] | None = None) -> StopSig
 
     def on_stop(reason: str) -> None:
         tell(f"{reason} (signal received; stopping safely)")
-        building = ctl is not None and getattr(ctl, "runner", None) is not None
+        building = ctl is not None and ctl.building
         stopped = ctl is not None and ctl.stop_now(reason)
         if not (stopped and building) and task is not None and not task.done():
             task.cancel()
 
     def on_note(note: str) -> None:
         tell(note)
-        journal = getattr(ctl, "journal", None)
+        journal = ctl.journal if ctl is not None else None
         if journal is not None:
             try:
                 journal.event("info", note)
