@@ -422,8 +422,7 @@ class CellController:
         self.runner.request_abort()
 
     @property
-    def building(self) -> bool:
-        """A build runner exists (a signal then stops it on the fault path, not by cancelling the task)."""
+    def building(self) -> bool:  # a runner exists: a signal stops it on the fault path (runtime/stops.py)
         return self.runner is not None
 
     def stop_now(self, reason: str) -> bool:
