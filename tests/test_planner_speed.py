@@ -30,7 +30,10 @@ def test_planning_imports_no_scipy_trimesh_or_matplotlib():
 _PLAN_MODULES = ("import json, sys\n"
                  "from controller.cli.main import main\n"
                  "rc = main(sys.argv[1:])\n"
-                 "heavy = ('pydantic', 'yaml', 'trimesh', 'scipy', 'matplotlib', 'numpy.ma', 'core.config', 'tqdm')\n"
+                 "heavy = ('pydantic', 'yaml', 'trimesh', 'scipy', 'matplotlib', 'numpy.ma', 'core.config', 'tqdm',\n"
+                 "         'textual', 'asyncua', 'pymodbus', 'serial', 'psycopg', 'sqlite3', 'drivers', 'sims',\n"
+                 "         'controller.runtime', 'controller.tui', 'controller.report', 'controller.opcua',\n"
+                 "         'controller.journal', 'controller.motion')\n"
                  "sys.stderr.write(json.dumps({'rc': rc, 'loaded': sorted(m for m in heavy if m in sys.modules)}))\n")
 
 
@@ -52,7 +55,8 @@ def _plan(tmp_path, cache, *extra):
 
 def test_a_remembered_configuration_plans_without_pydantic_yaml_or_trimesh(tmp_path):
     """The second `cell plan` reads the validated cell and material from the cache: no pydantic,
-    no PyYAML, no trimesh, no numpy.ma on its path, and the same job byte for byte."""
+    no PyYAML, no trimesh, no numpy.ma on its path, none of the controller's runtime (devices, TUI,
+    OPC UA, Modbus, serial, record stores: issue 40 item 3), and the same job byte for byte."""
     cache = tmp_path / "cache"
     rc, first_loaded, first = _plan(tmp_path, cache)
     assert rc == 0 and "pydantic" in first_loaded  # the first one validates config/ and remembers it
