@@ -145,3 +145,33 @@ def test_a_build_sends_its_record_at_its_end_equal_to_its_report(store_url: str,
         assert st.rows("SELECT count(*) FROM beads")[0][0] == len(rep["beads"]) == 2
     finally:
         st.close()
+
+
+def test_the_database_stopped_and_started_again_loses_nothing(pg_server, tmp_path: Path) -> None:
+    """An outage of the real server: the record ending meanwhile is queued, the next build's end
+    (the server back) sends it and its own, each once."""
+    url = pg_server.create_db("outage")
+    runs = tmp_path / "runs"
+    dirs = []
+    for i in range(2):
+        d = runs / f"job-{i}"
+        d.mkdir(parents=True)
+        (d / "report.json").write_text(json.dumps(fake_record(100 + i, beads=6)))
+        dirs.append(d)
+    assert after_build(dirs[0], runs, url, cell="c").sent == [str(dirs[0])]
+    (dirs[0] / "report.json").write_text(json.dumps({**fake_record(100, beads=6), "state": "fault"}))
+    pg_server.stop()
+    try:
+        res = after_build(dirs[0], runs, url, cell="c", timeout_s=1.0)
+        assert res.queued == [str(dirs[0])] and "127.0.0.1" in res.errors[0]
+    finally:
+        pg_server.start()
+    res = after_build(dirs[1], runs, url, cell="c")
+    assert sorted(res.sent) == sorted(map(str, dirs)) and not any((d / PENDING).exists() for d in dirs)
+    st = connect(url)
+    try:
+        assert st.rows("SELECT count(*), count(DISTINCT build_id) FROM builds") == [(2, 2)]
+        assert st.rows("SELECT state FROM builds WHERE build_id = ?", (fake_record(100, beads=6)["build_id"],)) == [("fault",)]
+        assert st.rows("SELECT count(*) FROM beads")[0][0] == 12
+    finally:
+        st.close()

@@ -41,13 +41,19 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
-def _url(args: argparse.Namespace) -> tuple[str, Any]:
+def _url(args: argparse.Namespace, need_config: bool = True) -> tuple[str, Any]:
+    """The store's URL (--url, else cell.yaml's records.url) and cell.yaml (None when --url is given
+    and the command needs nothing else of it: `query` answers without loading the config schema)."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from core.config import load_cell
     from core.errors import InputError
 
-    cfg = load_cell(args.cell_config)
-    url = args.url or cfg.records.url
+    cfg = None
+    if need_config or not args.url:
+        # lazy: the config schema (pydantic) only when cell.yaml is read
+        from core.config import load_cell
+
+        cfg = load_cell(args.cell_config)
+    url = args.url or (cfg.records.url if cfg is not None else None)
     if not url:
         raise InputError("no record store: give --url sqlite:///PATH or postgresql://..., or records.url in cell.yaml")
     if not url.startswith(("sqlite:///", "postgresql://", "postgres://")):
@@ -89,12 +95,12 @@ def _query(args: argparse.Namespace) -> int:
     from controller.records.query import Filters, builds, defective_beads, since_arg
     from core.errors import InputError
 
-    url, cfg = _url(args)
+    url, cfg = _url(args, need_config=False)
     if args.limit < 1:
         raise InputError(f"--limit {args.limit}: give a positive number of rows")
     f = Filters(material=args.material, wire_lot=args.wire_lot, cell=args.cell,
                 since=since_arg(args.since) if args.since else None, limit=args.limit)
-    store = connect(url, cfg.records.connect_timeout_s)
+    store = connect(url, cfg.records.connect_timeout_s if cfg is not None else 5.0)
     try:
         rows = defective_beads(store, f) if args.defects else builds(store, f)
     finally:
