@@ -136,3 +136,40 @@ async def test_not_homed_and_already_tripped():
             await link.close()
 
     await _with_sim(cell, sim, None, body)
+
+
+async def test_a_loaded_host_does_not_leave_the_probe_tripped_at_the_next_touch(tmp_path):
+    # The flaky ALARM:4 of test_spread_above_tolerance_after_retries_names_the_point, made
+    # deterministic: a loaded host gives the simulator's executor long ticks, so every probing move
+    # fits in one tick. The move must still end where the stylus touched (sims/cnc_motion.py): when
+    # it ran on to its commanded end, 10 mm inside the part, the back-off of 2 mm left the stylus
+    # inside and the next touch raised "already tripped" (ALARM:4) every time.
+    from sims.clock import SimClock
+    from sims.cnc_sim import CncSim
+    from sims.faults import parse_fault_spec
+    from sims.transport import SerialServer
+    from sims.workpiece import Workpiece
+
+    cell = _cell(spread_tol_mm=0.005, retries=1, samples=3)
+    wp = _sim().cnc.workpiece
+    piece = Workpiece.from_config(wp, 0.05, seed=3)
+    # a tick of 50 ms at time scale 1000 is 50 s of machine time: longer than any probing move
+    sim = CncSim(clock=SimClock(1000.0), workpiece=piece, log_path=tmp_path / "cnc.jsonl", tick_s=0.05)
+    sim.start()
+    server = SerialServer(sim, name="cnc", spec=parse_fault_spec(""), baud=115200)
+    link = CncLink(await server.start(None, ephemeral=True))
+    try:
+        await link.connect()
+        await link.home()
+        target = ProbeTarget("top[0]", (-40.0, -40.0, 10.0), (0.0, 0.0, -1.0), 60.0)
+        with pytest.raises(ProbeCycleError, match=r"top\[0\].*spread .* above the tolerance 5\.0 µm after 2 attempts"):
+            await probe_point(link, target, cell.probe)
+        # every touch stopped on the surface: no probing move ended inside the part
+        probes = [b for b in sim.executed if b.probe]
+        assert len(probes) == 8 and all(b.contact for b in probes)
+        assert all(abs(b.target[2] - probes[0].target[2]) < 0.5 for b in probes if b.target is not None)
+        assert not piece.inside(tuple(sim.pos[:3]), sim.pos[3], sim.pos[4])
+    finally:
+        await link.close()
+        await server.close()
+        await sim.close()
