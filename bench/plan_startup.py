@@ -29,10 +29,9 @@ PROBE = ("import json, sys\nfrom controller.cli.main import main\nrc = main(sys.
 
 
 def _wall_stl(path: Path) -> None:
-    # lazy: only this benchmark's set-up needs it (the timed runs are other processes)
-    from shapely.geometry import box
-
-    from planner.extrude import extrude
+    # lazy: only this benchmark's set-up needs them (the timed runs are other processes)
+    from shapely.geometry import box  # lazy: set-up only
+    from planner.extrude import extrude  # lazy: set-up only
 
     path.write_bytes(extrude(box(0, 0, 80, 5.2), 20.0).export(file_type="stl"))
 
