@@ -1,5 +1,5 @@
 """`cell report RUN_DIR [--csv FILE]` and `cell runs`: the build record, from the journal alone,
-through the controller's API (controller/api.py `write_run_report`, `run_rows`)."""
+through the controller's API (controller/api/ `write_run_report`, `run_rows`)."""
 from __future__ import annotations
 
 import argparse

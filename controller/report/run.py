@@ -1,5 +1,5 @@
 """A run directory's build record from its journal alone: `cell report`, `cell runs` (through
-controller/api.py) and the record worker (controller/report/worker.py).
+controller/api/) and the record worker (controller/report/worker.py).
 
 The job is the one the journal holds (checked against the checksum stored beside it, then read
 typed like a file: controller/job/read.py); a journal without one is reported from its rows alone.

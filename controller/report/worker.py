@@ -132,7 +132,7 @@ def _sent_text(run_dir: Path, sent: dict[str, Any] | None) -> str:
 
 async def record_build_end(journal: Any, bus: Any, run_dir: Path, job: CellJob | None,
                            state: str | None, records: RecordsTarget | None = None) -> Path | None:
-    """The one record writer at the end of every build (controller/api.py `start()`): the record
+    """The one record writer at the end of every build (controller/api/ `start()`): the record
     in the run directory, its path journaled and on the views' message line. A record that could
     not be written never turns the build's end into an error: the reason is journaled and shown,
     and `cell report RUN_DIR` writes it later from the journal."""

@@ -11,7 +11,7 @@ touches the controller's objects, the drivers or the simulators. Two sources of 
   its own rate, can never fall behind.
 - `ReplaySession`: a fixed, recorded view (snapshot tests, documentation screenshots).
 
-Additions over the facade (controller/api.py): planning an STL with progress, the job summary
+Additions over the facade (controller/api/): planning an STL with progress, the job summary
 and per-role parameters, the probe plan / alignment result as plain values, the device list
 with last errors, journal events for the Log screen, and a safe stop for quitting mid-build.
 """
@@ -181,7 +181,7 @@ class CellSession(TraceAsk):
         except Exception:
             pass
         if self._build is not None:
-            # the build's end writes its record (controller/api.py): let it finish before the
+            # the build's end writes its record (controller/api/): let it finish before the
             # loop stops, so quitting mid-build still leaves report.json, beads.csv and the plots
             try:
                 self._build.result(max(timeout, 60.0))

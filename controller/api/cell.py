@@ -23,7 +23,7 @@ import dataclasses
 import json
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Any, Callable
 
 from core.realtime import elevate, is_realtime, quiet_gc, relax
 from controller.report.worker import record_build_end, records_target
@@ -48,9 +48,7 @@ from core.errors import CellError
 import importlib
 from core.config import load_sim
 from controller.runtime.arc_handshake import ArcHandshake
-
-if TYPE_CHECKING:
-    from controller.align.routine import AlignResult
+from controller.api.offline import align_at
 
 COMMANDS = ("open_job", "run_alignment", "start", "pause", "resume", "abort", "reset", "estop")
 
@@ -470,31 +468,3 @@ class CellController:
         if self.journal is not None:
             self.journal.event("info", "reset by the operator", state=self.machine.state.value)
 
-
-def write_run_report(run_dir: str | Path, *, plots: bool = True, operator: str | None = None,
-                     csv_path: str | Path | None = None) -> Path:
-    """`cell report RUN_DIR`: the build record of a run directory, from its journal and the job it
-    holds (no cell needed); the path of report.json."""
-    # lazy: the report modules (matplotlib) load only when a record is written
-    from controller.report.run import write_run_report as write
-
-    return write(run_dir, plots=plots, operator=operator, csv_path=csv_path)
-
-
-def run_rows(runs_dir: str | Path) -> list[dict[str, Any]]:
-    """`cell runs`: dir, job, state, started, layers done / total of every run directory."""
-    # lazy: the report modules load only when the runs are listed
-    from controller.report.run import run_rows as rows
-
-    return rows(Path(runs_dir))
-
-
-async def align_at(url: str, cell: CellConfig, plan: Any, *, settings: Any = None,
-                   on_point: Callable[[Any], None] | None = None, no_level: bool = False) -> "AlignResult":
-    """Probe and align on the CNC at `url` outside a build session (the link is opened and closed
-    here): `cell align run`, the demo's probe on the CNC and the TUI's Align screen come in here,
-    a build session through `CellController.run_alignment`."""
-    # lazy: the alignment routine (ICP, trimesh) loads only when a cell is aligned
-    from controller.align.routine import run_on_url
-
-    return await run_on_url(url, cell, plan, settings=settings, on_point=on_point, no_level=no_level)
