@@ -92,7 +92,7 @@ def deposit_vs_plan(job: dict, log: Path) -> dict:
 
 
 async def one(tmp: Path, pose: tuple, scale: float = 60.0, shape: str = "pocket", faults: str = "",
-              process_control: str = "open") -> dict:
+              process_control: str = "open", finish: bool = False) -> dict:
     cad, stock = worn_parts(tmp, shape)
     # the worn edge's ramp rests on the stock and runs out thinner than a bead (tests/test_repair_run.py)
     lax = ["--allow-underfill", "--allow-overhang"] if shape == "edge" else []
@@ -114,7 +114,7 @@ async def one(tmp: Path, pose: tuple, scale: float = 60.0, shape: str = "pocket"
         tops.extend(harness.world.physics.maps["cnc"].deposit_tops(at[:, 0], at[:, 1]).tolist())
 
     rep = await repair_run_sim(typed, cell, sim, job_path=tmp / "job.json", runs_dir=tmp / "runs", log_dir=tmp / "log",
-                               inspect=deposit_tops)
+                               inspect=deposit_tops, finish=finish)
     return {"pose": pose, "shape": shape, "alignment": rep["alignment"], "verify": rep["verify"],
             "state": rep["state"], "time_scale": rep.get("time_scale"),
             "time_scale_probing": rep.get("time_scale_probing"), "on_deposit": touches_on_deposit(job, rep),

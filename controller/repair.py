@@ -18,12 +18,16 @@ from typing import Any, Callable
 import numpy as np
 
 from controller.align.probe_cycle import ProbeTarget, probe_points
+from controller.align.surface_probe import probe_cad_points, repaired_spots
+from controller.motion.mill import change_tool, program_lines, run_program
 from controller.align.routine import alignment_record, plan_for_mesh
 from controller.api import CellController
 from controller.job.model import CellJob
 from controller.motion.kinematics import apply_to_job
 from controller.runtime import stops
 from core.errors import CellError, InputError
+from planner.dropcutter import ToolShape
+from planner.finish import Cut, plan_finish, stock_above_cad, stock_margin, stock_surface
 from planner.job import Layer
 
 
@@ -61,19 +65,20 @@ class VerifyResult:
                 "at": np.round(self.points_cad, 3).tolist()}
 
 
-def load_cad(job: CellJob, job_path: Path | None) -> Any:
+def load_cad(job: CellJob, job_path: Path | None, which: str = "cad") -> Any:
+    """The job's CAD (or, `which="stock"`, its stock) mesh, a relative path looked up next to the job."""
     # lazy: trimesh loads only when this path runs (start-up time)
     import trimesh
 
-    cad = job.repair.cad if job.repair is not None else None
+    cad = (job.repair.cad if which == "cad" else job.repair.stock) if job.repair is not None else None
     if not cad:
-        raise InputError("job: not a repair job (no repair.cad); plan it with `cell repair plan`")
+        raise InputError(f"job: not a repair job (no repair.{which}); plan it with `cell repair plan`")
     p = Path(cad)
     if not p.is_absolute() and job_path is not None and (job_path.parent / p).is_file():
         p = job_path.parent / p   # a relative CAD is relative to the job file's directory
     if not p.is_file():
         where = f" (looked in {job_path.parent.resolve()})" if job_path is not None and not Path(cad).is_absolute() else ""
-        raise InputError(f"job repair.cad {cad}: no such file{where}; plan the repair again or put the CAD there")
+        raise InputError(f"job repair.{which} {cad}: no such file{where}; plan the repair again or put the mesh there")
     return trimesh.load_mesh(str(p), force="mesh")
 
 
@@ -232,9 +237,86 @@ async def verify(link: Any, cell: Any, job: CellJob, transform: np.ndarray, grid
     return VerifyResult(pts, top, nominal, tolerance_mm, planned_z=ztop, kinds=tuple(kinds))
 
 
+def _record(run_dir: Path, rec: dict[str, Any]) -> None:
+    """The machining and its verify into the run's record: repair.json, and report.json's `repair`."""
+    # stdlib, needed only on this path
+    import json
+
+    (run_dir / "repair.json").write_text(json.dumps(rec, indent=1) + "\n", encoding="utf-8")
+    rp = run_dir / "report.json"
+    if rp.is_file():
+        data = json.loads(rp.read_text(encoding="utf-8"))
+        data["repair"] = rec
+        rp.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+
+
+def _rounded(v: float) -> float:
+    return round(float(v), 4)
+
+
+def _short_spots(pts: np.ndarray, margin: np.ndarray, need: float) -> str:
+    bad = [f"({p[0]:.1f}, {p[1]:.1f}): {m:+.3f} mm" for p, m in zip(pts, margin) if not m >= need]
+    return "; ".join(bad[:8]) + (f" and {len(bad) - 8} more" if len(bad) > 8 else "")
+
+
+def machined_verify(pts: np.ndarray, err: np.ndarray, tolerance_mm: float) -> dict[str, Any]:
+    """The verify against CAD (no allowance): per touch z − CAD top under it."""
+    defects = []
+    k = int(np.argmax(np.abs(err)))
+    if abs(float(err[k])) > tolerance_mm:
+        defects.append({"kind": "height", "at": np.round(pts[k], 3).tolist(), "error_mm": _rounded(err[k])})
+    return {"points": len(err), "against": "CAD", "height_error_mean_mm": _rounded(err.mean()),
+            "height_error_max_mm": _rounded(np.abs(err).max()), "flatness_mm": _rounded(err.max() - err.min()),
+            "below_cad_max_mm": _rounded(max(0.0, -float(err.min()))), "tolerance_mm": tolerance_mm,
+            "defects": defects, "at": np.round(pts, 3).tolist(), "error_mm": np.round(err, 4).tolist()}
+
+
+async def finish_repair(link: Any, cell: Any, job: CellJob, cad: Any, stock: Any, transform: np.ndarray,
+                        say: Callable[[str], None]) -> dict[str, Any]:
+    """Probe the deposit, rough and finish it to CAD, verify against CAD (DESIGN §4, docs/machining.md)."""
+    m = cell.machining
+    name, cutter = cell.tools.cutter(m.cutter)
+    cad_tri, stock_tri = np.asarray(cad.triangles, dtype=float), np.asarray(stock.triangles, dtype=float)
+    assert job.repair is not None and job.repair.bounds_mm is not None
+    rb = np.asarray(job.repair.bounds_mm, dtype=float)
+    spots = repaired_spots(cad_tri, stock_tri, rb, m.probe_points)
+    top = float(max(L.z_mm for L in job.layers)) + 1.0
+    say("stock")
+    pts = await probe_cad_points(link, cell, spots, top, transform, "stock")
+    margin = stock_margin(cad_tri, pts)
+    stock_rec = {"min_mm": _rounded(np.nanmin(margin)), "max_mm": _rounded(np.nanmax(margin)), "points": len(pts),
+                 "min_stock_mm": m.min_stock_mm, "at": np.round(pts, 3).tolist()}
+    if not np.all(margin >= m.min_stock_mm):
+        raise CellError(f"repair: the deposit stands less than {m.min_stock_mm} mm above CAD at "
+                        f"{_short_spots(pts, margin, m.min_stock_mm)}; deposit again there (or plan a larger allowance)")
+    lo, hi = np.asarray(cad.bounds, dtype=float)
+    region = (float(max(rb[0, 0] - m.margin_mm, lo[0])), float(max(rb[0, 1] - m.margin_mm, lo[1])),
+              float(min(rb[1, 0] + m.margin_mm, hi[0])), float(min(rb[1, 1] + m.margin_mm, hi[1])))
+    surf = stock_surface(cad_tri, pts, region, grow_mm=m.margin_mm, ripple_mm=m.ripple_mm)
+    cut = Cut(name, ToolShape(cutter.type, cutter.radius_mm), cutter.max_depth_of_cut_mm, cutter.max_stepover_mm,
+              cutter.feed_mm_min, cell.limits.travel_speed_mm_min)
+    plan = plan_finish(cad_tri, surf, region, cut, finish_stock_mm=m.finish_stock_mm, scallop_mm=m.scallop_mm)
+    removal = stock_above_cad(cad_tri, stock_surface(cad_tri, pts, region, grow_mm=m.margin_mm, ripple_mm=0.0))
+    say("machine")
+    clear_z = float((np.asarray(transform) @ np.array([0.0, 0.0, plan.safe_z_mm, 1.0]))[2]) + 10.0
+    await change_tool(link, cell.tools, cutter.number, clear_z)
+    wall_s = await run_program(link, program_lines(plan, transform, cutter))
+    await change_tool(link, cell.tools, cell.tools.deposition.number, clear_z)
+    say("verify")
+    vpts = await probe_cad_points(link, cell, spots, top, transform, "verify")
+    verify = machined_verify(vpts, stock_margin(cad_tri, vpts), m.verify_tolerance_mm)
+    machining = {"tool": name, "removal_mm3": _rounded(removal), "wall_s": round(wall_s, 2),
+                 "est_time_s": round(plan.est_time_s, 1), "passes": len(plan.passes), "levels": plan.levels,
+                 "scallop_mm": _rounded(plan.scallop_mm), "stepover_mm": _rounded(plan.stepover_mm),
+                 "region_mm": [round(v, 3) for v in region],
+                 "removal_mean_mm": _rounded(removal / max((region[2] - region[0]) * (region[3] - region[1]), 1e-9))}
+    return {"stock": stock_rec, "machining": machining, "verify": verify}
+
+
 async def repair_run(job: CellJob, cell: Any, *, job_path: Path | None = None, runs_dir: str | Path = "runs",
                      reply_timeout_ms: float | None = None, apply_alignment: bool = True,
-                     tolerance_mm: float = 0.1, phase: Callable[[str], None] | None = None) -> dict[str, Any]:
+                     tolerance_mm: float = 0.1, phase: Callable[[str], None] | None = None,
+                     finish: bool = True, time_scale_of: Callable[[str], float] | None = None) -> dict[str, Any]:
     """The whole chain on the CNC cell of `cell` (its device URLs: hardware, `cell sim up` or the
     in-process simulators of controller.harness); returns the report. `phase(name)` is told
     "align", "build" and "verify" as each begins, the machine idle (the harness sets its clock)."""
@@ -260,17 +342,26 @@ async def repair_run(job: CellJob, cell: Any, *, job_path: Path | None = None, r
             raise CellError(f"repair: the build stopped in state {result.state}; see the journal in {ctl.run_dir}")
         if ctl.devices is None:
             raise CellError("repair: the cell's devices closed before the verify probe")
-        say("verify")
-        ver = await verify(ctl.devices.cnc, cell, job, res.transform, tolerance_mm=tolerance_mm)
+        if finish:
+            fin = await finish_repair(ctl.devices.cnc, cell, job, cad, load_cad(job, job_path, "stock"),
+                                      res.transform, say)
+            scale = time_scale_of("machine") if time_scale_of is not None else float(cell.cell.time_scale)
+            fin["machining"]["time_s"] = round(fin["machining"].pop("wall_s") * scale, 1)
+            v = fin["verify"]
+        else:
+            say("verify")
+            v = (await verify(ctl.devices.cnc, cell, job, res.transform, tolerance_mm=tolerance_mm)).as_dict()
     finally:
         stops.detach()
         await ctl.close()
-    v = ver.as_dict()
     report = str(ctl.last_report) if ctl.last_report else None
+    if finish:
+        _record(Path(str(ctl.run_dir)), {k: fin[k] for k in ("stock", "machining", "verify")})
     return {"state": result.state, "level_a_deg": round(res.level_a_deg, 5), "level_b_deg": round(res.level_b_deg, 5),
             "face_angle_deg": round(res.face_angle_deg, 5),
             "transform": np.round(np.asarray(res.transform, dtype=float), 9).tolist(),
             "passes_done": result.passes_done, "verify": v, "report": report,
+            **({k: fin[k] for k in ("stock", "machining")} if finish else {}),
             "defects": v["defects"], "run_dir": str(ctl.run_dir),
             # the shapes of issue 17, kept for scripts that read them
             "alignment": {"level_a_deg": round(res.level_a_deg, 5), "level_b_deg": round(res.level_b_deg, 5),

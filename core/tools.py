@@ -104,3 +104,7 @@ class Machining(_Frozen):
     scallop_mm: float = Field(default=0.01, gt=0.0, le=0.5)
     margin_mm: float = Field(default=2.0, ge=0.0, le=50.0, description="machined beyond the repair region")
     redeposit_rounds: int = Field(default=1, ge=0, le=5, description="deposits again where short, at most this often")
+    probe_points: int = Field(default=16, ge=3, le=200, description="stock-probe and verify touches over the region")
+    ripple_mm: float = Field(default=0.5, ge=0.0, le=5.0, description="the deposit above its probed touches, "
+                             "at most (roughing starts this much higher)")
+    verify_tolerance_mm: float = Field(default=0.05, gt=0.0, le=5.0, description="machined verify: |z - CAD| beyond is a defect")

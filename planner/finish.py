@@ -110,6 +110,32 @@ def surface_from_points(pts: F, region: tuple[float, float, float, float], cell_
     return Surface(np.where(np.isfinite(lin), lin, near), (float(x0), float(y0)), float(cell_mm))
 
 
+def stock_surface(triangles: F, pts: F, region: tuple[float, float, float, float], *, grow_mm: float = 2.0,
+                  ripple_mm: float = 0.5, cell_mm: float = 0.5) -> Surface:
+    """The stock to machine over `region`: the CAD top, and within `grow_mm` of the probed touches
+    (n, 3) the surface through them raised by `ripple_mm` (the deposit between touches)."""
+    probed = surface_from_points(pts, region, cell_mm)
+    xs, ys = probed.xy()
+    gx, gy = np.meshgrid(xs, ys)
+    xy = np.column_stack([gx.ravel(), gy.ravel()])
+    cad = cad_top(triangles, xy).reshape(gx.shape)
+    p = np.asarray(pts, dtype=float)
+    d = np.min(np.hypot(xy[:, None, 0] - p[None, :, 0], xy[:, None, 1] - p[None, :, 1]), axis=1).reshape(gx.shape)
+    near = (d <= grow_mm) | np.isfinite(_linear(p, gx, gy))   # inside the touches' hull or near one
+    h = np.where(near, np.fmax(probed.heights + ripple_mm, cad), cad)
+    return Surface(np.where(np.isfinite(cad), h, np.nan), probed.origin, cell_mm)
+
+
+def _linear(p: F, gx: F, gy: F) -> F:
+    # lazy: scipy's interpolate loads only when this path runs (start-up time)
+    from scipy.interpolate import griddata
+
+    if len(p) < 3:
+        return np.full(gx.shape, np.nan)
+    out: F = griddata(p[:, :2], p[:, 2], (gx, gy), method="linear")
+    return out
+
+
 def cad_top(triangles: F, xy: F) -> F:
     """The CAD's top z straight above each xy (-inf off the part)."""
     return drop_mesh(ToolShape("flat", 1e-6), triangles, xy)

@@ -71,6 +71,7 @@ class Spindle:
         self._log: IO[str] | None = open(log_path, "a", encoding="utf-8") if log_path is not None else None
         self._move: dict[str, float] = {}
         self._bottom: float | None = None
+        self._mesh_top: float | None = None
         self.removed_mm3 = 0.0
 
     @property
@@ -115,6 +116,10 @@ class Spindle:
         tool = self.tool
         if min(q0[2], q1[2]) < self._table_z() + TABLE_CLEAR_MM:
             raise Breakage(f"T{tool.number} into the table at z {min(q0[2], q1[2]):.3f}")
+        if self._mesh_top is None:
+            self._mesh_top = float(np.max(self.workpiece.vertices()[:, 2]))
+        if min(q0[2], q1[2]) > max(self._mesh_top, hm.highest()) + 1e-6:
+            return   # above everything: nothing to cut
         removed, depth = hm.carve(q0, q1, tool.radius_mm, tool.kind == "ball")
         if removed <= 1e-9:
             return

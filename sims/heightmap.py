@@ -377,6 +377,29 @@ class HeightMap:
         return max(need - float(np.sum(new - old)), 0.0)
 
     # -- machining -----------------------------------------------------------------------------
+    @staticmethod
+    def _envelope(a: FloatArray, b: FloatArray, cx: FloatArray, cy: FloatArray, R: float, ball: bool) -> FloatArray:
+        """The lowest z of a tool swept from tip a to tip b over each cell centre (inf: out of reach):
+        for each cell the tool at 9 places along the path within R of its closest approach (z is
+        linear along the move, the tool's profile smooth: the minimum lies there)."""
+        d = b - a
+        lxy = math.hypot(float(d[0]), float(d[1]))
+        if lxy < 1e-9:   # a plunge: the tool at both ends
+            s = np.array([[0.0, 1.0]]).repeat(len(cx), axis=0)
+        else:
+            sc = np.clip(((cx - a[0]) * d[0] + (cy - a[1]) * d[1]) / lxy, 0.0, lxy)
+            s = np.clip(sc[:, None] + np.linspace(-R, R, 9)[None, :], 0.0, lxy) / lxy
+        px, py, pz = a[0] + s * d[0], a[1] + s * d[1], a[2] + s * d[2]
+        d2 = (cx[:, None] - px) ** 2 + (cy[:, None] - py) ** 2
+        lift = (R - np.sqrt(np.clip(R * R - d2, 0.0, None))) if ball else np.zeros_like(d2)
+        z = np.where(d2 <= R * R, pz + lift, np.inf)
+        out: FloatArray = z.min(axis=1)
+        return out
+
+    def highest(self) -> float:
+        """The highest deposit top (-inf before any)."""
+        return float(np.max(self.top, initial=-np.inf, where=~np.isnan(self.top)))
+
     def carve(self, q0: FloatArray, q1: FloatArray, radius_mm: float, ball: bool) -> tuple[float, float]:
         """Sweep a cutter's tip from q0 to q1 (part frame, tool along +z): every cell's top (deposit
         and substrate alike) comes down to the tool's lower envelope. Returns (volume removed mm³,
@@ -389,16 +412,9 @@ class HeightMap:
         self._ensure(i_lo, i_hi, j_lo, j_hi)
         gi, gj = np.meshgrid(np.arange(i_lo, i_hi + 1, dtype=np.int64), np.arange(j_lo, j_hi + 1, dtype=np.int64))
         ii, jj = gi.ravel(), gj.ravel()
-        cx, cy = (ii + 0.5) * self.cell, (jj + 0.5) * self.cell
-        n = max(2, int(math.ceil(math.dist(a[:2], b[:2]) / (self.cell / 4.0))) + 1)
-        env = np.full(len(ii), np.inf)
-        for k0 in range(0, n, 256):
-            f = np.linspace(0.0, 1.0, n)[k0:k0 + 256]
-            sx, sy, sz = a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2])
-            d2 = (cx[:, None] - sx[None, :]) ** 2 + (cy[:, None] - sy[None, :]) ** 2
-            lift = (R - np.sqrt(np.clip(R * R - d2, 0.0, None))) if ball else np.zeros_like(d2)
-            z = np.where(d2 <= R * R, sz[None, :] + lift, np.inf)
-            env = np.minimum(env, z.min(axis=1))
+        cx = ((ii + 0.5) * self.cell).astype(np.float64)
+        cy = ((jj + 0.5) * self.cell).astype(np.float64)
+        env = self._envelope(a, b, cx, cy, R, ball)
         m = np.isfinite(env)
         ii, jj, env = ii[m], jj[m], env[m]
         r, c = jj - self._j0, ii - self._i0

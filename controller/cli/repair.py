@@ -61,6 +61,8 @@ def register(sub: Any) -> None:
     rr.add_argument("--log", metavar="DIR", help="with --sim: the simulators' logs (deposit.jsonl, cnc.jsonl)")
     rr.add_argument("--tolerance", type=float, default=0.1, metavar="MM",
                     help="verify: height error beyond this is a defect (default 0.1 mm)")
+    rr.add_argument("--no-finish", action="store_true",
+                    help="deposit and verify against the plan only: no stock probe, no machining (docs/machining.md)")
     rr.add_argument("--json", action="store_true", help="print the report as one JSON object")
     add_trace_args(rr)
     rr.set_defaults(func=guard.command(run_repair))
@@ -151,18 +153,23 @@ def run_repair(args: argparse.Namespace) -> int:
     runs = args.runs or cell.cell.runs_dir
     if sim_cfg is not None:
         rep = asyncio.run(repair_run_sim(job, cell, sim_cfg, job_path=path, runs_dir=runs, log_dir=args.log,
-                                         tolerance_mm=args.tolerance))
+                                         tolerance_mm=args.tolerance, finish=not args.no_finish))
     else:
-        rep = asyncio.run(repair_run(job, cell, job_path=path, runs_dir=runs, tolerance_mm=args.tolerance))
+        rep = asyncio.run(repair_run(job, cell, job_path=path, runs_dir=runs, tolerance_mm=args.tolerance,
+                                     finish=not args.no_finish))
     if args.json:
         emit_json(rep)
         return 1 if rep["verify"]["defects"] else 0   # docs/repair.md: a verify defect exits 1, either way
     a, v = rep["alignment"], rep["verify"]
     print(f"aligned: A {a['level_a_deg']}°, B {a['level_b_deg']}°, face angle {a['face_angle_deg']}°")
     print(f"built: {rep['build']['state']}, {rep['build']['passes_done']} passes ({rep['build']['run_dir']})")
-    print(f"verify: {v['points']} touches, height error mean {v['height_error_mean_mm']} mm, max "
-          f"{v['height_error_max_mm']} mm, flatness {v['flatness_mm']} mm, vs CAD + allowance "
-          f"{v['vs_nominal_mean_mm']} mm; defects: {len(v['defects'])}")
+    if "machining" in rep:
+        st, mc = rep["stock"], rep["machining"]
+        print(f"stock: {st['min_mm']}…{st['max_mm']} mm above CAD at {st['points']} touches")
+        print(f"machined: {mc['tool']}, {mc['removal_mm3']} mm³ removed, {mc['time_s']} s")
+    against = "CAD" if "machining" in rep else f"the plan (vs CAD + allowance {v.get('vs_nominal_mean_mm')} mm)"
+    print(f"verify against {against}: {v['points']} touches, height error mean {v['height_error_mean_mm']} mm, max "
+          f"{v['height_error_max_mm']} mm, flatness {v['flatness_mm']} mm; defects: {len(v['defects'])}")
     return 1 if v["defects"] else 0
 
 

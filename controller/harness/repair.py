@@ -13,7 +13,7 @@ from core.config import CellConfig, SimConfig
 
 async def repair_run_sim(job: CellJob, cell: CellConfig, sim_cfg: SimConfig, *, job_path: Path | None = None,
                          runs_dir: str | Path = "runs", log_dir: str | Path | None = None,
-                         tolerance_mm: float = 0.1,
+                         tolerance_mm: float = 0.1, finish: bool = True,
                          inspect: Callable[[SimHarness, dict[str, Any]], None] | None = None) -> dict[str, Any]:
     """repair_run against the simulators (the stock posed by `sim_cfg`), logs in `log_dir`;
     `inspect(harness, report)` before the simulators stop (benches read the simulated world)."""
@@ -28,7 +28,8 @@ async def repair_run_sim(job: CellJob, cell: CellConfig, sim_cfg: SimConfig, *, 
             harness.clock.set_scale(cell.cell.time_scale if name == "build" else probing)
 
         rep = await repair_run(job, cfg, job_path=job_path, runs_dir=runs_dir,
-                               reply_timeout_ms=SIM_REPLY_TIMEOUT_MS, tolerance_mm=tolerance_mm, phase=phase)
+                               reply_timeout_ms=SIM_REPLY_TIMEOUT_MS, tolerance_mm=tolerance_mm, phase=phase,
+                               finish=finish, time_scale_of=lambda name: probing)
         if inspect is not None:
             inspect(harness, rep)
     rep["time_scale"] = cell.cell.time_scale

@@ -1,0 +1,138 @@
+"""Milling programs on the grbl CNC: a finish plan as G-code, the tool change, `$32=0` (docs/machining.md).
+
+- `program_lines(plan, transform, cutter)`: the plan's passes (CAD frame) moved to the machine by
+  the alignment transform, each pass `G0` over its start, `G1` down at the plunge feed, `G1` along
+  it at the cutter's feed (collinear points merged), `G0` up; the spindle `M3 S<rpm>` with a
+  dwell for it to come up to speed, `M5` at the end.
+- `change_tool(link, tools, number)`: grblHAL takes `T<n> M6` and the length from cell.yaml
+  (`G43.1 Z<offset>`); stock grbl 1.1h has no M6: a programmed pause `T<n> M0` with a message for
+  the operator, cycle start, then the cutter's length measured on the tool setter (`G38.2` down
+  onto `tools.setter_mm`) and applied as `G43.1 Z<measured>`. The deposition head with its touch
+  probe is the length reference (`G49`).
+- `run_program(link, lines)`: `$32=0` set and read back, the program streamed, every line `ok`.
+"""
+from __future__ import annotations
+
+import asyncio
+import time
+
+import numpy as np
+from numpy.typing import NDArray
+
+from controller.ports import CncLinkPort
+from core.errors import CellError
+from core.tools import Cutter, Tools
+from planner.finish import FinishPlan
+
+F = NDArray[np.float64]
+SPINDLE_UP_S = 2.0       # dwell after M3 for the spindle to reach its speed
+SETTER_FEED_MM_MIN = 100.0
+
+
+def _f(v: float) -> str:
+    return f"{v:.3f}"
+
+
+def _merge_collinear(p: F, tol: float = 1e-6) -> F:
+    """Drop the points that lie on the straight line between their neighbours."""
+    if len(p) <= 2:
+        return p
+    keep = [0]
+    for i in range(1, len(p) - 1):
+        a, b, c = p[keep[-1]], p[i], p[i + 1]
+        ab, ac = b - a, c - a
+        n = float(np.linalg.norm(ac))
+        off = float(np.linalg.norm(np.cross(ab, ac))) / n if n > 1e-12 else float(np.linalg.norm(ab))
+        if off > tol or float(np.dot(ab, ac)) < 0:
+            keep.append(i)
+    keep.append(len(p) - 1)
+    return p[keep]
+
+
+def to_machine(points: F, transform: F) -> F:
+    tf = np.asarray(transform, dtype=float)
+    out: F = np.asarray(points, dtype=float) @ tf[:3, :3].T + tf[:3, 3]
+    return out
+
+
+def program_lines(plan: FinishPlan, transform: F, cutter: Cutter, *, comment: bool = True) -> list[str]:
+    """The plan's passes as grbl G-code in the machine frame (tool loaded, its length applied)."""
+    tf = np.asarray(transform, dtype=float)
+    safe = float((tf @ np.array([0.0, 0.0, plan.safe_z_mm, 1.0]))[2])
+    out = [f"(cell finish: {plan.tool}, {len(plan.passes)} passes)"] if comment else []
+    out += ["G90 G21 G94", f"M3 S{cutter.spindle_rpm:.0f}", f"G4 P{SPINDLE_UP_S:g}", f"G0 Z{_f(safe)}"]
+    plunge = min(cutter.feed_mm_min, 300.0)
+    for p in plan.passes:
+        q = _merge_collinear(to_machine(p.points, tf))
+        out += [f"G0 X{_f(q[0, 0])} Y{_f(q[0, 1])}", f"G1 Z{_f(q[0, 2])} F{plunge:.0f}"]
+        out += [f"G1 X{_f(x)} Y{_f(y)} Z{_f(z)}" + (f" F{cutter.feed_mm_min:.0f}" if k == 0 else "")
+                for k, (x, y, z) in enumerate(q[1:])]
+        out.append(f"G0 Z{_f(safe)}")
+    out.append("M5")
+    return out
+
+
+def tool_change_lines(firmware: str, number: int, name: str, length_mm: float) -> list[str]:
+    """The change as a program carries it (exports): grblHAL `T M6` + `G43.1`; grbl 1.1h a pause."""
+    if "hal" in firmware.lower():
+        return ["G49", f"T{number} M6", f"G43.1 Z{_f(length_mm)}"]
+    return ["G49", f"(MSG,load T{number} {name} then cycle start)", f"T{number} M0",
+            f"G43.1 Z{_f(length_mm)}"]
+
+
+async def _wait_hold(link: CncLinkPort, timeout_s: float = 30.0) -> None:
+    t_end = time.monotonic() + timeout_s
+    while time.monotonic() < t_end:
+        st = await link.status()
+        if st.state.startswith("Hold"):
+            return
+        if st.state.startswith("Alarm"):
+            raise CellError(f"cnc at {link.url}: alarm during the tool change pause")
+        await asyncio.sleep(0.02)
+    raise CellError(f"cnc at {link.url}: the tool change pause (M0) was not reached in {timeout_s:g} s")
+
+
+async def measure_length(link: CncLinkPort, tools: Tools, clear_z: float) -> float:
+    """The loaded tool's length on the tool setter: `G38.2` down onto its top (no offset active)."""
+    sx, sy, sz = tools.setter_mm
+    reach = max([abs(c.length_offset_mm) for c in tools.cutters.values()] + [0.0]) + 20.0
+    await link.stream([f"G0 Z{_f(clear_z)}", f"G0 X{_f(sx)} Y{_f(sy)}", f"G0 Z{_f(sz + reach)}"])
+    got = await link.probe((sx, sy, sz - 5.0), SETTER_FEED_MM_MIN)
+    if not got.contact:
+        raise CellError(f"cnc at {link.url}: no contact on the tool setter at {sx:g}, {sy:g}, {sz:g}")
+    await link.stream([f"G0 Z{_f(clear_z)}"])
+    return float(got.position[2]) - sz
+
+
+async def change_tool(link: CncLinkPort, tools: Tools, number: int, clear_z: float) -> float:
+    """Load tool `number` (the head or a cutter) and apply its length; returns the length used."""
+    name, length = "deposition head", tools.deposition.length_offset_mm
+    for n, c in tools.cutters.items():
+        if c.number == number:
+            name, length = n, c.length_offset_mm
+    await link.stream(["M5", "G49", f"G0 Z{_f(clear_z)}"])
+    if "hal" in link.firmware.lower():
+        await link.stream([f"T{number} M6", f"G43.1 Z{_f(length)}"])
+        return length
+    # grbl 1.1h: a programmed pause; the operator loads the tool and presses cycle start
+    # (unattended: the controller sends it once the pause is reached, docs/machining.md)
+    await link.command(f"(MSG,load T{number} {name} then cycle start)")
+    await link.command(f"T{number} M0")
+    await _wait_hold(link)
+    await link.resume()
+    await link.wait_idle(30.0)
+    if number != tools.deposition.number:
+        length = await measure_length(link, tools, clear_z)
+    await link.command(f"G43.1 Z{_f(length)}")
+    return length
+
+
+async def run_program(link: CncLinkPort, lines: list[str]) -> float:
+    """`$32=0` (read back), then the program streamed, every line `ok`; returns its wall seconds."""
+    await link.laser_mode(False)
+    t0 = time.monotonic()
+    await link.stream(lines)
+    st = await link.wait_idle(600.0)
+    if st.state.startswith("Alarm"):
+        raise CellError(f"cnc at {link.url}: alarm while machining; see the controller's messages")
+    return time.monotonic() - t0
