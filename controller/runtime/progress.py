@@ -21,9 +21,10 @@ import asyncio
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, Awaitable, Callable, Sequence
+from typing import Awaitable, Callable, Sequence
 
 from controller.job.model import CellJob
+from controller.ports import MotionExecutor, PowerSourcePort
 from core.errors import CellError
 
 NOISE_MM = 0.02          # position change that counts as progress (reports carry 3 decimals)
@@ -75,13 +76,16 @@ class Sample:
     state: str
 
 
-async def sample(ex: Any) -> Sample:
+async def sample(ex: MotionExecutor) -> Sample:
     """A fresh status report of the executor's motion device (robot STA or grbl report)."""
-    st = await ex.link.status()
-    pos = getattr(st, "mpos", None)
-    if pos is None:
-        pos = st.pos
-    return Sample(time.monotonic(), tuple(float(v) for v in pos), getattr(st, "last_exec", None), str(st.state))
+    robot, cnc = ex.robot_link, ex.cnc_link
+    if robot is not None:
+        rs = await robot.status()
+        return Sample(time.monotonic(), tuple(float(v) for v in rs.pos), rs.last_exec, rs.state)
+    if cnc is None:
+        raise CellError("the executor drives no motion device")
+    gs = await cnc.status()
+    return Sample(time.monotonic(), tuple(float(v) for v in gs.mpos), None, gs.state)
 
 
 def _moved(a: Sample, b: Sample) -> bool:
@@ -95,7 +99,7 @@ class ProgressWatchdog:
     once the device stood for the bound (after dropping the arc and holding motion); it never
     returns while the device progresses (cancel it when the bead ends)."""
 
-    def __init__(self, ex: Any, power: Any, *, bound_wall_s: float, bound_process_s: float,
+    def __init__(self, ex: MotionExecutor, power: PowerSourcePort, *, bound_wall_s: float, bound_process_s: float,
                  time_scale: float, where: Callable[[], str], status_period_s: float | None = None) -> None:
         self.ex, self.power = ex, power
         self.status_period = status_period_s
@@ -108,11 +112,12 @@ class ProgressWatchdog:
         self.stood_s: float | None = None
 
     @classmethod
-    def of(cls, ex: Any, power: Any, bound_process_s: float, time_scale: float,
+    def of(cls, ex: MotionExecutor, power: PowerSourcePort, bound_process_s: float, time_scale: float,
            where: Callable[[], str]) -> "ProgressWatchdog":
         """For a build runner's executor: the wall bound from the process bound and the time
         scale, with the floor of a device that reports at a fixed rate (grbl's status period)."""
-        period = getattr(getattr(ex, "link", None), "status_period", None)
+        cnc = ex.cnc_link
+        period = cnc.status_period if cnc is not None else None
         return cls(ex, power, bound_wall_s=wall_bound_s(bound_process_s, time_scale, period),
                    bound_process_s=bound_process_s, time_scale=time_scale, where=where, status_period_s=period)
 
@@ -137,7 +142,7 @@ class ProgressWatchdog:
         raise StallFault(d.result())
 
     def _exec_count(self) -> int:
-        return int(getattr(self.ex, "exec_count", 0) or 0)
+        return self.ex.exec_count
 
     async def watch(self) -> str:
         t_prog = time.monotonic()
@@ -153,7 +158,7 @@ class ProgressWatchdog:
             now = time.monotonic()
             if self._exec_count() != n_exec:     # an EXE arrived: progress
                 n_exec = self._exec_count()
-                t_prog = max(t_prog, float(getattr(self.ex, "exe_t", 0.0) or 0.0) or now)
+                t_prog = max(t_prog, self.ex.exe_t or now)
                 anchor = None
                 continue
             if now - t_prog < self.bound / 4.0:
@@ -189,7 +194,7 @@ class ProgressWatchdog:
             self.ex.hold_now()
         except Exception:
             pass
-        dev = getattr(self.ex, "platform", "motion device")
+        dev = self.ex.platform
         dev = {"robot": "robot", "cnc": "cnc"}.get(dev, dev)
         stood = self.stood_s or 0.0
         scale = self.time_scale
