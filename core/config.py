@@ -225,7 +225,7 @@ class OpcUaSettings(_Frozen):
 class ProcessControl(_Frozen):
     """Closed-loop layer height (DESIGN.md §6b, docs/closed-loop.md); `open` keeps the plan's z."""
 
-    mode: Literal["open", "layer"] = "open"
+    mode: Literal["open", "layer", "path"] = "open"   # path: the layer loop plus per-segment speeds along the path
     # the stick-out (CTWD) the torch may have: an estimate outside pauses before the next layer
     ctwd_window_mm: tuple[float, float] = (12.0, 18.0)
     probe_every_layers: int = Field(default=1, ge=1, le=1000)   # CNC: probe the top every n layers

@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import pytest
@@ -216,8 +216,8 @@ async def test_an_aligned_job_is_controlled_in_the_frame_its_points_are_in(tmp_p
     on_table = [[0.0, -1.0, 0.0, 4.0], [1.0, 0.0, 0.0, -3.0], [0.0, 0.0, 1.0, 2.0], [0.0, 0.0, 0.0, 1.0]]
     job = apply_to_job(_job(6), on_table)
 
-    async def probe(la: int, layer: Layer) -> list[float]:   # every layer's top where the plan put it
-        return [float(q[2]) for q in layer.passes[0].points]
+    async def probe(la: int, spots: Sequence[tuple[float, float, float]]) -> list[float]:
+        return [float(z) for _x, _y, z in spots]   # every layer's top where the plan put it
 
     j = Journal(tmp_path / "journal.sqlite")
     j.start_job("h", "repair", "cnc", "{}")

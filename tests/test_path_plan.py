@@ -22,6 +22,7 @@ def test_samples_binned_by_position_not_by_arrival():
     bins = bin_samples(samples[::-1], 100.0, 7.0)           # order does not matter
     assert len(bins) == 14
     assert bins[0][1] == pytest.approx(100.0) and bins[-1][1] == pytest.approx(110.0)
+    assert bins[0][0] == pytest.approx(3.5, abs=0.2)                # where its samples were
     assert sum(n for *_, n in bins) == 300
 
 

@@ -14,6 +14,7 @@ from typing import Any
 
 from controller.journal.store import Journal
 from controller.report.height import add_height
+from controller.report.path_height import add_path
 from controller.report.plots import plot_report
 from controller.report.record import (
     arc_time_figures,
@@ -186,6 +187,7 @@ def write_report(journal: Journal, out_dir: str | Path, job: Job | None = None, 
     pngs = plot_report(journal, out, job, summary) if plots else []
     summary["plots"] = [p.name for p in pngs]
     add_height(summary, journal, out, plots)   # layer heights: layers[], layers.csv, height.png
+    add_path(summary, journal, out, plots)     # heights along the path: path, path.csv, path.png
     summary["csv"] = str(write_csv(summary["beads"], csv_path or out / "beads.csv"))
     path = out / "report.json"
     tmp = path.with_suffix(".json.tmp")

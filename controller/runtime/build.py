@@ -25,6 +25,7 @@ from controller.runtime.bead_check import judge
 from controller.runtime.bead_measure import BeadStats, Pace
 from controller.runtime.bead_plan import MovePlan, move_plan
 from controller.runtime.events import EventBus
+from controller.runtime.hooks import ArcSampleHook
 from controller.journal.queries import SampleRow
 from controller.journal.store import Journal
 from controller.runtime.machine import CellMachine, State
@@ -92,8 +93,9 @@ class BuildRunner:
     def __init__(self, *, job: CellJob, journal: Journal, machine: CellMachine, bus: EventBus,
                  executor: MotionExecutor, power: PowerSourcePort, cellio: CellIOPort | None = None,
                  options: BuildOptions | None = None, arc: ArcControl | None = None,
-                 log: Callable[[str], None] | None = None) -> None:
+                 log: Callable[[str], None] | None = None, hooks: ArcSampleHook | None = None) -> None:
         self.job, self.journal, self.m, self.bus = job, journal, machine, bus
+        self.hooks = hooks                    # a process control's seam (controller/runtime/hooks.py)
         self.ex, self.power, self.cellio = executor, power, cellio
         self.o = options or BuildOptions()
         self.arc: ArcControl = arc or ArcHandshake(power)
@@ -412,9 +414,16 @@ class BuildRunner:
         self.journal.retract(item.layer, item.pass_, idx, f"robot took back its EXEs after ticket {ticket}: "
                              f"progress withdrawn from point {back} to {idx}")
 
+    def _arc_sample(self, current_a: float) -> None:
+        """The process control's seam: an arc-stable sample at the last point the device reported."""
+        item, idx = self.current, self.cur_idx
+        if self.hooks is not None and item is not None and idx is not None and 0 <= idx < len(self._cum):
+            self.hooks.arc_sample(item.layer, item.pass_, float(self._cum[idx]), current_a)
+
     def _on_power(self, st: Any) -> None:
         if self._bead is not None and st.arc_stable and self._arc_lit:  # not the burn-back after weld start drops
             self._bead.add(st.current_a, st.voltage_v, st.wfs_m_min)
+            self._arc_sample(float(st.current_a))
         if self._arc_lit and not st.arc_stable:
             self._unstable_since_exe = True
             self._pace.arc_lost(st.t) if self._pace is not None else None  # the falling edge ends the arc time

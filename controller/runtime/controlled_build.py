@@ -9,25 +9,24 @@ at the end of the bead like an operator's pause (before the next layer).
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Sequence
 
-from controller.align.layer_probe import probe_layer_top, probe_spots
+from controller.align.layer_probe import probe_layer_top
 from controller.job.model import CellJob
 from controller.ports import MotionExecutor
 from controller.journal.store import Journal
 from controller.runtime.build import BuildResult, BuildRunner, WorkItem
 from controller.runtime.events import EventBus
-from controller.runtime.layer_control import LayerControl, ProbeFn
+from controller.runtime.layer_control import LayerControl, ProbeFn, Spot
 from core.config import CellConfig
 from core.material import Material
-from planner.job import Layer
 
 __all__ = ["ControlledRunner", "make_control"]
 
 
 class ControlledRunner(BuildRunner):
     def __init__(self, *, control: LayerControl, **kw: Any) -> None:
-        super().__init__(**kw)
+        super().__init__(hooks=control, **kw)
         self.lc = control
         self.layers = control.layers
         self.totals = (len(self.layers), sum(len(la.passes) for la in list.__iter__(self.layers)))
@@ -75,9 +74,8 @@ def make_control(cfg: CellConfig, job: CellJob, material: Material, journal: Jou
     probe: ProbeFn | None = None
     link = executor.cnc_link
     if link is not None:
-        async def probe(la: int, layer: Layer) -> list[float]:
-            spots = probe_spots(layer.passes, pc.probe_points)
-            return await probe_layer_top(link, cfg.probe, spots, cfg.probe.clearance_mm, name=f"layer {la} top")
+        async def probe(la: int, spots: Sequence[Spot]) -> list[float]:
+            return await probe_layer_top(link, cfg.probe, list(spots), cfg.probe.clearance_mm, name=f"layer {la} top")
     lc = LayerControl(job=job, cfg=pc, material=material, platform=cfg.cell.platform, journal=journal, bus=bus,
                       max_speed_mm_min=cfg.limits.max_speed_mm_min, probe=probe)
     lc.restore()

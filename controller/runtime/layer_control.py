@@ -25,6 +25,7 @@ from typing import Any, Awaitable, Callable, Sequence, SupportsIndex, overload
 
 import numpy as np
 
+from controller.align.layer_probe import probe_spots
 from controller.job.model import CellJob
 from controller.journal.store import Journal
 from controller.runtime.build import WorkItem
@@ -32,12 +33,14 @@ from controller.runtime.events import EventBus
 from controller.runtime.layer_plan import (
     adjusted_layer, build_layers, decide, layer_height, layer_z, rise_factor, fit_gain,
 )
+from controller.runtime.path_control import PathControl
 from controller.runtime.stickout import StickOutEstimator
 from core.config import ProcessControl
 from core.material import Material
 from planner.job import Layer, Pass
 
-ProbeFn = Callable[[int, Layer], Awaitable[list[float]]]   # (layer, the layer as built) -> probed tops
+Spot = tuple[float, float, float]
+ProbeFn = Callable[[int, Sequence[Spot]], Awaitable[list[float]]]   # (layer, spots on it) -> probed tops
 
 
 class BuiltLayers(list[Layer]):
@@ -91,7 +94,7 @@ class LayerControl:
     def __init__(self, *, job: CellJob, cfg: ProcessControl, material: Material, platform: str, journal: Journal,
                  bus: EventBus | None = None, max_speed_mm_min: float = 1e9, probe: ProbeFn | None = None) -> None:
         self.cfg, self.platform, self.journal, self.bus, self.probe = cfg, platform, journal, bus, probe
-        self.closed = cfg.mode == "layer"
+        self.closed = cfg.mode in ("layer", "path")
         self.job_layers: list[Layer] = layers_as_commanded(job)
         self.n_planned = len(self.job_layers)
         self.n_total = self.n_planned
@@ -113,6 +116,10 @@ class LayerControl:
         self.hist: list[tuple[float, float]] = [(0.0, self.top)]  # (model rise, measured top)
         self.beads: dict[int, list[Any]] = {}
         self.records: list[dict[str, Any]] = []
+        width = min((p.width_mm for la in self.job_layers for p in la.passes), default=7.0)
+        self._probed: dict[int, tuple[list[Spot], list[float]]] = {}
+        self.path = PathControl(cfg=cfg, journal=journal, bus=bus, platform=platform, est=self.est, width_mm=width,
+                                max_speed_mm_min=max_speed_mm_min) if cfg.mode == "path" else None
 
     # -- journal --------------------------------------------------------------------------------
     def _event(self, kind: str, data: dict[str, Any], layer: int | None = None) -> None:
@@ -138,6 +145,8 @@ class LayerControl:
                 nxt = d.get("next") or {}
                 self.next_dz = float(nxt.get("z_offset_mm", self.next_dz))
                 self.next_k = float(nxt.get("speed_factor", self.next_k))
+        if self.path is not None:
+            self.path.restore()
 
     def adjust_work(self, work: list[WorkItem], done: set[tuple[int, int]]) -> list[WorkItem]:
         """The remaining work of the planned layers, without dropped layers, with added ones."""
@@ -159,13 +168,24 @@ class LayerControl:
             self.applied[la] = (dz, k)
             self._event("layer_plan", {"layer": la, "z_offset_mm": dz, "speed_factor": k}, layer=la)
         dz, k = self.applied[la]
-        got = self._built[la] = adjusted_layer(self.layers.raw(la), dz, k)
+        got = adjusted_layer(self.layers.raw(la), dz, k)
+        if self.path is not None:
+            got = self.path.apply(la, got)
+        self._built[la] = got
         if self.bus is not None:
             self.bus.update(z_correction_mm=dz)
+            if self.path is not None:
+                f = [v for fs in self.path.applied.get(la, {}).values() for v in fs] or [1.0]
+                self.bus.update(path_factor_min=min(f), path_factor_max=max(f))
         return got
 
     def pass_for(self, la: int, pa: int) -> Pass:
         return self.layer(la).passes[pa]
+
+    def arc_sample(self, layer: int, pass_: int, along_mm: float, current_a: float) -> None:
+        """The runner's hook: the source's current at the robot's reported position along the pass."""
+        if self.path is not None:
+            self.path.arc_sample(layer, pass_, along_mm, current_a)
 
     def bead_closed(self, la: int, pa: int, currents: Sequence[float], wfs_m_min: float) -> None:
         """A bead's arc-stable current samples: its stick-out through the arc (journaled)."""
@@ -194,12 +214,20 @@ class LayerControl:
             return z_cmd + self.l0 - so, "arc", so, vals
         last = la + 1 >= self.n_total
         if self.closed and self.probe is not None and ((la + 1) % self.cfg.probe_every_layers == 0 or last):
-            tops = await self.probe(la, self.layer(la))
+            spots = self._spots(la)
+            tops = await self.probe(la, spots)
+            self._probed[la] = (spots, tops)
             if tops:
                 vals = [z_cmd + self.l0 - t for t in tops]
                 top = sum(tops) / len(tops)
                 return top, "probe", z_cmd + self.l0 - top, vals
         return None, "model", None, []
+
+    def _spots(self, la: int) -> list[Spot]:
+        """Where the CNC probes layer la: along every pass (path loop), else a few spots."""
+        if self.path is not None:
+            return self.path.probe_spots(self.layer(la))
+        return [(float(x), float(y), float(z)) for x, y, z in probe_spots(self.layer(la).passes, self.cfg.probe_points)]
 
     async def layer_done(self, la: int, work: list[WorkItem], k: int) -> str | None:
         dz, kf = self.applied.get(la, (0.0, 1.0))
@@ -226,12 +254,30 @@ class LayerControl:
         pause = None
         if self.closed:
             rec["next"], rec["action"], pause = self._next(la, top, so, vals, work, k)
+        if self.path is not None:
+            pause = self._path_close(la, z_cmd, planned, rec) or pause
         elif source == "model":
             return None   # open loop without a measurement: nothing to record
         self.records.append(rec)
         self._event("layer", rec, layer=la)
         if self.bus is not None:
             self.bus.update(stick_out_mm=so, layer_height_error_mm=top - planned)
+        return pause
+
+    def _path_close(self, la: int, z_cmd: float, planned: float, rec: dict[str, Any]) -> str | None:
+        """The path loop after layer la: its tops along every pass, learned; a pause message or None."""
+        assert self.path is not None
+        built = self.layer(la)
+        probed = self._probed.pop(la, None)
+        if probed:
+            rows = self.path.probe_rows(la, built, *probed)
+        else:   # the robot's bins through the arc; a CNC layer not probed teaches nothing
+            rows = self.path.arc_tops(la, built, z_cmd) if self.platform == "robot" else []
+        nxt = self.layers.raw(la + 1) if la + 1 < self.n_total else None
+        rise = self.gain * layer_height(nxt or self.layers.raw(la)) * rise_factor(self.next_k, self.p)
+        prec, pause = self.path.close(la, rows, planned, rise, nxt)
+        if prec is not None:
+            rec["path_rms_mm"], rec["path_spread_mm"] = prec["rms_mm"], prec["spread_mm"]
         return pause
 
     def replanned_z(self, j: int) -> float:

@@ -102,17 +102,18 @@ def resample(points: FloatArray, spacing: float) -> tuple[FloatArray, FloatArray
 
 def bin_samples(samples: Sequence[tuple[float, float]], length: float, bin_mm: float,
                 min_n: int = 1) -> list[tuple[float, float, int]]:
-    """Samples (s along the pass, value) binned by position: (bin centre s, mean, n) for every bin
-    of about `bin_mm` (the pass split into equal bins) holding at least `min_n` samples."""
+    """Samples (s along the pass, value) binned by position: (the samples' mean s, mean value, n)
+    for every bin of about `bin_mm` (the pass split into equal bins) holding at least `min_n`."""
     if length <= 0 or not samples:
         return []
     nb = max(1, int(round(length / bin_mm)))
     size = length / nb
-    acc: dict[int, list[float]] = {}
+    acc: dict[int, list[tuple[float, float]]] = {}
     for s, v in samples:
         if math.isfinite(v):
-            acc.setdefault(min(max(int(s / size), 0), nb - 1), []).append(v)
-    return [((b + 0.5) * size, float(np.mean(vs)), len(vs)) for b, vs in sorted(acc.items()) if len(vs) >= min_n]
+            acc.setdefault(min(max(int(s / size), 0), nb - 1), []).append((s, v))
+    return [(float(np.mean([a for a, _ in sv])), float(np.mean([b for _, b in sv])), len(sv))
+            for _, sv in sorted(acc.items()) if len(sv) >= min_n]
 
 
 def spots_along(points: FloatArray, spacing: float, end_mm: float) -> list[FloatArray]:

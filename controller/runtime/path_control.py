@@ -1,0 +1,218 @@
+"""The path loop (`process_control: {mode: path}`, docs/closed-loop.md "Along the path"): the
+layer loop's mean z and trim, plus a speed factor per segment learned from layer to layer by
+position in the part (controller/runtime/path_plan.py, the pure half).
+
+The layer control (layer_control.py) calls it at three points:
+- `apply(la, layer)`: layer la as built gets its passes resampled (segments of at most half a
+  bead width) and its per-segment speeds (`Pass.with_process`, cell-job/2) times the factors;
+  the factors are journaled (`path_plan`) before the layer's first bead and read back on a resume,
+  so a layer is laid with the same speeds after a restart; the job file is never rewritten;
+- `arc_sample(la, pa, s, current)`: robot, the power source's current at the robot's reported
+  position s along the pass (the runner's `arc_sample` hook);
+- `close(...)`: after the layer, its tops along every pass (robot: the samples binned about one
+  bead width, each bin's stick-out through the arc; CNC: the probe points given), the error
+  fields, the next layer's factors and a pause message when a correction it needs is out of bounds.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from typing import Any, Sequence
+
+import numpy as np
+
+from controller.journal.store import Journal
+from controller.runtime.events import EventBus
+from controller.runtime.path_plan import (
+    Field, PathLaw, arc_length, bin_samples, plan_factors, point_at, resample, spots_along,
+)
+from controller.runtime.stickout import StickOutEstimator
+from core.config import ProcessControl
+from core.melting import stick_out_at
+from planner.job import Layer, Pass
+
+__all__ = ["PathControl"]
+
+
+def _unit_rows(a: np.ndarray | None, idx: np.ndarray) -> np.ndarray | None:
+    """Per-point unit vectors (normals, axes) at fractional indices: linear, renormalised."""
+    if a is None:
+        return None
+    lo = np.floor(idx).astype(int)
+    hi = np.minimum(lo + 1, len(a) - 1)
+    f = (idx - lo)[:, None]
+    v = a[lo] * (1.0 - f) + a[hi] * f
+    n = np.linalg.norm(v, axis=1, keepdims=True)
+    out: np.ndarray = v / np.where(n > 1e-12, n, 1.0)
+    return out
+
+
+class PathControl:
+    """One build's path loop (the state between layers, its journal and its resume)."""
+
+    def __init__(self, *, cfg: ProcessControl, journal: Journal, bus: EventBus | None, platform: str,
+                 est: StickOutEstimator, width_mm: float, max_speed_mm_min: float = 1e9) -> None:
+        self.cfg, self.journal, self.bus, self.platform, self.est = cfg, journal, bus, platform, est
+        self.width = width_mm
+        trim = cfg.speed_trim_pct / 100.0
+        self.law = PathLaw(kp=cfg.path_kp, ki=cfg.path_ki, filter_mm=max(cfg.path_filter_mm or width_mm, width_mm,
+                                                                                 cfg.probe_spacing_mm if platform == "cnc" else 0.0),
+                           bounds=(max(1.0 - trim, 0.05), 1.0 + trim))
+        self.max_speed = max_speed_mm_min
+        self.spacing = width_mm / 2.0
+        self.bin_mm = cfg.path_bin_mm or width_mm
+        self.applied: dict[int, dict[int, list[float]]] = {}
+        self.samples: dict[tuple[int, int], list[tuple[float, float]]] = {}
+        self.fields: list[tuple[Field, Field]] = []     # (d, m) of the last measured layers, newest last
+        self.records: list[dict[str, Any]] = []
+        self.rise_mm = 0.0
+        self._bad = np.zeros((0, 2))    # where the last layer needed a correction beyond the bound
+
+    # -- journal --------------------------------------------------------------------------------
+    def _event(self, kind: str, data: dict[str, Any], layer: int) -> None:
+        self.journal.event(kind, json.dumps(data, sort_keys=True), layer=layer)
+
+    def restore(self) -> None:
+        """A resumed build: the factors applied and the latest fields, from the journal."""
+        for kind, msg in self.journal.query("SELECT kind, message FROM events WHERE kind IN "
+                                            "('path_plan', 'path') ORDER BY id"):
+            d = json.loads(msg)
+            if kind == "path_plan":
+                self.applied[int(d["layer"])] = {int(k): [float(x) for x in v] for k, v in d["factors"].items()}
+            else:
+                self.records.append(d)
+                self.rise_mm = float(d.get("rise_mm") or self.rise_mm)
+                self.fields = (self.fields + [(Field.of(d["d"]), Field.of(d["m"]))])[-2:]
+
+    # -- the layer as built -----------------------------------------------------------------------
+    def _resampled(self, p: Pass) -> tuple[Pass, np.ndarray]:
+        """The pass with segments of at most `spacing` (its per-segment values carried over); the
+        original segment of every new one."""
+        pts, idx = resample(p.points, self.spacing)
+        seg = np.maximum(np.ceil(idx[1:] - 1e-9).astype(int) - 1, 0)
+        speeds, wfs = p.speeds()[seg], p.wire_feeds()[seg]
+        q = replace(p, points=pts, normals=_unit_rows(p.normals, idx), axes=_unit_rows(p.axes, idx),
+                    speed_mm_min=p.speed_mm_min, seg_speed_mm_min=None, seg_wfs_m_min=None)
+        return q.with_process(speeds, wfs if p.seg_wfs_m_min is not None else None), seg
+
+    def _plan(self, la: int, passes: Sequence[Pass]) -> tuple[dict[int, list[float]], np.ndarray, np.ndarray, np.ndarray]:
+        """(factors per pass, all needed factors, all midpoints, all d there) of a layer from the fields."""
+        mids = [0.5 * (p.points[1:, :2] + p.points[:-1, :2]) for p in passes]
+        lens = [np.hypot(*np.diff(p.points[:, :2], axis=0).T) for p in passes]
+        if not self.fields or not passes:
+            return {pa: [1.0] * len(m) for pa, m in enumerate(mids)}, np.ones(0), np.zeros((0, 2)), np.zeros(0)
+        d_now, m_now = self.fields[-1]
+        d_prev = self.fields[-2][0] if len(self.fields) > 1 else None
+        xy, ln = np.concatenate(mids), np.concatenate(lens)
+        got, need = plan_factors(xy, ln, d_now, d_prev, m_now, self.rise_mm, self.law)
+        top_speed = max(float(p.speeds().max()) for p in passes)
+        got = np.minimum(got, max(self.max_speed / top_speed, 1e-3))
+        out, k = {}, 0
+        for pa, m in enumerate(mids):
+            out[pa] = [round(float(v), 5) for v in got[k:k + len(m)]]
+            k += len(m)
+        return out, need, xy, d_now.at(xy, self.law.filter_mm / 4.0, self.law.filter_mm)
+
+    def apply(self, la: int, layer: Layer) -> Layer:
+        """Layer la as built: resampled, its segment speeds times the path factors (journaled)."""
+        passes = [self._resampled(p)[0] for p in layer.passes]
+        if la not in self.applied:
+            self.applied[la] = self._plan(la, passes)[0]
+            self._event("path_plan", {"layer": la, "spacing_mm": self.spacing,
+                                      "factors": {str(k): v for k, v in self.applied[la].items()}}, la)
+        f = self.applied[la]
+        out = []
+        for pa, p in enumerate(passes):
+            fac = np.asarray(f.get(pa, []), dtype=float)
+            if len(fac) != len(p.points) - 1:   # a pass the journal did not see (never: same geometry)
+                fac = np.ones(len(p.points) - 1)
+            out.append(p.with_process(p.speeds() * fac, None))
+        return replace(layer, passes=tuple(out))
+
+    # -- sensing ------------------------------------------------------------------------------------
+    def arc_sample(self, la: int, pa: int, s_mm: float, current_a: float) -> None:
+        self.samples.setdefault((la, pa), []).append((s_mm, current_a))
+
+    def arc_tops(self, la: int, layer: Layer, z_cmd: float) -> list[tuple[float, float, float, float]]:
+        """Robot: (x, y, top, factor) per bin of about one bead width along every pass of the layer
+        as built, from the current binned by the robot's reported position."""
+        rows = []
+        for pa, p in enumerate(layer.passes):
+            cum = arc_length(p.points)
+            fac = self.applied.get(la, {}).get(pa, [])
+            # the first half width of a bead: the pool not yet risen under the torch (it reads the ground)
+            got = [(s, i) for s, i in self.samples.pop((la, pa), []) if s >= self.width / 2.0]
+            for s, cur, _n in bin_samples(got, float(cum[-1]), self.bin_mm):
+                k = min(max(int(np.searchsorted(cum, s, side="right")) - 1, 0), len(cum) - 2)
+                wfs = float(p.wire_feeds()[k])
+                L = stick_out_at(self.est.rel, self.est.material.ribeiro, wfs, cur)
+                x, y = point_at(p.points, cum, s)[:2]
+                rows.append((float(x), float(y), z_cmd + self.est.nominal_mm - L, fac[k] if k < len(fac) else 1.0))
+        return rows
+
+    def probe_spots(self, layer: Layer) -> list[tuple[float, float, float]]:
+        """CNC: probe spots along every pass at `probe_spacing_mm` (the ends a quarter width in)."""
+        out = []
+        for p in layer.passes:
+            for q in spots_along(p.points, self.cfg.probe_spacing_mm, self.width / 4.0):
+                out.append((float(q[0]), float(q[1]), float(q[2])))
+        return out
+
+    def probe_rows(self, la: int, layer: Layer, spots: Sequence[tuple[float, float, float]],
+                   tops: Sequence[float]) -> list[tuple[float, float, float, float]]:
+        """CNC: (x, y, top, factor) per probed spot (the factor of the nearest segment)."""
+        f_all = [(0.5 * (p.points[1:, :2] + p.points[:-1, :2]), np.asarray(self.applied.get(la, {}).get(pa, [1.0] * (len(p.points) - 1))))
+                 for pa, p in enumerate(layer.passes)]
+        mids = np.concatenate([m for m, _ in f_all]) if f_all else np.zeros((0, 2))
+        facs = np.concatenate([f for _, f in f_all]) if f_all else np.zeros(0)
+        rows = []
+        for (x, y, _z), t in zip(spots, tops):
+            k = int(np.argmin(np.hypot(mids[:, 0] - x, mids[:, 1] - y))) if len(mids) else -1
+            rows.append((x, y, float(t), float(facs[k]) if k >= 0 and k < len(facs) else 1.0))
+        return rows
+
+    # -- a layer's end -----------------------------------------------------------------------------
+    def close(self, la: int, rows: Sequence[tuple[float, float, float, float]], planned_top: float,
+              rise_mm: float, next_layer: Layer | None) -> tuple[dict[str, Any] | None, str | None]:
+        """Record layer la's tops along the path, learn, and say whether the next layer's needed
+        correction is out of bounds (a pause message)."""
+        if not rows:
+            return None, None
+        a = np.asarray(rows, dtype=float)
+        mean = float(a[:, 2].mean())
+        err = a[:, 2] - planned_top
+        d = Field(a[:, :2].copy(), a[:, 2] - mean)
+        m = Field(a[:, :2].copy(), a[:, 3].copy())
+        self.fields = (self.fields + [(d, m)])[-2:]
+        self.rise_mm = rise_mm
+        rec: dict[str, Any] = {
+            "layer": la, "planned_top_mm": round(planned_top, 4), "mean_top_mm": round(mean, 4),
+            "rms_mm": round(float(np.sqrt(np.mean(err ** 2))), 4),
+            "shape_rms_mm": round(float(np.sqrt(np.mean(d.v ** 2))), 4),
+            "spread_mm": round(float(a[:, 2].max() - a[:, 2].min()), 4), "rise_mm": round(rise_mm, 4),
+            "d": d.rows(), "m": m.rows(5), "source": "arc" if self.platform == "robot" else "probe",
+        }
+        pause = None
+        if next_layer is not None:
+            passes = [self._resampled(p)[0] for p in next_layer.passes]
+            _, need, xy, dn = self._plan(la + 1, passes)
+            lo, hi = self.law.bounds
+            bad = ((need < lo - 1e-6) | (need > hi + 1e-6)) & (np.abs(np.nan_to_num(dn)) > self.cfg.path_max_error_mm)
+            rec["needed_min"], rec["needed_max"] = (round(float(need.min()), 4), round(float(need.max()), 4)) if len(need) else (None, None)
+            # out of bounds where it was already after the last layer: one layer's reading is not enough
+            prev, self._bad = self._bad, xy[bad]
+            if len(prev):
+                near = np.hypot(xy[:, None, 0] - prev[None, :, 0], xy[:, None, 1] - prev[None, :, 1]).min(axis=1)
+                bad &= near <= self.law.filter_mm
+            else:
+                bad &= False
+            if np.any(bad):
+                k = int(np.argmax(np.where(bad, np.abs(need - 1.0), -1.0)))
+                pause = (f"layer {la + 1}: the top at x {xy[k, 0]:.1f}, y {xy[k, 1]:.1f} mm is {dn[k]:+.2f} mm off the "
+                         f"layer's mean after layer {la}; levelling it needs {need[k]:.2f} × the speed there, beyond "
+                         f"process_control.speed_trim_pct {self.cfg.speed_trim_pct:g} (the path loop's bound)")
+        self.records.append(rec)
+        self._event("path", rec, la)
+        if self.bus is not None:
+            self.bus.update(path_rms_mm=rec["rms_mm"], path_spread_mm=rec["spread_mm"])
+        return rec, pause

@@ -1,0 +1,110 @@
+"""The path loop (issue 35, `process_control: {mode: path}`, docs/closed-loop.md "Along the path"):
+sensing along the pass, learning by position, per-segment speeds in the run's working copy
+(journaled, re-applied on resume), the pause, and the record's heights along the path."""
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pytest
+
+from bench.closed_loop import wall_job
+from bench.path_loop import beads_of, build
+from controller.journal.store import Journal
+from controller.runtime.build import WorkItem
+from controller.runtime.layer_control import LayerControl
+from core.config import ProcessControl, load_material
+from core.melting import current_at, relation_for
+from controller.job.model import CellJob
+from controller.job.read import job_from_dict
+
+MAT = load_material("inconel718-1.0mm")
+
+
+def _job(n: int, h: float = 0.77) -> CellJob:
+    """A single-bead wall 30 mm long, `n` layers, alternating direction."""
+    layers = [{"index": i, "z_mm": h * (i + 1), "height_mm": h, "passes": [
+        {"role": "perimeter", "width_mm": 7.0, "speed_mm_min": 1500.0, "wfs_m_min": 6.9, "current_a": 151.0,
+         "points": [[0.0, 0.0, h * (i + 1)], [30.0, 0.0, h * (i + 1)]][::1 if i % 2 == 0 else -1]}]} for i in range(n)]
+    return job_from_dict({"schema": "cell-job/1", "source": {"file": "wall.stl", "sha256": "0" * 64, "units": "mm"},
+                          "material": {"name": MAT.name}, "layers": layers,
+                          "bead": {"width_mm": 7.0, "height_mm": h, "step_over_mm": 5.0, "model": "tangent"}})
+
+
+async def _lay(lc: LayerControl, la: int, top_at: Callable[[float], float]) -> str | None:
+    """Layer la as the robot would report it: samples along the pass whose current says the top."""
+    rel = relation_for(MAT)
+    p = lc.pass_for(la, 0)
+    z = float(p.points[0][2])
+    cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p.points[:, :2], axis=0).T))])
+    for s in np.linspace(0.0, float(cum[-1]), 60):
+        x = float(np.interp(s, cum, p.points[:, 0]))
+        lc.arc_sample(la, 0, float(s), current_at(rel, MAT.ribeiro, 6.9, 15.0 + z - top_at(x)))
+    lc.bead_closed(la, 0, [current_at(rel, MAT.ribeiro, 6.9, 15.0 + z - top_at(15.0))] * 10, 6.9)
+    work = [WorkItem(i, 0) for i in range(len(lc.layers))]
+    return await lc.after_pass(work[la], work, la)
+
+
+async def test_a_low_stretch_is_slowed_where_it_lies_and_a_resume_lays_the_same_speeds(tmp_path: Path):
+    job = _job(6)
+    cfg = ProcessControl(mode="path")
+    j = Journal(tmp_path / "journal.sqlite")
+    j.start_job("h", "wall", "robot", "{}")
+    lc = LayerControl(job=job, cfg=cfg, material=MAT, platform="robot", journal=j)
+    for la in range(3):   # the stretch x > 20 rises 0.6 of the rest a layer
+        assert await _lay(lc, la, lambda x, la=la: 0.77 * (la + 1) * (0.6 if x > 20 else 1.0)) is None
+    p3 = lc.pass_for(3, 0)
+    assert p3.seg_speed_mm_min is not None                       # cell-job/2 arrays in the working copy
+    mid = 0.5 * (p3.points[1:, 0] + p3.points[:-1, 0])
+    sp = p3.speeds()
+    assert float(np.mean(sp[mid > 23])) < 0.9 * float(np.mean(sp[mid < 15]))   # slower where it is low
+    assert np.hypot(*np.diff(p3.points[:, :2], axis=0).T).max() <= 3.5 + 1e-9  # half a bead width a segment
+    assert job.layers[3].passes[0].seg_speed_mm_min is None      # the job itself is not rewritten
+    kinds = [k for (k,) in j.query("SELECT kind FROM events WHERE kind LIKE 'path%' ORDER BY id")]
+    assert kinds.count("path") == 3 and kinds.count("path_plan") == 4
+    j.close()
+    j2 = Journal(tmp_path / "journal.sqlite")
+    lc2 = LayerControl(job=job, cfg=cfg, material=MAT, platform="robot", journal=j2)
+    lc2.restore()
+    assert np.allclose(lc2.pass_for(3, 0).speeds(), sp, rtol=1e-6)   # the same speeds after a restart
+    assert np.allclose(lc2.pass_for(3, 0).points, p3.points)
+    j2.close()
+
+
+async def test_a_stretch_the_bound_cannot_level_pauses_before_the_next_layer(tmp_path: Path):
+    j = Journal(tmp_path / "journal.sqlite")
+    j.start_job("h", "wall", "robot", "{}")
+    lc = LayerControl(job=_job(6), cfg=ProcessControl(mode="path", speed_trim_pct=10), material=MAT,
+                      platform="robot", journal=j)
+    why = None
+    for la in range(5):   # the stretch x > 20 gets a third of the metal: 10 % of speed cannot follow
+        why = await _lay(lc, la, lambda x, la=la: 0.77 * (la + 1) * (0.33 if x > 20 else 1.0))
+        if why:
+            break
+    assert why is not None and "speed_trim_pct 10" in why and "off the layer's mean" in why
+    j.close()
+
+
+@pytest.mark.realtime
+def test_a_short_wall_in_path_mode_lays_the_learned_speeds_and_records_the_heights(tmp_path: Path,
+                                                                                   monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.setenv("CELL_RECORD_PLOTS", "1")
+    job = wall_job(4, 40.0)
+    out = asyncio.run(build(job, part="wall", gain=1.0, mode="path", tmp=tmp_path, scale=30.0, keep=tmp_path / "keep"))
+    assert out["state"] == "complete", out["paused"]
+    rec = tmp_path / "keep" / "wall-1.0-path"
+    report = json.loads((rec / "report.json").read_text())
+    assert [r["layer"] for r in report["path"]["layers"]][:4] == [0, 1, 2, 3]
+    rows = (rec / "path.csv").read_text().splitlines()
+    assert rows[0].startswith("layer,x_mm,y_mm,along_mm,measured_top_mm") and len(rows) > 4 * 3
+    assert (rec / "path.png").stat().st_size > 10_000
+    # the robot executed the working copy's per-segment speeds: deposit.jsonl's segment speeds
+    # in the last layer vary as its journaled factors do
+    segs = [json.loads(x) for x in (rec / "sim" / "deposit.jsonl").read_text().splitlines()]
+    last = beads_of(segs)[-1]
+    v = [math.dist(s["from"][:2], s["to"][:2]) / (s["t1"] - s["t0"]) * 60.0 for s in last if s["t1"] > s["t0"]]
+    assert max(v) / min(v) > 1.02
