@@ -109,7 +109,7 @@ def fit_parabola(x: Any, y: Any, *, min_height_mm: float | None = None) -> Profi
     u0 = -B / (2.0 * A)
     c = C - B * B / (4.0 * A)
     prof = Parabola(a=float(a), c=float(c), centre_mm=float(m + u0 * s))
-    return ProfileFit(prof, _r2(ya, prof._raw(xa - prof.centre_mm)), int(xa.size))
+    return ProfileFit(prof, _r2(ya, prof.raw(xa - prof.centre_mm)), int(xa.size))
 
 
 def fit_cosine(x: Any, y: Any, *, min_height_mm: float | None = None) -> ProfileFit:

@@ -60,7 +60,7 @@ class _Base:
         u = self._u(x)
         half = self.width_mm / 2.0  # type: ignore[attr-defined]
         inside = np.abs(u) <= half
-        v = np.where(inside, self._raw(np.clip(u, -half, half)), 0.0)  # type: ignore[attr-defined]
+        v = np.where(inside, self.raw(np.clip(u, -half, half)), 0.0)  # type: ignore[attr-defined]
         v = np.maximum(v, 0.0)
         return float(v) if v.ndim == 0 else v
 
@@ -110,7 +110,7 @@ class Parabola(_Base):
     def area_mm2(self) -> float:
         return 4.0 * self.c / 3.0 * math.sqrt(-self.c / self.a)
 
-    def _raw(self, u: np.ndarray) -> np.ndarray:
+    def raw(self, u: np.ndarray) -> np.ndarray:
         return np.asarray(self.a * u * u + self.c)
 
     def slope(self, x: Any) -> Any:
@@ -152,7 +152,7 @@ class Cosine(_Base):
     def area_mm2(self) -> float:
         return 2.0 * self.a / self.b
 
-    def _raw(self, u: np.ndarray) -> np.ndarray:
+    def raw(self, u: np.ndarray) -> np.ndarray:
         return self.a * np.cos(self.b * u)
 
     def slope(self, x: Any) -> Any:
@@ -202,7 +202,7 @@ class Arc(_Base):
     def area_mm2(self) -> float:
         return self.a**2 * math.acos(-self.b / self.a) + self.b * math.sqrt(self.a**2 - self.b**2)
 
-    def _raw(self, u: np.ndarray) -> np.ndarray:
+    def raw(self, u: np.ndarray) -> np.ndarray:
         return np.asarray(np.sqrt(np.maximum(self.a**2 - u * u, 0.0)) + self.b)
 
     def slope(self, x: Any) -> Any:

@@ -180,7 +180,8 @@ class Trunnion:
                    chord_tolerance_mm=kin.chord_tolerance_mm)
 
     # (inner axis, outer axis) as unit vectors; angles are always reported as (a, second).
-    def _axes(self) -> tuple[F, F]:
+    def axes(self) -> tuple[F, F]:
+        """(inner axis, outer axis) of the table as unit vectors."""
         if self.table == "AB":
             return unit(self.axis_a), unit(self.axis_second)
         if self.table == "AC":
@@ -192,7 +193,7 @@ class Trunnion:
 
     def matrix(self, a_deg: float, second_deg: float) -> F:
         """4×4 taking table (part) coordinates to machine coordinates at these table angles."""
-        u1, u2 = self._axes()
+        u1, u2 = self.axes()
         t1, t2 = self._inner_outer_deg(a_deg, second_deg)
         p = np.asarray(self.pivot, dtype=float)
         c2 = -p
@@ -212,7 +213,7 @@ class Trunnion:
         Of the (up to two) solutions within the axis limits, the one with the smallest
         largest rotation: for a nearly level face that is the unique small-angle solution.
         """
-        u1, u2 = self._axes()
+        u1, u2 = self.axes()
         sols = []
         for t1, t2 in two_axis_solutions(direction, target, u1, u2):
             a, s = (t1, t2) if self.table == "AB" else (t2, t1)

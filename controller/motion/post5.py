@@ -66,7 +66,7 @@ class Post5:
     def _solutions(self, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Both Paden–Kahan solutions (a, second) for every axis at once: (n, 2, 2) and validity (n, 2)."""
         t = self.trunnion
-        u1, u2 = t._axes()
+        u1, u2 = t.axes()
         v = axes / np.linalg.norm(axes, axis=1, keepdims=True)
         d = float(u1 @ u2)
         w = np.cross(u1, u2)
@@ -90,7 +90,7 @@ class Post5:
     def _held(self, axis: np.ndarray, prev: tuple[float, float]) -> tuple[float, float]:
         """At the singularity: the inner angle held, the outer one solved."""
         t = self.trunnion
-        u1, u2 = t._axes()
+        u1, u2 = t.axes()
         inner = prev[0] if t.table == "AB" else prev[1]
         v = rotation_matrix(u1, inner) @ axis
         outer = float(np.degrees(_signed_angle(v, Z, u2)))
@@ -105,7 +105,7 @@ class Post5:
         axes = np.asarray(axes, dtype=float)
         first = prev
         sols, ok = self._solutions(axes)
-        u1 = t._axes()[0]
+        u1 = t.axes()[0]
         near = np.linalg.norm(np.cross(axes / np.linalg.norm(axes, axis=1, keepdims=True), u1), axis=1) < _SINGULAR
         out = np.zeros((len(axes), 2))
         for i in range(len(axes)):
@@ -151,7 +151,7 @@ class Post5:
             ax = ax @ np.asarray(self.alignment, dtype=float)[:3, :3].T
         ang = self.angles(ax, prev)
         t = self.trunnion
-        u1, u2 = t._axes()
+        u1, u2 = t.axes()
         inner, outer = (ang[:, 0], ang[:, 1]) if t.table == "AB" else (ang[:, 1], ang[:, 0])
         c2 = -np.asarray(t.pivot, dtype=float)
         c1 = c2 + np.asarray(t.offset, dtype=float)
