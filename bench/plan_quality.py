@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 
@@ -29,6 +30,7 @@ from planner.extrude import extrude
 W = 6.0  # nominal bead width (Inconel 718, 1.0 mm wire: legal widths 4.47-6.56 mm at 0.66 mm layers)
 WIDTHS = (4.0, 6.0, 8.0)
 ALLOWANCE = 1.5  # mm of stock per face: the parts are built near-net and machined (issue 28)
+OUTSIDE = 0.015  # bead footprint outside the grown region, at most (issue 40)
 
 
 def _wall(t: float, length: float = 80.0, height: float = 20.0) -> trimesh.Trimesh:
@@ -105,6 +107,52 @@ def _section(mesh: trimesh.Trimesh, z: float):
     return region
 
 
+def _grown(mesh: trimesh.Trimesh, low: float, index: int, h: float, allowance: float,
+           sections: dict[int, shapely.Geometry]) -> shapely.Geometry:
+    """Layer `index`'s section grown by the allowance in 3-D (docs/planner.md, near-net): its own
+    mid-plane section grown by a, and each layer's dz < a away by sqrt(a² - dz²); above the part's
+    top the top layer's section stands in (the top's stock)."""
+    top = max(int(round((mesh.bounds[1, 2] - low) / h)) - 1, 0)
+
+    def net(k: int) -> shapely.Geometry:
+        k = min(k, top)
+        if k not in sections:
+            sections[k] = _section(mesh, low + (k + 0.5) * h)
+        return sections[k]
+
+    if allowance <= 0:
+        return net(index)
+    reach = int(np.floor(allowance / h - 1e-9))
+    parts = [net(k).buffer(float(np.sqrt(max(allowance ** 2 - ((k - index) * h) ** 2, 0.0))), quad_segs=8)
+             for k in range(max(0, index - reach), index + reach + 1)]
+    return shapely.union_all(parts)
+
+
+# Real parts: STL files of the public trimesh model collection (MIT licence; github.com/mikedh/trimesh,
+# models/), read from the directories given (--real DIR, or CELL_REAL_PARTS=DIR:DIR), never committed.
+# STL carries no unit: these are the units their sizes say.
+REAL_UNITS = {"idler_riser": "inch", "adis16480": "m", "octagonal_pocket": "m", "plate_holes": "mm",
+              "angle_block": "inch", "torus": "inch", "20mm-xyz-cube": "mm", "box": "inch",
+              "counter.unitsmm": "mm"}
+SCALE = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "inch": 25.4}
+
+
+def real_parts(dirs: list[str]) -> list[tuple[str, trimesh.Trimesh]]:
+    """(name, mesh in mm) of the known real parts found in `dirs`."""
+    from pathlib import Path  # lazy: only the real-part runs read files
+
+    out = []
+    for d in dirs:
+        for f in sorted(Path(d).glob("*")):
+            stem = f.name.rsplit(".", 1)[0].lower()
+            if f.suffix.lower() != ".stl" or stem not in REAL_UNITS:
+                continue
+            m = trimesh.load(str(f), force="mesh")
+            m.apply_scale(SCALE[REAL_UNITS[stem]])
+            out.append((f"{f.name} ({REAL_UNITS[stem]})", m))
+    return out
+
+
 def _close_fraction(layer, ratio: float, w: float) -> float:
     """Share of bead length whose centre line has another pass's centre line closer than
     `ratio` x its width (Ding's stable limit)."""
@@ -156,11 +204,9 @@ def measure(mesh: trimesh.Trimesh, job, material, allowance: float = ALLOWANCE) 
     shortest = np.inf
     unnamed = []
     named = " ".join(job.summary["warnings"])
-    last = shapely.Polygon()
+    sections: dict[int, shapely.Geometry] = {}
     for layer in job.layers:
-        net = _section(mesh, low + layer.z_mm - layer.height_mm / 2)
-        last = net if not net.is_empty else last
-        region = (net if not net.is_empty else last).buffer(allowance, quad_segs=8) if allowance > 0 else net
+        region = _grown(mesh, low, layer.index, layer.height_mm, allowance, sections)
         if region.is_empty or not layer.passes:
             cov.append(0.0 if not region.is_empty else 1.0)
             continue
@@ -212,8 +258,12 @@ def run_part(name: str, mesh: trimesh.Trimesh, width: float, material, allowance
     except MeshError as exc:
         verdict = f"error: {exc}"
     t_strict = time.perf_counter() - t0
-    job = plan_part(mesh, PlanOptions(width_mm=width, allow_underfill=True, allow_overhang=True, allow_outside=True,
-                                      machining_allowance_mm=allowance), material)
+    try:  # measured as planned: --allow-outside only when the cell's limits refuse (it widens the legal beads)
+        job = plan_part(mesh, PlanOptions(width_mm=width, allow_underfill=True, allow_overhang=True,
+                                          machining_allowance_mm=allowance), material)
+    except MeshError:
+        job = plan_part(mesh, PlanOptions(width_mm=width, allow_underfill=True, allow_overhang=True, allow_outside=True,
+                                          machining_allowance_mm=allowance), material)
     row = {"part": name, "width_mm": width, "layers": len(job.layers),
            "passes": sum(len(L.passes) for L in job.layers), "plan_s": round(t_strict, 2), "verdict": verdict,
            "warnings": len(job.summary["warnings"]), "overhang_layers": len(job.summary["overhang_layers"]),
@@ -223,13 +273,13 @@ def run_part(name: str, mesh: trimesh.Trimesh, width: float, material, allowance
 
 
 def check(row: dict) -> list[str]:
-    """Targets: every layer >= 97 % covered, <= 3 % outside, mass within 3 % per layer and per bead
+    """Targets: every layer >= 97 % covered, <= 1.5 % outside the grown region, mass within 3 % per layer and per bead
     class, no pass under the minimum; a plan refused or a layer short of them names what it is."""
     bad = []
     if row["verdict"] == "planned":
         if row["coverage_min"] < 0.97:
             bad.append(f"coverage {row['coverage_min']} not reported")
-        if row["outside"] > 0.03:
+        if row["outside"] > OUTSIDE:
             bad.append(f"outside {row['outside']}")
         if row["mass_layer_max"] > 0.03 or row["mass_class_max"] > 0.03:
             bad.append(f"mass {row['mass_layer_max']}/{row['mass_class_max']}")
@@ -255,10 +305,15 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--widths", default=",".join(f"{w:g}" for w in WIDTHS), help="bead widths, mm")
     ap.add_argument("--allowance", type=float, default=ALLOWANCE, help="machining allowance, mm")
     ap.add_argument("--only", default="", help="parts whose name contains this")
+    ap.add_argument("--real", action="append", default=[],
+                    help="a directory of real parts (trimesh's models; also CELL_REAL_PARTS=DIR:DIR)")
+    ap.add_argument("--real-only", action="store_true", help="the real parts only")
     args = ap.parse_args(argv)
     material = load_material(args.material)
     failures = 0
-    runs = [(n, m, float(w)) for n, m in parts(args.quick) if args.only in n for w in args.widths.split(",")]
+    dirs = args.real + [d for d in os.environ.get("CELL_REAL_PARTS", "").split(":") if d]
+    pool = ([] if args.real_only else parts(args.quick)) + real_parts(dirs)
+    runs = [(n, m, float(w)) for n, m in pool if args.only in n for w in args.widths.split(",")]
     for name, mesh, width in runs:
         row = run_part(name, mesh, width, material, args.allowance)
         bad = check(row)

@@ -15,7 +15,7 @@ from planner.infill import scan_fill
 from planner.ordering import join_chains, link_into_loops, order_passes, seam_at
 from planner.path2d import Path2D
 from planner.perimeters import perimeter_loops, split_thin
-from planner.reach import reach_fill
+from planner.reach import reach_fill, run_on
 from planner.regions import polygons_of
 from planner.stubs import drop_short, no_stubs
 from planner.thin import Widths, layout, thin_beads, wall_width
@@ -76,6 +76,7 @@ def layer_groups(polys: list[Polygon], index: int, ctx: LayerCtx) -> LayerGroups
         groups = _island(poly, index, angle, ctx, stats, issues)
         groups[2] += reach_fill(poly, [b for g in groups for b in g], ctx.widths, ctx.min_coverage, ctx.min_length,
                                 ctx.allowance)
+        groups[2] = run_on(groups[2], poly, ctx.min_length, ctx.allowance)
         groups = no_stubs(groups, ctx.min_length, poly, index, stubs, 1.5 * ctx.width)
         # two stubs welded together can still be short: dropped before the shares are drawn
         groups = [drop_short(g, ctx.min_length, index, stubs) for g in groups]
@@ -103,6 +104,8 @@ def _island(poly: Polygon, index: int, angle: float, ctx: LayerCtx, stats: dict[
             issues: list[str]) -> Groups:
     w = ctx.width
     thick, thin = split_thin(poly, w)
+    if ctx.allowance > 0.0 and thick and thin:
+        thick, thin = _rejoined(thick, thin, w)
     # A piece narrower than two perimeters a side (w + 3 d*) gets the thin layout too: perimeters
     # there would leave a groove or a sliver loop lying on itself between them.
     narrow = [t.buffer(-0.5 * (w + 3 * ctx.step)).is_empty for t in thick]
@@ -114,6 +117,17 @@ def _island(poly: Polygon, index: int, angle: float, ctx: LayerCtx, stats: dict[
     for t in thin:
         _thin(t, poly, index, ctx, groups, stats, issues)
     return groups
+
+
+def _rejoined(thick: list[Polygon], thin: list[Polygon], w: float) -> tuple[list[Polygon], list[Polygon]]:
+    """Near-net: thin pieces smaller than a bead's footprint that the split cut off a thick piece
+    (the corner of a lobe the grown region fused on) go back to it: its loops then run round them,
+    standing out into the stock where they must, instead of leaving them to no bead (issue 40)."""
+    small = [t for t in thin if t.area < 0.25 * np.pi * w * w and any(t.distance(k) < 1e-6 for k in thick)]
+    if not small:
+        return thick, thin
+    joined = [p for p in polygons_of(shapely.union_all([*thick, *small]).buffer(0)) if p.area > 1e-9]
+    return joined, [t for t in thin if not any(t is s for s in small)]
 
 
 def _thin(t: Polygon, island: Polygon, index: int, ctx: LayerCtx, groups: Groups, stats: dict[str, int],

@@ -36,12 +36,13 @@ def reach_fill(island: Polygon, beads: list[Path2D], wd: Widths, min_coverage: f
     if rest.area <= (1.0 - min_coverage) * island.area:
         return []
     out: list[Path2D] = []
+    rooms: dict[float, shapely.Geometry] = {}  # the island eroded for a bead of each width, made once
     for piece in polygons_of(rest):
         if piece.area < 0.25 * wd.lo * wd.lo:
             continue
         for axis in centre_lines(piece, wd.lo, depth=1):
             w = float(np.clip(axis.width_mm, wd.lo, wd.hi))
-            pts = _inside(axis.points, island, w, allowance_mm)
+            pts = _inside(axis.points, island, w, allowance_mm, rooms)
             if pts is None:
                 continue
             bead = Path2D("gap", pts, w, axis.closed)
@@ -49,12 +50,29 @@ def reach_fill(island: Polygon, beads: list[Path2D], wd: Widths, min_coverage: f
                 # near-net: a pocket bead runs on over its neighbours to the minimum length (their
                 # shares are drawn after it, so the metal stays balanced); still short, no_stubs
                 # welds it onto a neighbour or drops it, named
-                longer = _inside(_extended(pts, min_length), island, w, allowance_mm)
+                longer = _inside(_extended(pts, min_length), island, w, allowance_mm, rooms)
                 bead = Path2D("gap", longer, w) if longer is not None else bead
                 if bead.length >= w:
                     out.append(bead)
             elif bead.length >= min_length:
                 out.append(bead)
+    return out
+
+
+def run_on(beads: list[Path2D], island: Polygon, min_length: float, allowance_mm: float) -> list[Path2D]:
+    """Near-net: open gap beads shorter than the minimum length run on straight over their
+    neighbours to it, within the allowance of the island (instead of being dropped as stubs)."""
+    if allowance_mm <= 0.0:
+        return beads
+    rooms: dict[float, shapely.Geometry] = {}
+    out = []
+    for b in beads:
+        if b.closed or b.lone or b.length >= min_length or len(b.points) < 2:
+            out.append(b)
+            continue
+        longer = _inside(_extended(np.asarray(b.points, dtype=np.float64), min_length), island, b.width_mm,
+                         allowance_mm, rooms)
+        out.append(Path2D(b.role, longer, b.width_mm, False, b.share_mm) if longer is not None else b)
     return out
 
 
@@ -67,10 +85,15 @@ def _extended(pts: np.ndarray, length: float) -> np.ndarray:
     return np.vstack([pts[0] + more * d0, pts, pts[-1] + more * d1])
 
 
-def _inside(points: np.ndarray, island: Polygon, width: float, allowance_mm: float = 0.0) -> np.ndarray | None:
+def _inside(points: np.ndarray, island: Polygon, width: float, allowance_mm: float = 0.0,
+            rooms: dict[float, shapely.Geometry] | None = None) -> np.ndarray | None:
     """The centre line moved where a bead `width` wide stays inside the island (near-net: within the
-    allowance of it); None if it cannot."""
-    room = island.buffer(allowance_mm - 0.49 * width, quad_segs=8)
+    allowance of it); None if it cannot. `rooms` keeps the eroded island per width."""
+    rooms = {} if rooms is None else rooms
+    if width not in rooms:
+        rooms[width] = island.buffer(allowance_mm - 0.49 * width, quad_segs=8)
+        shapely.prepare(rooms[width])
+    room = rooms[width]
     if room.is_empty:
         return None
     pts = np.array(points, dtype=np.float64)  # a copy: the medial-axis points are shared, read-only
