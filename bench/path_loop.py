@@ -43,6 +43,9 @@ RUN_IN_MM = 5.0
 END_SAG = 0.2
 REGION_GAIN = 1.25
 L0 = 15.0
+# the bench's process control: a region at 1.25 in a part at 0.85 lays 1.47 x the metal of the
+# rest, beyond a ±25 % speed trim (docs/closed-loop.md "Figures")
+PC: dict[str, Any] = {"speed_trim_pct": 40.0}
 
 
 def demo_job(layers: int | None = None) -> CellJob:
@@ -231,6 +234,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mode", default="path", help="process_control mode (path, layer, open)")
     ap.add_argument("--undisturbed", action="store_true", help="no region, run-in or sag (the nominal world)")
     ap.add_argument("--out", default="", help="keep each build's record (report.json, path.csv, path.png) here")
+    ap.add_argument("--pc", default="", help="process_control overrides as JSON, e.g. '{\"path_kp\": 0.3}'")
     args = ap.parse_args(argv or [])
     cases = [("wall", 0.85), ("wall", 1.15), ("demo", 0.85), ("demo", 1.15)]
     if args.only:
@@ -243,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
         job = wall_job(args.layers, args.length) if part == "wall" else demo_job(args.demo_layers or None)
         with tempfile.TemporaryDirectory(prefix="path_loop_") as d:
             o = asyncio.run(build(job, part=part, gain=gain, mode=args.mode, tmp=Path(d), scale=args.scale, keep=keep,
-                                  disturbed=not args.undisturbed))
+                                  disturbed=not args.undisturbed, pc={**PC, **json.loads(args.pc or "{}")}))
         print(json.dumps(o), flush=True)
     return 0
 

@@ -239,9 +239,9 @@ class ProcessControl(_Frozen):
     # the path loop (mode path, docs/closed-loop.md "Along the path")
     probe_spacing_mm: float = Field(default=10.0, gt=0.0, le=1000.0)  # CNC: probe points along every pass
     path_bin_mm: float | None = Field(default=None, gt=0.0, le=100.0)  # robot: samples binned this long (null: the bead width)
-    path_filter_mm: float | None = Field(default=None, gt=0.0, le=200.0)  # filter length along the path (at least the bead width)
-    path_kp: float = Field(default=0.6, ge=0.0, le=2.0)         # learning on the change of the error since the last layer
-    path_ki: float = Field(default=0.25, ge=0.0, le=2.0)        # learning on the error
+    path_filter_mm: float | None = Field(default=None, gt=0.0, le=200.0)  # filter length along the path (null: 1.5 bead widths; at least one)
+    path_kp: float = Field(default=0.4, ge=0.0, le=2.0)         # learning on the change of the error since the last layer
+    path_ki: float = Field(default=0.2, ge=0.0, le=2.0)        # learning on the error
     path_max_error_mm: float = Field(default=1.0, gt=0.0, le=50.0)  # off the layer's mean by more, at the bound: pause
 
     @model_validator(mode="after")

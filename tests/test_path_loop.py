@@ -108,3 +108,51 @@ def test_a_short_wall_in_path_mode_lays_the_learned_speeds_and_records_the_heigh
     last = beads_of(segs)[-1]
     v = [math.dist(s["from"][:2], s["to"][:2]) / (s["t1"] - s["t0"]) * 60.0 for s in last if s["t1"] > s["t0"]]
     assert max(v) / min(v) > 1.02
+
+
+def test_the_build_screen_shows_the_path_loop_line():
+    from controller.runtime.events import Snapshot
+    from controller.tui.build import process_text
+
+    s = Snapshot().with_(stick_out_mm=15.2, path_rms_mm=0.18, path_spread_mm=0.62, path_factor_min=0.81,
+                         path_factor_max=1.12)
+    lines = process_text(s).strip().splitlines()
+    assert lines[-1] == "along the path: RMS 0.18 mm · spread 0.62 mm · speed × 0.81–1.12"
+    assert "along the path" not in process_text(Snapshot().with_(stick_out_mm=15.2))
+
+
+@pytest.mark.realtime
+async def test_an_opc_ua_client_reads_the_path_loop_values():
+    import socket
+
+    from asyncua import Client
+
+    from controller.opcua.endpoint import Identification
+    from controller.opcua.server import FactoryServer
+    from controller.runtime.events import EventBus
+    from core.config import OpcUaSettings
+
+    sk = socket.socket()
+    sk.bind(("127.0.0.1", 0))
+    endpoint = f"opc.tcp://127.0.0.1:{sk.getsockname()[1]}/cell"
+    sk.close()
+    bus = EventBus()
+    srv = FactoryServer(OpcUaSettings(enabled=True, endpoint=endpoint), cell_name="c",
+                        identification=Identification("m", "m", "s", "r"), bus=bus, control=None)
+    srv.start()
+    try:
+        bus.update(path_rms_mm=0.21, path_spread_mm=0.7, path_factor_min=0.8, path_factor_max=1.1)
+        async with Client(endpoint) as client:
+            ns = await client.get_namespace_index("urn:cell-controller:machines")
+            proc = await client.nodes.objects.get_child([f"{ns}:Machines", f"{ns}:c", f"{ns}:Monitoring", f"{ns}:Process"])
+            got = {}
+            for name in ("PathHeightRms", "PathHeightSpread", "PathSpeedFactorMin", "PathSpeedFactorMax"):
+                node = await proc.get_child([f"{ns}:{name}"])
+                for _ in range(50):   # the server publishes the bus on its own loop
+                    got[name] = await node.read_value()
+                    if got[name] == got[name]:   # not NaN
+                        break
+                    await asyncio.sleep(0.05)
+    finally:
+        srv.stop()
+    assert got == {"PathHeightRms": 0.21, "PathHeightSpread": 0.7, "PathSpeedFactorMin": 0.8, "PathSpeedFactorMax": 1.1}

@@ -62,10 +62,10 @@ def _run(layers: int, law: PathLaw, noise: float = 0.0, seed: int = 1) -> list[f
 
 def test_the_law_levels_a_top_whose_gain_differs_along_the_path():
     open_loop = _run(20, PathLaw(kp=0.0, ki=0.0))
-    closed = _run(20, PathLaw())
+    closed = _run(20, PathLaw(filter_mm=7.0))
     assert open_loop[-1] > 4.0                                   # open: the region and the ends run away
     assert max(closed[8:]) < 0.4                                 # learned within a few layers, and it stays
-    noisy = _run(30, PathLaw(), noise=0.1)
+    noisy = _run(30, PathLaw(filter_mm=7.0), noise=0.1)
     assert max(noisy[10:]) < 0.9                                 # 0.1 mm of sensor noise a bin: bounded
 
 

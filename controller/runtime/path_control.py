@@ -55,7 +55,7 @@ class PathControl:
         self.cfg, self.journal, self.bus, self.platform, self.est = cfg, journal, bus, platform, est
         self.width = width_mm
         trim = cfg.speed_trim_pct / 100.0
-        self.law = PathLaw(kp=cfg.path_kp, ki=cfg.path_ki, filter_mm=max(cfg.path_filter_mm or width_mm, width_mm,
+        self.law = PathLaw(kp=cfg.path_kp, ki=cfg.path_ki, filter_mm=max(cfg.path_filter_mm or 1.5 * width_mm, width_mm,
                                                                                  cfg.probe_spacing_mm if platform == "cnc" else 0.0),
                            bounds=(max(1.0 - trim, 0.05), 1.0 + trim))
         self.max_speed = max_speed_mm_min

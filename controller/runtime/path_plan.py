@@ -130,9 +130,9 @@ def spots_along(points: FloatArray, spacing: float, end_mm: float) -> list[Float
 
 @dataclass(frozen=True)
 class PathLaw:
-    kp: float = 0.6            # on the change of the error since the last layer (damping)
-    ki: float = 0.25           # on the error (learning)
-    filter_mm: float = 7.0     # the kernel spans it: σ = filter_mm / 4
+    kp: float = 0.4            # on the change of the error since the last layer (damping)
+    ki: float = 0.2            # on the error (learning)
+    filter_mm: float = 10.5    # the kernel spans it: σ = filter_mm / 4
     bounds: tuple[float, float] = (0.75, 1.25)
 
 
