@@ -29,6 +29,7 @@ class PlanOptions:
     frame: str = "substrate"  # substrate: lowest point on z = 0; cad: keep the CAD coordinates (repair)
     cell_limits: CellLimits = CellLimits()  # speeds and source range of the cell (cell.yaml limits)
     machining_allowance_mm: float | None = None  # near-net stock per face; None: the material's, else 0
+    feed_forward: bool = True  # per-segment speeds that level each layer's predicted top (planner/feedforward.py)
 
     def __post_init__(self) -> None:
         if isinstance(self.perimeters, str):  # "all" or "3", as on the command line

@@ -14,6 +14,7 @@ from core.errors import MeshError
 from planner.balance import laid_area_mm2
 from planner.bead import area_factor, step_over
 from planner.ding import close_share
+from planner.feedforward import Envelope, LayerLevel, level_layer, level_summary
 from planner.job import BeadInfo, Interpass, Job, Layer, Source
 from planner.ahead import Ahead, Later
 from planner.layer import LayerCtx, LayerPlan, placed, reseamed
@@ -40,7 +41,8 @@ __all__ = ["PlanOptions", "Progress", "in_frame", "plan_part"]
 
 def plan_part(mesh_or_path: Any, options: PlanOptions,
               material: Material, progress: Progress | None = None) -> Job:
-    """Plan a part (a path, a trimesh.Trimesh or a PreparedMesh) into a `cell-job/1` Job.
+    """Plan a part (a path, a trimesh.Trimesh or a PreparedMesh) into a Job (`cell-job/2` when the
+    feed-forward gives passes per-segment speeds: planner/feedforward.py).
 
     Deterministic: the same input gives the same job, byte for byte once serialised. What cannot
     be planned (underfill, low coverage, overhangs) fails the plan naming the layers, unless allowed.
@@ -80,6 +82,8 @@ def plan_part(mesh_or_path: Any, options: PlanOptions,
     summary["repairs"] = list(mesh.repairs)
     summary["open_contours"] = []
     summary["closed_gaps"] = sum(1 for sl in slices for c in sl.contours if c.gap_mm > 1e-6)
+    if options.feed_forward:
+        summary["feed_forward"] = level_summary(run.levels)
     mat = material.model_dump(mode="json")
     bead = BeadInfo(w, height, run.ctx.step, f"{material.bead.profile}/{material.bead.overlap_model}")
     src = Source(mesh.source.file, mesh.source.sha256, mesh.source.units)
@@ -117,6 +121,10 @@ class _Run:
         self.time_s = 0.0
         self.arc_time_s = 0.0  # the beads alone, at their planned speed (the record compares it)
         self.n_passes = 0
+        lim, r = options.cell_limits, material.ribeiro
+        self.envelope = Envelope(lim.min_speed_mm_min, lim.max_speed_mm_min,
+                                 *((0.05, lim.source_wfs_max_m_min) if options.allow_outside else (r.wfs_min_m_min, r.wfs_max_m_min)))
+        self.levels: list[LayerLevel] = []   # the feed-forward's predicted top spread per layer
 
     def start(self, sl: LayerSlice, top: bool, ahead: Ahead) -> _Started:
         """The layer's beads ordered from where the torch is (the memo's when a layer below had the
@@ -159,8 +167,12 @@ class _Run:
             laid = sum(laid_area_mm2(self.material.wire_diameter_mm, p.wfs_m_min, p.speed_mm_min) * p.length_mm
                        for p in passes)
             v.layer_balance(abs(laid - q.area_mm2 * h) / (q.area_mm2 * h))
+        if self.options.feed_forward:   # each bead's metal kept, its spread along the path levelled
+            levelled, lvl = level_layer(tuple(passes), self.material.wire_diameter_mm, self.envelope)
+            passes = list(levelled)
+            self.levels.append(lvl)
         self.n_passes += len(passes)
-        arc_s = sum(p.length_mm / p.speed_mm_min * 60.0 for p in passes)
+        arc_s = sum(p.arc_time_s for p in passes)   # each segment at its own speed
         self.time_s += lp.travel_mm / TRAVEL_MM_MIN * 60.0 + len(passes) * ARC_START_S + arc_s
         self.arc_time_s += arc_s
         if sl.index > 0:

@@ -28,7 +28,9 @@ def test_same_input_gives_the_same_bytes(job_bytes):
 
 def test_schema_fields_as_in_the_design(job_bytes):
     d = json.loads(job_bytes)
-    assert d["schema"] == "cell-job/1"
+    arrays = any(isinstance(p["speed_mm_min"], list) or isinstance(p["wfs_m_min"], list)
+                 for L in d["layers"] for p in L["passes"])
+    assert d["schema"] == ("cell-job/2" if arrays else "cell-job/1")   # per-segment speeds: cell-job/2
     assert set(d["source"]) == {"file", "sha256", "units"}
     assert d["material"]["name"] == MAT.name
     assert set(d["bead"]) == {"width_mm", "height_mm", "step_over_mm", "model"}
@@ -43,6 +45,8 @@ def test_schema_fields_as_in_the_design(job_bytes):
         assert p["role"] in ("perimeter", "infill", "gap")
         assert {"width_mm", "current_a", "speed_mm_min", "wfs_m_min", "points"} <= set(p)
         assert all(len(pt) == 3 for pt in p["points"])
+        for key in ("speed_mm_min", "wfs_m_min"):   # one number, or one per segment
+            assert not isinstance(p[key], list) or len(p[key]) == len(p["points"]) - 1
         if "normals" in p:
             n = np.array(p["normals"])
             assert n.shape == (len(p["points"]), 3) and np.allclose(np.linalg.norm(n, axis=1), 1, atol=1e-3)
@@ -84,7 +88,7 @@ def test_missing_field_and_bad_json_are_named(job_bytes):
 
 def test_job_dict_has_no_negative_zero(job_bytes):
     assert b"-0.0," not in job_bytes and b"-0.0]" not in job_bytes
-    assert job_to_dict(loads_job(job_bytes))["schema"] == "cell-job/1"
+    assert job_to_dict(loads_job(job_bytes))["schema"] == json.loads(job_bytes)["schema"]
 
 
 def test_same_bytes_across_processes_and_hash_seeds(tmp_path):

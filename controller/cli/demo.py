@@ -30,6 +30,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     d.add_argument("--no-align", action="store_true", help="skip probing and aligning the substrate")
     d.add_argument("--process-control", choices=("open", "layer"), default=None,
                    help="closed-loop layer height for the demo (default cell.yaml's process_control.mode)")
+    d.add_argument("--no-feed-forward", action="store_true",
+                   help="plan the demo with one speed per bead (no per-segment feed-forward: docs/along-the-path.md)")
     d.add_argument("--repair", action="store_true",
                    help="hybrid repair instead: a block with a milled pocket, posed on the CNC table, "
                         "repaired end to end (cell repair run --sim)")
@@ -61,7 +63,8 @@ def _demo(args: argparse.Namespace) -> int:
         cfg = cfg.model_copy(update={"process_control": cfg.process_control.model_copy(update={"mode": args.process_control})})
     mat = load_material(cfg.cell.material)
     say(f"planning {DEMO_PART.name}: {DEMO_WIDTH_MM} mm beads of {mat.name}, perimeters until they meet (Fang 2019)")
-    plan = plan_part(str(DEMO_PART), PlanOptions(width_mm=DEMO_WIDTH_MM, perimeters="all"), mat)
+    plan = plan_part(str(DEMO_PART), PlanOptions(width_mm=DEMO_WIDTH_MM, perimeters="all",
+                                                 feed_forward=not getattr(args, "no_feed_forward", False)), mat)
     planned = json.loads(json.dumps(job_to_dict(plan)))   # the job file's object, as `cell plan` writes it
     if args.layers:   # the job file's own layers cut (its hash is of what is built)
         planned["layers"] = planned["layers"][: args.layers]

@@ -87,6 +87,9 @@ def register(sub: Any) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--frame", choices=("substrate", "cad"), default="substrate",
                    help="substrate: the part's lowest point on z = 0 (default); cad: keep the CAD coordinates")
+    p.add_argument("--no-feed-forward", dest="feed_forward", action="store_false",
+                   help="one speed per bead: no per-segment speeds levelling each layer's predicted top "
+                        "(docs/along-the-path.md); the job stays cell-job/1")
     p.add_argument("--five-axis", action="store_true",
                    help="tool axis per point (down-hand, within kinematics.tilt_limit_deg); nozzle collision check")
     p.set_defaults(func=run)
@@ -196,7 +199,7 @@ def run(args: argparse.Namespace) -> int:
                           allow_underfill=args.allow_underfill, allow_overhang=args.allow_overhang,
                           min_coverage=args.min_coverage, workspace_mm=workspace, cell_limits=cell_limits,
                           machining_allowance_mm=args.machining_allowance, frame=args.frame,
-                          five_axis=five_axis)
+                          five_axis=five_axis, feed_forward=args.feed_forward)
     mesh = read_mesh(args.mesh, args.units)
     bar = _Bar(sys.stderr.isatty() or len(mesh.faces) >= LONG_PLAN_FACES)
     try:
@@ -229,6 +232,10 @@ def run(args: argparse.Namespace) -> int:
               f"coverage {100 * s['coverage']:.1f} % (min {100 * s['coverage_min']:.1f} % at layer "
               f"{s['coverage_min_layer']}), overfill {100 * s['overfill']:.2f} %, mass balance within "
               f"{100 * s['mass_balance_max_error']:.2f} %, about {s['est_time_s'] / 60:.0f} min")
+        ff = s.get("feed_forward")
+        if ff and ff.get("passes_levelled"):
+            print(f"  feed-forward: {ff['passes_levelled']} beads with per-segment speeds; the predicted top's spread "
+                  f"along the beads at most {ff['worst_before_mm']:.2f} mm -> {ff['worst_after_mm']:.2f} mm per layer")
         mach = s.get("machining", {})
         if mach.get("allowance_mm"):
             st = mach["stock_mm"]

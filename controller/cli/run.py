@@ -26,6 +26,7 @@ from typing import Any, Callable
 
 from core.config import CellConfig, load_cell, load_sim
 from controller.cli import guard, runargs
+from controller.cli.pause_prompt import PausePrompt
 from controller.job.model import CellJob
 from controller.job.read import read_job
 from controller.journal.space import check_free_space
@@ -319,6 +320,7 @@ async def _drive(ctl: Any, job: CellJob, run_dir: Path | None, session: Any, sce
         ctl.open_job(job, run_dir)
         ctl.journal.event("mode", json.dumps({"sim": session.simulated}))
         ctl.subscribe(Progress(say))
+        prompt = PausePrompt(ctl, say)   # a pause says why and how to go on, and takes the answer here
         if resume:
             # `cell resume` is the operator's explicit reset: clear what the crash latched on the
             # power source (its watchdog) and flush what the robot still holds queued
@@ -334,6 +336,7 @@ async def _drive(ctl: Any, job: CellJob, run_dir: Path | None, session: Any, sce
         say(f"building {ctl.bus.latest.job_name}: {ctl.bus.latest.layers_total} layers, "
             f"{ctl.bus.latest.passes_total} passes ({ctl.bus.latest.passes_done} already done); run dir {ctl.run_dir}")
         res = await ctl.start()
+        prompt.close()
         for t in tasks:
             t.cancel()
         await ctl.disconnect()

@@ -279,17 +279,25 @@ def _speed_tolerance_pct(job: Job | None) -> float:
     return pct
 
 
-def _speed_deviations(beads: list[dict[str, Any]]) -> list[tuple[float, dict[str, Any]]]:
-    """(measured / planned speed - 1, bead) of each bead with both speeds."""
-    return [(b["speed_measured_mm_min"] / b["speed_planned_mm_min"] - 1.0, b) for b in beads
-            if b.get("speed_measured_mm_min") and b.get("speed_planned_mm_min")]
+def _speed_deviations(beads: list[dict[str, Any]], job: Job | None = None) -> list[tuple[float, dict[str, Any]]]:
+    """(measured / planned speed - 1, bead) of each bead with both speeds. A cell-job/2 bead's
+    measured speed is its pace against the plan's own per-segment timing, as one speed (its length
+    over its planned arc time: bead_measure.Pace), and is compared with that."""
+    out = []
+    for b in beads:
+        if not (b.get("speed_measured_mm_min") and b.get("speed_planned_mm_min")):
+            continue
+        s_per_mm = _planned_s_per_mm(job, b)
+        planned = 60.0 / s_per_mm if s_per_mm else b["speed_planned_mm_min"]
+        out.append((b["speed_measured_mm_min"] / planned - 1.0, b))
+    return out
 
 
 def travel_speed_summary(beads: list[dict[str, Any]], job: Job | None = None) -> dict[str, Any]:
     """How far the measured travel speed strayed from the plan, the beads outside the material's
     `tolerance.speed_pct` (flagged, not defects), the starved beads and the stand-stills."""
     pct = _speed_tolerance_pct(job)
-    devs = _speed_deviations(beads)
+    devs = _speed_deviations(beads, job)
     worst = max((d for d, _ in devs), key=abs) if devs else None
     return {"beads_measured": len(devs), "worst_deviation": _r(worst, 4),
             "within_2pct": bool(devs) and all(abs(d) <= 0.02 for d, _ in devs),

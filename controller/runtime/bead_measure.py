@@ -129,8 +129,18 @@ class Pace:
             self.reached(t, s)
 
     def speed_mm_s(self) -> float | None:
-        """Wall mm/s: the slope over the EXEs (two or more), else from the release to the one EXE."""
-        pts = self.points
+        """Wall mm/s: the slope over the EXEs (two or more), else from the release to the one EXE.
+        With per-move planned speeds the slope is taken of the plan's time to each point instead of
+        its length (how far ahead of or behind its own timing the device ran), as the one speed that
+        would lay the bead in that time: its length over its planned time, times that pace."""
+        if self.plan_s is not None and self.plan_t is not None and len(self.plan_s) >= 2 and self.plan_t[-1] > 0:
+            timed = [(t, self.planned_wall(s, 1.0)) for t, s in self.points]
+            rate = self._slope(timed, (self.t_release, self.planned_wall(self.s_release, 1.0)))
+            return None if rate is None else rate * self.plan_s[-1] / self.plan_t[-1]
+        return self._slope(self.points, (self.t_release, self.s_release))
+
+    def _slope(self, pts: list[tuple[float, float]], release: tuple[float, float]) -> float | None:
+        """d(value)/dt over (wall time, value) reports: the lower envelope's, else end to end."""
         if len(pts) >= 2:
             v = envelope_speed(pts)
             if v is not None:
@@ -140,7 +150,7 @@ class Pace:
             return (s1 - s0) / (t1 - t0) if t1 > t0 and s1 > s0 else None
         if len(pts) == 1:
             t1, s1 = pts[0]
-            dt, ds = t1 - self.t_release, s1 - self.s_release
+            dt, ds = t1 - release[0], s1 - release[1]
             return ds / dt if dt > 0 and ds > 0 else None
         return None
 
