@@ -188,8 +188,10 @@ async def run_gcode(sim: CncSim, line: str) -> list[str]:
         sim._log_block(Block(seq, "G4", line), sim.clock.now())
     if axes or 0 in ms:
         out = await _move(sim, seq, line, mode, words, axes, modes, unit) if axes else []
-        if 0 in ms:
-            sim._push(Block(seq, "M0", line))   # program pause once the motion before it is done
+        if 0 in ms:   # program pause once the motion before it is done; grbl answers `ok` after `~`
+            pause = Block(seq, "M0", line)
+            sim._push(pause)
+            await sim._wait_for(lambda: pause.done and not sim.hold)
         return out
     if modes.motion is not None and modes.motion.startswith("G38"):
         raise GrblError(26)

@@ -13,13 +13,19 @@ import re
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 
+import numpy as np
 import pytest
+import trimesh
 
+from controller.motion.mill import program_lines
+from core.config import load_cell
 from drivers.errors import DeviceError
 from drivers.grbl import CncLink, GrblAxesMissing, GrblError, GrblStopped, ProbeError, SafeStopResult
 from sims.clock import SimClock
 from sims.cnc_sim import CncSim
 from sims.transport import SerialServer
+from planner.dropcutter import ToolShape
+from planner.finish import Cut, Surface, plan_finish
 from tests.peers import firmware
 
 TARGETS = ("sim", "grbl", "grblhal")
@@ -284,3 +290,39 @@ async def test_safe_stop_five_times_figures(target: Target) -> None:
         await link.wait_idle(60)
     print(f"\nsafe stop on {target.name} ({link.firmware}): spindle 0 verified after "
           f"{', '.join(f'{t:.2f}' for t in off)} s; all verified after {', '.join(f'{t:.2f}' for t in done)} s")
+
+
+async def test_a_milling_program_streams_in_spindle_mode_with_its_tool_change(target: Target) -> None:
+    """Issue 36: `$32=0` set and read back, the tool change of the firmware (grblHAL `T1 M6`; grbl 1.1h
+    the `T1 M0` pause and cycle start), then the finishing program: every line `ok`, no alarm."""
+    link = target.link
+    await link.laser_mode(False)
+    assert _settings(await link.command("$$"))[32] == "0"
+    change = "T1 M6" if target.name == "grblhal" else "T1 M0"   # grbl 1.1h has no M6: a programmed pause
+    held = []
+    sent = asyncio.ensure_future(link.command(change, timeout=60))   # grbl's M0 `ok` comes after `~`
+    for _ in range(200):
+        held.append((await link.status()).state)
+        if held[-1].startswith(("Hold", "Tool")):
+            break
+        await asyncio.sleep(0.05)
+    assert held[-1] == ("Tool" if target.name == "grblhal" else "Hold")   # waits for the operator
+    await link.resume()
+    await sent
+    await link.wait_idle(30)
+    await link.command("G43.1 Z0.000")
+    box = trimesh.creation.box(extents=(20, 20, 10))
+    box.apply_translation((0, 0, -5))
+    cutter = load_cell().tools.cutters["flat8"]
+    # the finishing pass alone (grbl-sim takes about 3 s a move, whatever its length)
+    stock = Surface(np.full((9, 9), 0.1), (-2.0, -2.0), 0.5)
+    plan = plan_finish(np.asarray(box.triangles), stock, (-1.0, -1.0, 1.0, 1.0),
+                       Cut("flat8", ToolShape("flat", 4.0), 1.0, 4.0, 3000.0), finish_stock_mm=0.2, clearance_mm=0.5)
+    assert [p.kind for p in plan.passes] == ["finish"]
+    lines = program_lines(plan, np.eye(4), cutter.model_copy(update={"feed_mm_min": 3000.0}), spindle_up_s=0.1)
+    assert any(line.startswith("M3 S") for line in lines) and lines[-1] == "M5"
+    res = await link.stream(lines)
+    assert res.lines == res.acked == len([x for x in lines if not x.startswith("(")])   # comments are not sent
+    st = await link.wait_idle(120)
+    assert st.state == "Idle" and not link.alarms
+    assert _settings(await link.command("$$"))[32] == "0"          # still spindle mode, read back

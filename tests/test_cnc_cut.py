@@ -3,13 +3,13 @@ height map, logged in cut.jsonl; the touch probe reads the cut; a cut with the s
 tool breakage alarm. Driven over its serial bytes by the grbl driver."""
 from __future__ import annotations
 
-import asyncio
 import json
 import math
 
 import pytest
 
 from core.config import Workpiece as WorkpieceConfig, load_cell
+from controller.motion.mill import pause
 from drivers.grbl import CncLink, GrblAlarm, GrblError
 from sims.clock import SimClock
 from sims.cnc_sim import CncSim
@@ -35,13 +35,7 @@ async def mill(tmp_path):
 
 async def _load(link: CncLink, tool: int) -> None:
     """grbl 1.1h: the programmed pause, the operator's tool, cycle start."""
-    await link.command(f"T{tool} M0 (MSG,load T{tool})")
-    for _ in range(100):
-        if (await link.status()).state.startswith("Hold"):
-            break
-        await asyncio.sleep(0.02)
-    await link.resume()
-    await link.wait_idle(10)
+    await pause(link, f"T{tool} M0 (MSG,load T{tool})")
 
 
 async def test_a_turning_ball_cutter_cuts_a_slot_the_probe_then_reads(mill):

@@ -4,8 +4,8 @@
   the alignment transform, each pass `G0` over its start, `G1` down at the plunge feed, `G1` along
   it at the cutter's feed (collinear points merged), `G0` up; the spindle `M3 S<rpm>` with a
   dwell for it to come up to speed, `M5` at the end.
-- `change_tool(link, tools, number)`: grblHAL takes `T<n> M6` and the length from cell.yaml
-  (`G43.1 Z<offset>`); stock grbl 1.1h has no M6: a programmed pause `T<n> M0` with a message for
+- `change_tool(link, tools, number)`: grblHAL takes `T<n> M6` (it waits in state Tool for the
+  cycle start) and the length from cell.yaml (`G43.1 Z<offset>`); stock grbl 1.1h has no M6: a programmed pause `T<n> M0` with a message for
   the operator, cycle start, then the cutter's length measured on the tool setter (`G38.2` down
   onto `tools.setter_mm`) and applied as `G43.1 Z<measured>`. The deposition head with its touch
   probe is the length reference (`G49`).
@@ -55,12 +55,13 @@ def to_machine(points: F, transform: F) -> F:
     return out
 
 
-def program_lines(plan: FinishPlan, transform: F, cutter: Cutter, *, comment: bool = True) -> list[str]:
+def program_lines(plan: FinishPlan, transform: F, cutter: Cutter, *, comment: bool = True,
+                  spindle_up_s: float = SPINDLE_UP_S) -> list[str]:
     """The plan's passes as grbl G-code in the machine frame (tool loaded, its length applied)."""
     tf = np.asarray(transform, dtype=float)
     safe = float((tf @ np.array([0.0, 0.0, plan.safe_z_mm, 1.0]))[2])
     out = [f"(cell finish: {plan.tool}, {len(plan.passes)} passes)"] if comment else []
-    out += ["G90 G21 G94", f"M3 S{cutter.spindle_rpm:.0f}", f"G4 P{SPINDLE_UP_S:g}", f"G0 Z{_f(safe)}"]
+    out += ["G90 G21 G94", f"M3 S{cutter.spindle_rpm:.0f}", f"G4 P{spindle_up_s:g}", f"G0 Z{_f(safe)}"]
     plunge = min(cutter.feed_mm_min, 300.0)
     for p in plan.passes:
         q = _merge_collinear(to_machine(p.points, tf))
@@ -84,12 +85,27 @@ async def _wait_hold(link: CncLinkPort, timeout_s: float = 30.0) -> None:
     t_end = time.monotonic() + timeout_s
     while time.monotonic() < t_end:
         st = await link.status()
-        if st.state.startswith("Hold"):
+        if st.state.startswith(("Hold", "Tool")):   # grbl's pause; grblHAL's manual tool change
             return
         if st.state.startswith("Alarm"):
             raise CellError(f"cnc at {link.url}: alarm during the tool change pause")
         await asyncio.sleep(0.02)
     raise CellError(f"cnc at {link.url}: the tool change pause (M0) was not reached in {timeout_s:g} s")
+
+
+async def pause(link: CncLinkPort, line: str) -> None:
+    """Send a line that pauses (grbl's `M0`, grblHAL's `M6`) and take it through the pause: grbl
+    answers `M0`'s `ok` only after the cycle start, so the line waits in a task while the pause
+    (state Hold or Tool) is awaited and `~` sent."""
+    sent = asyncio.ensure_future(link.command(line, timeout=60.0))
+    try:
+        await _wait_hold(link)
+        await link.resume()
+        await sent
+    finally:
+        if not sent.done():
+            sent.cancel()
+    await link.wait_idle(30.0)
 
 
 async def measure_length(link: CncLinkPort, tools: Tools, clear_z: float) -> float:
@@ -111,16 +127,14 @@ async def change_tool(link: CncLinkPort, tools: Tools, number: int, clear_z: flo
         if c.number == number:
             name, length = n, c.length_offset_mm
     await link.stream(["M5", "G49", f"G0 Z{_f(clear_z)}"])
-    if "hal" in link.firmware.lower():
-        await link.stream([f"T{number} M6", f"G43.1 Z{_f(length)}"])
+    if "hal" in link.firmware.lower():   # grblHAL: `M6` waits in state Tool for the cycle start
+        await pause(link, f"T{number} M6")
+        await link.command(f"G43.1 Z{_f(length)}")
         return length
     # grbl 1.1h: a programmed pause; the operator loads the tool and presses cycle start
     # (unattended: the controller sends it once the pause is reached, docs/machining.md)
     await link.command(f"(MSG,load T{number} {name} then cycle start)")
-    await link.command(f"T{number} M0")
-    await _wait_hold(link)
-    await link.resume()
-    await link.wait_idle(30.0)
+    await pause(link, f"T{number} M0")
     if number != tools.deposition.number:
         length = await measure_length(link, tools, clear_z)
     await link.command(f"G43.1 Z{_f(length)}")
