@@ -28,7 +28,8 @@ from sims.faults import bytes_per_second, parse_fault_spec
 from sims.robot_sim import RobotSim
 from sims.transport import SerialServer
 
-NOISY = "seed=1,corrupt=0.01,drop=0.001"
+NOISY = "seed=1,corrupt=0.01,drop=0.001"            # "1e-2": 1 % of bytes corrupted, 0.1 % dropped
+NOISY_1E3 = "seed=1,corrupt=0.001,drop=0.0001"      # "1e-3": the same mix, ten times rarer
 NOISY_BURST = "seed=1,corrupt=0.01,drop=0.001,burst=32"
 SPEED = 1500.0  # mm/min
 
@@ -37,15 +38,17 @@ class Rig:
     """A robot simulator behind the fault channel and a RobotLink connected to it."""
 
     def __init__(self, spec: str = "", *, time_scale: float = 1000.0, baud: int = 115200,
-                 max_inflight: int | None = None, log_path: Path | None = None, record: bool = True) -> None:
+                 max_inflight: int | None = None, log_path: Path | None = None, record: bool = True,
+                 protocol: int = 2) -> None:
         self.sim = RobotSim(clock=SimClock(time_scale), log_path=log_path, record=record)
         self.server = SerialServer(self.sim, name="robot", spec=parse_fault_spec(spec), baud=baud)
-        self.baud, self.max_inflight = baud, max_inflight
+        self.baud, self.max_inflight, self.protocol = baud, max_inflight, protocol
 
     async def __aenter__(self) -> "Rig":
         self.sim.start()
         url = await self.server.start(None, ephemeral=True)
-        self.link = RobotLink(url, baud=self.baud or 115200, pace=bool(self.baud), max_inflight=self.max_inflight)
+        self.link = RobotLink(url, baud=self.baud or 115200, pace=bool(self.baud), max_inflight=self.max_inflight,
+                              max_protocol=self.protocol)
         await self.link.connect()
         return self
 
@@ -87,7 +90,8 @@ async def stream(rig: Rig, moves: list[tuple]) -> dict:
             "frames_sent": link.stats.frames_sent, "resends": link.stats.resends, "naks": link.stats.naks,
             "robot_crc_errors": rig.sim.crc_errors, "host_crc_errors": link.stats.crc_errors,
             "timeouts": link.stats.timeouts, "rtt_ms_mean": round(link.stats.rtt_ms_mean, 2),
-            "rtt_ms_p99": round(link.stats.rtt_ms_p99, 2)}
+            "rtt_ms_p99": round(link.stats.rtt_ms_p99, 2), "protocol": link.protocol,
+            "robot_duplicates": rig.sim.duplicates, "sacks": link.stats.sacks, "rto_ms_end": round(1000 * link.rto_s, 1)}
 
 
 async def throughput(n: int) -> dict:
@@ -108,13 +112,18 @@ async def throughput(n: int) -> dict:
     return out
 
 
-async def noisy(n: int, clean_bps: float) -> dict:
+NOISY_CASES = (("1e-3", NOISY_1E3, 2), ("1e-2", NOISY, 2), ("1e-2_burst32", NOISY_BURST, 2),
+               ("1e-3_rlp1", NOISY_1E3, 1), ("1e-2_rlp1", NOISY, 1))
+
+
+async def noisy(n: int, clean_bps: float, cases: tuple[tuple[str, str, int], ...] = NOISY_CASES) -> dict:
+    """Each case: (name, fault spec, the protocol the host asks for: 2 selective repeat, 1 go-back-N)."""
     out = {}
-    for name, spec in (("independent", NOISY), ("burst32", NOISY_BURST)):
+    for name, spec, proto in cases:
         with tempfile.TemporaryDirectory() as d:
             log = Path(d) / "robot.jsonl"
             moves = layer(n)
-            async with Rig(spec, time_scale=1000.0, log_path=log) as rig:
+            async with Rig(spec, time_scale=1000.0, log_path=log, protocol=proto) as rig:
                 r = await stream(rig, moves)
             entries = [json.loads(x) for x in log.read_text().splitlines()]
             r["log_equals_plan"] = ([(e["seq"], tuple(e["target"])) for e in entries]
@@ -246,6 +255,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--frames", type=int, default=1_000_000, help="soak length in frames sent")
     ap.add_argument("--baud", type=int, default=1_000_000, help="soak line rate (0: unthrottled)")
     ap.add_argument("--spec", default=NOISY, help="soak fault spec")
+    ap.add_argument("--noisy-only", action="store_true", help="the clean link-limited run and the noisy cases only")
     args = ap.parse_args(argv)
 
     async def run() -> dict:
@@ -253,6 +263,12 @@ def main(argv: list[str]) -> int:
             return {"soak": await soak(args.frames, args.baud, args.spec)}
         n = 2000 if args.quick else 10_000
         res: dict = {"layer_moves": n}
+        if args.noisy_only:
+            async with Rig(time_scale=1000.0) as rig:
+                clean = await stream(rig, layer(n))
+            res["clean_link_limited"] = clean
+            res["noisy"] = await noisy(n, clean["bytes_per_s"])
+            return res
         res["throughput"] = await throughput(n)
         print(json.dumps({"throughput": res["throughput"]}), flush=True)
         clean = res["throughput"]["clean_link_limited"]["bytes_per_s"]
@@ -265,6 +281,9 @@ def main(argv: list[str]) -> int:
 
     res = asyncio.run(run())
     print(json.dumps(res, indent=1))
+    for k, v in res.get("noisy", {}).items():
+        print(f"noisy {k} (RLP/{v['protocol']}): {v['fraction_of_clean']:.1%} of clean, resends {v['resends']}, "
+              f"exactly once: {v['exactly_once_in_order']}, log = plan: {v['log_equals_plan']}")
     t = res.get("throughput")
     if t:
         print(f"clean link, link-limited: {t['clean_link_limited']['line_fraction']:.1%} of 11,520 B/s; "
@@ -272,9 +291,6 @@ def main(argv: list[str]) -> int:
               f"{t['clean_robot_at_90pct']['underruns_before_end']}; send-and-wait: "
               f"{t['send_and_wait_link_limited']['line_fraction']:.1%} (link-limited), "
               f"{t['send_and_wait_robot_at_90pct']['line_fraction']:.1%} (robot at 90 %)")
-        for k, v in res["noisy"].items():
-            print(f"noisy {k}: {v['fraction_of_clean']:.1%} of clean, exactly once: {v['exactly_once_in_order']}, "
-                  f"log = plan: {v['log_equals_plan']}")
         print(f"hold ack: mean {res['hold']['hold_ack_ms_mean']} ms, max {res['hold']['hold_ack_ms_max']} ms; "
               f"link loss detected in {res['link_loss']['detect_s_max']} s (max); replug "
               f"{res['replug']['resumed_from_robot_seq']}/{res['replug']['trials']} resumed, exactly once: "

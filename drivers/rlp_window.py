@@ -3,15 +3,24 @@ window, acknowledgements, execution, retransmission and the adaptive timeout. No
 `RobotLink` calls it from its sender, reader and timer, all on one event loop.
 
 Tickets are unwrapped, monotonically increasing ints whose low 16 bits are the wire sequence
-number. The window is bounded by the robot's queue (credits); ACKs are cumulative; a NAK goes
-back to the NAKed frame at once (go-back-N: the robot discards what follows a bad frame); a
-frame unacknowledged after the retransmission timeout (Jacobson/Karn) is sent again.
+number. The window is bounded by the robot's queue (credits); ACKs are cumulative.
+
+RLP/1 (`selective` False): a NAK goes back to the NAKed frame at once (go-back-N: the robot
+discards what follows a bad frame); a frame unacknowledged after the retransmission timeout
+(Jacobson/Karn) is sent again with everything after it.
+
+RLP/2 (`selective` True, docs/protocols/rlp.md §9): the robot keeps frames that arrive beyond a
+gap and says so (SACK). Only the missing frames are sent again: a gap below a frame the robot
+holds whose copies all left before that frame's first copy is lost (the line keeps the order of
+bytes), a NAK names the lowest gap, and each frame has its own retransmission timeout. Frames
+the robot holds stay in `frames` until the cumulative ACK covers them (a SACK is advice: a robot
+that forgets them, e.g. after a reconnect, gets them again).
 """
 from __future__ import annotations
 
 from collections import deque
 
-from drivers.robot_records import Ack, Exe, Reply, RobotStatus, Sta
+from drivers.robot_records import Ack, Exe, Reply, RobotStatus, Sack, Sta
 from wire import rlp
 
 
@@ -57,6 +66,13 @@ class TicketWindow:
         self.retx: set[int] = set()
         self.aborted_below = 0            # tickets below this and not executed were flushed
         self.max_sent = 0                 # highest ticket ever transmitted (an ACK/EXE above: a lie)
+        # RLP/2, selective repeat
+        self.selective = False
+        self.sacked: set[int] = set()     # held by the robot beyond the cumulative ACK (its last SACK)
+        self.resend: set[int] = set()     # found lost: sent again before any new frame
+        self._serial = 0                  # transmissions so far (the line's order)
+        self.first_tx: dict[int, int] = {}
+        self.last_tx: dict[int, int] = {}
 
     # -- queueing and sending -------------------------------------------------------------------
     def has_room(self) -> bool:
@@ -75,16 +91,37 @@ class TicketWindow:
 
     def take_next(self, max_inflight: int | None, now: float) -> tuple[int, bytes, bool] | None:
         """(ticket, frame, is a resend) to transmit now, or None when the window allows none."""
+        if self.resend:
+            lost = self._take_lost(now)
+            if lost is not None:
+                return lost
         t = self.send_next
         if t >= self.next_ticket or t > self.window_end or (max_inflight and t - self.last_ack > max_inflight):
             return None
         resend = t in self.sent_at
         if resend:
             self.retx.add(t)
-        self.sent_at[t] = now
+        self._stamp(t, now)
         self.send_next = t + 1
         self.max_sent = max(self.max_sent, t)
         return t, self.frames[t], resend
+
+    def _take_lost(self, now: float) -> tuple[int, bytes, bool] | None:
+        """RLP/2: the lowest frame found lost, unless acknowledged or held meanwhile."""
+        while self.resend:
+            t = min(self.resend)
+            self.resend.discard(t)
+            if t > self.last_ack and t not in self.sacked and t in self.frames:
+                self.retx.add(t)
+                self._stamp(t, now)
+                return t, self.frames[t], True
+        return None
+
+    def _stamp(self, t: int, now: float) -> None:
+        self.sent_at[t] = now
+        self._serial += 1
+        self.first_tx.setdefault(t, self._serial)
+        self.last_tx[t] = self._serial
 
     def on_wire(self, t: int, now: float) -> None:
         """Ticket `t` is on the line now: its round trip starts here."""
@@ -92,7 +129,17 @@ class TicketWindow:
             self.sent_at[t] = now
 
     def retransmit_due(self, now: float) -> bool:
-        """The oldest unacknowledged frame timed out: go back to it (True) and back off the timeout."""
+        """The oldest unacknowledged frame timed out: go back to it (True) and back off the timeout.
+        RLP/2: every frame neither acknowledged nor held that timed out is sent again, alone."""
+        if self.selective:
+            due = [t for t in range(self.last_ack + 1, self.send_next)
+                   if t not in self.sacked and t not in self.resend and t in self.frames
+                   and now - self.sent_at.get(t, now) > self.rtt.rto]
+            if not due:
+                return False
+            self.resend.update(due)
+            self.rtt.back_off()
+            return True
         oldest = self.last_ack + 1
         sent = self.sent_at.get(oldest)
         if sent is not None and oldest < self.send_next and now - sent > self.rtt.rto:
@@ -105,6 +152,13 @@ class TicketWindow:
         """Drop every frame not yet acknowledged (before !ABORT or !RESET)."""
         self.frames.clear()
         self.sent_at.clear()
+        self._forget_selective()
+
+    def _forget_selective(self) -> None:
+        self.sacked.clear()
+        self.resend.clear()
+        self.first_tx.clear()
+        self.last_tx.clear()
 
     # -- replies ------------------------------------------------------------------------------
     def acked(self, a: int, now: float) -> None:
@@ -112,12 +166,17 @@ class TicketWindow:
         if a <= self.last_ack or a >= self.next_ticket:
             return
         sent = self.sent_at.get(a)
-        if sent is not None and a not in self.retx:
+        # Karn: a frame sent once; RLP/2: not one the robot held behind a gap (its ACK waited)
+        if sent is not None and a not in self.retx and a not in self.sacked:
             self.rtt.sample(now - sent)
         for t in range(self.last_ack + 1, a + 1):
             self.frames.pop(t, None)
             self.sent_at.pop(t, None)
             self.retx.discard(t)
+            self.sacked.discard(t)
+            self.resend.discard(t)
+            self.first_tx.pop(t, None)
+            self.last_tx.pop(t, None)
         self.last_ack = a
         if self.send_next <= a:
             self.send_next = a + 1
@@ -141,11 +200,41 @@ class TicketWindow:
         self.last_exec = e
         return True
 
-    def on_ack(self, r: Ack, now: float) -> None:
+    def on_ack(self, r: Ack | Sack, now: float) -> bool:
+        """A cumulative ACK (RLP/2: with the ranges the robot holds beyond it); True when frames
+        were found lost (the sender has resends to make)."""
         a = rlp.unwrap(r.seq, self.last_ack)
         self.acked(a, now)
         if a >= self.last_ack:
             self.window_end = max(self.window_end, a + r.credits)
+        if not self.selective:
+            return False
+        # each ACK / SACK is the robot's whole account: what it no longer lists it does not hold
+        held = self._held(a, r.mask, now) if isinstance(r, Sack) else set()
+        self.sacked = held
+        return self._mark_lost()
+
+    def _held(self, a: int, mask: int, now: float) -> set[int]:
+        held = {a + 2 + i for i in range(mask.bit_length()) if mask >> i & 1 and a + 2 + i < self.next_ticket}
+        new = [t for t in held - self.sacked if t not in self.retx and t in self.sent_at]
+        if new:  # a round trip from the newest frame sent once (Karn)
+            t = max(new)
+            self.rtt.sample(now - self.sent_at[t])
+        return held
+
+    def _mark_lost(self) -> bool:
+        """A gap below a held frame whose every copy left before that frame's first copy is lost:
+        the line delivers bytes in order. True when any was found."""
+        if not self.sacked:
+            return False
+        evidence, found = -1, False
+        for t in range(max(self.sacked), self.last_ack, -1):
+            if t in self.sacked:
+                evidence = max(evidence, self.first_tx.get(t, -1))
+            elif t not in self.resend and self.last_tx.get(t, evidence) < evidence:
+                self.resend.add(t)
+                found = True
+        return found
 
     def on_nak(self, seq: int, reason: str, now: float) -> bool:
         """True when the sender must go back to the NAKed frame at once."""
@@ -157,6 +246,11 @@ class TicketWindow:
         # a NAK sooner than a round trip after x's last transmission is about an earlier one
         min_rtt = self.rtt.min_rtt
         fresh = sent is None or min_rtt is None or now - sent >= 0.7 * min_rtt
+        if self.selective:  # RLP/2: x is the lowest gap; send it (alone) again
+            if x == self.last_ack + 1 and x < self.send_next and fresh and x not in self.sacked and x not in self.resend:
+                self.resend.add(x)
+                return True
+            return False
         if x == self.last_ack + 1 and x < self.send_next and fresh:
             self.send_next = x
             return True
@@ -176,10 +270,13 @@ class TicketWindow:
         `frames_lost`: a bad frame arrived since the last ACK (the next EXE may be an implicit
         ACK); `paused`: transmission paused (resynchronising), when replies may lag behind.
         """
-        if isinstance(r, Ack):
+        if isinstance(r, (Ack, Sack)):
             a = rlp.unwrap(r.seq, self.last_ack)
             if a > self.max_sent:
                 return f"ACK {r.seq:04X} for ticket {a}, never sent (last sent {self.max_sent})"
+            if isinstance(r, Sack) and a + 1 + r.mask.bit_length() > self.max_sent:
+                return (f"SACK {r.seq:04X} holds ticket {a + 1 + r.mask.bit_length()}, never sent "
+                        f"(last sent {self.max_sent})")
         elif isinstance(r, Exe):
             e = rlp.unwrap(r.seq, self.last_exec)
             if e > self.max_sent:
@@ -220,6 +317,7 @@ class TicketWindow:
             self.frames.pop(t)
             self.sent_at.pop(t, None)
         self.retx.clear()
+        self._forget_selective()
         self.last_ack = rx_t
         self.last_exec = exec_t
         self.next_ticket = max(self.next_ticket if self.history else 0, rx_t + 1)

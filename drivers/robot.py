@@ -1,10 +1,11 @@
-"""RobotLink: the asyncio host side of RLP/1 (DESIGN.md §5, docs/protocols/rlp.md).
+"""RobotLink: the asyncio host side of RLP/1 and RLP/2 (DESIGN.md §5, docs/protocols/rlp.md).
 
 Moves are numbered with *tickets*: unwrapped, monotonically increasing ints whose low 16 bits
 are the wire sequence number, so a job of any length is journaled unambiguously. The link keeps
-a sliding window bounded by the robot's queue (credits), takes cumulative ACKs, goes back to the
-NAKed frame at once (go-back-N, as the robot discards what follows a bad frame), retransmits on
-an adaptive timeout (Jacobson/Karn), sends control frames ahead of the queue, watches the
+a sliding window bounded by the robot's queue (credits), takes cumulative ACKs, negotiates the
+protocol at connect (`!PROTO 2`): with an RLP/2 robot it sends again only the frames lost
+(selective repeat, drivers/rlp_window.py), with an RLP/1 robot it goes back to the NAKed frame
+(go-back-N); it retransmits on an adaptive timeout (Jacobson/Karn), sends control frames ahead of the queue, watches the
 heartbeat (link lost after `link_timeout_s` of silence or when the port closes), and after a
 reconnect resynchronises from the robot's last received / last executed sequence numbers.
 
@@ -15,70 +16,22 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections import deque
-from typing import AsyncIterator, Callable
+from typing import Callable
 
 from wire import rlp
 from drivers.errors import DeviceError, DeviceTimeout, LinkLost
-from drivers.liveness import LinkLiveness
-from drivers.rlp_window import RtoEstimator, TicketWindow
-from drivers.robot_guard import GARBLED_RUN, MAX_HB_PER_READ, MAX_OWN_PER_READ, SUSPECT_S, FloodMeter, split_lines
-from drivers.robot_records import (Ack, Err, EventHub, Exe, Hb, LinkStats, Mrk, Nak, Reply, RobotEvent, RobotStatus, Sta,
-                                   decode_reply)
+from drivers.rlp_hello import negotiate
+from drivers.robot_guard import MAX_HB_PER_READ, MAX_OWN_PER_READ, split_lines
+from drivers.robot_records import LinkStats, RobotEvent, RobotStatus, Sta
+from drivers.robot_rx import HOLD_FRAME, RobotLinkState
 from drivers.serial_async import SerialPort
-from drivers.waiting import Changes
 
 __all__ = ["LinkStats", "RobotEvent", "RobotLink", "RobotStatus"]  # its records are part of its interface (ports.py)
 
-_HOLD_FRAME = rlp.encode("!HOLD")
 
-
-class RobotLink(LinkLiveness[LinkStats]):
-    """The robot link driver, all coroutines on one loop; heard / late (SUSPECT_S) / lost (`link_timeout_s`) by LinkLiveness."""
-
-    TICK_S = 0.02  # retransmit / link-loss / keepalive check period
-
-    def __init__(self, url: str, *, baud: int = 115200, link_timeout_s: float = 3.0, name: str = "robot",
-                 pace: bool = True, max_inflight: int | None = None, auto_reconnect: bool = True,
-                 keepalive_s: float = 0.5, control_timeout_s: float = 0.25,
-                 rto_min_s: float = 0.1, rto_max_s: float = 1.0, line_scale: float = 1.0) -> None:
-        super().__init__(LinkStats(), lost_after_s=link_timeout_s, late_after_s=min(SUSPECT_S, link_timeout_s))
-        self.url = url
-        self.baud = baud
-        # a simulated line at time scale k carries k times the bytes per wall second (DESIGN.md §6):
-        # pace the writes at that rate, or the host, not the line, starves the bead
-        self.line_scale = line_scale
-        self.name = name
-        self.pace = pace
-        self.max_inflight = max_inflight   # 1: send-and-wait (the benchmark's baseline)
-        self.auto_reconnect = auto_reconnect
-        self.keepalive_s = keepalive_s
-        self.control_timeout_s = control_timeout_s
-        self.last_status: RobotStatus | None = None
-        self.fault: str | None = None
-        self._w = TicketWindow(RtoEstimator(rto_min_s, rto_max_s, self.stats.rtt_s))
-        self._rx_t: float | None = None     # arrival time of the chunk being parsed
-        self._port: SerialPort | None = None
-        self._connected = False
-        self._ready = False                # connected and resynchronised
-        self._closing = False
-        self._ctrl: deque[bytes] = deque()
-        self._tx_paused = False
-        self._last_tx = 0.0
-        self._kick = asyncio.Event()
-        self._changes = Changes(f"{name} at {url}")
-        self._tasks: list[asyncio.Task[None]] = []
-        self._reconnect_task: asyncio.Task[None] | None = None
-        self._ctrl_lock = asyncio.Lock()
-        self._events = EventHub()
-        self._lost: LinkLost | None = None
-        self._sta_seen: Sta | None = None
-        self._bad_at_ack = 0               # bad frames received up to the last ACK
-        self._flood = FloodMeter()
-        self.protocol_fault: str | None = None  # latched: holds motion until reset()
-        self._suspect_held = False         # we wrote !HOLD because the robot went quiet
-        self.held_at: float | None = None  # monotonic time the link itself last wrote !HOLD
-        self.hold_tx: deque[float] = deque(maxlen=16)  # !HOLD frames on the line (a blind cut is timed to the first)
+class RobotLink(RobotLinkState):
+    """The robot link driver, all coroutines on one loop; heard / late (SUSPECT_S) / lost (`link_timeout_s`) by LinkLiveness.
+    Constructor: drivers/robot_rx.py (RobotLinkState)."""
 
     @property
     def max_sent(self) -> int:
@@ -115,20 +68,6 @@ class RobotLink(LinkLiveness[LinkStats]):
     def rto_s(self) -> float:
         return self._w.rtt.rto
 
-    # -- events ---------------------------------------------------------------------------------
-    def on_event(self, fn: Callable[[RobotEvent], None]) -> None:
-        """Call `fn(event)` for every event (EXE, MRK, ERR, HB, STA, link_lost, link_restored)."""
-        self._events.add(fn)
-
-    def events(self) -> AsyncIterator[RobotEvent]:
-        """Async iterator over events from now on."""
-        return self._events.stream()
-
-    def _emit(self, kind: str, ticket: int | None = None, value: object = None, text: str = "") -> None:
-        if self._events.listening:
-            # a reply's event carries when its bytes arrived (the EXEs time the robot's pace)
-            self._events.emit(RobotEvent(kind, ticket, value, text, self._rx_t or time.monotonic()))
-
     # -- connection -----------------------------------------------------------------------------
     async def connect(self, resume_ticket: int | None = None) -> RobotStatus:
         """Open the port, ask `!STATUS`, resynchronise the next ticket from the robot's last_rx.
@@ -159,6 +98,7 @@ class RobotLink(LinkLiveness[LinkStats]):
         if lost_moves is not None:
             self.fault = lost_moves
         status = self._set_status(st)
+        await self._negotiate()
         self._tx_paused = self.protocol_fault is not None
         self._ready = True
         self._kick.set()
@@ -166,6 +106,20 @@ class RobotLink(LinkLiveness[LinkStats]):
         if self.fault and "lost queued moves" in self.fault:
             raise DeviceError(f"{self.name} at {self.url}: {self.fault}")
         return status
+
+    async def _negotiate(self) -> None:
+        def send(frame: bytes) -> None:
+            self._ctrl.append(frame)
+            self._kick.set()
+
+        async def wait(pred: Callable[[], bool], timeout: float) -> None:
+            await self._wait(pred, timeout, "!PROTO")
+
+        version = await negotiate(self._hello, self.max_protocol, send, wait,
+                                  max(self.control_timeout_s, 4 * (self._w.rtt.srtt or 0.0)))
+        self._w.selective = version >= 2
+        self._w.rtt.rto_min_s, self._w.rtt.rto_max_s = self._bounds(version)
+        self.stats.protocol = version
 
     async def close(self) -> None:
         """Close the port and stop background tasks (no reconnect)."""
@@ -344,7 +298,7 @@ class RobotLink(LinkLiveness[LinkStats]):
                         self.stats.resends += resend
                     await port.write(data)  # waits for the line (pacing)
                     self._last_tx = time.monotonic()
-                    if t is None and data == _HOLD_FRAME:
+                    if t is None and data == HOLD_FRAME:
                         self.hold_tx.append(self._last_tx)
                     if t is not None:
                         self._w.on_wire(t, self._last_tx)  # on the wire now: the RTT starts here
@@ -383,6 +337,7 @@ class RobotLink(LinkLiveness[LinkStats]):
             if self._port is port:
                 await self._drop(exc.reason)
 
+
     async def _timer(self) -> None:
         while self._connected:
             await asyncio.sleep(self.TICK_S)
@@ -392,7 +347,7 @@ class RobotLink(LinkLiveness[LinkStats]):
                 # hear us and it must not go on depositing blind); lost at link_timeout_s
                 self._suspect_held = True
                 self.held_at = now
-                self._ctrl.appendleft(_HOLD_FRAME)
+                self._ctrl.appendleft(HOLD_FRAME)
                 self._kick.set()
             if self._lost_due(now, margin_s=self.TICK_S):  # lost within link_timeout_s
                 await self._lost_silent()
@@ -412,89 +367,9 @@ class RobotLink(LinkLiveness[LinkStats]):
         port = self._port
         if port is not None:
             try:
-                await asyncio.wait_for(port.write(_HOLD_FRAME), 0.1)
+                await asyncio.wait_for(port.write(HOLD_FRAME), 0.1)
                 await asyncio.sleep(0.05)  # on the line before the port closes
             except Exception:  # the port may be gone already: the drop follows either way
                 pass
         await self._drop(f"no valid frame for {self.link_timeout_s:.1f} s")
 
-    # -- receiving ----------------------------------------------------------------------------------
-    def _on_line(self, line: bytes) -> None:
-        r = self._decode(line)
-        if r is None:
-            return
-        if not isinstance(r, Hb):
-            fault = self._w.implausible(r, frames_lost=self.stats.crc_errors + self.stats.bad_frames > self._bad_at_ack,
-                                        paused=self._tx_paused)
-            if fault is not None:
-                if isinstance(r, Exe) and self._w.retract(rlp.unwrap(r.seq, self._w.last_exec)):
-                    self._emit("RETRACT", ticket=self._w.last_exec)  # a lie taken back (RlpWindow.retract)
-                self._protocol(fault)
-                return
-            self._heard()  # heard: a valid frame that fits what was sent
-            if self._suspect_held and self.protocol_fault is None:
-                self._suspect_held = False  # it speaks again: release the hold we wrote
-                self._ctrl.append(rlp.encode("!GO"))
-        self._dispatch(r)
-
-    def _dispatch(self, r: Reply) -> None:
-        now = time.monotonic()
-        if isinstance(r, Ack):
-            self._bad_at_ack = self.stats.crc_errors + self.stats.bad_frames
-            self._w.on_ack(r, now)
-        elif isinstance(r, Exe):
-            self._executed(self._w.executed(rlp.unwrap(r.seq, self._w.last_exec)))
-        elif isinstance(r, Nak):
-            self.stats.naks += 1
-            self.stats.naks_by_reason[r.reason] = self.stats.naks_by_reason.get(r.reason, 0) + 1
-            if self._w.on_nak(r.seq, r.reason, now):
-                self._kick.set()
-        elif isinstance(r, Sta):
-            self._sta_seen = r
-            if not self._tx_paused:
-                self._executed(self._w.on_sta(r, now))
-            self._emit("STA", value=r)
-        elif isinstance(r, Hb):
-            self._emit("HB", value=r.n)
-        elif isinstance(r, Mrk):
-            self._emit("MRK", value=r.n)
-        elif isinstance(r, Err):
-            self.fault = f"ERR {r.code} {r.text}"
-            self._emit("ERR", value=r.code, text=r.text)
-
-    def _decode(self, line: bytes) -> Reply | None:
-        """The reply in a line, or None (counted; a run of bad frames is a protocol fault)."""
-        try:
-            r = decode_reply(line)
-        except rlp.FrameError as exc:
-            if exc.reason == "CRC":
-                self.stats.crc_errors += 1
-            else:
-                self.stats.bad_frames += 1
-            run = self._bad()
-            if run >= GARBLED_RUN and self.protocol_fault is None:
-                self._protocol(f"{run} bad frames in a row (garbled replies)")
-            return None
-        self._valid()
-        self.stats.frames_received += 1
-        return r
-
-    def _protocol(self, text: str) -> None:
-        """Latch a protocol fault: no more moves, `!HOLD` at once, tell the controller (ERR)."""
-        self.stats.protocol_faults += 1
-        if self.protocol_fault is not None:
-            return
-        self.protocol_fault = text
-        self.fault = f"protocol fault: {text}"
-        self._tx_paused = True
-        self.held_at = time.monotonic()
-        self._ctrl.appendleft(_HOLD_FRAME)
-        self._kick.set()
-        self._changes.notify()
-        self._emit("ERR", value="PROTOCOL", text=f"protocol fault: {text}")
-
-    def _executed(self, tickets: range) -> None:
-        """Report the newly executed tickets (EXE events)."""
-        if tickets and self._events.listening:
-            for t in tickets:
-                self._emit("EXE", ticket=t)

@@ -88,6 +88,8 @@ class LinkStats(LinkHealth):
     bad_frames: int = 0      # robot frames with a bad syntax
     naks: int = 0            # NAKs received from the robot
     naks_by_reason: dict[str, int] = field(default_factory=dict)
+    sacks: int = 0           # RLP/2 SACK frames received (the robot held frames beyond a gap)
+    protocol: int = 1        # the RLP version negotiated at the last connect
     reconnects: int = 0
     heartbeats: int = 0      # HB-looking lines received (a flood counts every one)
     hb_skipped: int = 0      # of those, not decoded (over the per-read bound)
@@ -98,6 +100,7 @@ class LinkStats(LinkHealth):
                 "bytes_sent": self.bytes_sent, "bytes_received": self.bytes_received,
                 "resends": self.resends, "timeouts": self.timeouts, "crc_errors": self.crc_errors,
                 "bad_frames": self.bad_frames, "naks": self.naks, "naks_by_reason": dict(self.naks_by_reason),
+                "sacks": self.sacks, "protocol": self.protocol,
                 "reconnects": self.reconnects, "heartbeats": self.heartbeats, "hb_skipped": self.hb_skipped,
                 "protocol_faults": self.protocol_faults, **super().as_dict()}
 
@@ -109,6 +112,22 @@ class LinkStats(LinkHealth):
 class Ack:
     seq: int
     credits: int
+
+
+@dataclass(frozen=True)
+class Sack:
+    """RLP/2: a cumulative ACK of `seq`; bit i of `mask` set = frame seq + 2 + i is held."""
+
+    seq: int
+    credits: int
+    mask: int
+
+
+@dataclass(frozen=True)
+class Proto:
+    """RLP/2 negotiation: the protocol version the robot now speaks on this link."""
+
+    version: int
 
 
 @dataclass(frozen=True)
@@ -147,7 +166,7 @@ class Err:
     text: str
 
 
-Reply = Ack | Nak | Exe | Sta | Mrk | Hb | Err
+Reply = Ack | Sack | Proto | Nak | Exe | Sta | Mrk | Hb | Err
 
 
 def _need(v: V | None, kind: str, name: str) -> V:
@@ -161,6 +180,10 @@ def typed_reply(r: rlp.Reply) -> Reply:
     k = r.kind
     if k == "ACK":
         return Ack(_need(r.seq, k, "seq"), _need(r.credits, k, "credits"))
+    if k == "SACK":
+        return Sack(_need(r.seq, k, "seq"), _need(r.credits, k, "credits"), _need(r.mask, k, "mask"))
+    if k == "PROTO":
+        return Proto(_need(r.n, k, "version"))
     if k == "NAK":
         return Nak(_need(r.seq, k, "seq"), _need(r.reason, k, "reason"))
     if k == "EXE":

@@ -1,6 +1,7 @@
-"""Robot simulator: the robot side of RLP/1 (DESIGN.md §5, docs/protocols/rlp.md).
+"""Robot simulator: the robot side of RLP/1 and RLP/2 (DESIGN.md §5, docs/protocols/rlp.md).
 
-Checks every frame (CRC, syntax, sequence), keeps a bounded motion queue, executes the moves in
+Checks every frame (CRC, syntax, sequence), keeps a bounded motion queue (RLP/2, once a host asks
+for it with `!PROTO 2`: also the frames that arrive beyond a gap, reported by SACK, §9), executes the moves in
 simulated time (SimClock) at the commanded speed, answers ACK / NAK / EXE / MRK / ERR / STA and a
 heartbeat every second, holds motion after 3 s of silence, reports torch motion to the World and
 appends every executed queue entry to `robot.jsonl` ({"seq", "verb", "target", "t"}, §6a). Its
@@ -54,7 +55,8 @@ class RobotSim:
                  workspace: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None,
                  home: tuple[float, float, float] = (0.0, 0.0, 0.0), tick_s: float = 0.002,
                  record: bool = False, faults: FaultSpec | None = None,
-                 fault_log: str | Path | None = None, line_rate: float | None = None) -> None:
+                 fault_log: str | Path | None = None, line_rate: float | None = None,
+                 max_protocol: int = 2) -> None:
         self.clock = clock
         self.world = world
         self.slots = queue_slots
@@ -71,6 +73,9 @@ class RobotSim:
         self.waiting = False
         self.fault = False
         self.discarding = False
+        self.max_protocol = max_protocol      # 1: a robot that speaks only RLP/1 (rejects !PROTO)
+        self.proto = 1                        # in force on this connection (RLP/1 until a host asks)
+        self.ahead: dict[int, rlp.Move] = {}  # RLP/2: frames received beyond a gap, by seq
         self.held_at: float | None = None    # monotonic time of the latest !HOLD (tests: arc first)
         self.executed: list[int] | None = [] if record else None  # wire seqs, in execution order
         # counters
@@ -140,6 +145,7 @@ class RobotSim:
         self._write = write
         self._splitter = rlp.LineSplitter()
         self._last_heard = time.monotonic()
+        self._speak(1)  # a new connection: RLP/1 until its host asks for more
 
     def detach(self) -> None:
         self._write = None
@@ -149,8 +155,7 @@ class RobotSim:
         for line in self._splitter.feed(data):
             self._line(line)
         if self._ack_due:  # one cumulative ACK per received chunk keeps the return line free
-            self._ack_due = False
-            self._send(rlp.ack(self.last_rx, self.free_slots()))
+            self._acknowledge()
 
     # -- receiving --------------------------------------------------------------------------------
     def _send(self, body: str) -> None:
@@ -159,12 +164,26 @@ class RobotSim:
             if data:
                 self._write(data)
 
+    def _acknowledge(self) -> None:
+        """ACK last_rx credits; RLP/2 with frames kept beyond a gap: SACK with their ranges."""
+        self._ack_due = False
+        free = self.free_slots()
+        if self.ahead:  # bit i: frame last_rx + 2 + i (last_rx + 1 is the gap)
+            mask = sum(1 << (rlp.seq_diff(s, self.last_rx) - 2) for s in self.ahead)
+            self._send(rlp.sack(self.last_rx, free, mask))
+        else:
+            self._send(rlp.ack(self.last_rx, free))
+
+    def _speak(self, version: int) -> None:
+        self.proto = version
+        if version < 2:
+            self.ahead.clear()  # a host that speaks RLP/1 sends them again
+
     def _nak(self, reason: str) -> None:
         self.naks += 1
         self.discarding = True
         if self._ack_due:  # what was accepted before the bad frame is acknowledged first
-            self._ack_due = False
-            self._send(rlp.ack(self.last_rx, self.free_slots()))
+            self._acknowledge()
         self._send(rlp.nak(self.expected, reason))
 
     def _line(self, line: bytes) -> None:
@@ -180,7 +199,13 @@ class RobotSim:
             self._nak(exc.reason)
             return
         if isinstance(msg, str):
-            self._control(msg)
+            if msg.startswith("PROTO"):
+                self._negotiate(int(msg.split(" ")[1]))
+            else:
+                self._control(msg)
+            return
+        if self.proto >= 2:
+            self._receive_selective(msg)
             return
         d = rlp.seq_diff(msg.seq, self.expected)
         if d == 0:
@@ -198,6 +223,33 @@ class RobotSim:
             self._nak("SEQ")
         # else: discarding until the expected seq arrives
 
+    def _negotiate(self, version: int) -> None:
+        """`!PROTO n`: answer `PROTO m` (m ≤ n); a robot that speaks only RLP/1 rejects it as any
+        unknown control frame (NAK SYNTAX)."""
+        if self.max_protocol < 2:
+            self.syntax_errors += 1
+            self._nak("SYNTAX")
+            return
+        self._speak(max(1, min(version, self.max_protocol)))
+        self._send(rlp.proto(self.proto))
+
+    def _receive_selective(self, msg: rlp.Move) -> None:
+        """RLP/2: a frame at or beyond the expected one is kept (within the credits) and the queue
+        takes the run that is complete; a duplicate is acknowledged again, never queued twice."""
+        self._ack_due = True
+        d = rlp.seq_diff(msg.seq, self.last_rx)
+        if d <= 0 or msg.seq in self.ahead:
+            self.duplicates += 1
+            return
+        if d > self.free_slots():
+            self._nak("FULL")
+            return
+        self.ahead[msg.seq] = msg
+        while self.expected in self.ahead:
+            self.queue.append(self.ahead.pop(self.expected))
+            self.last_rx = self.expected
+        self.discarding = False
+
     def _control(self, verb: str) -> None:
         if verb == "HOLD":
             self.held, self.held_at = True, time.monotonic()
@@ -210,24 +262,27 @@ class RobotSim:
         elif verb == "ABORT":
             self.queue.clear()
             self.phantom = self.phantom_on_abort
+            self.ahead.clear()
             self.held = self.silence_held = self.waiting = False
             self._stopped()
         elif verb == "RESET":
             self.queue.clear()
             self.phantom = 0
+            self.ahead.clear()
             self.held = self.silence_held = self.waiting = self.fault = False
             self.discarding = False
             self.last_rx = self.last_exec = 0
             self._stopped()
         self.send_status()
 
-    def _flush_exe(self) -> None:
+    def flush_exe(self) -> None:
+        """Send the EXE due (one cumulative EXE per executor tick)."""
         if self._exe_due is not None:
             self._send(rlp.exe(self._exe_due))
             self._exe_due = None
 
     def send_status(self) -> None:
-        self._flush_exe()
+        self.flush_exe()
         self._send(rlp.sta(self.state, self.last_rx, self.last_exec, self.free_slots(), self.pos))
 
     # -- execution --------------------------------------------------------------------------------
@@ -281,7 +336,7 @@ class RobotSim:
             self.waiting = True
             return None
         if m.verb == "MARK":
-            self._flush_exe()
+            self.flush_exe()
             self._send(f"MRK {m.mark}")
             self._finish(m, t)
             return t
@@ -336,7 +391,7 @@ class RobotSim:
             deadline = time.perf_counter() + self.WORK_BUDGET_S
             if was:
                 reached = self.advance(last, now, deadline)
-                self._flush_exe()
+                self.flush_exe()
             # deferred beads in what is left of the budget, and never past the head move's end
             # (its EXE leaves on time); more on the next pass of the loop
             if self._next_finish is not None:
@@ -359,9 +414,11 @@ class RobotSim:
                 next_hb = now + self.heartbeat_s
                 self.hb += 1
                 self._send(f"HB {self.hb}")
-            if now - self._last_heard > self.link_timeout_s and not self.held and self.queue:
-                self.held = self.silence_held = True  # silence over 3 s holds motion
-                self._stopped()
+            if now - self._last_heard > self.link_timeout_s:
+                self._speak(1)  # the host is gone: the next one negotiates again
+                if not self.held and self.queue:
+                    self.held = self.silence_held = True  # silence over 3 s holds motion
+                    self._stopped()
 
 
 async def serve(ctx: SimContext) -> list[Served]:
@@ -376,4 +433,4 @@ async def serve(ctx: SimContext) -> list[Served]:
                    workspace=(lim.workspace_min_mm, lim.workspace_max_mm),
                    faults=spec, fault_log=(Path(ctx.log_dir) / "faults.jsonl") if ctx.log_dir else None,
                    line_rate=dev.baud / 10.0)
-    return await serve_serial(sim, DEVICE, dev, ctx, spec, {"protocol": "RLP/1"})
+    return await serve_serial(sim, DEVICE, dev, ctx, spec, {"protocol": "RLP/2 (RLP/1 on request)"})

@@ -3,7 +3,8 @@
 A frame is one ASCII line `BODY *CCCCCCCC\\n`, CCCCCCCC the CRC-32 (zlib) of BODY as 8
 upper-case hex digits. Host data frames are `SSSS VERB ARGS` (SSSS: 16-bit upper-case hex
 sequence number, wrapping FFFF -> 0000); control frames start with `!`. Robot frames are
-ACK, NAK, EXE, MRK, ERR, HB and STA. Number formats (docs/protocols/rlp.md): mm with exactly
+ACK, NAK, EXE, MRK, ERR, HB and STA; after `!PROTO 2` (RLP/2, docs/protocols/rlp.md §9) also
+`SACK` and `PROTO`. Number formats (docs/protocols/rlp.md): mm with exactly
 3 decimals, tool-axis components and speed as integers when integral, else up to 6 / 3
 decimals.
 """
@@ -18,6 +19,8 @@ SEQ_MOD = 1 << 16
 MOTION_VERBS = ("MOVJ", "MOVL")
 QUEUE_VERBS = ("MOVJ", "MOVL", "WAIT", "MARK")
 CONTROL_VERBS = ("HOLD", "GO", "ABORT", "RESET", "STATUS")
+PROTOCOLS = (1, 2)   # RLP/1 (go-back-N) and RLP/2 (selective repeat), negotiated by `!PROTO n`
+SACK_SPAN = 128     # a SACK's mask covers the frames last_rx + 2 .. last_rx + 1 + SACK_SPAN
 STATES = ("IDLE", "RUN", "WAIT", "HOLD", "FAULT")
 NAK_REASONS = ("CRC", "SEQ", "FULL", "SYNTAX")
 MAX_LINE = 200  # a longer line is garbage (a lost newline merged frames): SYNTAX
@@ -26,6 +29,8 @@ _NUM = r"-?\d+(?:\.\d+)?"
 _NUM_RE = re.compile(rf"^{_NUM}$")
 _SEQ_RE = re.compile(r"^[0-9A-F]{4}$")
 _CRC_RE = re.compile(rb"^(.*) \*([0-9A-F]{8})$")
+_PROTO_RE = re.compile(r"^PROTO [1-9][0-9]{0,2}$")
+_MASK_RE = re.compile(r"^[0-9A-F]{1,32}$")
 
 
 class FrameError(ValueError):
@@ -160,6 +165,8 @@ def parse_host(body: str) -> Move | str:
     """A host body as a Move, or the control verb (`HOLD`, ...) of a `!` frame; FrameError(SYNTAX)."""
     if body.startswith("!"):
         verb = body[1:]
+        if _PROTO_RE.match(verb):
+            return verb  # "PROTO n": the host asks for protocol version n (RLP/2 §9)
         if verb not in CONTROL_VERBS:
             raise FrameError("SYNTAX", f"unknown control frame {body!r}")
         return verb
@@ -201,6 +208,7 @@ class Reply:
     last_exec: int | None = None
     queue_free: int | None = None
     pos: tuple[float, float, float] | None = None
+    mask: int | None = None   # SACK: bit i set = frame seq + 2 + i is held
 
 
 def ack(seq: int, credits: int) -> str:
@@ -209,6 +217,16 @@ def ack(seq: int, credits: int) -> str:
 
 def nak(seq: int, reason: str) -> str:
     return f"NAK {seq_hex(seq)} {reason}"
+
+
+def sack(seq: int, credits: int, mask: int) -> str:
+    """RLP/2: cumulative ACK of `seq` and the frames held beyond the gap after it: bit i of
+    `mask` (upper-case hex, no leading zeros) is frame seq + 2 + i (seq + 1 is the one missing)."""
+    return f"SACK {seq_hex(seq)} {credits} {mask & ((1 << SACK_SPAN) - 1):X}"
+
+
+def proto(version: int) -> str:
+    return f"PROTO {version}"
 
 
 def exe(seq: int) -> str:
@@ -222,6 +240,18 @@ def sta(state: str, last_rx: int, last_exec: int, queue_free: int, pos: tuple[fl
 def _reply_ack(tok: list[str]) -> Reply | None:
     if len(tok) == 3 and _SEQ_RE.match(tok[1]):
         return Reply("ACK", seq=int(tok[1], 16), credits=int(tok[2]))
+    return None
+
+
+def _reply_sack(tok: list[str]) -> Reply | None:
+    if len(tok) == 4 and _SEQ_RE.match(tok[1]) and _MASK_RE.match(tok[3]):
+        return Reply("SACK", seq=int(tok[1], 16), credits=int(tok[2]), mask=int(tok[3], 16))
+    return None
+
+
+def _reply_proto(tok: list[str]) -> Reply | None:
+    if len(tok) == 2 and tok[1].isdigit():
+        return Reply("PROTO", n=int(tok[1]))
     return None
 
 
@@ -260,7 +290,7 @@ def _reply_sta(tok: list[str]) -> Reply | None:
 # reply kind -> its parser (None: the tokens do not make that reply)
 _REPLY_PARSERS: dict[str, Callable[[list[str]], Reply | None]] = {
     "ACK": _reply_ack, "NAK": _reply_nak, "EXE": _reply_exe, "MRK": _reply_count, "HB": _reply_count,
-    "ERR": _reply_err, "STA": _reply_sta,
+    "ERR": _reply_err, "STA": _reply_sta, "SACK": _reply_sack, "PROTO": _reply_proto,
 }
 
 
