@@ -25,6 +25,7 @@ from sims.clock import SimClock
 from sims.cnc_block import DEVICE, Block, GrblError, Pos5, pos5
 from sims.cnc_gcode import run_gcode
 from sims.cnc_motion import move_block
+from sims.cnc_freeze import Freeze
 from sims.cnc_system import DEFAULT_SETTINGS, VERSION, system_command
 from sims.faults import parse_fault_spec
 from sims.cnc_cut import Breakage, Spindle, sim_tools, use_deposit_map
@@ -80,7 +81,7 @@ class CncSim:
         self.starved = 0          # times the planner ran empty while lines were still arriving
         self._rx = bytearray()
         self.hung = False    # a firmware whose main loop stopped reading its input (tests set it)
-        self.freeze: tuple[str, float] | None = None  # fault `freeze@t=`/`@move=`: Run, no motion
+        self.freeze = Freeze(self)   # fault `freeze@t=`/`@move=`/...: Run, no motion (sims/cnc_freeze.py)
         self._t0 = time.monotonic()
         self._line: list[str] = []
         self._overflow = False
@@ -362,6 +363,8 @@ class CncSim:
     async def _home(self) -> None:
         self.homing = True
         self._notify()
+        if self.freeze.homing():
+            await asyncio.Event().wait()   # fault: the homing cycle never finishes (a reset ends it)
         dist = max(abs(a - b) for a, b in zip(self.pos, self.home))
         seek = float(self.settings[25]) / 60.0
         await asyncio.sleep(self.clock.wall(dist / seek + 2 * float(self.settings[27]) / seek))
@@ -411,8 +414,7 @@ class CncSim:
 
     def advance(self, t: float, now: float) -> None:
         """Execute queued blocks over simulated time [t, now] (every block due: grbl's planner has its own CPU)."""
-        if self.freeze is not None and (time.monotonic() - self._t0 if self.freeze[0] == "t"
-                                        else self.executed_count) >= self.freeze[1]:
+        if self.freeze.on(self._current()):
             return  # fault: reports Run with lines queued, never moves
         while t < now and self._queue and not self.alarm and not (self.hold and self.hold_sub == 0):
             b = self._queue[0]
@@ -426,6 +428,8 @@ class CncSim:
                     self.spindle.load_selected()
                     self._notify()
                 continue
+            if self.freeze.starting(b):
+                return   # the travel or probing move of `freeze@travel/probe=N` never starts
             done = move_block(self, b, b.target, t, now)
             if done is None:
                 break
@@ -487,9 +491,9 @@ async def serve(ctx: SimContext) -> list[Served]:
     sim = CncSim(clock=ctx.clock, world=ctx.world, workpiece=wp, rx_buffer_bytes=dev.rx_buffer_bytes,
                  letters=wp.kin.letters, tools=ctx.cell.tools, log_path=(Path(ctx.log_dir) / "cnc.jsonl") if ctx.log_dir else None)
     for cond, v in spec.events("freeze"):
-        sim.freeze = (cond, float(v))
+        sim.freeze.when = (cond, float(v))
     if "freeze" in spec.values:
-        sim.freeze = ("t", 0.0)
+        sim.freeze.when = ("t", 0.0)
     use_deposit_map(ctx, wp)
     return await serve_serial(sim, DEVICE, dev, ctx, spec, {"protocol": "grbl 1.1"})
 

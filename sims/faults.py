@@ -45,8 +45,11 @@ KEYS: dict[str, tuple[str, str]] = {
     "lie": ("dur", "ACK and EXE a sequence number never sent; when: lie@t=... / @move=N"),
     "garble": ("dur", "every reply with a bad CRC from then on; when: garble@t=... / @move=N"),
     "mute": ("dur", "no reply at all from then on; when: mute@t=... / @move=N"),
-    # a motion device that stops executing (issue 26; robot: RUN, no EXE; CNC: Run, MPos still)
-    "freeze": ("dur", "accept moves but stop executing them from then on; when: freeze@t=... / @move=N"),
+    # a motion device that stops executing (issue 26; robot: RUN, no EXE; CNC: Run, MPos still).
+    # @travel=N: at the N-th travel move (robot MOVJ, CNC G0); CNC only: @probe=N at the N-th
+    # probing move (G38.x, it never ends), @home=N in the N-th homing cycle (it never finishes)
+    "freeze": ("dur", "accept moves but stop executing them from then on; when: freeze@t=... / @move=N / "
+                      "@travel=N / @probe=N (CNC) / @home=N (CNC)"),
     # a robot whose flush leaves phantom entries: from the first !ABORT on, this many queue slots
     # stay taken while it reports IDLE (the readiness check must see the queue is not empty)
     "phantom": ("int", "robot: queue slots still taken after !ABORT while it reports IDLE"),
@@ -63,7 +66,8 @@ KEYS: dict[str, tuple[str, str]] = {
     "estop": ("dur", "E-stop pressed for this long; when: estop@t=..."),
 }
 # event condition -> kind of its value
-CONDITIONS: dict[str, str] = {"t": "dur", "layer": "int", "pass": "int", "move": "int", "frame": "int"}
+CONDITIONS: dict[str, str] = {"t": "dur", "layer": "int", "pass": "int", "move": "int", "frame": "int",
+                              "travel": "int", "probe": "int", "home": "int"}
 
 _DUR_RE = re.compile(r"^(\d+(?:\.\d*)?|\.\d+)(ms|s)?$")
 

@@ -2,7 +2,8 @@
 
 Each mode comes from the seeded fault spec (sims/faults.py) as `name@t=T` (wall seconds since
 the simulator started), `name@move=N` (once N queue entries were executed) or a bare `name=0`
-(at once). Once started a mode stays on:
+(at once); `freeze@travel=N` at the N-th travel move (MOVJ) to reach the head of the queue.
+Once started a mode stays on:
 
 - flood:  valid `HB n` frames, as many as ~90 % of the line carries (20,000/s unthrottled);
 - lie:    `ACK` and `EXE` of the sequence number after the last received one (never sent),
@@ -44,7 +45,7 @@ class Misbehaviour:
                 if name in spec.values:
                     self.when[name] = ("t", 0.0)
                 for cond, v in spec.events(name):
-                    if cond in ("t", "move"):
+                    if cond in ("t", "move", "travel"):
                         self.when[name] = (cond, float(v))
         self.log_path = Path(log_path) if log_path else None
         self.line_rate = line_rate
@@ -64,7 +65,8 @@ class Misbehaviour:
         if w is None:
             return False
         cond, v = w
-        on = (time.monotonic() - self.t0 >= v) if cond == "t" else self.sim.executed_count >= v
+        on = (time.monotonic() - self.t0 >= v if cond == "t" else self.sim.executed_count >= v if cond == "move"
+              else self.sim.travels >= v)
         if on:
             self.started[name] = time.monotonic()
             self._log(name)

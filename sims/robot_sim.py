@@ -81,6 +81,8 @@ class RobotSim:
         # counters
         self.frames_rx = self.crc_errors = self.syntax_errors = self.naks = self.duplicates = 0
         self.executed_count = 0
+        self.travels = 0            # travel moves (MOVJ) that came to the head of the queue
+        self._head_seen = -1
         self.underruns = 0          # times the queue ran empty after a move (the job's end counts)
         self.hb = 0
         self._write: Callable[[bytes], None] | None = None
@@ -316,10 +318,13 @@ class RobotSim:
         """Execute queued moves over simulated time [t, now]; stop between moves once the wall
         clock (`time.perf_counter()`) passes `deadline`. Returns the simulated time reached."""
         self._next_finish = None
-        if self.lies and self.lies.active("freeze"):  # fault: accepts moves, executes none (RUN)
-            return now
         done_any = False
         while t < now and self.queue and not (self.held or self.fault or self.waiting):
+            head = self.queue[0]
+            if head.verb == "MOVJ" and head.seq != self._head_seen:   # a travel move comes up (freeze@travel)
+                self._head_seen, self.travels = head.seq, self.travels + 1
+            if self.lies and self.lies.active("freeze"):  # fault: accepts moves, executes none (RUN)
+                return now
             if deadline is not None and done_any and time.perf_counter() > deadline:
                 return t   # at least one move per tick: a thread switch must not starve it
             done_any = True

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from typing import Any, Sequence
 
+from controller.align.watched import home
 from controller.align.probe_cycle import ProbeLog, ProbeTarget, probe_point
 from controller.ports import ProbePort
 from core.errors import CellError
@@ -69,7 +70,7 @@ async def probe_layer_top(link: ProbePort, settings: Any, spots: Sequence[Point]
     if st.spindle:
         raise CellError(f"{name}: the process is still on (spindle {st.spindle}); no probing with the process on")
     if not link.homed:
-        await link.home()
+        await home(link)   # the homing cycle's bound from the machine's settings
     tops = []
     for k, (x, y, z) in enumerate(spots):
         start = (x, y, z + clearance_mm)

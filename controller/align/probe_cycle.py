@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from wire.grbl_protocol import fmt
+from controller.align.watched import probing
 from controller.ports import ProbePort
 from core.errors import CellError
 
@@ -79,7 +80,8 @@ async def _probe_once(link: CncLinkLike, t: ProbeTarget, frm: F, d: F, travel: f
 
     target = frm + d * travel
     try:
-        res = await link.probe((float(target[0]), float(target[1]), float(target[2])), feed, mode="G38.2")
+        step = link.probe((float(target[0]), float(target[1]), float(target[2])), feed, mode="G38.2")
+        res = await probing(link, step, f"probe point {t.name}, {what} touch", travel, feed)
     except ProbeError as exc:
         text = str(exc)
         if exc.code == 4:

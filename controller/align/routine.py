@@ -27,6 +27,7 @@ from controller.align.bestfit import icp
 from controller.align.fit import Datum, LineFit, PlaneFit, cad_transform_321, fit_line, fit_plane, grid_points
 from controller.motion.kinematics import Trunnion, apply_transform, homogeneous, rotation_matrix, unit
 from controller.align.leveling import FaceAngle, Leveling, face_angle, leveling_angles
+from controller.align import watched
 from controller.align.probe_cycle import ProbedPoint, ProbeLog, ProbeTarget, probe_points
 from drivers.registry import open_cnc
 from wire.grbl_protocol import fmt
@@ -227,7 +228,7 @@ async def _ensure_ready(link: ProbePort, log: ProbeLog) -> None:
     st = await link.status()
     if not link.homed:
         log.add("homing ($H)")
-        await link.home()
+        await watched.home(link)   # the homing cycle's bound from the machine's settings
     elif st.state.startswith("Alarm"):
         log.add("unlocking ($X)")
         await link.unlock()

@@ -30,7 +30,7 @@ from controller.journal.queries import SampleRow
 from controller.journal.store import Journal
 from controller.runtime.machine import CellMachine, State
 from controller.runtime.device_record import crash_rearc, dry_lookahead
-from controller.runtime.progress import ProgressWatchdog, progress_timeout_s
+from controller.runtime.progress import ProgressWatchdog, progress_timeout_s, travel_bound_s
 from controller.job.model import CellJob
 from controller.job.weld_path import Point, weld_points
 from controller.ports import ArcControl, CellIOPort, MotionExecutor, PowerSourcePort
@@ -142,6 +142,7 @@ class BuildRunner:
         executor.on_position(lambda t, s: self._pace.at(t, s) if self._pace is not None else None)
         self.progress_s = progress_timeout_s(job, self.o.max_step_mm, self.o.progress_timeout_s)
         self.watchdog: ProgressWatchdog | None = None
+        self._at: Point | None = None          # where the torch stands after the previous bead
 
     # -- operator requests (honoured at the end of the current bead) -------------------------
     def request_pause(self) -> None:
@@ -296,13 +297,15 @@ class BuildRunner:
         self.m.send("travel")
         self.journal.pass_state(la, pa, "started", start_idx=start_idx, points=len(pts),
                                 start_mm=round(start_mm, 4))
+        travel = await self._travel_watch(la, pa, start_pt)
         # approach with the weld moves already queued behind the hold point
-        await self.ex.approach(start_pt, self.o.clearance_mm, self.o.travel_speed_mm_min)
+        await travel.guard(self.ex.approach(start_pt, self.o.clearance_mm, self.o.travel_speed_mm_min))
         ahead = self.ex.next_tickets(len(pts) - 1 - start_idx)
         if ahead:  # write-ahead: the tickets of this bead's weld moves and the points they reach
             self.journal.moves_sent([(tk, la, pa, start_idx + 1 + k, "weld") for k, tk in enumerate(ahead)])
         tickets = self._stream = self.ex.queue_weld(pts, start_idx, plan.speeds, self._on_exec)
-        await self.ex.at_start()
+        await travel.guard(self.ex.at_start())  # a stall in travel: StallFault, motion held
+        self._at = pts[-1]
         self.m.send("arc_start")
         self.power.set_wire_feed(plan.wfs_at(start_idx))
         await self.arc.start()
@@ -320,7 +323,7 @@ class BuildRunner:
         self.ex.release()
         self.watchdog = ProgressWatchdog.of(self.ex, self.power, self.progress_s, self.o.time_scale,
                                             lambda: f"layer {la} pass {pa} point {self.cur_idx} of {len(pts) - 1}")
-        await self.watchdog.guard(self.ex.weld_done, tickets)  # a stall: StallFault, arc first
+        await self.watchdog.guard(self._weld_done(tickets))  # a stall: StallFault, arc first
         self.m.send("arc_end")
         self._arc_lit = False  # before the arc end: its falling arc-stable is no arc loss
         await self.arc.stop()
@@ -331,6 +334,18 @@ class BuildRunner:
         if why is not None:
             self._defect(la, pa, why)
         self._pass_done(la, pa)
+
+    async def _weld_done(self, tickets: asyncio.Task[int]) -> None:
+        await self.ex.weld_done(await tickets)
+
+    async def _travel_watch(self, la: int, pa: int, to: Point) -> ProgressWatchdog:
+        """The travel's watch: its bound from where the torch is (the previous bead's end, else
+        the device's report) to the bead's start at the travel speed (controller/runtime/progress.py)."""
+        frm = self._at if self._at is not None else await self.ex.position()
+        bound = travel_bound_s(frm, to, self.o.clearance_mm, self.o.travel_speed_mm_min, self.progress_s)
+        at = " ".join(f"{v:.3f}" for v in to)
+        return ProgressWatchdog.of(self.ex, self.power, bound, self.o.time_scale,
+                                   lambda: f"layer {la} pass {pa}, travel to its start {at}", state="travel")
 
     def _tolerance(self) -> Any:
         if self.o.tolerance is None:
