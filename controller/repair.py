@@ -23,9 +23,10 @@ from controller.motion.mill import change_tool, program_lines, run_program
 from controller.align.routine import alignment_record, plan_for_mesh
 from controller.api import CellController
 from controller.job.model import CellJob
-from controller.motion.kinematics import apply_to_job
+from controller.motion.cnc5 import refuse_unfed
+from controller.motion.kinematics import Trunnion, apply_to_job
 from controller.runtime import stops
-from core.errors import CellError, InputError
+from core.errors import CellError, Fault, InputError
 from planner.dropcutter import ToolShape
 from planner.finish import Cut, plan_finish, stock_above_cad, stock_margin, stock_surface
 from planner.job import Layer
@@ -328,6 +329,9 @@ async def repair_run(job: CellJob, cell: Any, *, job_path: Path | None = None, r
         raise InputError("the repair job already carries an alignment; give the job `cell repair plan` wrote")
     cad = load_cad(job, job_path)
     plan = probe_plan(cad, job)
+    # every refusal that needs no device before the first motion (homing and probing included):
+    # a time scale the CNC link cannot feed (the in-process simulators were lowered to what it can)
+    refuse_unfed(job, Trunnion.from_config(cell.kinematics), float(cell.cell.time_scale), cell.devices.cnc.baud)
     ctl = CellController(cell, runs_dir=runs_dir)
     stops.attach(ctl)  # SIGINT / SIGTERM / SIGHUP: the fault path (when the CLI installed them)
     try:
@@ -339,7 +343,8 @@ async def repair_run(job: CellJob, cell: Any, *, job_path: Path | None = None, r
         say("build")
         result = await ctl.start()
         if result.state != "complete":
-            raise CellError(f"repair: the build stopped in state {result.state}; see the journal in {ctl.run_dir}")
+            raise Fault(f"repair: the build stopped in state {result.state}; see the journal in {ctl.run_dir}",
+                        state=result.state)
         if ctl.devices is None:
             raise CellError("repair: the cell's devices closed before the verify probe")
         if finish:

@@ -19,3 +19,12 @@ class MeshError(CellError):
 
 class InputError(CellError):
     """A data file or argument given on the command line is malformed."""
+
+
+class Fault(CellError):
+    """The cell stopped on a fault after it moved (a stall, a failed probe point, a build that
+    stopped in Fault): exit 1, not the bad-input code. `state`: where the cell stood."""
+
+    def __init__(self, message: str, *, state: str = "fault") -> None:
+        super().__init__(message)
+        self.state = state

@@ -19,12 +19,12 @@ from numpy.typing import NDArray
 from wire.grbl_protocol import fmt
 from controller.align.watched import probing
 from controller.ports import ProbePort
-from core.errors import CellError
+from core.errors import Fault
 
 F = NDArray[np.float64]
 
 
-class ProbeCycleError(CellError):
+class ProbeCycleError(Fault):
     """A probe point failed: no contact, already tripped, not homed, spread above tolerance."""
 
 

@@ -17,6 +17,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
+from controller.cli import outcome
 from controller.runtime.cell_lock import acquire
 from controller.runtime import stops as stops_mod
 from controller.runtime.stops import SignalStop, StopSignals
@@ -56,6 +57,7 @@ def exit_code(state: str | None) -> int | None:
 def _err(line: str) -> None:
     sys.stderr.write(line + "\n")
     sys.stderr.flush()
+    outcome.error(line)
 
 
 def command(fn: Callable[[Any], int]) -> Callable[[Any], int]:

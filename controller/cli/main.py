@@ -10,7 +10,8 @@ import math
 import sys
 from typing import Any, NoReturn, Sequence
 
-from core.errors import CellError
+from controller.cli import outcome
+from core.errors import CellError, Fault
 
 # Subcommand modules, imported lazily so that `cell process` does not pay for Textual or
 # pymodbus. Each module defines `register(subparsers)` which adds its parser(s) and sets
@@ -50,7 +51,9 @@ class _Parser(argparse.ArgumentParser):
     """argparse that reports a usage error as one `error:` line and exit status 2."""
 
     def error(self, message: str) -> NoReturn:
-        sys.stderr.write(f"error: {self.prog}: {message} (see `{self.prog} --help`)\n")
+        line = f"error: {self.prog}: {message} (see `{self.prog} --help`)"
+        sys.stderr.write(line + "\n")
+        outcome.error(line)
         raise SystemExit(2)
 
 
@@ -58,6 +61,14 @@ def emit_json(obj: Any) -> None:
     """Print exactly one JSON object on stdout."""
     sys.stdout.write(json.dumps(_finite(obj), sort_keys=False, allow_nan=False) + "\n")
     sys.stdout.flush()
+    outcome.emitted()
+
+
+def _fail(message: str, code: int, state: str | None = None) -> int:
+    """One `error:` line on stderr (the `--json` object carries it too); the exit code."""
+    sys.stderr.write(message + "\n")
+    outcome.error(message, state)
+    return code
 
 
 def _finite(obj: Any) -> Any:
@@ -96,7 +107,20 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """`cell`: the exit code; with `--json`, exactly one JSON object on stdout whatever the path
+    (controller/cli/outcome.py)."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    outcome.reset()
+    code = _main(argv)
+    if "--json" in argv and not outcome.has_emitted() and code != 0:
+        try:
+            emit_json(outcome.fallback(code))
+        except OSError:
+            pass
+    return code
+
+
+def _main(argv: list[str]) -> int:
     # trimesh logs its parsers' tracebacks while it tries the next format: the user gets the
     # planner's one `error:` line instead
     logging.getLogger("trimesh").setLevel(logging.CRITICAL)
@@ -106,38 +130,30 @@ def main(argv: Sequence[str] | None = None) -> int:
             args = parser.parse_args(argv)
             return int(args.func(args) or 0)
     except CellError as exc:
-        sys.stderr.write(f"error: {exc}\n")
-        return 2
+        return _fail(f"error: {exc}", outcome.code_for(exc), exc.state if isinstance(exc, Fault) else None)
     except UnicodeDecodeError as exc:
-        sys.stderr.write(f"error: {_named(exc)}: not UTF-8 text (byte {exc.start}: {exc.reason}); "
-                         "save the file as UTF-8\n")
-        return 2
+        return _fail(f"error: {_named(exc)}: not UTF-8 text (byte {exc.start}: {exc.reason}); "
+                     "save the file as UTF-8", 2)
     except RecursionError:
-        sys.stderr.write("error: an input file is nested too deeply to read; give a flat file\n")
-        return 2
+        return _fail("error: an input file is nested too deeply to read; give a flat file", 2)
     except _journal_errors() as exc:
-        sys.stderr.write(f"error: a journal could not be read ({_short(exc)}); it was left untouched: "
-                         "`cell journal check RUN_DIR` says what is readable\n")
-        return 2
+        return _fail(f"error: a journal could not be read ({_short(exc)}); it was left untouched: "
+                     "`cell journal check RUN_DIR` says what is readable", 2)
     except MemoryError:
-        sys.stderr.write("error: an input is too large to process in memory; give a smaller one\n")
-        return 2
+        return _fail("error: an input is too large to process in memory; give a smaller one", 2)
     except OSError as exc:
         if isinstance(exc, BrokenPipeError):
             return 0
         where = f"{exc.filename}: " if exc.filename else ""
-        sys.stderr.write(f"error: {where}{exc.strerror or exc}; check the path\n")
-        return 2
+        return _fail(f"error: {where}{exc.strerror or exc}; check the path", 2)
     except SystemExit as exc:  # argparse's usage error (already one `error:` line) or --help
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
     except KeyboardInterrupt:
-        sys.stderr.write("error: interrupted\n")
-        return 130
+        return _fail("error: interrupted", 130)
     except (ValueError, TypeError, ArithmeticError, KeyError, IndexError) as exc:
         # the last line of defence of the contract: bad input that slipped past a validator
         # is still one `error:` line and exit 2, never a traceback
-        sys.stderr.write(f"error: bad input ({type(exc).__name__}: {_short(exc)})\n")
-        return 2
+        return _fail(f"error: bad input ({type(exc).__name__}: {_short(exc)})", 2)
 
 
 def _journal_errors() -> type[Exception] | tuple[()]:

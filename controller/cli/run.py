@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from core.config import CellConfig, load_cell, load_sim
-from controller.cli import guard, runargs
+from controller.cli import guard, outcome, runargs
 from controller.cli.pause_prompt import PausePrompt
 from controller.job.model import CellJob
 from controller.job.read import read_job
@@ -128,6 +128,7 @@ class Progress:
 def _err(line: str) -> None:
     sys.stderr.write(line + "\n")
     sys.stderr.flush()
+    outcome.error(line)
 
 
 def _out(line: str) -> None:
@@ -270,6 +271,12 @@ def _build(args: argparse.Namespace, cfg: CellConfig, job: CellJob, run_dir: Pat
         cfg, note = limit_time_scale(cfg, job)
         if note:
             _err(note)
+    elif cfg.cell.platform == "cnc":  # `cell sim up`: refused before any device (docs/controller.md, "Simulated time")
+        from controller.motion.cnc5 import refuse_unfed
+        from controller.motion.kinematics import Trunnion
+
+        refuse_unfed(job, Trunnion.from_config(cfg.kinematics), float(cfg.cell.time_scale), cfg.devices.cnc.baud,
+                     args.max_step)
     session = SimSession(cfg, args.sim, args.sim_config, log_dir if args.sim else None, faults)
     say = _err if args.json else _out
     try:

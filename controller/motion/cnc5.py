@@ -305,11 +305,19 @@ def check_feed(job: CellJob, trunnion: Any, link: Any, max_step_mm: float = 2.0)
     """Before any motion: a simulated link (line_scale > 1) faster than the host can feed the job's
     beads is refused, naming the time scale that can (`limit_time_scale` lowers it where the
     simulators are started here: `cell run --sim`, `cell repair run --sim`)."""
-    scale = float(getattr(link, "line_scale", 1.0) or 1.0)
+    refuse_unfed(job, trunnion, float(getattr(link, "line_scale", 1.0) or 1.0),
+                 int(getattr(link, "baud", 115200) or 115200), max_step_mm)
+
+
+def refuse_unfed(job: CellJob, trunnion: Any, scale: float, baud: int, max_step_mm: float = 2.0) -> None:
+    """InputError when simulated time at `scale` is faster than the host can feed the job's beads
+    over the CNC link; needs no device, so a command calls it before it connects (docs/controller.md,
+    "Simulated time")."""
     if scale <= 1.0:
         return
-    lim = feed_limit(job, trunnion, int(getattr(link, "baud", 115200) or 115200), max_step_mm)
+    lim = feed_limit(job, trunnion, baud, max_step_mm)
     if lim is not None and scale > lim.time_scale + 1e-9:
         raise InputError(lim.message(scale).replace("; time scale limited to",
                                                     "; run the simulators at time scale")
-                         + " or less (cell.yaml cell.time_scale)")
+                         + " or less (cell.yaml cell.time_scale; restart `cell sim up` with it), or give "
+                           "--sim to run them here at that scale")

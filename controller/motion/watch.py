@@ -24,7 +24,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Awaitable, Callable, Sequence, TypeVar
 
-from core.errors import CellError
+from core.errors import Fault
 
 NOISE_MM = 0.02          # position change that counts as progress (reports carry 3 decimals)
 FLOOR_WALL_S = 0.25      # never less than this (wall): a status round trip plus loop jitter
@@ -34,7 +34,7 @@ SAMPLE_TIMEOUT_S = 1.0   # a status request that takes longer is not a sample (t
 T = TypeVar("T")
 
 
-class StallFault(CellError):
+class StallFault(Fault):
     """A motion device stood for its state's progress bound (process off, motion held)."""
 
 

@@ -38,7 +38,6 @@ from core.errors import CellError
 from core.material import ProcessTolerance
 from planner.job import Layer
 from controller.runtime.readiness import ensure_ready
-from controller.runtime.interpass import interpass_wait
 
 STALE_STATUS_S = 0.1  # a power-source status older than its watchdog (100 ms) does not vouch for a move
 
