@@ -99,7 +99,9 @@ def test_run_without_a_device_or_with_a_bad_job_is_one_error_line(capsys, tmp_pa
     cell.write_text((CONFIG_DIR / "cell.yaml").read_text().replace("socket://127.0.0.1:47602", "socket://127.0.0.1:1"))
     assert main(["align", "run", "--cell-config", str(cell), "--json"]) == 2
     out, err = capsys.readouterr()
-    assert out == "" and err.count("\n") == 1 and "socket://127.0.0.1:1" in err
+    assert err.count("\n") == 1 and "socket://127.0.0.1:1" in err
+    obj = json.loads(out)   # --json: one object on every exit path (issue 38)
+    assert out.count("\n") == 1 and obj["state"] == "refused" and "socket://127.0.0.1:1" in obj["error"]
     bad = tmp_path / "job.json"
     bad.write_text('{"schema": "cell-job/1",\n "layers": [}\n')
     assert main(["align", "run", "--sim", "--job", str(bad)]) == 2

@@ -6,19 +6,16 @@ on an error, a signal or a usage error without having printed one, `cell` prints
 `{"state", "error", "exit_code"}` on stdout as well as the `error:` line on stderr.
 
 Exit codes by cause (`code_for`): a fault after the cell moved (`core.errors.Fault`: a stall, a
-failed probe point, a build that stopped in Fault; a device that failed while driven,
-`drivers.errors.DeviceError`) is 1; bad input, a device that cannot be reached, a cell in use and
-a firmware lacking the job's axes are 2 (refused before any motion).
+failed probe point, a build that stopped in Fault) is 1; bad input, a device that cannot be
+reached, a cell in use and a firmware lacking the job's axes are 2 (refused before any motion).
+A build's own faults (a device error while it runs) latch the cell and end it with its state
+(exit 1) through the command's own object.
 """
 from __future__ import annotations
 
 from core.errors import CellError, Fault
-from drivers.errors import DeviceError
 
 _state: dict[str, object] = {"emitted": 0, "error": None, "state": None}
-
-# refusals before any motion, though raised as device errors: exit 2 (docs/controller.md)
-_REFUSALS = ("DeviceUnreachable", "GrblAxesMissing")
 
 
 def reset() -> None:
@@ -49,12 +46,7 @@ def last_error() -> str | None:
 
 def code_for(exc: CellError) -> int:
     """1 for a fault after motion, 2 for bad input or a refusal before any motion."""
-    names = {c.__name__ for c in type(exc).__mro__}
-    if names & set(_REFUSALS):
-        return 2
-    if isinstance(exc, (Fault, DeviceError)):
-        return 1
-    return 2
+    return 1 if isinstance(exc, Fault) else 2
 
 
 def fallback(code: int) -> dict[str, object]:
