@@ -26,6 +26,7 @@ from controller.runtime.bead_measure import BeadStats, Pace
 from controller.runtime.bead_plan import MovePlan, move_plan
 from controller.runtime.events import EventBus
 from controller.runtime.hooks import ArcSampleHook
+from controller.runtime.interpass import interpass_wait
 from controller.journal.queries import SampleRow
 from controller.journal.store import Journal
 from controller.runtime.machine import CellMachine, State
@@ -342,13 +343,11 @@ class BuildRunner:
         the device's report) to the bead's start at the travel speed (controller/runtime/progress.py)."""
         frm = self._at if self._at is not None else await self.ex.position()
         bound = travel_bound_s(frm, to, self.o.clearance_mm, self.o.travel_speed_mm_min, self.progress_s)
-        at = " ".join(f"{v:.3f}" for v in to)
-        return ProgressWatchdog.of(self.ex, self.power, bound, self.o.time_scale,
-                                   lambda: f"layer {la} pass {pa}, travel to its start {at}", state="travel")
+        at = f"layer {la} pass {pa}, travel to its start " + " ".join(f"{v:.3f}" for v in to)
+        return ProgressWatchdog.of(self.ex, self.power, bound, self.o.time_scale, lambda: at, state="travel")
 
     def _tolerance(self) -> Any:
-        if self.o.tolerance is None:
-            self.o.tolerance = ProcessTolerance()
+        self.o.tolerance = self.o.tolerance or ProcessTolerance()
         return self.o.tolerance
 
     def _defect(self, la: int, pa: int, why: str) -> None:
