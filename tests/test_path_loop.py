@@ -7,7 +7,7 @@ import asyncio
 import json
 import math
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 import pytest
@@ -156,3 +156,26 @@ async def test_an_opc_ua_client_reads_the_path_loop_values():
     finally:
         srv.stop()
     assert got == {"PathHeightRms": 0.21, "PathHeightSpread": 0.7, "PathSpeedFactorMin": 0.8, "PathSpeedFactorMax": 1.1}
+
+
+async def test_the_cnc_probes_along_every_pass_and_slows_where_the_probe_found_it_low(tmp_path: Path):
+    seen: list[list[tuple[float, float, float]]] = []
+
+    async def probe(la: int, spots: Sequence[tuple[float, float, float]]) -> list[float]:
+        seen.append(list(spots))   # the touch probe: the stretch x > 20 is 0.5 mm low
+        return [z - (0.5 if x > 20 else 0.0) for x, _y, z in spots]
+
+    j = Journal(tmp_path / "journal.sqlite")
+    j.start_job("h", "wall", "cnc", "{}")
+    lc = LayerControl(job=_job(6), cfg=ProcessControl(mode="path", probe_spacing_mm=5.0), material=MAT,
+                      platform="cnc", journal=j, probe=probe)
+    work = [WorkItem(i, 0) for i in range(6)]
+    for la in range(2):
+        lc.pass_for(la, 0)
+        assert await lc.after_pass(work[la], work, la) is None
+    xs = sorted(x for x, _y, _z in seen[0])
+    assert xs[0] == pytest.approx(1.75) and xs[-1] == pytest.approx(28.25) and len(xs) == 6   # ends a quarter width in
+    p2 = lc.pass_for(2, 0)
+    mid = 0.5 * (p2.points[1:, 0] + p2.points[:-1, 0])
+    assert float(np.mean(p2.speeds()[mid > 24])) < 0.95 * float(np.mean(p2.speeds()[mid < 16]))
+    j.close()
