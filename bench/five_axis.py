@@ -144,17 +144,21 @@ def _planned_axis_step(axes_per_pass: list[np.ndarray]) -> float:
 
 
 def _rotary_steps(log: Path) -> float:
-    """Largest change of a rotary axis between consecutive G93 weld moves in cnc.jsonl."""
-    prev, worst = None, 0.0
+    """Largest change of a rotary axis between consecutive G93 weld moves in cnc.jsonl (axis words
+    are modal: a line may leave out an axis that does not move)."""
+    prev: dict[str, float] | None = None
+    pos: dict[str, float] = {}
+    worst = 0.0
     for line in (log / "cnc.jsonl").read_text().splitlines():
         g = json.loads(line).get("line", "").replace(" ", "")
-        if not g.startswith("G1") or "F" not in g or "A" not in g:
+        words = {k: float(v) for k, v in re.findall(r"([ABC])(-?\d+\.\d+)", g)}
+        pos.update(words)
+        if not g.startswith("G1") or "F" not in g or not any(c in g for c in "XYZABC"):
             prev = None if g.startswith("G0") else prev  # a new pass starts after its approach
             continue
-        ang = [float(v) for v in re.findall(r"[ABC](-?\d+\.\d+)", g)]
-        if prev is not None and len(ang) == len(prev):
-            worst = max(worst, max(abs(x - y) for x, y in zip(ang, prev)))
-        prev = ang
+        if prev is not None:
+            worst = max([worst] + [abs(pos[k] - prev[k]) for k in pos if k in prev])
+        prev = dict(pos)
     return round(worst, 3)
 
 
@@ -207,6 +211,37 @@ def executed_mid_dev(job: dict, log: Path, table: str, max_step_mm: float = 2.0)
     dm, dq = _seg_dist(mids, a, b), _seg_dist(quarters, a, b)
     return {"moves": len(moves), "max_mid_dev_mm": round(float(dm.max()), 4),
             "max_quarter_dev_mm": round(float(dq.max()), 4)}
+
+
+def export_mid_dev(job: dict, table: str, baud: int = 115200) -> dict:
+    """Issue 38: `cell export --format gcode` of the job, read back: the middle (and quarter
+    points) of every G93 line through the table's forward kinematics against the planned path,
+    and each line's time against twice its serial time at `baud`."""
+    # lazy: only this benchmark's path needs it
+    from controller.export import build_program
+    from controller.export.gcode import parse_gcode, write_gcode
+    from controller.motion.kinematics import Trunnion
+    from controller.motion.lines5 import part_points
+
+    tr = Trunnion.from_config(kin_cfg(table).kinematics)
+    prog = build_program(job_from_dict(job), name="bench")
+    lines = write_gcode(prog, clearance_mm=10.0, travel_mm_min=3000.0, power_s=1000, trunnion=tr, baud=baud)
+    worst = {0.5: 0.0, 0.25: 0.0}
+    short, n = 0, 0
+    serial = {ln: (len(ln) + 1) * 10.0 / baud for ln in lines}
+    g93 = [ln for ln in lines if ln.startswith("G1") and " F" in ln and not ln.startswith("G1 Z")]
+    for g, pp in zip(parse_gcode(lines), (p for la in job["layers"] for p in la["passes"])):
+        pts = np.asarray(pp["points"])
+        rows = np.column_stack([g.points, g.rotary])
+        for f in worst:
+            q = part_points(tr, np.vstack([rows[:-1] + (rows[1:] - rows[:-1]) * x for x in (f, 1.0 - f)]))
+            worst[f] = max(worst[f], float(_seg_dist(q, pts[:-1], pts[1:]).max()))
+        n += len(g.feeds)
+    for ln in g93:
+        f = float(ln.rsplit("F", 1)[1])
+        short += 60.0 / f < 2.0 * serial[ln] - 1e-9
+    return {"export_lines": n, "export_max_mid_dev_mm": round(worst[0.5], 4),
+            "export_max_quarter_dev_mm": round(worst[0.25], 4), "export_lines_under_2x_serial": int(short)}
 
 
 def bead_gaps(log: Path, device: str = "cnc") -> dict:

@@ -120,7 +120,9 @@ async def test_five_axis_build_on_the_cnc_simulator_lands_on_the_plan(part, tabl
     g = bead_gaps(log)
     assert g["still_s"] < 0.02 * g["moving_s"], g   # fed: the torch moves while the process is on
     f = figures(job, log)
-    assert abs(f["deposited_mm"] - f["planned_mm"]) < 0.05, f   # nothing lost, nothing twice
+    # nothing lost, nothing twice; a line over several planned points lays their chord, up to
+    # (8/3)·s²/L shorter (s ≤ 0.02 mm off the plan, L ≈ 1 mm: under 0.1 %) (issue 38)
+    assert abs(f["deposited_mm"] - f["planned_mm"]) < 0.05 + 0.001 * f["planned_mm"], f
     assert f["max_dev_mm"] < 0.05, f                            # on the plan in the workpiece frame
     # tool axis: the moves split for the chord tolerance (issue 29) turn the table linearly in A/B|C
     # between two planned axes, so mid-split the axis may sit off the part-frame interpolation by part of

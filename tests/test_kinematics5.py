@@ -127,7 +127,8 @@ def _worst(tr: Trunnion, pts: np.ndarray, m: np.ndarray) -> float:
 
 @pytest.mark.parametrize("table", ["AB", "AC"])
 def test_linearised_moves_keep_the_tool_tip_within_the_chord_tolerance(table: str) -> None:
-    from controller.motion.post5 import linearise, move_line
+    from controller.motion.lines5 import fit_lines, serial_min_s
+    from controller.motion.post5 import move_line
 
     tr = Trunnion(**TABLES[table], a_limits_deg=(-120, 120), second_limits_deg=(-360, 360))
     pts, axes = _bowing_pass(table)
@@ -136,17 +137,22 @@ def test_linearised_moves_keep_the_tool_tip_within_the_chord_tolerance(table: st
     before = _worst(tr, pts, m)
     if table == "AC":
         assert before > 0.15, before   # the issue's figure: up to 0.196 mm off the path
-    fp, fa, fm, seg = linearise(post, pts, axes, m, 0.016)
+    speeds = np.full(len(pts) - 1, 10.0)
+    lines = fit_lines(post, pts, axes, m, speeds, 0.016, serial_min_s("XYZA" + table[1], 115200))
+    fm, seg = lines.machine, lines.seg
     # the G-code as sent (3 decimals), read back through the forward kinematics
     sent = np.array([[float(w[1:]) for w in move_line(r, "XYZA" + table[1]).split()[1:]] for r in fm])
     assert _worst(tr, pts, sent) <= 0.02, (_worst(tr, pts, sent), before)
-    # the planned points are all kept, in order, and every split point maps to the move it lies in
-    planned = np.flatnonzero(np.r_[True, np.diff(seg) > 0])
-    assert np.allclose(fp[planned], pts) and list(seg[planned]) == list(range(len(pts)))
-    assert (np.diff(seg) >= 0).all() and len(fp) > len(pts)
-    # inverse time: the split moves' times add up to the planned move's time
-    f = inverse_time(fp, 600.0)
-    assert abs((1.0 / f).sum() - (1.0 / inverse_time(pts, 600.0)).sum()) < 1e-9
+    # the line ends run along the pass from its first point to its last, each on the planned path
+    assert np.allclose(lines.part[0], pts[0]) and np.allclose(lines.part[-1], pts[-1])
+    assert (np.diff(lines.at) > 0).all() and (np.diff(seg) >= 0).all()
+    from bench.five_axis import _seg_dist
+    assert _seg_dist(lines.part, pts[:-1], pts[1:]).max() < 1e-9
+    # inverse time: the lines' times add up to the planned time; each lasts twice its serial time
+    move_s = np.linalg.norm(np.diff(pts, axis=0), axis=1) / speeds
+    assert abs(lines.times(move_s).sum() - move_s.sum()) < 1e-9
+    mins = serial_min_s("XYZA" + table[1], 115200)
+    assert (lines.times(move_s) >= [mins(a, b) - 1e-12 for a, b in zip(fm[:-1], fm[1:])]).all()
 
 
 def test_a_resumed_weld_starts_mid_move_and_maps_progress_to_planned_points() -> None:
@@ -171,8 +177,13 @@ def test_a_resumed_weld_starts_mid_move_and_maps_progress_to_planned_points() ->
     five.approach_lines(tuple(mid), 10.0, 300.0)
     lines = five.weld_lines(3, 600.0)
     assert lines[0] == "G93" and lines[-1] == "G94"
-    m = np.array([[float(w[1:]) for w in g.split()[1:-1]] for g in lines[1:-1]])
-    m = np.vstack([five.start, m])
+    m = [five.start]
+    for g in lines[1:-1]:   # axis words are modal: a line leaves out what does not move
+        row = m[-1].copy()
+        for w in g.split()[1:-1]:
+            row["XYZAC".index(w[0])] = float(w[1:])
+        m.append(row)
+    m = np.array(m)
     assert _worst(tr, pts, m) <= 0.02
     got: list[int] = []
     track, t0, cb = five.track(3, lambda j, k: got.append(j))

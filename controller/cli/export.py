@@ -34,7 +34,8 @@ def run(args: argparse.Namespace) -> int:
     from controller.motion.kinematics import Trunnion
 
     res = export_job(job, args.format, name=stem, out=out, clearance_mm=cfg.limits.clearance_mm,
-                     travel_mm_min=cfg.limits.travel_speed_mm_min, trunnion=Trunnion.from_config(cfg.kinematics))
+                     travel_mm_min=cfg.limits.travel_speed_mm_min, trunnion=Trunnion.from_config(cfg.kinematics),
+                     baud=cfg.devices.cnc.baud)
     for path, lines in res.files.items():
         try:
             Path(path).write_text("\n".join(lines) + "\n", encoding="ascii")

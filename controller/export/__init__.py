@@ -29,12 +29,13 @@ class Exported:
 
 
 def export_job(job: CellJob, fmt: str, *, name: str, out: Path, clearance_mm: float,
-               travel_mm_min: float, power_s: int = 1000, trunnion: Trunnion | None = None) -> Exported:
+               travel_mm_min: float, power_s: int = 1000, trunnion: Trunnion | None = None,
+               baud: int = 115200) -> Exported:
     """Render a job in one format; `out` is the main file (.dat beside a .src)."""
     prog = build_program(job, name=name)
     if fmt == "gcode":
         files = {str(out): write_gcode(prog, clearance_mm=clearance_mm, travel_mm_min=travel_mm_min,
-                                       power_s=power_s, trunnion=trunnion)}
+                                       power_s=power_s, trunnion=trunnion, baud=baud)}
     elif fmt == "rapid":
         files = {str(out): write_rapid(prog, travel_mm_min=travel_mm_min, clearance_mm=clearance_mm)}
     elif fmt == "krl":

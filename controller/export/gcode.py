@@ -3,7 +3,8 @@
 Per layer an interpass dwell (`G4 P<s>`, grbl's P is seconds); per pass a travel above the start,
 down to it, `M3 S<power>` (process on), the `G1` weld moves at the pass's feed, `M5` (process off).
 Each pass is headed by a comment carrying its welding parameters, so the file round-trips.
-5-axis passes go through the same post-processor as the executor (controller.motion.post5 when present).
+5-axis passes go through the same post-processor and lines as the executor (controller/motion/post5.py,
+lines5.py): the same chord tolerance, each line at least twice its serial time at the cell's baud.
 Lines stay within grbl's 80-character line buffer.
 """
 from __future__ import annotations
@@ -15,7 +16,8 @@ import numpy as np
 
 from controller.motion.kinematics import Trunnion
 from controller.export.program import Program, ProgramPass
-from controller.motion.post5 import Post5, inverse_time, move_line, weld_lines
+from controller.motion.lines5 import ROUNDING_SHARE, compact_line, fit_lines, serial_min_s
+from controller.motion.post5 import Post5, move_line
 from core.errors import InputError
 
 MAX_LINE = 80  # grbl's LINE_BUFFER_SIZE: a longer line is refused (error:14)
@@ -32,20 +34,35 @@ def _pass_comment(p: ProgramPass) -> str:
 
 
 def _five_axis_pass(prog: Program, p: ProgramPass, post: Post5, letters: str, prev: tuple[float, float] | None,
-                    clearance_mm: float, travel_mm_min: float, power_s: int) -> tuple[list[str], tuple[float, float]]:
-    """One pass through the executor's post-processor: X Y Z A B|C, inverse-time feed (G93)."""
-    m = post.machine(p.points, p.axes, prev)
-    up = m[0].copy()
+                    clearance_mm: float, travel_mm_min: float, power_s: int,
+                    baud: int) -> tuple[list[str], tuple[float, float]]:
+    """One pass through the executor's post-processor and lines (controller/motion/lines5.py):
+    X Y Z A B|C, as long as the chord tolerance lets each line be and at least twice its serial
+    time at `baud`, inverse-time feed (G93)."""
+    pts, axes = prog.machine(p) if prog.aligned else (p.points, p.axes)   # the table frame
+    table = Post5(post.trunnion)
+    try:   # continuous from the last pass where the limits allow, else as the executor (afresh)
+        m = table.machine(pts, axes, prev)
+    except InputError:
+        m = table.machine(pts, axes)
+    tol = post.trunnion.chord_tolerance_mm * ROUNDING_SHARE
+    speeds = p.segment_speeds() / 60.0   # mm/s per segment
+    lines = fit_lines(table, pts, axes, m, speeds, tol, serial_min_s(letters, baud))
+    mins = serial_min_s(letters, baud)
+    lm = lines.machine
+    move_s = np.linalg.norm(np.diff(pts, axis=0), axis=1) / np.maximum(speeds, 1e-9)
+    t = lines.times(move_s, np.array([mins(a, b) for a, b in zip(lm[:-1], lm[1:])]))
+    up = lm[0].copy()
     up[2] += clearance_mm
-    lines = [_pass_comment(p), "G94", move_line(up, letters, verb="G0"), f"G1 Z{_f(m[0][2])} F{travel_mm_min:.0f}",
-             f"M3 S{power_s}"]
-    lines += weld_lines(m, inverse_time(p.points, p.segment_speeds()), letters)   # per move (cell-job/2)
-    lines += ["M5", f"G0 Z{_f(m[-1][2] + clearance_mm)}"]
-    return lines, (float(m[-1][3]), float(m[-1][4]))
+    out = [_pass_comment(p), "G94", move_line(up, letters, verb="G0"), f"G1 Z{_f(lm[0][2])} F{travel_mm_min:.0f}",
+           f"M3 S{power_s}", "G93"]
+    out += [compact_line(lm[k - 1], lm[k], letters, 60.0 / float(t[k - 1])) for k in range(1, len(lm))]
+    out += ["G94", "M5", f"G0 Z{_f(lm[-1][2] + clearance_mm)}"]
+    return out, (float(lm[-1][3]), float(lm[-1][4]))
 
 
 def write_gcode(prog: Program, *, clearance_mm: float, travel_mm_min: float, power_s: int,
-                trunnion: Trunnion | None = None) -> list[str]:
+                trunnion: Trunnion | None = None, baud: int = 115200) -> list[str]:
     """The program as G-code lines (no line numbers; grbl answers each with ok).
 
     A job with tool axes goes through the executor's 5-axis post-processor (controller/motion/post5.py)
@@ -68,7 +85,7 @@ def write_gcode(prog: Program, *, clearance_mm: float, travel_mm_min: float, pow
                 out.append(f"G4 P{dwell:.1f}")
             last_layer = p.layer
         if post is not None:
-            lines, prev = _five_axis_pass(prog, p, post, letters, prev, clearance_mm, travel_mm_min, power_s)
+            lines, prev = _five_axis_pass(prog, p, post, letters, prev, clearance_mm, travel_mm_min, power_s, baud)
             out += lines
             continue
         pts, _ = prog.machine(p)
@@ -164,14 +181,14 @@ class _Reader:
         if any(k in words for k in "XYZABC"):
             self._move(words)
         if words.get("M") == "3":
-            self.on, self.pts, self.feeds, self.speed, self.seen = True, [dict(self.pos)], [], self.feed, set()
+            self.on, self.pts, self.feeds, self.speed = True, [dict(self.pos)], [], self.feed
         elif words.get("M") == "5" and self.on:
             self._process_off()
 
     def _move(self, words: dict[str, str]) -> None:
         self.pos = {k: float(words.get(k, v)) for k, v in self.pos.items()}
+        self.seen |= {k for k in "ABC" if k in words}   # axis words are modal: a 5-axis line may leave one out
         if self.on and words.get("G") in ("1", "01"):
-            self.seen |= {k for k in "ABC" if k in words}
             self.pts.append(dict(self.pos))
             self.feeds.append(self.feed)
             if self.wfs_now is not None:

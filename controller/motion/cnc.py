@@ -108,7 +108,7 @@ class CncExecutor:
         self.five.check_alignment(job, self.link.reset_at)
         if job.alignment is not None and job.alignment.no_level:
             self.five.level = None   # aligned without leveling: the tilt is in the transform, no A/B move
-        await self.five.post_job(job, max_step_mm)
+        await self.five.post_job(job, max_step_mm, self.link.baud)
         check_feed(job, self.five.trunnion, self.link, max_step_mm)
 
     def require_job_axes(self, job: CellJob) -> None:

@@ -11,7 +11,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from controller.motion.post5 import Post5, inverse_time, linearise, move_line, weld_axes
+from controller.motion.lines5 import ROUNDING_SHARE, Lines, compact_line, fit_lines, serial_min_s
+from controller.motion.post5 import Post5, move_line, weld_axes
 from controller.job.weld_path import move_speed, move_values, weld_points, weld_segments
 from controller.job.model import CellJob
 from core.errors import InputError
@@ -20,9 +21,6 @@ from controller.motion.kinematics import Trunnion
 import asyncio
 
 Point = tuple[float, float, float]
-# the G-code words carry 3 decimals (mm and degrees: up to ~2 µm at 100 mm from an axis): the
-# split keeps a fifth of the chord tolerance for that rounding
-_ROUNDING_SHARE = 0.8
 
 
 def _weld_points(points: Sequence[Sequence[float]], max_step_mm: float) -> list[Point]:
@@ -44,8 +42,11 @@ class Five:
         self.cur: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         # per pass the machine moves after the chord-tolerance split: part points, axes, machine
         # axes and the planned (journaled) point each move end lies on or after
-        self.fine: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
-        self.cur_fine: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        # per pass the machine lines (controller/motion/lines5.py): as long as the chord tolerance
+        # lets them be, each at least twice its serial time at the link's baud
+        self.fine: dict[tuple[int, int], Lines] = {}
+        self.cur_fine: Lines | None = None
+        self.baud = 115200
         self._stream: tuple[np.ndarray, np.ndarray] | None = None  # the streamed moves: machine xyz, planned index
         self.start: np.ndarray | None = None   # machine axes of the approached start point
         self.start_part: np.ndarray | None = None
@@ -87,28 +88,20 @@ class Five:
         return self.level is None or (abs(float(mpos[3]) - self.level[0]) < 0.002
                                       and abs(float(mpos[4]) - self.level[1]) < 0.002)
 
-    async def post_job(self, job: CellJob, max_step_mm: float) -> None:
-        """Every pass to machine axes; yields between passes so the links stay serviced."""
+    async def post_job(self, job: CellJob, max_step_mm: float, baud: int = 115200) -> None:
+        """Every pass to machine axes and lines, in a worker thread (nothing computes on the loop
+        that cycles the devices: DESIGN.md §6)."""
 
-        self.passes, self.fine = {}, {}
+        self.passes, self.fine, self.baud = {}, {}, baud
         if not any(p.axes is not None for la in job.layers for p in la.passes):
             return
         if self.trunnion is None:
             raise InputError("job has 5-axis passes (axes) but the CNC has no kinematics; "
                              "set kinematics in cell.yaml")
-        post = Post5(self.trunnion)
-        tol = float(getattr(self.trunnion, "chord_tolerance_mm", 0.02)) * _ROUNDING_SHARE
         for li, la in enumerate(job.layers):
             for pi, p in enumerate(la.passes):
-                pts = np.asarray(_weld_points(p.points.tolist(), max_step_mm))
-                axes = np.asarray(weld_axes(p.points.tolist(), _axes(p), max_step_mm))
-                try:
-                    m = post.machine(pts, axes)
-                except InputError as exc:
-                    raise InputError(f"job layer {li} pass {pi} {exc}") from None
-                self.passes[(li, pi)] = (pts, axes, m)
-                self.fine[(li, pi)] = linearise(post, pts, axes, m, tol)
-                await asyncio.sleep(0)
+                self.passes[(li, pi)], self.fine[(li, pi)] = await asyncio.to_thread(
+                    post_pass, self.trunnion, self.letters, baud, p, max_step_mm, f"job layer {li} pass {pi} ")
 
     def _current(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         assert self.cur is not None, "no 5-axis pass in use: use() it first"
@@ -145,37 +138,38 @@ class Five:
     def weld_lines(self, i0: int, speed: float | Sequence[float]) -> list[str]:
         """G93 inverse-time moves from the approached start to the end of the pass, then G94.
 
-        The moves are the pass's chord-tolerance split (post5.linearise); a start inside a planned
-        move (a resume) has its first move split afresh. F = speed / part-frame length of each move,
-        at the speed of the weld move it lies in (one for the bead, or one per weld move: cell-job/2).
+        The moves are the pass's lines (controller/motion/lines5.py); a start that is not a line's
+        end (a resume) has the stretch to the next line end fitted afresh. F = 1 / the planned
+        minutes of each line, at the speeds of the weld moves it covers (one for the bead, or one
+        per weld move: cell-job/2), never shorter than twice its serial time.
         """
         pts, axes, m = self._current()
-        fp, fa, fm, fs = self.cur_fine if self.cur_fine is not None else (pts, axes, m, np.arange(len(pts)))
+        fine = self.cur_fine
         post = Post5(self.trunnion)
-        tol = float(getattr(self.trunnion, "chord_tolerance_mm", 0.02)) * _ROUNDING_SHARE
+        seconds = np.linalg.norm(np.diff(pts, axis=0), axis=1) / np.maximum(
+            [move_speed(speed, k) / 60.0 for k in range(len(pts) - 1)], 1e-9)
         start_part = self.start_part if self.start_part is not None else pts[i0]
         start_m = self.start if self.start is not None else m[i0]
-        # fs: the planned point k is the first entry k, the split points of move k → k+1 follow it
-        j0 = int(np.searchsorted(fs, i0, side="left")) + 1  # the first move end past planned point i0
-        if np.linalg.norm(start_part - pts[i0]) < 1e-6:
-            head_p, head_m, head_s = np.empty((0, 3)), np.empty((0, 5)), np.empty(0, dtype=int)
-        else:  # resumed inside move i0 → i0+1: split start → (the next planned point) afresh
-            f = float(np.clip((start_part - pts[i0]) @ (pts[i0 + 1] - pts[i0])
-                              / max(float(np.sum((pts[i0 + 1] - pts[i0]) ** 2)), 1e-12), 0.0, 1.0))
-            a_start = axes[i0] + (axes[i0 + 1] - axes[i0]) * f
-            a_start = a_start / np.linalg.norm(a_start)
-            hp, _, hm, hs = linearise(post, np.vstack([start_part, pts[i0 + 1]]),
-                                      np.vstack([a_start, axes[i0 + 1]]), np.vstack([start_m, m[i0 + 1]]), tol)
-            head_p, head_m, head_s = hp[1:], hm[1:], np.where(hs[1:] == 1, i0 + 1, i0)
-            j0 = int(np.searchsorted(fs, i0 + 1, side="left")) + 1
-        part = np.vstack([start_part, head_p, fp[j0:]])
-        mach = np.vstack([start_m, head_m, fm[j0:]])
-        self._stream = (mach[:, :3], np.r_[i0, head_s, fs[j0:]])
-        planned = np.r_[i0, head_s, fs[j0:]]
-        # the machine move from entry e - 1 to e lies in the weld move its start lies on or after
-        feeds = inverse_time(part, np.array([move_speed(speed, int(k)) for k in planned[:-1]]))
-        lines = ["G93"] + [move_line(mach[k], self.letters, float(feeds[k - 1])) for k in range(1, len(mach))]
-        return lines + ["G94"]
+        f = 0.0
+        if i0 + 1 < len(pts):
+            ab = pts[i0 + 1] - pts[i0]
+            f = float(np.clip((start_part - pts[i0]) @ ab / max(float(ab @ ab), 1e-12), 0.0, 1.0))
+        u0 = i0 + f
+        if fine is None:
+            fine = Lines(pts, axes, m, np.arange(len(pts), dtype=float))
+        e = int(np.searchsorted(fine.at, u0 + 1e-9, side="right"))   # the first line end past the start
+        head, nxt = _head(post, pts, axes, m, seconds, start_part, start_m, u0, fine, e, self)
+        part = np.vstack([head.part, fine.part[nxt:]])
+        mach = np.vstack([head.machine, fine.machine[nxt:]])
+        at = np.r_[head.at, fine.at[nxt:]]
+        lines = Lines(part, np.vstack([head.axes, fine.axes[nxt:]]), mach, at)
+        self._stream = (mach[:, :3], lines.seg)
+        mins = serial_min_s(self.letters, self.baud)
+        t = lines.times(seconds, np.array([mins(a, b) for a, b in zip(mach[:-1], mach[1:])]))
+        out = ["G93"]
+        for k in range(1, len(mach)):
+            out.append(compact_line(mach[k - 1], mach[k], self.letters, 60.0 / float(t[k - 1])))
+        return out + ["G94"]
 
     def machine_xyz(self) -> list[Point]:
         """The machine X Y Z of the streamed moves (after weld_lines): the path the status reports follow."""
@@ -193,9 +187,9 @@ class Five:
 
         def cb(j: int, _k: int) -> None:
             k = int(planned[min(j, len(planned) - 1)])
-            if k > done[0]:
-                done[0] = k
-                on_exec(k, k)
+            for q in range(done[0] + 1, k + 1):   # a line over several planned points: each once, in order
+                on_exec(q, q)
+            done[0] = max(done[0], k)
 
         return self.machine_xyz(), 0, cb
 
@@ -233,24 +227,68 @@ class FeedLimit:
                 f"would stand still with the process on between moves; time scale limited to {self.time_scale:g}")
 
 
-def _pass_moves(five: Five, post: Post5 | None, p: Pass, max_step_mm: float) -> tuple[np.ndarray, np.ndarray]:
+def _pass_moves(five: Five, post: Post5 | None, p: Pass, max_step_mm: float,
+                baud: int = 115200) -> tuple[np.ndarray, np.ndarray]:
     """(process seconds, bytes) per streamed weld line of one pass, as the executor sends them."""
     # mm/s per weld move (each at its segment's speed: cell-job/2)
     speed = np.asarray(move_values(p.speeds(), weld_segments(p.points, max_step_mm))) / 60.0
+    pts = np.asarray(_weld_points(p.points.tolist(), max_step_mm))
     if post is not None and p.axes is not None:
-        pts = np.asarray(_weld_points(p.points.tolist(), max_step_mm))
-        axes = np.asarray(weld_axes(p.points.tolist(), _axes(p), max_step_mm))
-        tol = float(getattr(five.trunnion, "chord_tolerance_mm", 0.02)) * _ROUNDING_SHARE
-        fp, _, fm, fs = linearise(post, pts, axes, post.machine(pts, axes), tol)
-        length = np.linalg.norm(np.diff(fp, axis=0), axis=1)
-        speed = speed[np.minimum(fs[:-1], len(speed) - 1)]
-        nbytes = np.array([len(move_line(r, five.letters, 1000.0)) + 1 for r in fm[1:]], dtype=float)
-    else:
-        pts = np.asarray(_weld_points(p.points.tolist(), max_step_mm))
-        length = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-        nbytes = np.array([len(f"G1 X{x:.3f} Y{y:.3f} Z{z:.3f} F{v * 60:.0f}") + 1
-                           for (x, y, z), v in zip(pts[1:], speed)], dtype=float)
+        _, lines = post_pass(post.trunnion, five.letters, baud, p, max_step_mm)
+        mins = serial_min_s(five.letters, baud)
+        m = lines.machine
+        seconds = np.linalg.norm(np.diff(pts, axis=0), axis=1) / np.maximum(speed, 1e-9)
+        t = lines.times(seconds, np.array([mins(a, b) for a, b in zip(m[:-1], m[1:])]))
+        nbytes = np.array([len(compact_line(a, b, five.letters, 60.0 / max(float(x), 1e-9))) + 1
+                           for a, b, x in zip(m[:-1], m[1:], t)], dtype=float)
+        return t, nbytes
+    length = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    nbytes = np.array([len(f"G1 X{x:.3f} Y{y:.3f} Z{z:.3f} F{v * 60:.0f}") + 1
+                       for (x, y, z), v in zip(pts[1:], speed)], dtype=float)
     return length / np.maximum(speed, 1e-9), nbytes
+
+
+def post_pass(trunnion: Any, letters: str, baud: int, p: Pass, max_step_mm: float,
+              where: str = "") -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], Lines]:
+    """One 5-axis pass: its weld points, axes and machine axes, and its lines (InputError naming
+    `where` and the point the axis limits cannot reach)."""
+    post = Post5(trunnion)
+    pts = np.asarray(_weld_points(p.points.tolist(), max_step_mm))
+    axes = np.asarray(weld_axes(p.points.tolist(), _axes(p), max_step_mm))
+    try:
+        m = post.machine(pts, axes)
+    except InputError as exc:
+        raise InputError(f"{where}{exc}") from None
+    speed = np.asarray(move_values(p.speeds(), weld_segments(p.points, max_step_mm))) / 60.0
+    tol = float(getattr(trunnion, "chord_tolerance_mm", 0.02)) * ROUNDING_SHARE
+    return (pts, axes, m), fit_lines(post, pts, axes, m, speed, tol, serial_min_s(letters, baud))
+
+
+def _head(post: Post5, pts: np.ndarray, axes: np.ndarray, m: np.ndarray, seconds: np.ndarray,
+          start_part: np.ndarray, start_m: np.ndarray, u0: float, fine: Lines, e: int,
+          five: Five) -> tuple[Lines, int]:
+    """The lines from a start (a planned point or inside a move) to the pass's line end e, fitted
+    afresh over the planned points between; the start alone when it is a line end itself. And the
+    index of the pass's first line end after the head."""
+    at_end = e > 0 and abs(float(fine.at[e - 1]) - u0) < 1e-9 and float(np.linalg.norm(fine.part[e - 1] - start_part)) < 1e-6
+    if at_end or e >= len(fine.at):
+        return Lines(start_part[None, :], fine.axes[max(e - 1, 0)][None, :], start_m[None, :], np.array([u0])), e
+    end_u = float(fine.at[e])
+    k0, k1 = int(np.floor(u0)) + 1, int(np.ceil(end_u - 1e-9))
+    inner = np.arange(k0, k1)
+    a0 = start_m
+    P = np.vstack([start_part, pts[inner], fine.part[e]])
+    ax0 = axes[min(int(np.floor(u0)), len(axes) - 1)]
+    A = np.vstack([ax0, axes[inner], fine.axes[e]])
+    M = np.vstack([a0, m[inner], fine.machine[e]])
+    at = np.r_[u0, inner.astype(float), end_u]
+    keep = np.r_[True, np.diff(at) > 1e-9]
+    P, A, M, at = P[keep], A[keep], M[keep], at[keep]
+    sub = Lines(P, A, M, at)
+    node_s = sub.times(seconds)
+    tol = float(getattr(five.trunnion, "chord_tolerance_mm", 0.02)) * ROUNDING_SHARE
+    fit = fit_lines(post, P, A, M, np.linalg.norm(np.diff(P, axis=0), axis=1) / np.maximum(node_s, 1e-9), tol)
+    return Lines(fit.part, fit.axes, fit.machine, np.interp(fit.at, np.arange(len(at)), at)), e + 1
 
 
 def feed_limit(job: CellJob, trunnion: Any, baud: int = 115200, max_step_mm: float = 2.0) -> FeedLimit | None:
@@ -263,7 +301,7 @@ def feed_limit(job: CellJob, trunnion: Any, baud: int = 115200, max_step_mm: flo
             if len(p.points) < 2:
                 continue
             try:
-                t, nb = _pass_moves(five, post, p, max_step_mm)
+                t, nb = _pass_moves(five, post, p, max_step_mm, baud)
             except InputError:
                 continue  # post_job names it before any motion
             if len(t) == 0:

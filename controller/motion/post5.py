@@ -202,18 +202,9 @@ def _feed(f: float) -> str:
     return f"{f:.{digits}f}"
 
 
-def weld_lines(machine: np.ndarray, feeds: np.ndarray, letters: str, i0: int = 0) -> list[str]:
-    """`G93`, one inverse-time G1 per move from point i0 on, then `G94`."""
-    lines = ["G93"]
-    lines += [move_line(machine[k], letters, float(feeds[k - 1])) for k in range(i0 + 1, len(machine))]
-    lines.append("G94")
-    return lines
-
-
-# --- chord tolerance: linearising rotary moves (docs/kinematics.md) ---------------------------------
+# --- where the tool tip is along a machine-linear move (lines5.py fits the lines) ---------------------
 
 _CHECK = (0.25, 0.5, 0.75)   # where a machine-linear move is checked against the planned segment
-_MAX_DEPTH = 12              # at most 4096 pieces per planned move
 
 
 def tip_path(trunnion: Trunnion, m0: np.ndarray, m1: np.ndarray, ts: Sequence[float] = _CHECK) -> np.ndarray:
@@ -228,48 +219,3 @@ def tip_path(trunnion: Trunnion, m0: np.ndarray, m1: np.ndarray, ts: Sequence[fl
         mat = trunnion.matrix(float(m[3]), float(m[4]))
         out[i] = mat[:3, :3].T @ (m[:3] - mat[:3, 3])
     return out
-
-
-def chord_error(trunnion: Trunnion, p0: np.ndarray, p1: np.ndarray, m0: np.ndarray, m1: np.ndarray) -> float:
-    """Largest distance of the tool tip from the planned part segment p0 → p1 (quarter points)."""
-    q = tip_path(trunnion, m0, m1)
-    ab = p1 - p0
-    L2 = float(ab @ ab)
-    t = np.clip((q - p0) @ ab / L2, 0.0, 1.0) if L2 > 1e-18 else np.zeros(len(q))
-    return float(np.linalg.norm(q - (p0 + t[:, None] * ab), axis=1).max())
-
-
-def linearise(post: Post5, pts: np.ndarray, axes: np.ndarray, machine: np.ndarray,
-              tol_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Split the machine moves of a pass until the tool tip stays within `tol_mm` of the plan.
-
-    Every planned move p_k → p_k+1 whose machine-linear interpolation strays more than `tol_mm`
-    (checked at its quarter points through the forward kinematics) is halved in the part frame
-    (point midway, tool axis the normalised blend, machine axes by the inverse kinematics next to
-    the previous angles), recursively. The planned points stay: the split points lie between
-    them, so the journal's weld-point indices are untouched. Returns the part points, axes and
-    machine axes of every move end, and `seg`: for each of them the index of the planned point it
-    lies on or after: the planned point k has k, the split points inside move k → k+1 have k.
-    """
-    if post.alignment is not None:
-        raise InputError("linearise: give points already in the table frame")
-    tr = post.trunnion
-    P, A, M, S = [pts[0]], [axes[0]], [machine[0]], [0]
-
-    def split(k: int, p0: np.ndarray, a0: np.ndarray, m0: np.ndarray,
-              p1: np.ndarray, a1: np.ndarray, m1: np.ndarray, depth: int) -> None:
-        if depth < _MAX_DEPTH and chord_error(tr, p0, p1, m0, m1) > tol_mm:
-            pm, am = 0.5 * (p0 + p1), unit(a0 + a1)
-            mm = post.machine(pm[None, :], am[None, :], (float(m0[3]), float(m0[4])))[0]
-            split(k, p0, a0, m0, pm, am, mm, depth + 1)
-            split(k, pm, am, mm, p1, a1, m1, depth + 1)
-            return
-        P.append(p1)
-        A.append(a1)
-        M.append(m1)
-        S.append(k)
-
-    for k in range(len(pts) - 1):
-        split(k, pts[k], axes[k], machine[k], pts[k + 1], axes[k + 1], machine[k + 1], 0)
-        S[-1] = k + 1   # the last piece ends on the planned point k+1
-    return np.asarray(P), np.asarray(A), np.asarray(M), np.asarray(S, dtype=int)
