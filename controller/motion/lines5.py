@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 
 from controller.motion.kinematics import Trunnion, unit
-from controller.motion.post5 import Post5, _feed, _rot, move_line
+from controller.motion.post5 import Post5, feed_word, move_line, rotations
 
 _CHECK = np.linspace(0.125, 0.875, 7)   # fractions of a line where the tip is checked
 _MAX_DEPTH = 12                          # a planned move halved at most 12 times (4096 pieces)
@@ -66,21 +66,21 @@ class Lines:
 
 def part_points(tr: Trunnion, m: np.ndarray) -> np.ndarray:
     """The part point under the tool at each machine row X Y Z A S (forward kinematics, vectorised)."""
-    u1, u2 = tr._axes()
+    u1, u2 = tr.axes()
     inner, outer = (m[:, 3], m[:, 4]) if tr.table == "AB" else (m[:, 4], m[:, 3])
     c2 = -np.asarray(tr.pivot, dtype=float)
     c1 = c2 + np.asarray(tr.offset, dtype=float)
-    q = np.einsum("nij,nj->ni", _rot(u2, -outer), m[:, :3] - c2) + c2
-    out: np.ndarray = np.einsum("nij,nj->ni", _rot(u1, -inner), q - c1) + c1
+    q = np.einsum("nij,nj->ni", rotations(u2, -outer), m[:, :3] - c2) + c2
+    out: np.ndarray = np.einsum("nij,nj->ni", rotations(u1, -inner), q - c1) + c1
     return out
 
 
 def tool_axes(tr: Trunnion, m: np.ndarray) -> np.ndarray:
     """The tool axis in the part frame at each machine row: M(a, s)ᵀ·(0, 0, 1)."""
-    u1, u2 = tr._axes()
+    u1, u2 = tr.axes()
     inner, outer = (m[:, 3], m[:, 4]) if tr.table == "AB" else (m[:, 4], m[:, 3])
     z = np.broadcast_to([0.0, 0.0, 1.0], (len(m), 3))
-    out: np.ndarray = np.einsum("nij,nj->ni", _rot(u1, -inner), np.einsum("nij,nj->ni", _rot(u2, -outer), z))
+    out: np.ndarray = np.einsum("nij,nj->ni", rotations(u1, -inner), np.einsum("nij,nj->ni", rotations(u2, -outer), z))
     return out
 
 
@@ -324,7 +324,7 @@ def compact_line(prev: np.ndarray | None, m: np.ndarray, letters: str, feed: flo
         words = [w for w, b in zip(full, before) if w != b] or full[:1]
     else:
         words = full
-    return "G1 " + " ".join(words) + (f" F{_feed(feed)}" if feed is not None else "")
+    return "G1 " + " ".join(words) + (f" F{feed_word(feed)}" if feed is not None else "")
 
 
 def serial_min_s(letters: str, baud: int, factor: float = 2.0) -> MinTime:

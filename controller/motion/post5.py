@@ -156,8 +156,8 @@ class Post5:
         c2 = -np.asarray(t.pivot, dtype=float)
         c1 = c2 + np.asarray(t.offset, dtype=float)
         # M = T(c2)·R_outer·T(−c2)·T(c1)·R_inner·T(−c1) (docs/kinematics.md), for every point at once
-        q = np.einsum("nij,nj->ni", _rot(u1, inner), pts - c1) + c1
-        xyz = np.einsum("nij,nj->ni", _rot(u2, outer), q - c2) + c2
+        q = np.einsum("nij,nj->ni", rotations(u1, inner), pts - c1) + c1
+        xyz = np.einsum("nij,nj->ni", rotations(u2, outer), q - c2) + c2
         return np.column_stack([xyz, ang])
 
 
@@ -169,7 +169,7 @@ def _angles(v: np.ndarray, w: np.ndarray, axis: np.ndarray) -> np.ndarray:
     return out
 
 
-def _rot(axis: np.ndarray, deg: np.ndarray) -> np.ndarray:
+def rotations(axis: np.ndarray, deg: np.ndarray) -> np.ndarray:
     """(n, 3, 3) right-handed rotations about one unit axis (Rodrigues, vectorised)."""
     k = np.asarray(axis, dtype=float)
     t = np.radians(np.asarray(deg, dtype=float))
@@ -193,10 +193,10 @@ def _g(v: float) -> str:
 def move_line(m: Sequence[float] | np.ndarray, letters: str, feed: float | None = None, verb: str = "G1") -> str:
     """One G-code motion line with the machine's letters (XYZAB or XYZAC)."""
     words = " ".join(f"{c}{_g(v)}" for c, v in zip(letters, m))
-    return f"{verb} {words}" + (f" F{_feed(feed)}" if feed is not None else "")
+    return f"{verb} {words}" + (f" F{feed_word(feed)}" if feed is not None else "")
 
 
-def _feed(f: float) -> str:
+def feed_word(f: float) -> str:
     """A feed word grbl reads: 5 significant digits, never in exponent form (F1e+05 is F1)."""
     digits = max(0, 4 - int(math.floor(math.log10(abs(f))))) if f > 0 else 0
     return f"{f:.{digits}f}"
