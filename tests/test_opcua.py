@@ -100,9 +100,13 @@ async def test_a_client_follows_a_build_and_gets_the_door_alarm_as_an_event(tmp_
         assert names == set()
         job = small_job(n_layers=3)
         c.ctl.open_job(job_from_dict(job))
+        c.ctl.trace = c.ctl.trace.given(wire_lot="HX-77", operator="A. Welder")   # as `--wire-lot` gives it
         res = await asyncio.wait_for(c.ctl.start(), 60)
         assert res.state == "complete"
         await asyncio.sleep(0.3)
+        # the running job's feedstock lot (OPC 40540) and operator (docs/records.md)
+        assert await (await c.node("JobManagement", "WireLot")).read_value() == "HX-77"
+        assert await (await c.node("JobManagement", "Operator")).read_value() == "A. Welder"
         states = [v for _, v in rec.values["State"]]
         assert states[0] == "ready" or "idle" in states
         assert any(s.startswith("running") for s in states) and states[-1] == "complete"
