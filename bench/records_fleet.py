@@ -3,8 +3,9 @@
     .venv/bin/python -m bench.records_fleet [--cells 10] [--jobs 3] [--outage-s 15]
 
 Starts a PostgreSQL server (bench/_postgres.py), then `--cells` simulated cells at once, each a
-process of its own building `--jobs` small jobs one after the other (`cell run JOB --sim`, its own
-cell.yaml: name, runs directory, a wire lot, `records.url` = the server). Once the first records
+process of its own (bench/_fleet_cell.py: its simulators, a controller, its own cell.yaml: name,
+runs directory, a wire lot, `records.url` = the server) building `--jobs` small jobs one after the
+other. Once the first records
 are in, the database is stopped for `--outage-s` seconds and started again. After every cell has
 finished, `cell records sync` runs once per cell. Then, against every run directory's report.json:
 records lost (in a run directory, not in the store), stored twice (rows beyond one per build id,
@@ -70,11 +71,12 @@ _SHARED = ["setpriv", "--inh-caps=-sys_nice", "--bounding-set=-sys_nice", "--"]
 
 
 def start_cell(cfg: Path, runs: Path, files: list[Path], env: dict[str, str], realtime: bool) -> subprocess.Popen[str]:
-    cell = f"{sys.executable} -m controller.cli.main"
-    script = "; ".join(f"{cell} run {f} --sim --cell-config {cfg} --runs {runs} --json > {f.with_suffix('.out')} "
-                       f"2> {f.with_suffix('.err')}" for f in files)
+    """The cell's process (bench/_fleet_cell.py): its simulators, its controller, its jobs in turn."""
     prefix = _SHARED if os.geteuid() == 0 and not realtime else []
-    return subprocess.Popen([*prefix, "bash", "-c", script], env=env, text=True)
+    out = open(cfg.parent / "builds.jsonl", "w", encoding="utf-8")   # noqa: SIM115  (the child's, closed with it)
+    return subprocess.Popen([*prefix, sys.executable, "-m", "bench._fleet_cell", str(cfg), str(runs),
+                             *map(str, files)], env=env, text=True, stdout=out,
+                            stderr=open(cfg.parent / "cell.err", "w", encoding="utf-8"))  # noqa: SIM115
 
 
 def stored(url: str) -> int:
@@ -105,8 +107,9 @@ def verify(url: str, runs: list[Path]) -> dict[str, Any]:
     return {"reports": len(reports), "stored": len(rows), "lost": len(set(reports) - set(in_db)),
             "twice": len(ids) - len(set(ids)) + sum(1 for b, n in beads.items() if n != len(in_db[b]["beads"])),
             "differ": sum(1 for b, rep in reports.items() if b in in_db and in_db[b] != rep),
-            "states": sorted({rep["state"] for rep in reports.values()}),
-            "cells": len({rep["cell"] for rep in reports.values()})}
+            "states": {st: sum(1 for r in reports.values() if r["state"] == st) for st in
+                       sorted({r["state"] for r in reports.values()})},
+            "cells_with_records": len({rep["cell"] for rep in reports.values()})}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -115,7 +118,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=3)
     ap.add_argument("--outage-s", type=float, default=15.0)
     ap.add_argument("--realtime", action="store_true", help="let the cells take real-time priority (as root)")
-    ap.add_argument("--stagger-s", type=float, default=2.0, help="seconds between the cells' starts")
+    ap.add_argument("--stagger-s", type=float, default=4.0, help="seconds between the cells' starts")
+    ap.add_argument("--outage-after", type=int, default=None, metavar="N",
+                    help="stop the database once N records are stored (default: as many as cells)")
     a = ap.parse_args(argv)
     base = Path(tempfile.mkdtemp(prefix="cell-fleet-"))
     env = {**os.environ, "PYTHONPATH": str(ROOT), "CELL_RECORD_PLOTS": "0", "CELL_LOCK_DIR": str(base / "locks"),
@@ -129,7 +134,8 @@ def main(argv: list[str] | None = None) -> int:
         for cfg, runs, files in cells:   # a second apart: ten interpreters importing at once crawl
             procs.append(start_cell(cfg, runs, files, env, a.realtime))
             time.sleep(a.stagger_s)
-        while stored(url) < 1 and time.monotonic() - t0 < 600:
+        first = a.outage_after if a.outage_after is not None else a.cells
+        while stored(url) < first and time.monotonic() - t0 < 900 and any(p.poll() is None for p in procs):
             time.sleep(0.5)
         out["outage_at_s"], out["stored_before_outage"] = round(time.monotonic() - t0, 1), stored(url)
         srv.stop("fast")
@@ -149,6 +155,11 @@ def main(argv: list[str] | None = None) -> int:
         out["sync_exit_codes"] = sorted({s.returncode for s in sync})
         out["queued_after_sync"] = sum(1 for r in runs for _ in r.glob(f"*/{PENDING}"))
         out.update(verify(url, runs))
+        said = [json.loads(line)["message"] for cfg, _, _ in cells
+                for line in (cfg.parent / "builds.jsonl").read_text().splitlines() if line.strip()]
+        # what each build's end said: sent, or queued (the outage) and sent later by a next build or the sync
+        out["build_ends_queued"] = sum("queued for the record store" in m for m in said)
+        out["build_ends_sent"] = sum("sent to the record store" in m for m in said)
     out["load_after"] = os.getloadavg()[0]
     out["work_dir"] = str(base)
     print(json.dumps(out, indent=1))
