@@ -112,6 +112,27 @@ def verify(url: str, runs: list[Path]) -> dict[str, Any]:
             "cells_with_records": len({rep["cell"] for rep in reports.values()})}
 
 
+def sync_and_verify(url: str, cells: list[tuple[Path, Path, list[Path]]], env: dict[str, str]) -> dict[str, Any]:
+    """`cell records sync` once per cell, then the store against every run directory's report."""
+    out: dict[str, Any] = {}
+    runs = [r for _, r, _ in cells]
+    out["queued_before_sync"] = sum(1 for r in runs for _ in r.glob(f"*/{PENDING}"))
+    out["stored_before_sync"] = stored(url)
+    sync = [subprocess.run([sys.executable, "-m", "controller.cli.main", "records", "sync", "--cell-config",
+                            str(cfg), "--json"], capture_output=True, text=True, env=env, check=False)
+            for cfg, _, _ in cells]
+    out["sync_sent"] = sum(json.loads(s.stdout)["sent"] for s in sync if s.stdout.strip())
+    out["sync_exit_codes"] = sorted({s.returncode for s in sync})
+    out["queued_after_sync"] = sum(1 for r in runs for _ in r.glob(f"*/{PENDING}"))
+    out.update(verify(url, runs))
+    said = [json.loads(line)["message"] for cfg, _, _ in cells
+            for line in (cfg.parent / "builds.jsonl").read_text().splitlines() if line.strip()]
+    # what each build's end said: sent, or queued (the outage) and sent later by a next build or the sync
+    out["build_ends_queued"] = sum("queued for the record store" in m for m in said)
+    out["build_ends_sent"] = sum("sent to the record store" in m for m in said)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="bench.records_fleet")
     ap.add_argument("--cells", type=int, default=10)
@@ -131,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
         cells = [setup_cell(base, c, url, a.jobs) for c in range(a.cells)]
         t0 = time.monotonic()
         procs = []
-        for cfg, runs, files in cells:   # a second apart: ten interpreters importing at once crawl
+        for cfg, runs, files in cells:   # apart: ten interpreters importing at once crawl
             procs.append(start_cell(cfg, runs, files, env, a.realtime))
             time.sleep(a.stagger_s)
         first = a.outage_after if a.outage_after is not None else a.cells
@@ -145,21 +166,7 @@ def main(argv: list[str] | None = None) -> int:
         for p in procs:
             p.wait(timeout=1800)
         out["builds_wall_s"] = round(time.monotonic() - t0, 1)
-        runs = [r for _, r, _ in cells]
-        out["queued_before_sync"] = sum(1 for r in runs for _ in r.glob(f"*/{PENDING}"))
-        out["stored_before_sync"] = stored(url)
-        sync = [subprocess.run([sys.executable, "-m", "controller.cli.main", "records", "sync", "--cell-config",
-                                str(cfg), "--json"], capture_output=True, text=True, env=env, check=False)
-                for cfg, _, _ in cells]
-        out["sync_sent"] = sum(json.loads(s.stdout)["sent"] for s in sync if s.stdout.strip())
-        out["sync_exit_codes"] = sorted({s.returncode for s in sync})
-        out["queued_after_sync"] = sum(1 for r in runs for _ in r.glob(f"*/{PENDING}"))
-        out.update(verify(url, runs))
-        said = [json.loads(line)["message"] for cfg, _, _ in cells
-                for line in (cfg.parent / "builds.jsonl").read_text().splitlines() if line.strip()]
-        # what each build's end said: sent, or queued (the outage) and sent later by a next build or the sync
-        out["build_ends_queued"] = sum("queued for the record store" in m for m in said)
-        out["build_ends_sent"] = sum("sent to the record store" in m for m in said)
+        out.update(sync_and_verify(url, cells, env))
     out["load_after"] = os.getloadavg()[0]
     out["work_dir"] = str(base)
     print(json.dumps(out, indent=1))
