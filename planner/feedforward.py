@@ -95,9 +95,10 @@ def subdivide(p: Pass, step_mm: float) -> Pass:
     n = np.maximum(1, np.ceil(np.linalg.norm(np.diff(pts, axis=0), axis=1) / step_mm - 1e-9)).astype(int)
     if np.all(n == 1):
         return p
-    f = np.concatenate([np.arange(k) / k for k in n] + [np.zeros(1)])
-    i0 = np.concatenate([np.full(k, i) for i, k in enumerate(n)] + [np.array([len(pts) - 2])])
-    f[-1] = 1.0
+    seg_of = np.repeat(np.arange(len(n)), n)
+    first = np.cumsum(n) - n
+    f = np.r_[(np.arange(len(seg_of)) - first[seg_of]) / n[seg_of], 1.0]
+    i0 = np.r_[seg_of, len(pts) - 2]
 
     def blend(a: np.ndarray | None, unit: bool) -> np.ndarray | None:
         if a is None:
@@ -107,7 +108,6 @@ def subdivide(p: Pass, step_mm: float) -> Pass:
             out = out / np.maximum(np.linalg.norm(out, axis=1), 1e-12)[:, None]
         return out
 
-    seg_of = np.repeat(np.arange(len(n)), n)
     sp = None if p.seg_speed_mm_min is None else p.seg_speed_mm_min[seg_of]
     wf = None if p.seg_wfs_m_min is None else p.seg_wfs_m_min[seg_of]
     new_pts = blend(pts, False)
@@ -267,15 +267,17 @@ def _per_segment(values: np.ndarray, smp: _Samples) -> np.ndarray:
 
 
 def _smooth(values: np.ndarray, smp: _Samples, length: float) -> np.ndarray:
-    """Each pass's per-segment values averaged over `length` mm of its path (a moving window by length)."""
-    out = np.empty_like(values)
-    for a, b in zip(smp.seg0[:-1], smp.seg0[1:]):
-        s, L, v = smp.seg_s[a:b], smp.seg_len[a:b], values[a:b]
-        c_w = np.r_[0.0, np.cumsum(L)]
-        c_v = np.r_[0.0, np.cumsum(L * v)]
-        lo = np.searchsorted(s, s - length / 2, side="left")
-        hi = np.searchsorted(s, s + length / 2, side="right")
-        out[a:b] = (c_v[hi] - c_v[lo]) / np.maximum(c_w[hi] - c_w[lo], 1e-12)
+    """Each pass's per-segment values averaged over `length` mm of its path (a moving window by
+    length; all passes at once: each pass's positions shifted past the previous pass's window)."""
+    L = smp.seg_len
+    c_w = np.r_[0.0, np.cumsum(L)]
+    c_v = np.r_[0.0, np.cumsum(L * values)]
+    totals = np.bincount(smp.seg_pass, weights=L, minlength=len(smp.seg0) - 1)
+    shift = np.r_[0.0, np.cumsum(totals + length + 1.0)][smp.seg_pass]
+    s = smp.seg_s + shift
+    lo = np.searchsorted(s, s - length / 2, side="left")
+    hi = np.searchsorted(s, s + length / 2, side="right")
+    out: np.ndarray = (c_v[hi] - c_v[lo]) / np.maximum(c_w[hi] - c_w[lo], 1e-12)
     return out
 
 
@@ -339,13 +341,17 @@ def level_layer(passes: tuple[Pass, ...], wire_diameter_mm: float, env: Envelope
 def _balanced(m: np.ndarray, smp: _Samples, seg_metal: np.ndarray, lo: float, hi: float) -> np.ndarray:
     """Every pass's multipliers scaled so it lays its planned metal (then clipped; a few times)."""
     out = m.copy()
-    for a, b in zip(smp.seg0[:-1], smp.seg0[1:]):
-        base = seg_metal[a:b] * smp.seg_len[a:b]
-        for _ in range(4):
-            k = float(np.sum(base) / max(float(np.sum(base * out[a:b])), 1e-12))
-            out[a:b] = np.clip(out[a:b] * k, lo, hi)
-            if abs(k - 1.0) < 1e-4:
-                break
+    n_pass = len(smp.seg0) - 1
+    base = seg_metal * smp.seg_len
+    want = np.bincount(smp.seg_pass, weights=base, minlength=n_pass)
+    busy = np.ones(n_pass, dtype=bool)
+    for _ in range(4):
+        k = want / np.maximum(np.bincount(smp.seg_pass, weights=base * out, minlength=n_pass), 1e-12)
+        on = busy[smp.seg_pass]
+        out[on] = np.clip(out[on] * k[smp.seg_pass][on], lo, hi)
+        busy &= np.abs(k - 1.0) >= 1e-4
+        if not busy.any():
+            break
     return out
 
 
@@ -361,7 +367,8 @@ def _apply(cut: tuple[Pass, ...], orig: tuple[Pass, ...], m: np.ndarray, smp: _S
         v0, w0 = p.speeds(), p.wire_feeds()
         v = np.clip(v0 / mm, env.speed_min, env.speed_max)
         w = np.clip(w0 * mm * v / v0, env.wfs_min, env.wfs_max)   # what the speed could not do
-        new_w = None if np.allclose(w, w0, rtol=1e-6) and p.seg_wfs_m_min is None else w
+        same = bool(np.all(np.abs(w - w0) <= 1e-8 + 1e-6 * np.abs(w0)))   # np.allclose(w, w0, rtol=1e-6)
+        new_w = None if same and p.seg_wfs_m_min is None else w
         out.append(p.with_process(np.round(v, 1), None if new_w is None else np.round(new_w, 3)))
         n += 1
     return tuple(out), n
