@@ -30,6 +30,7 @@ COMMANDS: dict[str, str] = {
     "export": "controller.cli.export",
     "journal": "controller.cli.journal",
     "repair": "controller.cli.repair",
+    "finish": "controller.cli.finish",
     "report": "controller.cli.report",
     "runs": "controller.cli.report",
     "records": "controller.cli.records",
