@@ -212,23 +212,22 @@ class _Grid:
         cx, cy = smp.cap_dir[:, 0:1], smp.cap_dir[:, 1:2]
         px, py = (R * np.cos(T)).ravel()[None, :], (R * np.sin(T)).ravel()[None, :]
         cap = np.stack([smp.cap_xy[:, 0:1] + cx * px - cy * py, smp.cap_xy[:, 1:2] + cy * px + cx * py], axis=-1)
-        allp = np.concatenate([strip.reshape(-1, 2), cap.reshape(-1, 2), smp.xy])
-        self.lo = allp.min(axis=0) - 2 * cell
-        hi = allp.max(axis=0) + 2 * cell
+        # the box of every point (a strip's ends bound it: each strip is a straight line across)
+        ends = [strip[:, 0], strip[:, -1], cap.reshape(-1, 2), smp.xy]
+        self.lo = np.min([e.min(axis=0) for e in ends if len(e)], axis=0) - 2 * cell
+        hi = np.max([e.max(axis=0) for e in ends if len(e)], axis=0) + 2 * cell
         self.shape = (int(math.ceil((hi[1] - self.lo[1]) / cell)) + 2, int(math.ceil((hi[0] - self.lo[0]) / cell)) + 2)
-        # every splat entry once, for all rounds: (grid cell, weight per unit of metal, whose metal)
-        n = len(smp.xy)
-        ws = np.broadcast_to(self.w_across[None, :], (n, self.ACROSS)).ravel()
-        ks = np.repeat(np.arange(n), self.ACROSS)
-        wc = np.broadcast_to(self.w_cap[None, :], (len(smp.cap_xy), len(self.w_cap))).ravel()
-        kc = np.repeat(np.arange(len(smp.cap_xy)), len(self.w_cap)) + n   # a round end's metal: index n + c
+        # every splat entry once, for all rounds: the strips' (grid cell, weight per unit of
+        # metal) by sample and point across, then the round ends' (grid cell, weight, whose metal)
         # (each point to its nearest cell: the model's resolution is the bead's, not the cell's)
         self.cells = np.concatenate([self._cell(strip.reshape(-1, 2)), self._cell(cap.reshape(-1, 2))])
-        self.weights = np.concatenate([ws, wc]) / (cell * cell)
-        self.whose = np.concatenate([ks, kc])
+        self.w_strip = self.w_across / (cell * cell)
+        self.w_ends = np.tile(self.w_cap, len(smp.cap_xy)) / (cell * cell)
+        self.ends_of = np.repeat(np.arange(len(smp.cap_xy)), len(self.w_cap))
         u = (smp.xy - self.lo) / cell
         i0 = np.floor(u).astype(np.int64)
-        self.at = (i0[:, 1], i0[:, 0], u[:, 0] - i0[:, 0], u[:, 1] - i0[:, 1])
+        fx, fy = u[:, 0] - i0[:, 0], u[:, 1] - i0[:, 1]
+        self.at = (i0[:, 1], i0[:, 0], fx, fy, 1 - fx, 1 - fy)
 
     def _cell(self, p: np.ndarray) -> np.ndarray:
         ij = np.rint((p - self.lo) / self.cell).astype(np.int64)
@@ -241,15 +240,14 @@ class _Grid:
         moved = volume[smp.cap_src] * smp.cap_frac
         strip_v = volume - np.bincount(smp.cap_src, weights=moved, minlength=len(volume))
         cap_v = np.bincount(smp.cap_of, weights=moved, minlength=len(smp.cap_xy))
-        metal = np.concatenate([strip_v, cap_v])
-        g = np.bincount(self.cells, weights=self.weights * metal[self.whose],
-                        minlength=self.shape[0] * self.shape[1]).reshape(self.shape)
+        poured = np.concatenate([(strip_v[:, None] * self.w_strip[None, :]).ravel(), self.w_ends * cap_v[self.ends_of]])
+        g = np.bincount(self.cells, weights=poured, minlength=self.shape[0] * self.shape[1]).reshape(self.shape)
         # a [1 2 1] / 4 filter each way takes out the aliasing of points onto their nearest cells
         g[:, 1:-1] = 0.25 * g[:, :-2] + 0.5 * g[:, 1:-1] + 0.25 * g[:, 2:]
         g[1:-1, :] = 0.25 * g[:-2, :] + 0.5 * g[1:-1, :] + 0.25 * g[2:, :]
-        j, i, fx, fy = self.at
-        out: np.ndarray = (g[j, i] * (1 - fx) * (1 - fy) + g[j, i + 1] * fx * (1 - fy)
-                           + g[j + 1, i] * (1 - fx) * fy + g[j + 1, i + 1] * fx * fy)
+        j, i, fx, fy, gx, gy = self.at
+        out: np.ndarray = (g[j, i] * gx * gy + g[j, i + 1] * fx * gy
+                           + g[j + 1, i] * gx * fy + g[j + 1, i + 1] * fx * fy)
         return out
 
 
