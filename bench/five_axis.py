@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from controller.api import CellController
-from controller.job.weld_path import weld_points
+from controller.job.weld_path import weld_points, weld_segments
 from controller.harness.sim import SimHarness, with_urls
 from controller.job.read import job_from_dict
 from core.config import load_cell, load_material, load_sim
@@ -110,7 +110,9 @@ def figures(job: dict, log: Path, max_step_mm: float = 2.0) -> dict:
             B.append(pts[1:])
             AX.append(axes)
             PAX.append(pts)
-            SP.append(np.full(len(pts), float(p["speed_mm_min"])))
+            sp = np.atleast_1d(np.asarray(p["speed_mm_min"], dtype=float))   # one, or one per segment (cell-job/2)
+            seg = np.asarray(weld_segments(p["points"], max_step_mm))
+            SP.append(np.r_[sp[np.minimum(seg, len(sp) - 1)], sp[-1]] if len(sp) > 1 else np.full(len(pts), sp[0]))
     a, b = np.vstack(A), np.vstack(B)
     allpts, allax, allsp = np.vstack(PAX), np.vstack(AX), np.concatenate(SP)
     fr = np.array([s["part"]["from"] for s in segs])
@@ -125,7 +127,12 @@ def figures(job: dict, log: Path, max_step_mm: float = 2.0) -> dict:
     dt = np.array([s["t1"] - s["t0"] for s in segs])
     ok = length >= 0.5  # the log rounds t to 0.1 ms: shorter stretches cannot show 2 %
     speed = length[ok] / dt[ok] * 60.0
-    sp_err = np.abs(speed / allsp[near][ok] - 1.0)
+    # per-segment speeds (cell-job/2): a deposit stretch is judged against the planned speeds
+    # between its two ends (the range of the planned points nearest to each)
+    near0 = np.argmin(((fr[:, None, :] - allpts[None, :, :]) ** 2).sum(axis=2), axis=1)
+    lo = np.array([allsp[min(a, b):max(a, b) + 1].min() for a, b in zip(near0, near)])[ok]
+    hi = np.array([allsp[min(a, b):max(a, b) + 1].max() for a, b in zip(near0, near)])[ok]
+    sp_err = np.maximum(np.maximum(lo / speed - 1.0, speed / hi - 1.0), 0.0)
     steps = _rotary_steps(log)
     return {"segments": len(segs), "deposited_mm": round(float(length.sum()), 2),
             "planned_mm": round(float(np.linalg.norm(b - a, axis=1).sum()), 2),
@@ -282,7 +289,7 @@ def main(argv: list[str] | None = None) -> int:
     job = plan5(mesh)
     for la in job["layers"]:
         for p in la["passes"]:
-            p["speed_mm_min"] = p["speed_mm_min"] / a.slow
+            p["speed_mm_min"] = np.divide(p["speed_mm_min"], a.slow).tolist()
     with tempfile.TemporaryDirectory() as tmp:
         res, log = asyncio.run(build(job, Path(tmp), a.table, a.scale))
         fig = figures(job, log)

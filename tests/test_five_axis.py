@@ -110,7 +110,7 @@ async def test_five_axis_build_on_the_cnc_simulator_lands_on_the_plan(part, tabl
     job = plan5(mesh)
     for la in job["layers"]:   # slower beads: the link can feed them at a time scale a test affords
         for p in la["passes"]:
-            p["speed_mm_min"] /= 4.0
+            p["speed_mm_min"] = np.divide(p["speed_mm_min"], 4.0).tolist()   # one, or one per segment (cell-job/2)
     # time scale 30: at 60 the in-process controller beside the other test worker's cell left the
     # CNC's planner empty for 0.1-0.4 s now and then (the same on the commit before this one)
     res, log = await build(job, tmp_path, table, scale=30.0)

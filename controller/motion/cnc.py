@@ -109,7 +109,8 @@ class CncExecutor:
         if job.alignment is not None and job.alignment.no_level:
             self.five.level = None   # aligned without leveling: the tilt is in the transform, no A/B move
         await self.five.post_job(job, max_step_mm, self.link.baud)
-        check_feed(job, self.five.trunnion, self.link, max_step_mm)
+        # the feed check fits every 5-axis pass again: seconds of numpy, off the loop that cycles the devices
+        await asyncio.to_thread(check_feed, job, self.five.trunnion, self.link, max_step_mm)
 
     def require_job_axes(self, job: CellJob) -> None:
         """The firmware's axes against the job, before homing or any motion (DESIGN.md §5):

@@ -8,7 +8,7 @@ between its ends too (a rotary arc over a whole ring would hold the first: a rec
 ends, like the simulator's deposit log, would not), and the tool axis within `axis_tol_deg` of the
 planned one; a single planned move that strays is halved in the part frame
 until its pieces hold. Lines end where the planned speed changes (more than 2 %) and at the pass's
-end. A line shorter in time than its `min_s` (twice its serial time at the link's baud) is merged
+end, and before the speed drifts more than 2 % from the line's first (feed-forward). A line shorter in time than its `min_s` (twice its serial time at the link's baud) is merged
 with a neighbour or the two are split again at another planned point; one that cannot (a short
 piece between two sharp corners) keeps its place and is given the minimum time (a slower feed
 over a few hundredths of a millimetre) rather than refused: `Lines.stretched` counts them.
@@ -204,8 +204,11 @@ def fit_lines(post: Post5, pts: np.ndarray, axes: np.ndarray, machine: np.ndarra
     stops = np.flatnonzero(brk)
     ends: list[int] = [0]   # nodes the lines end on (before pieces)
     i, n = 0, len(at)
+    ns = speeds[np.minimum(np.floor(at + 1e-9).astype(int), len(speeds) - 1)] if len(speeds) else np.ones(n)
     while i < n - 1:
         lim = min(int(stops[np.searchsorted(stops, i, side="right")]), i + _MAX_SPAN)
+        drift = np.flatnonzero(np.abs(ns[i + 1:lim] / max(float(ns[i]), 1e-9) - 1.0) > SPEED_BREAK)
+        lim = i + 1 + int(drift[0]) if len(drift) and int(drift[0]) > 0 else lim   # the speed drifts > 2 %
         j = _farthest(fit, i, lim)
         ends.append(j)
         i = j
