@@ -6,12 +6,13 @@ runs from one planned point as far along the pass as the tip stays within `tol_m
 polyline (checked at eighths of the line through the forward kinematics), the straight chord
 between its ends too (a rotary arc over a whole ring would hold the first: a record of the move's
 ends, like the simulator's deposit log, would not), and the tool axis within `axis_tol_deg` of the
-planned one; a single planned move that strays is halved in the part frame
-until its pieces hold. Lines end where the planned speed changes (more than 2 %) and at the pass's
-end, and before the speed drifts more than 2 % from the line's first (feed-forward). A line shorter in time than its `min_s` (twice its serial time at the link's baud) is merged
-with a neighbour or the two are split again at another planned point; one that cannot (a short
-piece between two sharp corners) keeps its place and is given the minimum time (a slower feed
-over a few hundredths of a millimetre) rather than refused: `Lines.stretched` counts them.
+planned one; a single planned move that strays is halved in the part frame until its pieces
+hold. Lines end where the planned speed changes (more than 2 %), before it drifts more than 2 %
+from the line's first (feed-forward), and at the pass's end. A line shorter in time than its
+`min_s` (twice its serial time at the link's baud) is split again with its neighbours into lines
+of even time; one that cannot (a short piece between two sharp corners) keeps its place and is
+given the minimum time (a slower feed over a fraction of a millimetre) rather than refused:
+`Lines.stretched` counts them.
 """
 from __future__ import annotations
 
