@@ -260,9 +260,11 @@ def _unweldable(beads: list[Path2D], shares: list[float], min_share: float, idle
         return set()
     fps = shapely.buffer(np.array([shapely.linestrings(b.points) for b in beads], dtype=object),
                          np.array([0.5 * b.width_mm for b in beads]), quad_segs=4)
+    tree = shapely.STRtree(fps)
     out: set[int] = set()
     for i in low:
-        others = shapely.union_all(np.delete(fps, [i, *[j for j, b in enumerate(beads) if id(b) in out | idle]]))
+        near = [j for j in tree.query(fps[i]) if j != i and id(beads[j]) not in out | idle]
+        others = shapely.union_all(fps[near]) if near else shapely.Polygon()
         if shapely.area(shapely.difference(fps[i], others)) <= 0.05 * shapely.area(fps[i]):
             out.add(id(beads[i]))
     return out
