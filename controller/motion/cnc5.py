@@ -7,7 +7,7 @@ axis limits refuses the job, naming layer, pass and point, instead of stopping m
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -18,6 +18,8 @@ from controller.job.model import CellJob
 from core.errors import InputError
 from planner.job import Pass
 from controller.motion.kinematics import Trunnion
+from controller.ports import CncLinkPort
+from core.config import CellConfig
 import asyncio
 
 Point = tuple[float, float, float]
@@ -35,7 +37,7 @@ def _axes(p: Pass) -> list[list[float]] | None:
 class Five:
     """Machine axes for the job's 5-axis passes; `active` while the current pass is one."""
 
-    def __init__(self, trunnion: Any) -> None:
+    def __init__(self, trunnion: Trunnion | None) -> None:
         self.trunnion = trunnion
         self.letters = "XYZA" + (trunnion.table[1] if trunnion is not None else "B")
         self.passes: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
@@ -84,7 +86,14 @@ class Five:
         a, b = self.level
         return ["G90 G94", f"G0 {self.letters[3]}{a:.4f} {self.letters[4]}{b:.4f}"]
 
-    def level_ok(self, mpos: Any) -> bool:
+    @property
+    def table(self) -> Trunnion:
+        """The configured trunnion (a 5-axis pass cannot be posted without one)."""
+        if self.trunnion is None:
+            raise InputError("5-axis passes need the table's kinematics (cell.yaml `kinematics:`)")
+        return self.trunnion
+
+    def level_ok(self, mpos: Sequence[float]) -> bool:
         return self.level is None or (abs(float(mpos[3]) - self.level[0]) < 0.002
                                       and abs(float(mpos[4]) - self.level[1]) < 0.002)
 
@@ -123,7 +132,7 @@ class Five:
         ab = pts[k + 1] - pts[k]
         f = float(np.clip((q - pts[k]) @ ab / max(ab @ ab, 1e-12), 0.0, 1.0))
         ax = axes[k] + (axes[k + 1] - axes[k]) * f
-        mm = Post5(self.trunnion).machine(q[None, :], ax[None, :] / np.linalg.norm(ax), (m[k, 3], m[k, 4]))
+        mm = Post5(self.table).machine(q[None, :], ax[None, :] / np.linalg.norm(ax), (m[k, 3], m[k, 4]))
         return k, mm[0]
 
     def approach_lines(self, p: Point, clearance: float, speed: float) -> list[str]:
@@ -145,7 +154,7 @@ class Five:
         """
         pts, axes, m = self._current()
         fine = self.cur_fine
-        post = Post5(self.trunnion)
+        post = Post5(self.table)
         seconds = np.linalg.norm(np.diff(pts, axis=0), axis=1) / np.maximum(
             [move_speed(speed, k) / 60.0 for k in range(len(pts) - 1)], 1e-9)
         start_part = self.start_part if self.start_part is not None else pts[i0]
@@ -193,10 +202,10 @@ class Five:
 
         return self.machine_xyz(), 0, cb
 
-    def part_point(self, mpos: Any) -> Point:
+    def part_point(self, mpos: Sequence[float]) -> Point:
         """Where the tool tip is on the part, from a status report's X Y Z A B|C."""
         x, y, z, a, s = (float(v) for v in mpos[:5])
-        inv = np.linalg.inv(self.trunnion.matrix(a, s))
+        inv = np.linalg.inv(self.table.matrix(a, s))
         q = inv[:3, :3] @ np.array([x, y, z]) + inv[:3, 3]
         return (float(q[0]), float(q[1]), float(q[2]))
 
@@ -248,7 +257,7 @@ def _pass_moves(five: Five, post: Post5 | None, p: Pass, max_step_mm: float,
     return length / np.maximum(speed, 1e-9), nbytes
 
 
-def post_pass(trunnion: Any, letters: str, baud: int, p: Pass, max_step_mm: float,
+def post_pass(trunnion: Trunnion, letters: str, baud: int, p: Pass, max_step_mm: float,
               where: str = "") -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], Lines]:
     """One 5-axis pass: its weld points, axes and machine axes, and its lines (InputError naming
     `where` and the point the axis limits cannot reach)."""
@@ -260,7 +269,7 @@ def post_pass(trunnion: Any, letters: str, baud: int, p: Pass, max_step_mm: floa
     except InputError as exc:
         raise InputError(f"{where}{exc}") from None
     speed = np.asarray(move_values(p.speeds(), weld_segments(p.points, max_step_mm))) / 60.0
-    tol = float(getattr(trunnion, "chord_tolerance_mm", 0.02)) * ROUNDING_SHARE
+    tol = trunnion.chord_tolerance_mm * ROUNDING_SHARE
     return (pts, axes, m), fit_lines(post, pts, axes, m, speed, tol, serial_min_s(letters, baud))
 
 
@@ -286,12 +295,12 @@ def _head(post: Post5, pts: np.ndarray, axes: np.ndarray, m: np.ndarray, seconds
     P, A, M, at = P[keep], A[keep], M[keep], at[keep]
     sub = Lines(P, A, M, at)
     node_s = sub.times(seconds)
-    tol = float(getattr(five.trunnion, "chord_tolerance_mm", 0.02)) * ROUNDING_SHARE
+    tol = post.trunnion.chord_tolerance_mm * ROUNDING_SHARE
     fit = fit_lines(post, P, A, M, np.linalg.norm(np.diff(P, axis=0), axis=1) / np.maximum(node_s, 1e-9), tol)
     return Lines(fit.part, fit.axes, fit.machine, np.interp(fit.at, np.arange(len(at)), at)), e + 1
 
 
-def feed_limit(job: CellJob, trunnion: Any, baud: int = 115200, max_step_mm: float = 2.0) -> FeedLimit | None:
+def feed_limit(job: CellJob, trunnion: Trunnion | None, baud: int = 115200, max_step_mm: float = 2.0) -> FeedLimit | None:
     """The largest time scale at which the CNC link can feed every bead of `job` (None: no beads)."""
     five = Five(trunnion)
     post = Post5(trunnion) if trunnion is not None else None
@@ -327,7 +336,7 @@ def _round_down(k: float) -> float:
     return 1.0
 
 
-def limit_time_scale(cfg: Any, job: CellJob, max_step_mm: float = 2.0) -> tuple[Any, str | None]:
+def limit_time_scale(cfg: CellConfig, job: CellJob, max_step_mm: float = 2.0) -> tuple[CellConfig, str | None]:
     """cfg with cell.time_scale lowered to what the CNC link can feed for `job` (CNC cells, simulated
     time only), and the message saying so; (cfg, None) when nothing was lowered."""
     if cfg.cell.platform != "cnc" or cfg.cell.time_scale <= 1.0:
@@ -339,15 +348,14 @@ def limit_time_scale(cfg: Any, job: CellJob, max_step_mm: float = 2.0) -> tuple[
     return cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"time_scale": lim.time_scale})}), msg
 
 
-def check_feed(job: CellJob, trunnion: Any, link: Any, max_step_mm: float = 2.0) -> None:
+def check_feed(job: CellJob, trunnion: Trunnion | None, link: CncLinkPort, max_step_mm: float = 2.0) -> None:
     """Before any motion: a simulated link (line_scale > 1) faster than the host can feed the job's
     beads is refused, naming the time scale that can (`limit_time_scale` lowers it where the
     simulators are started here: `cell run --sim`, `cell repair run --sim`)."""
-    refuse_unfed(job, trunnion, float(getattr(link, "line_scale", 1.0) or 1.0),
-                 int(getattr(link, "baud", 115200) or 115200), max_step_mm)
+    refuse_unfed(job, trunnion, link.line_scale, link.baud, max_step_mm)
 
 
-def refuse_unfed(job: CellJob, trunnion: Any, scale: float, baud: int, max_step_mm: float = 2.0) -> None:
+def refuse_unfed(job: CellJob, trunnion: Trunnion | None, scale: float, baud: int, max_step_mm: float = 2.0) -> None:
     """InputError when simulated time at `scale` is faster than the host can feed the job's beads
     over the CNC link; needs no device, so a command calls it before it connects (docs/controller.md,
     "Simulated time")."""
