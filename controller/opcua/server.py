@@ -226,7 +226,7 @@ class FactoryServer:
             await self._fire(alarm)
         self._alarms_sent = len(snap.alarms)
         for name, (node, field, vt) in self._nodes.items():
-            v = _value(snap, field, vt) if name != "State" else str(getattr(snap.state, "value", snap.state))
+            v = _value(snap, field, vt) if name != "State" else str(snap.state)
             if self._last.get(name, object()) != v or v != v:   # NaN never equals itself: write once
                 if v != v and isinstance(self._last.get(name), float) and self._last[name] != self._last[name]:
                     continue

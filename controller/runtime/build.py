@@ -100,8 +100,8 @@ class BuildRunner:
         self.o = options or BuildOptions()
         self.arc: ArcControl = arc or ArcHandshake(power)
         self.log = log or (lambda _s: None)
-        self.pause_requested = False
-        self.abort_requested = False
+        self.pause_requested = self.abort_requested = False
+        self.pause_cause: str | None = None   # a control's pause (None: the operator's)
         self._resume_evt = asyncio.Event()
         self.tripped: str | None = None      # the interlock's message once tripped
         self.arc_starts = 0
@@ -191,7 +191,7 @@ class BuildRunner:
                     self.m.send("abort", cause="by the operator")
                     return self._result()
                 if self.pause_requested:
-                    self.m.send("pause", cause=getattr(self, "pause_cause", None) or "at the end of a bead")
+                    self.m.send("pause", cause=self.pause_cause or "at the end of a bead")
                     self._resume_evt.clear()
                     await self._resume_evt.wait()
                     if self.abort_requested:

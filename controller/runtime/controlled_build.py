@@ -30,7 +30,6 @@ class ControlledRunner(BuildRunner):
         self.lc = control
         self.layers = control.layers
         self.totals = (len(self.layers), sum(len(la.passes) for la in list.__iter__(self.layers)))
-        self.pause_cause: str | None = None
         self._work: list[WorkItem] = []
         self._k = -1
         self._currents: list[float] = []
