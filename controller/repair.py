@@ -26,6 +26,8 @@ from controller.job.model import CellJob
 from controller.motion.cnc5 import refuse_unfed
 from controller.motion.kinematics import Trunnion, apply_to_job
 from controller.runtime import stops
+from controller.ports import CncLinkPort
+from core.config import CellConfig
 from core.errors import CellError, Fault, InputError
 from planner.dropcutter import ToolShape
 from planner.finish import Cut, plan_finish, stock_above_cad, stock_margin, stock_surface
@@ -212,7 +214,7 @@ def verify_split(n: int) -> tuple[int, int]:
     return n_inside, n - n_inside
 
 
-async def verify(link: Any, cell: Any, job: CellJob, transform: np.ndarray, grid: int = 4,
+async def verify(link: CncLinkPort, cell: CellConfig, job: CellJob, transform: np.ndarray, grid: int = 4,
                  tolerance_mm: float = 0.1) -> VerifyResult:
     """Probe the deposit's exposed top (inside and along its edges, `verify_targets`); positions
     read back into the CAD frame and compared with the planned top under each touch."""
@@ -272,7 +274,7 @@ def machined_verify(pts: np.ndarray, err: np.ndarray, tolerance_mm: float) -> di
             "defects": defects, "at": np.round(pts, 3).tolist(), "error_mm": np.round(err, 4).tolist()}
 
 
-async def finish_repair(link: Any, cell: Any, job: CellJob, cad: Any, stock: Any, transform: np.ndarray,
+async def finish_repair(link: CncLinkPort, cell: CellConfig, job: CellJob, cad: Any, stock: Any, transform: np.ndarray,
                         say: Callable[[str], None]) -> dict[str, Any]:
     """Probe the deposit, rough and finish it to CAD, verify against CAD (DESIGN §4, docs/machining.md)."""
     m = cell.machining
@@ -314,7 +316,7 @@ async def finish_repair(link: Any, cell: Any, job: CellJob, cad: Any, stock: Any
     return {"stock": stock_rec, "machining": machining, "verify": verify}
 
 
-async def repair_run(job: CellJob, cell: Any, *, job_path: Path | None = None, runs_dir: str | Path = "runs",
+async def repair_run(job: CellJob, cell: CellConfig, *, job_path: Path | None = None, runs_dir: str | Path = "runs",
                      reply_timeout_ms: float | None = None, apply_alignment: bool = True,
                      tolerance_mm: float = 0.1, phase: Callable[[str], None] | None = None,
                      finish: bool = True, time_scale_of: Callable[[str], float] | None = None) -> dict[str, Any]:
@@ -348,14 +350,14 @@ async def repair_run(job: CellJob, cell: Any, *, job_path: Path | None = None, r
         if ctl.devices is None:
             raise CellError("repair: the cell's devices closed before the verify probe")
         if finish:
-            fin = await finish_repair(ctl.devices.cnc, cell, job, cad, load_cad(job, job_path, "stock"),
+            fin = await finish_repair(ctl.devices.cnc_link(), cell, job, cad, load_cad(job, job_path, "stock"),
                                       res.transform, say)
             scale = time_scale_of("machine") if time_scale_of is not None else float(cell.cell.time_scale)
             fin["machining"]["time_s"] = round(fin["machining"].pop("wall_s") * scale, 1)
             v = fin["verify"]
         else:
             say("verify")
-            v = (await verify(ctl.devices.cnc, cell, job, res.transform, tolerance_mm=tolerance_mm)).as_dict()
+            v = (await verify(ctl.devices.cnc_link(), cell, job, res.transform, tolerance_mm=tolerance_mm)).as_dict()
     finally:
         stops.detach()
         await ctl.close()

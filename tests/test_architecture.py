@@ -257,3 +257,24 @@ def test_imports_inside_functions_say_why() -> None:
     bad = lazy_imports_without_reason()
     assert not bad, "imports inside functions need a comment saying why (start-up time, optional, cycle):\n" + \
         "\n".join(bad)
+
+
+def literal_attribute_lookups() -> list[str]:
+    """`getattr(x, "name")` / `hasattr(x, "name")` in the controller's rooms below its views: a seam
+    read by a literal name instead of through a typed port (controller/ports.py). The CLI reads
+    argparse namespaces and the TUI duck-types results: those rooms are views, not seams."""
+    bad = []
+    for mod, path in MODS.items():
+        if not mod.startswith("controller.") or room(mod) in ("controller.cli", "controller.tui"):
+            continue
+        tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in ("getattr", "hasattr")
+                    and len(node.args) >= 2 and isinstance(node.args[1], ast.Constant) and isinstance(node.args[1].value, str)):
+                bad.append(f"{path.relative_to(ROOT)}:{node.lineno}: {ast.unparse(node)}")
+    return bad
+
+
+def test_no_attribute_read_by_literal_name_in_the_controller() -> None:
+    bad = literal_attribute_lookups()
+    assert not bad, "read through a typed port instead (docs/architecture.md):\n" + "\n".join(bad)

@@ -18,6 +18,7 @@ import time
 from typing import Any, Callable, Sequence
 
 from controller.ports import CncLinkPort, PowerSourcePort
+from controller.motion.kinematics import Trunnion
 from controller.motion.cnc5 import Five, check_feed
 from controller.job.model import CellJob
 from controller.job.weld_path import move_speed
@@ -35,7 +36,7 @@ class CncExecutor:
     platform = "cnc"
 
     def __init__(self, link: CncLinkPort, power: PowerSourcePort | None = None, spindle_s: int = 1000,
-                 trunnion: Any = None) -> None:
+                 trunnion: Trunnion | None = None) -> None:
         self.link = link
         self.five = Five(trunnion)  # 5-axis passes (controller/motion/cnc5.py); inactive for 3-axis jobs
         self.power = power
@@ -44,7 +45,7 @@ class CncExecutor:
         self.starved = 0
         self.exec_count = 0
         self.min_ahead: int | None = None
-        self._lost_cbs: list[Callable[[Any], None]] = []
+        self._lost_cbs: list[Callable[[str], None]] = []
         self._pos_cbs: list[Callable[[float, float], None]] = []
         self.exe_t = 0.0   # when the latest progress (status report, the closing `ok`) came off the wire
         self.go_t = 0.0    # when the current bead's weld lines began to go out (grbl sets off at once)
@@ -69,7 +70,7 @@ class CncExecutor:
     def weld_points_by_ticket(self) -> dict[int, int]:
         return {}
 
-    def on_link_lost(self, fn: Callable[[Any], None]) -> None:
+    def on_link_lost(self, fn: Callable[[str], None]) -> None:
         self._lost_cbs.append(fn)
 
     def on_retract(self, fn: Callable[[int, int | None], None]) -> None:

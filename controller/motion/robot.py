@@ -16,7 +16,7 @@ from controller.job.weld_path import move_speed, weld_points
 from controller.job.model import CellJob
 from controller.ports import RobotLinkPort
 from drivers.grbl_stop import SafeStopResult
-from drivers.robot import RobotStatus
+from drivers.robot import RobotEvent, RobotStatus
 from core.errors import InputError
 
 Point = tuple[float, float, float]
@@ -38,7 +38,7 @@ class RobotExecutor:
         self.exec_count = 0
         self.exe_t = 0.0                        # arrival time of the latest EXE (monotonic)
         self.min_ahead: int | None = None       # fewest weld moves queued ahead at an EXE inside a bead
-        self._lost_cbs: list[Callable[[Any], None]] = []
+        self._lost_cbs: list[Callable[[str], None]] = []
         self.stopped_at: Point | None = None    # where prepare() found the robot stopped (queue flushed)
         self.record: RobotStatus | None = None  # the robot's STA before prepare() flushed or reset it
         self.ahead: int | None = None           # weld moves left unexecuted at most (None: the window)
@@ -98,13 +98,13 @@ class RobotExecutor:
     def _subscribe(self) -> None:
         self.link.on_event(self._event)
 
-    def _event(self, ev: Any) -> None:
-        if ev.kind == "EXE":
+    def _event(self, ev: RobotEvent) -> None:
+        if ev.kind == "EXE" and ev.ticket is not None:
             self.exe_t = ev.t or time.monotonic()
-            self._exe(int(ev.ticket))
-        elif ev.kind == "RETRACT" and self._on_retract is not None:
+            self._exe(ev.ticket)
+        elif ev.kind == "RETRACT" and self._on_retract is not None and ev.ticket is not None:
             # the robot took back executed moves (it lied): the account goes back to its last true one
-            tk = int(ev.ticket)
+            tk = ev.ticket
             idx = max((i for t, i in self._weld.items() if t <= tk), default=None)
             self._on_retract(tk, idx)
         elif ev.kind == "link_lost":
@@ -114,7 +114,7 @@ class RobotExecutor:
             for cb in self._lost_cbs:
                 cb(f"robot error {ev.value} {ev.text}")
 
-    def on_link_lost(self, fn: Callable[[Any], None]) -> None:
+    def on_link_lost(self, fn: Callable[[str], None]) -> None:
         """`fn(text)` when the robot link drops or the robot reports an error."""
         self._lost_cbs.append(fn)
 

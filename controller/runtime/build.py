@@ -1,8 +1,7 @@
 """Build execution: layer by layer, pass by pass, under the state machine and the journal.
 
-The runner is platform-neutral; an executor (controller/motion/robot.py, cnc.py) drives the motion:
-`prepare()`, `approach(point)` (travel to a bead's start and stop there, weld moves queued behind a
-hold point), `queue_weld(...)`, `release()`, `weld_done()`, `hold_now()`, `position()`, `on_retract()`.
+The runner is platform-neutral; an executor (controller/motion/robot.py, cnc.py) drives the motion
+through the `MotionExecutor` port (controller/ports.py): travel to a bead's start, weld moves, holds.
 
 Per pass: travel to the start (or to the point where the bead stopped, on resume) → arc start
 handshake on the power source → release the motion → stream the weld moves → arc end when the
@@ -35,6 +34,7 @@ from controller.runtime.progress import ProgressWatchdog, progress_timeout_s, tr
 from controller.job.model import CellJob
 from controller.job.weld_path import Point, weld_points
 from controller.ports import ArcControl, CellIOPort, MotionExecutor, PowerSourcePort
+from drivers.power import PowerStatus
 from core.errors import CellError
 from core.material import ProcessTolerance
 from planner.job import Layer
@@ -433,7 +433,7 @@ class BuildRunner:
         if self.hooks is not None and item is not None and idx is not None and 0 <= idx < len(self._cum):
             self.hooks.arc_sample(item.layer, item.pass_, float(self._cum[idx]), current_a)
 
-    def _on_power(self, st: Any) -> None:
+    def _on_power(self, st: PowerStatus) -> None:
         if self._bead is not None and st.arc_stable and self._arc_lit:  # not the burn-back after weld start drops
             self._bead.add(st.current_a, st.voltage_v, st.wfs_m_min)
             self._arc_sample(float(st.current_a))

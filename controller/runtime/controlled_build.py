@@ -14,6 +14,7 @@ from typing import Any, Sequence
 from controller.align.layer_probe import probe_layer_top
 from controller.job.model import CellJob
 from controller.ports import MotionExecutor
+from drivers.power import PowerStatus
 from controller.journal.store import Journal
 from controller.runtime.build import BuildResult, BuildRunner, WorkItem
 from controller.runtime.events import EventBus
@@ -52,7 +53,7 @@ class ControlledRunner(BuildRunner):
         self.pause_cause = None
         super().resume_from_pause()
 
-    def _on_power(self, st: Any) -> None:
+    def _on_power(self, st: PowerStatus) -> None:
         if self._bead is not None and st.arc_stable and self._arc_lit:
             self._currents.append(float(st.current_a))
         super()._on_power(st)
