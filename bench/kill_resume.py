@@ -1,5 +1,5 @@
 """Kill the controller with SIGKILL at random moments of a build against `cell sim up`, resume
-each time, then prove against the simulators' own logs (DESIGN.md §6a) that every planned weld
+each time, then prove against the simulators' own logs (docs/contract.md §6a) that every planned weld
 segment was deposited exactly once (re-arc overlaps of at most 2 mm per restart) and that the
 robot executed no sequence number twice. `rearc_overlap_*`: the signed overlap at each re-arc
 (deposit already there beyond the point where a later arc started; negative would be a gap);

@@ -276,7 +276,7 @@ def machined_verify(pts: np.ndarray, err: np.ndarray, tolerance_mm: float) -> di
 
 async def finish_repair(link: CncLinkPort, cell: CellConfig, job: CellJob, cad: Any, stock: Any, transform: np.ndarray,
                         say: Callable[[str], None]) -> dict[str, Any]:
-    """Probe the deposit, rough and finish it to CAD, verify against CAD (DESIGN §4, docs/machining.md)."""
+    """Probe the deposit, rough and finish it to CAD, verify against CAD (docs/contract.md §4, docs/machining.md)."""
     m = cell.machining
     name, cutter = cell.tools.cutter(m.cutter)
     cad_tri, stock_tri = np.asarray(cad.triangles, dtype=float), np.asarray(stock.triangles, dtype=float)

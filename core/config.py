@@ -62,7 +62,7 @@ class CellInfo(_Frozen):
     time_scale: float = Field(default=1.0, gt=0.0, le=1000.0)
     material: str = "inconel718-1.0mm"
     runs_dir: str = "runs"
-    # Progress watchdog (DESIGN.md §6): process seconds a motion device may stand (no EXE, no
+    # Progress watchdog (docs/contract.md §6): process seconds a motion device may stand (no EXE, no
     # position change) with the arc on before it is a fault; null: from the job at build start,
     # the longest planned weld move's time x 2 + 1 s (docs/controller.md, Progress watchdog).
     progress_timeout_s: float | None = Field(default=None, gt=0.0, le=3600.0)
@@ -97,7 +97,7 @@ CellIOTransport = Annotated[CellIOTransportName, BeforeValidator(_one_of("cell I
 
 
 class RobotDevice(_Frozen):
-    protocol: RobotProtocol = "rlp1"      # rlp1: RLP/1 over a serial URL (DESIGN.md §5)
+    protocol: RobotProtocol = "rlp1"      # rlp1: RLP/1 over a serial URL (docs/contract.md §5)
     url: DeviceUrl
     baud: int = Field(default=115200, gt=0)
     heartbeat_s: float = Field(default=1.0, gt=0.0)
@@ -106,7 +106,7 @@ class RobotDevice(_Frozen):
 
 
 class CncDevice(_Frozen):
-    protocol: CncProtocol = "grbl"        # grbl: grbl 1.1 / grblHAL line protocol (DESIGN.md §5)
+    protocol: CncProtocol = "grbl"        # grbl: grbl 1.1 / grblHAL line protocol (docs/contract.md §5)
     url: DeviceUrl
     baud: int = Field(default=115200, gt=0)
     rx_buffer_bytes: int = Field(default=128, ge=32, le=4096)
@@ -128,7 +128,7 @@ class PowerSourceDevice(_Frozen):
     url: DeviceUrl = "tcp://127.0.0.1:5502"
     device_id: int = Field(default=1, ge=1, le=247)
     cycle_ms: float = Field(default=10.0, gt=0.0, le=1000.0)
-    # link health (DESIGN.md §5): lost after this many consecutive cycles without a valid reply
+    # link health (docs/contract.md §5): lost after this many consecutive cycles without a valid reply
     lost_after_cycles: int = Field(default=3, ge=1, le=100)
     timeout_ms: float | None = Field(default=None, gt=0.0)  # overrides it (a fixed reply timeout)
     can: CanSettings = CanSettings()
@@ -140,7 +140,7 @@ class PowerSourceDevice(_Frozen):
 
 
 class CellIODevice(_Frozen):
-    transport: CellIOTransport = "modbus_tcp"   # the remote I/O coupler (DESIGN.md §5)
+    transport: CellIOTransport = "modbus_tcp"   # the remote I/O coupler (docs/contract.md §5)
     url: DeviceUrl = "tcp://127.0.0.1:5503"
     device_id: int = Field(default=1, ge=1, le=247)
     cycle_ms: float = Field(default=10.0, gt=0.0, le=1000.0)
@@ -209,7 +209,7 @@ class ProbeSettings(_Frozen):
 
 
 class OpcUaSettings(_Frozen):
-    """The factory interface (DESIGN.md §8); off by default, loopback unless secured."""
+    """The factory interface (docs/contract.md §8); off by default, loopback unless secured."""
 
     enabled: bool = False
     endpoint: str = "opc.tcp://127.0.0.1:4840/cell"
@@ -223,7 +223,7 @@ class OpcUaSettings(_Frozen):
 
 
 class ProcessControl(_Frozen):
-    """Closed-loop layer height (DESIGN.md §6b, docs/closed-loop.md); `open` keeps the plan's z."""
+    """Closed-loop layer height (docs/contract.md §6b, docs/closed-loop.md); `open` keeps the plan's z."""
 
     mode: Literal["open", "layer", "path"] = "open"   # path: the layer loop plus per-segment speeds along the path
     # the stick-out (CTWD) the torch may have: an estimate outside pauses before the next layer
@@ -267,7 +267,7 @@ RecordsUrl = Annotated[str | None, AfterValidator(_records_url)]
 
 
 class RecordsSettings(_Frozen):
-    """Traceability of every build and the shop's record store (DESIGN.md §9, docs/records.md).
+    """Traceability of every build and the shop's record store (docs/contract.md §9, docs/records.md).
 
     `wire_lot`, `gas`, `operator`: what is loaded on the cell and who runs it, unless the command
     (`--wire-lot`, `--gas`, `--operator`) or the TUI's start dialog gives them. `require_lot`: a
@@ -352,7 +352,7 @@ class SimRegion(_Frozen):
 
 
 class ProcessSim(_Frozen):
-    """The simulated world's process physics (DESIGN.md §6b, docs/process-physics.md).
+    """The simulated world's process physics (docs/contract.md §6b, docs/process-physics.md).
 
     Hidden truth: the controller never reads it. The bead's metal is the model's times
     `height_gain · (1 + height_temp_coeff · (T − 100 °C)⁺) · (1 + height_noise_pct/100 · N(0, 1))`,

@@ -96,7 +96,7 @@ class Tools(_Frozen):
 
 
 class Machining(_Frozen):
-    """`machining:` how a deposit is brought to the drawing (DESIGN §4, docs/machining.md)."""
+    """`machining:` how a deposit is brought to the drawing (docs/contract.md §4, docs/machining.md)."""
 
     cutter: str | None = None             # tools.cutters name; null: the first
     min_stock_mm: float = Field(default=0.2, ge=0.0, le=10.0, description="deposit above CAD everywhere before machining")

@@ -1,6 +1,6 @@
 """Cell I/O over Modbus TCP: door, E-stop, gas, fume extraction, beacon, door lock, pyrometer.
 
-The remote I/O coupler of DESIGN.md §5 (device id 1): discrete inputs 0 door closed, 1 E-stop
+The remote I/O coupler of docs/contract.md §5 (device id 1): discrete inputs 0 door closed, 1 E-stop
 released, 2 gas pressure OK, 3 fume extraction running; coils 0 gas valve, 1-3 beacon green /
 amber / red, 4 door lock; input registers 0 part temperature (0.1 °C), 1 gas flow (0.1 L/min).
 
@@ -183,7 +183,7 @@ class CellIO(CyclicDevice[CellInputs]):
             raise LinkLost(f"{self.where()}: link dropped ({exc})") from None
         if rr.isError():
             raise DeviceError(f"{self.where()}: coupler refused the request (exception {getattr(rr, 'exception_code', '?')}); "
-                              "check its I/O map against DESIGN.md §5")
+                              "check its I/O map against docs/contract.md §5")
         return rr
 
     async def _one_cycle(self) -> CellInputs:

@@ -23,7 +23,7 @@ T = TypeVar("T")
 
 @dataclass
 class CycleStats:
-    """Link statistics of the cyclic exchange (DESIGN.md §5, "Link health"): the views, the
+    """Link statistics of the cyclic exchange (docs/contract.md §5, "Link health"): the views, the
     report and the benchmark read them. A late reply is counted, never a fault."""
 
     cycles: int = 0
@@ -86,7 +86,7 @@ class CyclicDevice(ABC, Generic[S]):
         """`aw`'s result within the link's reply budget; asyncio.TimeoutError when the device
         did not answer.
 
-        The budget is counted in cycles this process really ran (DESIGN.md §5: lost after
+        The budget is counted in cycles this process really ran (docs/contract.md §5: lost after
         `lost_after_cycles` cycles without a valid reply): the wait goes in steps of one cycle,
         and a step whose timer fired more than half a cycle late (this process or its machine
         did not run: scheduling, a long interpreter-lock hold, a virtual CPU taken away) is a

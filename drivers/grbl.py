@@ -76,7 +76,7 @@ class CncLink(GrblReceiver):
         self._loop: asyncio.AbstractEventLoop | None = None
         self._jogging = False     # a `$J=` was sent and may still be running
         self._pace = pace
-        # a simulated line at time scale k carries k times the bytes per wall second (DESIGN.md §6,
+        # a simulated line at time scale k carries k times the bytes per wall second (docs/contract.md §6,
         # sims/transport.py): pace the writes to it as the robot link does (1 on hardware)
         self.line_scale = line_scale
         self._port = SerialPort(url, baud=baud, name="cnc", pace=pace, pace_factor=0.98 * line_scale)

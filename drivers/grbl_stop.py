@@ -1,4 +1,4 @@
-"""The CNC's safe stop (DESIGN.md §6 "Every stop is safe"): feed hold, process off, nothing left
+"""The CNC's safe stop (docs/contract.md §6 "Every stop is safe"): feed hold, process off, nothing left
 queued, each step verified from the firmware's own status reports.
 
 Sequence (grbl 1.1h `protocol.c` / `motion_control.c`, and grblHAL, which does the same):

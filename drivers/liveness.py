@@ -1,4 +1,4 @@
-"""Link liveness, shared by the serial device links (DESIGN.md §5, "Link health").
+"""Link liveness, shared by the serial device links (docs/contract.md §5, "Link health").
 
 A link is *heard* when a valid reply that fits what the host sent arrives; what is only
 well-formed (a heartbeat, a duplicate) or not even that (a bad checksum, garbage, a flood) is

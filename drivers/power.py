@@ -106,7 +106,7 @@ class PowerStatus:
 
 
 class PowerSource(CyclicDevice[PowerStatus]):
-    """A synergic MIG/MAG power source driven cyclically (DESIGN.md §5)."""
+    """A synergic MIG/MAG power source driven cyclically (docs/contract.md §5)."""
 
     device = "power_source"
     COUNTER_MOD = 0x10000       # watchdog counter width (u16 on Modbus, u8 on CAN)

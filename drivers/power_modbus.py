@@ -1,7 +1,7 @@
 """Power source over Modbus TCP (`tcp://host:port`) or RTU (any pyserial URL), pymodbus 3.
 
 One read/write-multiple-registers call (0x17) per cycle: write the command block
-0xF000..0xF00D, read the status block 0xF100..0xF110 (DESIGN.md §5), device id 1 by default.
+0xF000..0xF00D, read the status block 0xF100..0xF110 (docs/contract.md §5), device id 1 by default.
 The pymodbus client runs with retries=0 and no automatic reconnect: a lost reply is a lost
 link (LinkLost), never silently repeated.
 """

@@ -1,4 +1,4 @@
-"""RobotLink: the asyncio host side of RLP/1 and RLP/2 (DESIGN.md §5, docs/protocols/rlp.md).
+"""RobotLink: the asyncio host side of RLP/1 and RLP/2 (docs/contract.md §5, docs/protocols/rlp.md).
 
 Moves are numbered with *tickets*: unwrapped, monotonically increasing ints whose low 16 bits
 are the wire sequence number, so a job of any length is journaled unambiguously. The link keeps

@@ -37,7 +37,7 @@ class RobotLinkState(LinkLiveness[LinkStats]):
         super().__init__(LinkStats(), lost_after_s=link_timeout_s, late_after_s=min(SUSPECT_S, link_timeout_s))
         self.url = url
         self.baud = baud
-        # a simulated line at time scale k carries k times the bytes per wall second (DESIGN.md §6):
+        # a simulated line at time scale k carries k times the bytes per wall second (docs/contract.md §6):
         # pace the writes at that rate, or the host, not the line, starves the bead
         self.line_scale = line_scale
         self.name = name

@@ -1,4 +1,4 @@
-"""Mass balance (DESIGN.md §3.7): the wire a pass lays equals the cross-section it fills.
+"""Mass balance (docs/contract.md §3.7): the wire a pass lays equals the cross-section it fills.
 
 Laid: A = π·D²/4 · WFS / v (Ding 2015's wire volume per length). Filled: the bead's share of
 the layer (step-over × layer height for overlapped beads) or its profile area when it is alone.
@@ -36,7 +36,7 @@ def balance_error(wire_diameter_mm: float, wfs_m_min: float, speed_mm_min: float
 
 def partition_shares(island: Polygon, beads: Sequence[Path2D], width: float) -> np.ndarray:
     """The width of the strip each bead fills (mm): the island's area nearest to its centre line
-    divided by its length (DESIGN.md §3.7, docs/planner.md "Mass balance").
+    divided by its length (docs/contract.md §3.7, docs/planner.md "Mass balance").
 
     The island is split among its beads by nearest centre line: the Voronoi diagram of points
     every w/8 along the beads, cells gathered by bead and clipped to the island. The shares add

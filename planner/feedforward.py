@@ -1,4 +1,4 @@
-"""Feed-forward along the path (DESIGN.md §3 item 11, docs/along-the-path.md): per-segment speeds
+"""Feed-forward along the path (docs/contract.md §3 item 11, docs/along-the-path.md): per-segment speeds
 (and wire feeds) that level each layer's predicted top.
 
 A bead's height is not uniform along it even with a perfect model: where two passes of a layer

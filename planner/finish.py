@@ -1,6 +1,6 @@
 """Finish machining plans: rough a deposit to CAD + finishing stock, then finish it to CAD (pure).
 
-Surfaces machined from above (DESIGN §4 "Finish machining", docs/machining.md):
+Surfaces machined from above (docs/contract.md §4 "Finish machining", docs/machining.md):
 - the stock is the deposit's top as probed, a height map over the region (`Surface`);
 - roughing: z levels from the stock's top down to CAD + `finish_stock_mm`, at most the cutter's
   `max_depth_of_cut_mm` apart (less the roughing scallop); each level a zigzag raster at the

@@ -161,7 +161,7 @@ def _thin(t: Polygon, island: Polygon, index: int, ctx: LayerCtx, groups: Groups
 
 
 def _hint(W: float, ctx: LayerCtx) -> str:
-    """What machining allowance would make a refused feature buildable (near-net, DESIGN §3.9)."""
+    """What machining allowance would make a refused feature buildable (near-net, docs/contract.md §3.9)."""
     extra = allowance_for(W, ctx.widths, 2.0 * ctx.width, ctx.allowance)
     if extra is None:
         return ""

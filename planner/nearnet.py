@@ -1,4 +1,4 @@
-"""Near-net planning (DESIGN.md §3.9): the part built oversize by a machining allowance, then machined.
+"""Near-net planning (docs/contract.md §3.9): the part built oversize by a machining allowance, then machined.
 
 * The grown region is the part grown by the allowance `a` in 3-D (every point within `a` of the
   part, issue 40): a layer's islands grow outward by `a` (round offsets, holes shrink by it), and

@@ -163,7 +163,7 @@ class _Run:
         passes, worst, adjusted = weld_passes(paths, sl, z, self.proc, self.options.cell_limits, v.limits)
         v.balance(worst)
         v.wfs_adjusted += adjusted
-        if q.area_mm2 > 0 and passes:  # the layer's metal against its section x h (DESIGN §3.7)
+        if q.area_mm2 > 0 and passes:  # the layer's metal against its section x h (docs/contract.md §3.7)
             laid = sum(laid_area_mm2(self.material.wire_diameter_mm, p.wfs_m_min, p.speed_mm_min) * p.length_mm
                        for p in passes)
             v.layer_balance(abs(laid - q.area_mm2 * h) / (q.area_mm2 * h))
@@ -254,7 +254,7 @@ class _LayerMemo:
 
 def _min_share(material: Material, lim: CellLimits, height: float) -> float:
     """The narrowest strip (mm) a bead can fill inside the cell's limits and the envelope: the wire at
-    the material's least feed over the cell's max speed, per layer height (DESIGN §3.10)."""
+    the material's least feed over the cell's max speed, per layer height (docs/contract.md §3.10)."""
     wire = np.pi * material.wire_diameter_mm ** 2 / 4.0
     return float(wire * material.ribeiro.wfs_min_m_min * 1000.0 / lim.max_speed_mm_min / height)
 

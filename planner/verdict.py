@@ -1,5 +1,5 @@
 """The plan's verdict: what cannot be planned fails the plan naming the layers (or, when the user
-allows it, becomes a warning in the summary). Nothing is dropped silently (DESIGN.md §3.6)."""
+allows it, becomes a warning in the summary). Nothing is dropped silently (docs/contract.md §3.6)."""
 from __future__ import annotations
 
 from core.errors import MeshError

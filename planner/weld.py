@@ -3,9 +3,9 @@
 * Welding point: the process model's (Ribeiro) current and wire feed for the bead's width at the
   layer height (`Process.point`); a bead whose width the envelope cannot weld gets the nearest
   weldable width toward the nominal one.
-* Mass balance (DESIGN.md §3.7): the travel speed at which π·D²/4 × WFS / v equals the section
+* Mass balance (docs/contract.md §3.7): the travel speed at which π·D²/4 × WFS / v equals the section
   the bead fills (its share × layer height).
-* Plan-time limits (DESIGN.md §3.10): a balanced speed above the cell's `max_speed_mm_min` keeps
+* Plan-time limits (docs/contract.md §3.10): a balanced speed above the cell's `max_speed_mm_min` keeps
   the speed at the limit and lowers the wire feed instead (the current follows the synergic
   line), below `min_weld_speed_mm_min` it raises it; a wire feed that leaves the material's
   envelope is refused naming the bead, or under `--allow-outside` planned with

@@ -1,4 +1,4 @@
-"""Cell I/O simulator: the remote I/O coupler of the cell on Modbus TCP (DESIGN.md §5).
+"""Cell I/O simulator: the remote I/O coupler of the cell on Modbus TCP (docs/contract.md §5).
 
 Discrete inputs 0 door closed, 1 E-stop released, 2 gas pressure OK, 3 fume extraction
 running; coils 0 gas valve, 1-3 beacon green / amber / red, 4 door lock; input registers 0 part

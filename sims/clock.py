@@ -1,4 +1,4 @@
-"""Simulated process time shared by the simulators and the controller (DESIGN.md §6)."""
+"""Simulated process time shared by the simulators and the controller (docs/contract.md §6)."""
 from __future__ import annotations
 
 import time

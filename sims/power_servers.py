@@ -28,7 +28,7 @@ Close = Callable[[], Awaitable[None]]
 # --- Modbus -----------------------------------------------------------------------------------
 
 class PowerModbusView:
-    """The source's Modbus holding registers (DESIGN.md §5, wire/power_registers.py) for the
+    """The source's Modbus holding registers (docs/contract.md §5, wire/power_registers.py) for the
     server of sims/modbus_server.py: a write of the command block is one host cycle."""
 
     def __init__(self, sim: PowerSourceSim) -> None:

@@ -1,7 +1,7 @@
 """Power-source simulator: a synergic MIG/MAG source on Modbus TCP, Modbus RTU and CAN.
 
 The model (`PowerSourceSim`) is transport-free: each host cycle hands it the command (bits,
-mode/job, WFS, trims, watchdog counter) and takes the status back (DESIGN.md §5). It runs
+mode/job, WFS, trims, watchdog counter) and takes the status back (docs/contract.md §5). It runs
 
     idle -> pre-flow -> ignition -> current flow -> arc stable (motion release after 16 ms)
          -> burn-back (weld start dropped) -> post-flow -> idle

@@ -1,4 +1,4 @@
-"""Robot simulator: the robot side of RLP/1 and RLP/2 (DESIGN.md §5, docs/protocols/rlp.md).
+"""Robot simulator: the robot side of RLP/1 and RLP/2 (docs/contract.md §5, docs/protocols/rlp.md).
 
 Checks every frame (CRC, syntax, sequence), keeps a bounded motion queue (RLP/2, once a host asks
 for it with `!PROTO 2`: also the frames that arrive beyond a gap, reported by SACK, §9), executes the moves in

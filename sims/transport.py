@@ -66,7 +66,7 @@ class SerialServer:
         spec_baud = self.spec.value("baud")
         if spec_baud is not None:
             baud = int(spec_baud)
-        # The line keeps its rate in simulated time (DESIGN.md §6): at time scale k it carries k
+        # The line keeps its rate in simulated time (docs/contract.md §6): at time scale k it carries k
         # times the bytes per wall second, so a time scale never starves a bead that real
         # hardware would not starve.
         self.rate = bytes_per_second(baud) * time_scale if baud else None

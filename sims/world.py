@@ -3,10 +3,10 @@
 The power-source simulator tells the world whether the arc is stable (and its current and
 voltage); the motion simulators report every stretch of torch motion as they execute it.
 Metal is deposited only where the torch moves while the arc is stable: the world records that
-ground truth, one segment per uninterrupted stretch, to `deposit.jsonl` (DESIGN.md §6a), and
+ground truth, one segment per uninterrupted stretch, to `deposit.jsonl` (docs/contract.md §6a), and
 accumulates the heat input the cell-I/O simulator's thermal model draws on.
 
-With process physics (`use_physics`, sims/process_world.py, DESIGN.md §6b) the world also knows
+With process physics (`use_physics`, sims/process_world.py, docs/contract.md §6b) the world also knows
 the part's shape: every deposited segment pours a bead into a height map, the torch's CTWD above
 it is known at every moment (`stick_out_mm`, which the power-source simulator's current follows),
 and each deposit row adds the truth: `ctwd_mm` (mean over the segment) and `bead_height_mm` (the

@@ -1,4 +1,4 @@
-"""`cell align plane` and `cell align transform` as a user types them (DESIGN.md §7)."""
+"""`cell align plane` and `cell align transform` as a user types them (docs/contract.md §7)."""
 from __future__ import annotations
 
 import json

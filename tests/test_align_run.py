@@ -1,4 +1,4 @@
-"""`cell align run` against the CNC simulator over the grbl wire protocol (DESIGN.md §4, §6a)."""
+"""`cell align run` against the CNC simulator over the grbl wire protocol (docs/contract.md §4, §6a)."""
 from __future__ import annotations
 
 import json

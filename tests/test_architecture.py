@@ -278,3 +278,14 @@ def literal_attribute_lookups() -> list[str]:
 def test_no_attribute_read_by_literal_name_in_the_controller() -> None:
     bad = literal_attribute_lookups()
     assert not bad, "read through a typed port instead (docs/architecture.md):\n" + "\n".join(bad)
+
+
+def test_product_and_docs_cite_no_file_outside_the_repository() -> None:
+    """The contract the code relies on is docs/contract.md; nothing of the product or its docs points
+    at a folder beside the checkout (tests may read shared parts and firmware sources, and skip)."""
+    places = [p for pkg in PRODUCT for p in (ROOT / pkg).rglob("*.py")]
+    places += [*(ROOT / "docs").rglob("*.md"), ROOT / "README.md"]
+    bad = [f"{p.relative_to(ROOT)}:{i}" for p in places
+           for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
+           if "../shared" in line or "DESIGN.md" in line]
+    assert not bad, "cite docs/contract.md instead: " + ", ".join(bad)

@@ -60,7 +60,7 @@ def test_table2_models_describe_the_same_bead(row):
 
 
 def test_arc_area_formula_is_the_circle_segment():
-    # DESIGN.md §2: a²·acos(−b/a) + b·sqrt(a² − b²); the paper's Table 1 prints
+    # docs/contract.md §2: a²·acos(−b/a) + b·sqrt(a² − b²); the paper's Table 1 prints
     # acos(−b/a) − b·sqrt(a² − b²), which misses the wire volume by far more than ±4 % on most rows.
     printed_errors = []
     for vw, _, _, _, _, aa, ab in TABLE2:

@@ -1,4 +1,4 @@
-"""The build record: report.json, one CSV row per bead, `cell report` and `cell runs` (DESIGN.md §7)."""
+"""The build record: report.json, one CSV row per bead, `cell report` and `cell runs` (docs/contract.md §7)."""
 from __future__ import annotations
 
 import csv

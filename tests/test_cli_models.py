@@ -1,4 +1,4 @@
-"""`cell process …` and `cell bead …`: DESIGN.md §7 flags and JSON keys, and bad input as exit 2."""
+"""`cell process …` and `cell bead …`: docs/contract.md §7 flags and JSON keys, and bad input as exit 2."""
 from __future__ import annotations
 
 import json

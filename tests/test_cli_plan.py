@@ -1,4 +1,4 @@
-"""`cell plan`: the command-line contract of DESIGN.md §7, outputs, and clear failures."""
+"""`cell plan`: the command-line contract of docs/contract.md §7, outputs, and clear failures."""
 from __future__ import annotations
 
 import json

@@ -192,7 +192,7 @@ async def test_failed_probe_names_the_point_and_recovers(target: Target) -> None
     assert gc[0].startswith("[GC:")
 
 
-# -- the safe stop (DESIGN.md §6 "Every stop is safe", issue 26) ---------------------------------
+# -- the safe stop (docs/contract.md §6 "Every stop is safe", issue 26) ---------------------------------
 
 # Slow weld moves (5 mm at F150: 2 s of machine time each) so a stop lands mid-stream on every
 # target (the CNC sim runs at 50x, grbl-sim at ~0.37x real time).

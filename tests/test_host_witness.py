@@ -70,7 +70,7 @@ async def test_a_device_silent_while_a_cpu_stopped_is_not_lost(witness, cpu_stop
     th = SimThread()
     sim = CellIOSim(clock=SimClock(1.0))
     url, close = th.run(serve_modbus_tcp(sim))
-    io = CellIO(url, lost_after_cycles=3)          # 30 ms budget, as DESIGN.md §5's default
+    io = CellIO(url, lost_after_cycles=3)          # 30 ms budget, as docs/contract.md §5's default
     io.host_stalled_s = witness.stalled_s
     await io.connect()
     try:

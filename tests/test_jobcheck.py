@@ -1,4 +1,4 @@
-"""The job checked against the cell before any device is touched (issue 14, DESIGN.md §6)."""
+"""The job checked against the cell before any device is touched (issue 14, docs/contract.md §6)."""
 from __future__ import annotations
 
 import dataclasses

@@ -1,6 +1,6 @@
 """Issue 38 item 3 / issue 36 item 8: every `--json` command prints exactly one JSON object on every
 exit path (bad input, usage errors, refusals, faults), with the documented exit code; a refusal
-that needs no device comes before the first motion (DESIGN.md §6, §7; docs/controller.md).
+that needs no device comes before the first motion (docs/contract.md §6, §7; docs/controller.md).
 """
 from __future__ import annotations
 

@@ -36,7 +36,7 @@ def test_steel_about_3_amperes_per_mm_near_200_a():
     wfs = (200.0 - STEEL.ribeiro.i_min_a) * (STEEL.ribeiro.wfs_max_m_min - STEEL.ribeiro.wfs_min_m_min) / (
         STEEL.ribeiro.i_max_a - STEEL.ribeiro.i_min_a) + STEEL.ribeiro.wfs_min_m_min
     s = sensitivity_a_per_mm(rel, STEEL.ribeiro, wfs)
-    assert -5.0 < s < -2.0, s                      # order of 3 A/mm (Lesnewich; DESIGN.md §6b)
+    assert -5.0 < s < -2.0, s                      # order of 3 A/mm (Lesnewich; docs/contract.md §6b)
     # finite difference agrees with the derivative
     d = (current_at(rel, STEEL.ribeiro, wfs, 16.0) - current_at(rel, STEEL.ribeiro, wfs, 14.0)) / 2.0
     assert d == pytest.approx(s, rel=0.02)

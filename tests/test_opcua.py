@@ -1,4 +1,4 @@
-"""The factory interface (DESIGN.md §8): an OPC UA client watches a simulated build.
+"""The factory interface (docs/contract.md §8): an OPC UA client watches a simulated build.
 
 The server is fed by the controller's own event bus; the client is asyncua's, on the real
 OPC UA binary protocol over loopback TCP, as a factory's MES would connect.

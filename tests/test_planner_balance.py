@@ -1,4 +1,4 @@
-"""Mass balance per bead (issue 28 item 3, DESIGN.md §3.7): every pass lays the section it fills.
+"""Mass balance per bead (issue 28 item 3, docs/contract.md §3.7): every pass lays the section it fills.
 
 Measured from the job (wire area × WFS / speed × length) against the part's own section, and per
 bead class against an independent partition of the section (each sample point to its nearest

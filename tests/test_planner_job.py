@@ -1,4 +1,4 @@
-"""Job file `cell-job/1`: the schema of DESIGN.md §3, same input same bytes, a validating reader."""
+"""Job file `cell-job/1`: the schema of docs/contract.md §3, same input same bytes, a validating reader."""
 from __future__ import annotations
 
 import json

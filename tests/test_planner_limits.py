@@ -1,4 +1,4 @@
-"""Plan-time limits (issue 28 item 6, DESIGN.md §3.10): a bead the cell cannot weld is refused at
+"""Plan-time limits (issue 28 item 6, docs/contract.md §3.10): a bead the cell cannot weld is refused at
 plan time naming it, or planned under --allow-outside with `inside_envelope: false`."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Near-net planning (issue 28 item 1, DESIGN.md §3.9): --machining-allowance grows every layer
+"""Near-net planning (issue 28 item 1, docs/contract.md §3.9): --machining-allowance grows every layer
 and the top; coverage, outside and mass balance against the grown region; stock per face; the
 refused features an allowance would make buildable."""
 from __future__ import annotations

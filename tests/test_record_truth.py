@@ -216,7 +216,7 @@ async def test_a_cnc_builds_deposited_length_is_the_deposit_logs(tmp_path: Path)
 
 
 def cnc_answer_late_s(log: Path, scale: float) -> list[float]:
-    """Per bead, in build order: how much later than its 5 ms answer bound (DESIGN.md §6a) the
+    """Per bead, in build order: how much later than its 5 ms answer bound (docs/contract.md §6a) the
     grbl simulator said the bead's last move had ended (process s), from its own log: the closing
     `G4 P0` (logged as its `ok` goes out) against the last weld move's end. The controller learns
     the end from that `ok`; it cannot know the move ended earlier than the device says."""

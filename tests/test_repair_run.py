@@ -28,7 +28,7 @@ async def test_an_l_shaped_repair_lands_on_a_posed_stock_and_verifies_on_its_dep
     # The verify reads the deposit: every touch within 0.01 mm of the simulated deposit's true top.
     assert truth["probe_err_max_mm"] < 0.01, truth
     # The deposit against the plan (docs/repair.md "Verify figures"): the 0.1 mm target is not reachable
-    # as deposited in the physical world of DESIGN.md §6b: a two-bead layer's first bead crowns
+    # as deposited in the physical world of docs/contract.md §6b: a two-bead layer's first bead crowns
     # 1.5 × metal / width, +0.13 mm over its neighbour at 0.44 mm layers, loop corners and ends dip,
     # the corner of the L's inner loop piles up; measured max 0.35-0.38 mm, mean +0.08 mm over poses.
     # The verify names those touches as height defects. The mean is no drift a layer-height loop corrects.

@@ -1,4 +1,4 @@
-"""RLP/1 frame codec: the exact bytes of DESIGN.md §5, CRC checking, sequence arithmetic."""
+"""RLP/1 frame codec: the exact bytes of docs/contract.md §5, CRC checking, sequence arithmetic."""
 from __future__ import annotations
 
 import zlib

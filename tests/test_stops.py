@@ -1,4 +1,4 @@
-"""Every stop is safe (issue 26, DESIGN.md §6): signals, a journal that cannot be written, a second
+"""Every stop is safe (issue 26, docs/contract.md §6): signals, a journal that cannot be written, a second
 controller, a firmware lacking axes. Against the simulators in their own process (`cell sim up`)
 and in-process (`--sim`), signals sent with os.kill to a real `cell run` subprocess; judged from
 the simulators' side: the power source's command register read by a second Modbus client, the

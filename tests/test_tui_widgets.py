@@ -60,7 +60,7 @@ def test_what_the_view_allows() -> None:
 
 
 def test_apply_alignment_is_offered_once_per_job() -> None:
-    """DESIGN.md §3: once the aligned job is open, `y` is no longer offered (it would move the part twice)."""
+    """docs/contract.md §3: once the aligned job is open, `y` is no longer offered (it would move the part twice)."""
     from dataclasses import replace as _replace
 
     from controller.runtime.events import Snapshot

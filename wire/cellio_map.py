@@ -1,4 +1,4 @@
-"""The cell I/O coupler's Modbus map (DESIGN.md §5), one definition for the driver and the simulator.
+"""The cell I/O coupler's Modbus map (docs/contract.md §5), one definition for the driver and the simulator.
 
 Discrete inputs 0..3 and coils 0..4 in the order of INPUTS and COILS; input registers 0..1 in
 the order of INPUT_REGISTERS, each the value times REGISTER_SCALE (0.1 °C, 0.1 L/min). The

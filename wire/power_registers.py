@@ -1,4 +1,4 @@
-"""The power source's Modbus register map (DESIGN.md §5) as data, and pure encode/decode.
+"""The power source's Modbus register map (docs/contract.md §5) as data, and pure encode/decode.
 
 Two contiguous blocks of holding registers, exchanged in one read/write-multiple-registers
 call (function 0x17) per 10 ms cycle: the host writes the command block 0xF000..0xF00D and
@@ -99,7 +99,7 @@ class RegisterMap:
         return self
 
 
-#: DESIGN.md §5, to the letter.
+#: docs/contract.md §5, to the letter.
 POWER_MAP = RegisterMap(
     command_start=0xF000,
     command_count=0x0E,          # 0xF000..0xF00D

@@ -1,4 +1,4 @@
-"""RLP/1, the robot link protocol (DESIGN.md §5): a pure frame codec, no I/O.
+"""RLP/1, the robot link protocol (docs/contract.md §5): a pure frame codec, no I/O.
 
 A frame is one ASCII line `BODY *CCCCCCCC\\n`, CCCCCCCC the CRC-32 (zlib) of BODY as 8
 upper-case hex digits. Host data frames are `SSSS VERB ARGS` (SSSS: 16-bit upper-case hex

@@ -1,6 +1,6 @@
 """Leveling with the A/B table, the second-face angle, and the CAD model rotated to match.
 
-Pure functions (Padathu 2005; DESIGN.md §4). Angles in degrees.
+Pure functions (Padathu 2005; docs/contract.md §4). Angles in degrees.
 """
 from __future__ import annotations
 

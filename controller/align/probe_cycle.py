@@ -1,4 +1,4 @@
-"""Probe cycles over the CNC driver (DESIGN.md §4): the only part of controller.align with I/O.
+"""Probe cycles over the CNC driver (docs/contract.md §4): the only part of controller.align with I/O.
 
 One touch point: rapid to a clearance point, `G38.2` fast toward the surface, back off, then
 `samples` slow `G38.2` touches from the back-off point; when the samples spread more than the

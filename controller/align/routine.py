@@ -1,6 +1,6 @@
 """`cell align run`: home/unlock, probe the top, level with A/B, probe the side face, transform.
 
-Padathu 2005's procedure on the cell's CNC (DESIGN.md §4):
+Padathu 2005's procedure on the cell's CNC (docs/contract.md §4):
 1. home (or unlock) as needed; probe a grid on the top face;
 2. fit the top plane in the table frame and move A/B to the unique leveling angles;
 3. probe the side face (a row of touches along it) and one touch on a third face;
@@ -335,7 +335,7 @@ async def run_on_url(url: str, cell: CellConfig, plan: ProbePlan, *, settings: P
         return await align(link, cell, plan, settings=settings, on_point=on_point, no_level=no_level)
     except BaseException as exc:
         # any error or stop (a signal cancels the task): never leave the CNC in Hold with lines
-        # queued (DESIGN.md §6): feed hold, M5 or a soft reset, verified
+        # queued (docs/contract.md §6): feed hold, M5 or a soft reset, verified
         if link.connected:
             await link.safe_stop(f"alignment stopped: {exc or type(exc).__name__}")
         raise
@@ -344,7 +344,7 @@ async def run_on_url(url: str, cell: CellConfig, plan: ProbePlan, *, settings: P
 
 
 def alignment_record(res: "AlignResult") -> dict[str, Any]:
-    """The job's `alignment` (DESIGN.md §3): transform, table angles, when it was probed."""
+    """The job's `alignment` (docs/contract.md §3): transform, table angles, when it was probed."""
     no_level = res.no_level
     return {"transform": res.transform.tolist(), "level_a_deg": res.level_a_deg, "level_b_deg": res.level_b_deg,
             **({"no_level": True, "tilt_deg": res.leveling.tilt_deg} if no_level else {}),

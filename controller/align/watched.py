@@ -1,4 +1,4 @@
-"""The CNC's homing and probing under the progress watch (DESIGN.md §6; controller/motion/watch.py).
+"""The CNC's homing and probing under the progress watch (docs/contract.md §6; controller/motion/watch.py).
 
 Probing: every probe step (the rapids grbl finishes before a `G38.x`, and the probing move) is
 watched from the status reports; a machine that stands, in Run or not, for the step's bound is a

@@ -433,7 +433,7 @@ class CellController:
         return True
 
     def _journal_faults(self, journal: Journal, ilk: Interlocks) -> bool:
-        """A journal write that fails trips the cell (DESIGN.md §6): the writer thread's error
+        """A journal write that fails trips the cell (docs/contract.md §6): the writer thread's error
         goes to this loop. A journal that already failed trips it now: False, no build."""
         loop = asyncio.get_running_loop()
 

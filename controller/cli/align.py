@@ -1,4 +1,4 @@
-"""`cell align plane|transform|run`: probe-and-align on the 5-axis CNC (DESIGN.md §4, §7)."""
+"""`cell align plane|transform|run`: probe-and-align on the 5-axis CNC (docs/contract.md §4, §7)."""
 from __future__ import annotations
 
 import argparse

@@ -1,4 +1,4 @@
-"""`cell export JOB --format gcode|rapid|krl [--out FILE] [--json]` (DESIGN.md §7)."""
+"""`cell export JOB --format gcode|rapid|krl [--out FILE] [--json]` (docs/contract.md §7)."""
 from __future__ import annotations
 
 import argparse

@@ -1,4 +1,4 @@
-"""How a command ended, for its exit code and its `--json` object (DESIGN.md §7; docs/controller.md
+"""How a command ended, for its exit code and its `--json` object (docs/contract.md §7; docs/controller.md
 "Exit codes"): every `--json` command prints exactly one JSON object on every exit path.
 
 The commands print their own object when they end normally (`emit_json` counts it). When one ends

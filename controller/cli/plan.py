@@ -1,4 +1,4 @@
-"""`cell plan STL --width W ...`: plan a part into a `cell-job/1` job file (DESIGN.md §3, §7)."""
+"""`cell plan STL --width W ...`: plan a part into a `cell-job/1` job file (docs/contract.md §3, §7)."""
 from __future__ import annotations
 
 import argparse

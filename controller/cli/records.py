@@ -1,5 +1,5 @@
 """`cell records sync [--url URL]` and `cell records query ...`: the shop's record store
-(DESIGN.md §9, docs/records.md).
+(docs/contract.md §9, docs/records.md).
 
 - `sync`: send every record queued in the runs directory (`records.pending.json`); a run whose
   record was never written gets it from its journal first. Exit 0 when nothing stays queued,

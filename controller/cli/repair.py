@@ -1,4 +1,4 @@
-"""`cell repair plan CAD --stock STOCK --width W [--allowance MM]` (DESIGN.md §4 "Repair", issue 17)."""
+"""`cell repair plan CAD --stock STOCK --width W [--allowance MM]` (docs/contract.md §4 "Repair", issue 17)."""
 from __future__ import annotations
 
 import argparse

@@ -153,7 +153,7 @@ def _result_json(ctl: Any, res: Any, report: Path | None) -> dict[str, Any]:
             "complete_with_defects": res.state == "complete" and bool(defects), "defects": defects,
             "arc_starts": res.arc_starts, "alarms": alarms, "report": str(report) if report else None,
             "run_dir": str(ctl.run_dir) if ctl.run_dir else None,
-            # link health over the run (DESIGN.md §5): late replies are counted, never a fault
+            # link health over the run (docs/contract.md §5): late replies are counted, never a fault
             "links": [dataclasses.asdict(x) for x in ctl.snapshot().links]}
 
 

@@ -1,4 +1,4 @@
-"""G-code for grbl 1.1 / grblHAL (DESIGN.md §5, CNC): the program the live CNC executor streams.
+"""G-code for grbl 1.1 / grblHAL (docs/contract.md §5, CNC): the program the live CNC executor streams.
 
 Per layer an interpass dwell (`G4 P<s>`, grbl's P is seconds); per pass a travel above the start,
 down to it, `M3 S<power>` (process on), the `G1` weld moves at the pass's feed, `M5` (process off).

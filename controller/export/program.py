@@ -1,6 +1,6 @@
 """What every program export needs from a job: passes in the frame the machine works in.
 
-Pure: a typed job (controller/job/read.py) in, frozen dataclasses out. The alignment (DESIGN.md §3,
+Pure: a typed job (controller/job/read.py) in, frozen dataclasses out. The alignment (docs/contract.md §3,
 `"alignment": {"transform": 4×4 part→machine}`) is carried here once, for every format.
 """
 from __future__ import annotations

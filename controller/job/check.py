@@ -1,4 +1,4 @@
-"""The job checked against the cell before any device is touched (DESIGN.md §6, issue 14).
+"""The job checked against the cell before any device is touched (docs/contract.md §6, issue 14).
 
 Pure: the typed job (read and checked field by field once: controller/job/read.py, which also
 bounds the pass and point counts), the cell config and the material in, a list of violations

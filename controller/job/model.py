@@ -4,7 +4,7 @@
 and what the cell adds around it, all checked when the file was read: the job's identity (the
 hash of the file's canonical JSON, which the journal and the run directory are keyed on, the
 canonical JSON itself, which the journal stores, the name and the file) and the top-level
-sections the planner does not write: the alignment (`cell align run --job`, DESIGN.md §3) and
+sections the planner does not write: the alignment (`cell align run --job`, docs/contract.md §3) and
 the repair (`cell repair plan`). Nothing after the read indexes the file's JSON.
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Repair volume (Padathu 2005's workflow, DESIGN.md §4 "Repair"): nominal CAD − stock (+ allowance).
+"""Repair volume (Padathu 2005's workflow, docs/contract.md §4 "Repair"): nominal CAD − stock (+ allowance).
 
 manifold3d does the boolean operations (exact, always manifold). The result stays in the CAD frame:
 the repair is planned there (`--frame cad`) and carried to the machine by the job's alignment.

@@ -1,4 +1,4 @@
-"""Free space for the journal, checked before any motion (DESIGN.md §6: the journal is part of
+"""Free space for the journal, checked before any motion (docs/contract.md §6: the journal is part of
 the safety chain; `cell run` / `cell resume` refuse, exit 2, when the runs directory cannot hold
 the job's journal).
 

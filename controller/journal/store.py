@@ -1,4 +1,4 @@
-"""The build journal: SQLite in WAL mode with synchronous=FULL under runs/<job>/ (DESIGN.md §6).
+"""The build journal: SQLite in WAL mode with synchronous=FULL under runs/<job>/ (docs/contract.md §6).
 
 Append-only: rows are inserted, never updated or deleted, so a `kill -9` at any moment leaves
 the journal at the last committed row, and replaying the rows gives the build's state:
@@ -106,7 +106,7 @@ class Journal(JournalQueries):
         self._thread: threading.Thread | None = None
         self.write_errors = 0
         # a write that fails (disk full, I/O error, read-only) is a fault like a lost link
-        # (DESIGN.md §6): `failed` says why (path and free space), `on_error(message)` is called
+        # (docs/contract.md §6): `failed` says why (path and free space), `on_error(message)` is called
         # once, from the writer thread (the controller hands it to its loop: it trips the cell)
         self.failed: str | None = None
         self.on_error: Callable[[str], None] | None = None

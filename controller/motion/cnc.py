@@ -1,4 +1,4 @@
-"""CNC executor (grbl 1.1, DESIGN.md §5): the robot's sequence with `G4 P0` sync points and M3/M5.
+"""CNC executor (grbl 1.1, docs/contract.md §5): the robot's sequence with `G4 P0` sync points and M3/M5.
 
 Per pass: `G0` above the start and down to it, `G4 P0` (grbl answers `ok` only once motion has
 stopped: the torch is at the start); arc start handshake on the power source; then `M3 S…`,
@@ -114,7 +114,7 @@ class CncExecutor:
         await asyncio.to_thread(check_feed, job, self.five.trunnion, self.link, max_step_mm)
 
     def require_job_axes(self, job: CellJob) -> None:
-        """The firmware's axes against the job, before homing or any motion (DESIGN.md §5):
+        """The firmware's axes against the job, before homing or any motion (docs/contract.md §5):
         GrblAxesMissing (exit 2) naming the firmware and the axes it lacks."""
         why = job_axes_need(job)
         if why is not None:

@@ -99,7 +99,7 @@ class Five:
 
     async def post_job(self, job: CellJob, max_step_mm: float, baud: int = 115200) -> None:
         """Every pass to machine axes and lines, in a worker thread (nothing computes on the loop
-        that cycles the devices: DESIGN.md §6)."""
+        that cycles the devices: docs/contract.md §6)."""
 
         self.passes, self.fine, self.baud = {}, {}, baud
         if not any(p.axes is not None for la in job.layers for p in la.passes):
@@ -210,7 +210,7 @@ class Five:
         return (float(q[0]), float(q[1]), float(q[2]))
 
 
-# --- what the CNC link can feed (issue 29, DESIGN.md §6 "Simulated time") ---------------------------
+# --- what the CNC link can feed (issue 29, docs/contract.md §6 "Simulated time") ---------------------------
 # The simulated serial line keeps its baud in simulated time on both sides (sims/transport.py and
 # CncLink(line_scale=time_scale)); what it cannot keep is the host: the in-process driver and grbl
 # simulator handle a streamed line in up to ~1–2 ms of wall time (measured on the 2-core build

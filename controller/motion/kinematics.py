@@ -1,6 +1,6 @@
 """Rigid transforms of the alignment: the paper's table transform, A/B and A/C trunnion kinematics.
 
-Conventions (Padathu 2005, appendix; DESIGN.md §4):
+Conventions (Padathu 2005, appendix; docs/contract.md §4):
 
 * A table rotation is applied to a point as ``W = T(-P)·R_outer·R_inner·T(P)·p``: a rotation
   about the point ``-P``. In the paper's own example A turns about z and B about y, A first.
@@ -250,7 +250,7 @@ def apply_to_job(job: CellJob, matrix: ArrayLike, record: dict[str, Any] | None 
     """A copy of a job moved by `matrix` (points, normals, axes), recording the alignment (and
     `name`, when given). The copy is a new job, read as its file would be (its own hash).
 
-    A job holds at most one alignment (DESIGN.md §3): a job that already carries one is refused.
+    A job holds at most one alignment (docs/contract.md §3): a job that already carries one is refused.
     """
     m = np.asarray(matrix, dtype=float)
     if m.shape != (4, 4):

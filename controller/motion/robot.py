@@ -1,4 +1,4 @@
-"""Robot executor (RLP/1, DESIGN.md §5): per pass `MOVJ` above the start, `MOVJ` to it, `WAIT`,
+"""Robot executor (RLP/1, docs/contract.md §5): per pass `MOVJ` above the start, `MOVJ` to it, `WAIT`,
 then the `MOVL`s streamed behind it while the arc starts; `!GO` on motion release.
 
 The weld moves are queued as soon as the travel is, so the robot's queue is full when the arc

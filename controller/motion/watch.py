@@ -1,4 +1,4 @@
-"""The progress watch of every motion state (DESIGN.md §6; docs/controller.md "Progress watchdog").
+"""The progress watch of every motion state (docs/contract.md §6; docs/controller.md "Progress watchdog").
 
 A motion device that is driven (travel, approach, homing, probing, machining, depositing) and
 stops making progress is a fault within its state's bound, never a silent hang. Progress is any

@@ -1,1 +1,1 @@
-"""The factory interface (DESIGN.md §8): the cell's state, process values, job and alarms over OPC UA."""
+"""The factory interface (docs/contract.md §8): the cell's state, process values, job and alarms over OPC UA."""

@@ -1,6 +1,6 @@
 """What the OPC UA server is told, without importing asyncua: who it is, where it listens and
 whether that endpoint may serve (loopback only, unless a certificate and users are configured;
-DESIGN.md §8). The controller's process imports only this; asyncua lives in the server's process.
+docs/contract.md §8). The controller's process imports only this; asyncua lives in the server's process.
 """
 from __future__ import annotations
 

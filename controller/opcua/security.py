@@ -1,4 +1,4 @@
-"""Who may log in when the endpoint is secured: the users of cell.yaml (DESIGN.md §8)."""
+"""Who may log in when the endpoint is secured: the users of cell.yaml (docs/contract.md §8)."""
 from __future__ import annotations
 
 import hmac

@@ -1,4 +1,4 @@
-"""OPC UA server of one cell, fed by the controller's event bus (DESIGN.md §8).
+"""OPC UA server of one cell, fed by the controller's event bus (docs/contract.md §8).
 
 Runs asyncua on a thread and loop of its own; the controller runs it in a process of its own
 (controller.opcua.child, fed over a pipe) so it never shares the controller's interpreter lock.

@@ -1,4 +1,4 @@
-"""The build record's per-bead and per-layer rows, arc-time cross-checks and CSV (DESIGN.md §7).
+"""The build record's per-bead and per-layer rows, arc-time cross-checks and CSV (docs/contract.md §7).
 
 Everything here is read from the journal (what the devices measured) and the job (what was
 planned); times in the journal are wall-clock seconds, scaled by the run's time scale to process
@@ -16,7 +16,7 @@ from controller.journal.store import Journal
 from core.material import ProcessTolerance
 from planner.job import Job, Pass
 
-# One row per planned bead (DESIGN.md §7); every name carries its unit. How each figure is
+# One row per planned bead (docs/contract.md §7); every name carries its unit. How each figure is
 # measured: docs/build-record.md "Per bead". There is no planned voltage: the job carries none and
 # the material has no voltage line (the synergic source sets the voltage from the wire feed); the
 # voltage is judged against the material's absolute window, given as voltage_window_*_v.

@@ -1,4 +1,4 @@
-"""Build report: a JSON summary and PNG plots, from the journal alone (DESIGN.md §6).
+"""Build report: a JSON summary and PNG plots, from the journal alone (docs/contract.md §6).
 
 Plots (matplotlib, Agg): per-layer arc time and heat input, current/voltage traces, part
 temperature, and a map of the defects (arc losses, interlock stops) over the planned paths.

@@ -1,4 +1,4 @@
-"""The arc handshake (DESIGN.md §5) as a small state machine on top of `PowerSource`.
+"""The arc handshake (docs/contract.md §5) as a small state machine on top of `PowerSource`.
 
     idle -> ready -> preflow -> ignition -> welding -> crater -> postflow -> idle
                                     \\-(1.5 s, retries)-/          any active state -> fault

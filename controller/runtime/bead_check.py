@@ -1,4 +1,4 @@
-"""Was a bead deposited as planned? The devices' measurements decide (DESIGN.md §6, issue 13).
+"""Was a bead deposited as planned? The devices' measurements decide (docs/contract.md §6, issue 13).
 
 A pass is done only when its last move was executed (the robot's EXE / grbl's sync point), the
 arc was stable all along, and the measured current, voltage and wire feed stayed within the

@@ -1,5 +1,5 @@
 """What the devices measured over one bead: the source's current / voltage / wire feed, and the
-robot's pace from its EXE reports (DESIGN.md §6: "done" and "deposited" come from the devices).
+robot's pace from its EXE reports (docs/contract.md §6: "done" and "deposited" come from the devices).
 
 The travel speed is the slope of the lower envelope of the length reached against the arrival
 time of each EXE, over the moves executed with the arc stable. An EXE can only arrive late, never
@@ -20,7 +20,7 @@ import numpy as np
 
 BUS_CYCLE_S = 0.010   # the power source's bus cycle (wall): how finely the controller sees the process
 # wall: how late a device's report may come without the torch having stood; the arc time forgives
-# that much at the bead's start and end (DESIGN.md §6a: the simulators answer within 5 ms, p99)
+# that much at the bead's start and end (docs/contract.md §6a: the simulators answer within 5 ms, p99)
 REPORT_LATENCY_S = 0.005
 _PLANNED = -1.0      # Pace._wall_speed: "at the plan's own pace" (per move where the plan has per-move speeds)
 

@@ -1,4 +1,4 @@
-"""One controller per cell (DESIGN.md §6): an exclusive `flock` named after the cell.
+"""One controller per cell (docs/contract.md §6): an exclusive `flock` named after the cell.
 
 Every command that moves a device (`cell run`, `cell resume`, `cell align run`, `cell repair
 run`, `cell demo`, a TUI build) takes it before it opens any device and holds it for the life

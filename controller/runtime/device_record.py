@@ -1,4 +1,4 @@
-"""Where a bead a crash cut really ends, from the device's own record (DESIGN.md §6, issue 26):
+"""Where a bead a crash cut really ends, from the device's own record (docs/contract.md §6, issue 26):
 "a resume never re-deposits what the devices' own records show done, and refuses, with what it
 knows, when it cannot tell".
 

@@ -1,4 +1,4 @@
-"""Interlocks (DESIGN.md §5-6): act within one cycle, then record, then latch.
+"""Interlocks (docs/contract.md §5-6): act within one cycle, then record, then latch.
 
 Sources: the cell I/O's input-change callback (door opened, E-stop pressed), the power
 source's status every 10 ms cycle (arc lost for longer than the limit, wire stick, gas fault,

@@ -1,4 +1,4 @@
-"""The interpass rule before a layer's first arc (DESIGN.md §3 item 4): the pyrometer below the
+"""The interpass rule before a layer's first arc (docs/contract.md §3 item 4): the pyrometer below the
 layer's limit, or, without a reading, the layer's dwell."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Closed-loop layer height (DESIGN.md §6b, docs/closed-loop.md): the build runner's process control.
+"""Closed-loop layer height (docs/contract.md §6b, docs/closed-loop.md): the build runner's process control.
 
 The runner asks it for each pass as built (`pass_for`: the layer's z offset and travel-speed trim
 applied), tells it each bead's current samples (`bead_closed`: the robot's stick-out through the

@@ -1,4 +1,4 @@
-"""The cell's strict state machine (DESIGN.md §6): an explicit transition table.
+"""The cell's strict state machine (docs/contract.md §6): an explicit transition table.
 
 An event that is not in the table for the current state is refused with `TransitionRefused`
 (a CellError that names the event, the state and what is allowed), never silently ignored.

@@ -1,4 +1,4 @@
-"""The build runner's progress watchdog (DESIGN.md §6 "Every stop is safe", issues 26 and 38): a
+"""The build runner's progress watchdog (docs/contract.md §6 "Every stop is safe", issues 26 and 38): a
 motion device that makes no progress while the arc is on, or in the travel to a bead's start, is
 a fault within its bound, weld start dropped first. The watch itself (what counts as progress,
 the wall bound and its floor, the message) is controller/motion/watch.py; homing and probing use

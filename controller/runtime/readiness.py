@@ -1,4 +1,4 @@
-"""Readiness before motion (DESIGN.md §6, issue 13): every device is checked before the first move.
+"""Readiness before motion (docs/contract.md §6, issue 13): every device is checked before the first move.
 
 After a fault, an abort or a crash the devices may still carry what happened: a power source
 with an error latched (its watchdog after a crash), a robot with moves queued or in FAULT, a

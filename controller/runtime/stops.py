@@ -1,4 +1,4 @@
-"""Every stop is safe (DESIGN.md §6): SIGINT, SIGTERM and SIGHUP take the fault path.
+"""Every stop is safe (docs/contract.md §6): SIGINT, SIGTERM and SIGHUP take the fault path.
 
 `StopSignals` is held for the life of a command that moves a device (`cell run`, `cell resume`,
 `cell align run`, `cell repair run`, `cell demo`, a TUI build):

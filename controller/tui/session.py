@@ -91,7 +91,7 @@ class CellSession(TraceAsk):
         self._job: JobInfo | None = None
         self._cell_job: CellJob | None = None   # the job as the controller opens it (typed)
         self._alignment: dict[str, Any] | None = None
-        self._alignment_applied = False  # DESIGN.md §3: one alignment per job, applied once
+        self._alignment_applied = False  # docs/contract.md §3: one alignment per job, applied once
         self._busy: str | None = None
         self._connect_error: str | None = None
         self._dev_errors: dict[str, str] = {}
