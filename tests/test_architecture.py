@@ -289,3 +289,12 @@ def test_product_and_docs_cite_no_file_outside_the_repository() -> None:
            for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
            if "../shared" in line or "DESIGN.md" in line]
     assert not bad, "cite docs/contract.md instead: " + ", ".join(bad)
+
+
+def test_the_architecture_page_names_every_controller_module() -> None:
+    """docs/architecture.md names every module of controller/ (by path, or by file name in its room's row)."""
+    doc = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
+    missing = [str(f.relative_to(ROOT)) for f in sorted((ROOT / "controller").rglob("*.py"))
+               if f.name != "__init__.py" and str(f.relative_to(ROOT)) not in doc and f"`{f.name}`" not in doc
+               and f"{f.parent.name}/{f.name}" not in doc]
+    assert not missing, "name these in docs/architecture.md: " + ", ".join(missing)
