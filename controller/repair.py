@@ -11,6 +11,7 @@ was probed after the CNC's last homing/reset (the executor refuses an older one)
 """
 from __future__ import annotations
 
+import asyncio
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -364,6 +365,12 @@ async def repair_run(job: CellJob, cell: CellConfig, *, job_path: Path | None = 
     report = str(ctl.last_report) if ctl.last_report else None
     if finish:
         _record(Path(str(ctl.run_dir)), {k: fin[k] for k in ("stock", "machining", "verify")})
+        if cell.records.url:   # the store had the record at the build's end: send it again with the machining
+            # lazy: the records room loads only for a cell with a store
+            from controller.records.queue import resend
+
+            await asyncio.to_thread(resend, Path(str(ctl.run_dir)), cell.records.url, cell=cell.cell.name,
+                                    timeout_s=cell.records.connect_timeout_s)
     return {"state": result.state, "level_a_deg": round(res.level_a_deg, 5), "level_b_deg": round(res.level_b_deg, 5),
             "face_angle_deg": round(res.face_angle_deg, 5),
             "transform": np.round(np.asarray(res.transform, dtype=float), 9).tolist(),

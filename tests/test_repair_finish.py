@@ -3,6 +3,7 @@ probe, roughing and finishing to CAD on the CNC simulator that cuts, the verify 
 from __future__ import annotations
 
 import json
+import sqlite3
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +38,8 @@ async def test_a_slot_is_deposited_machined_to_cad_and_verified(tmp_path: Path):
     assert main(["repair", "plan", str(cad), "--stock", str(stock), "--width", "4", "--allowance", "0.5",
                  "--out", str(job), "--allow-underfill"]) == 0
     cell = with_urls(load_cell(), {}, time_scale=60)
+    shop = tmp_path / "shop.db"   # the shop's record store gets the machining too (docs/records.md)
+    cell = cell.model_copy(update={"records": cell.records.model_copy(update={"url": f"sqlite:///{shop}"})})
     maps: list = []
     sim = posed_sim(stock, 0.8, -0.6, 2.0, (1.5, -1.0, 0.3))
     # a small part cools fast (no interpass waits to sit through in a test)
@@ -61,3 +64,6 @@ async def test_a_slot_is_deposited_machined_to_cad_and_verified(tmp_path: Path):
     assert np.nanmin(top) >= -0.02 and np.nanmax(top) <= 0.05, (np.nanmin(top), np.nanmax(top))
     rec = json.loads((Path(rep["run_dir"]) / "repair.json").read_text())
     assert rec["verify"]["below_cad_max_mm"] == v["below_cad_max_mm"]
+    with sqlite3.connect(shop) as db:
+        rows = db.execute("SELECT tool, removal_mm3, below_cad_max_mm FROM repairs").fetchall()
+    assert rows == [("ball6", mc["removal_mm3"], v["below_cad_max_mm"])], rows
