@@ -167,7 +167,9 @@ class _Run:
             laid = sum(laid_area_mm2(self.material.wire_diameter_mm, p.wfs_m_min, p.speed_mm_min) * p.length_mm
                        for p in passes)
             v.layer_balance(abs(laid - q.area_mm2 * h) / (q.area_mm2 * h))
-        if self.options.feed_forward:   # each bead's metal kept, its spread along the path levelled
+        # each bead's metal kept, its spread along the path levelled; not on a 5-axis plan (its beads
+        # lean: the tool axes come after, from the passes as the walls give them, planner/five_axis.py)
+        if self.options.feed_forward and self.options.five_axis is None:
             levelled, lvl = level_layer(tuple(passes), self.material.wire_diameter_mm, self.envelope)
             passes = list(levelled)
             self.levels.append(lvl)

@@ -131,8 +131,10 @@ def _assert_record(run_dir: Path, job: dict) -> dict:
 @pytest.mark.usefixtures("record_plots")  # checks the PNGs (tests/conftest.py)
 async def test_a_tui_build_leaves_its_record_complete_and_estopped(tmp_path: Path) -> None:
     from textual.events import Key
+    from textual.widgets import Button, Input
 
     from controller.tui.app import CellApp
+    from controller.tui.start_dialog import StartDialog
 
     job = small_job(n_layers=2)
     job_file = tmp_path / "square.json"
@@ -146,6 +148,10 @@ async def test_a_tui_build_leaves_its_record_complete_and_estopped(tmp_path: Pat
             await _until(pilot, lambda: app.view.snap.state == "ready", 15, "the job to open")
             app.post_message(Key("f3", None))
             app.post_message(Key("s", None))
+            # cell.yaml gives no wire lot: the start dialog asks for it (docs/records.md)
+            await _until(pilot, lambda: isinstance(app.screen, StartDialog), 15, "the start dialog")
+            app.screen.query_one("#start-wire-lot", Input).value = "LOT-TUI"
+            app.screen.query_one("#start-ok", Button).press()
             await _until(pilot, lambda: app.view.snap.state == "complete", 120, "the build to complete")
             run_dir = Path(app.view.snap.run_dir or "")
             await _until(pilot, lambda: app.last_message.startswith("complete: record"), 150, "the record")
@@ -155,6 +161,7 @@ async def test_a_tui_build_leaves_its_record_complete_and_estopped(tmp_path: Pat
             await pilot.pause(0.3)
             assert str(run_dir / "report.json") in str(app.query_one("#build-record").render())
             rep = _assert_record(run_dir, job)
+            assert rep["wire_lot"] == "LOT-TUI"   # what the operator gave at the start
             assert rep["state"] == "complete" and {b["status"] for b in rep["beads"]} == {"done"}, [b["defect_reasons"] for b in rep["beads"]]
 
             # the same job again (--new's run dir), stopped by the E-stop input of the cell I/O
@@ -163,6 +170,8 @@ async def test_a_tui_build_leaves_its_record_complete_and_estopped(tmp_path: Pat
             session._submit(lambda: session._open_job(job_from_dict(job2))).result(30)
             await _until(pilot, lambda: app.view.snap.state == "ready", 15, "the second job")
             app.post_message(Key("s", None))
+            await _until(pilot, lambda: isinstance(app.screen, StartDialog), 15, "the start dialog")
+            app.screen.query_one("#start-ok", Button).press()   # prefilled with this session's lot
             await _until(pilot, lambda: app.view.snap.state == "running_depositing", 30, "an arc")
             cellio = session.harness.sim("cellio")
             session.harness.call(cellio.press_estop)
