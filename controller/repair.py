@@ -18,7 +18,6 @@ from typing import Any, Callable
 
 import numpy as np
 
-from controller.align.probe_cycle import ProbeTarget, probe_points
 from controller.align.surface_probe import probe_cad_points, repaired_spots
 from controller.motion.mill import change_tool, program_lines, run_program
 from controller.align.routine import alignment_record, plan_for_mesh
@@ -225,18 +224,7 @@ async def verify(link: CncLinkPort, cell: CellConfig, job: CellJob, transform: n
     rb = job.repair.bounds_mm
     xy, ztop, kinds = verify_targets(job, *verify_split(grid * grid))
     top = max(L.z_mm for L in job.layers)
-    clear = float(cell.probe.clearance_mm)
-    tf = np.asarray(transform, dtype=float)
-    down = tf[:3, :3] @ np.array([0.0, 0.0, -1.0])
-    starts = [tf[:3, :3] @ np.array([x, y, top + clear]) + tf[:3, 3] for x, y in xy]
-    safe = max(s[2] for s in starts) + clear
-    dn = (float(down[0]), float(down[1]), float(down[2]))
-    targets = [ProbeTarget(f"verify[{i}]", (float(s[0]), float(s[1]), float(s[2])), dn, float(safe))
-               for i, s in enumerate(starts)]
-    got = await probe_points(link, targets, cell.probe)
-    await link.command(f"G90 G0 Z{safe:.3f}")
-    inv = np.linalg.inv(tf)
-    pts = np.array([inv[:3, :3] @ p.position + inv[:3, 3] for p in got])
+    pts = await probe_cad_points(link, cell, np.asarray(xy, dtype=float), top, np.asarray(transform, dtype=float), name="verify")
     nominal = float(rb[1, 2])  # the repair volume's top: CAD + allowance
     return VerifyResult(pts, top, nominal, tolerance_mm, planned_z=ztop, kinds=tuple(kinds))
 
