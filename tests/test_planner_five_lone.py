@@ -14,6 +14,7 @@ import trimesh
 from shapely.geometry import Point
 
 from bench.parts5 import leaning_frustum, tilted_tube
+from bench.tilt5 import off_generator
 from core.config import load_material
 from core.errors import CellError
 from planner.extrude import extrude
@@ -62,21 +63,6 @@ def test_three_axis_refuses_the_leaning_single_bead_wall_naming_its_layers():
         plan_part(hollow_frustum(38.0), PlanOptions(width_mm=6.0), MAT)
 
 
-def _off_generator_deg(job, R: np.ndarray, flare_deg: float, centre: np.ndarray) -> float:
-    """Largest angle between a pass's tool axis and the wall's generator through its point (the
-    part's local frame: the frustum's own axis along z after R⁻¹)."""
-    worst = 0.0
-    ta = np.tan(np.radians(flare_deg))
-    for layer in job.layers:
-        for p in layer.passes:
-            q = (p.points - centre) @ R
-            phi = np.arctan2(q[:, 1], q[:, 0])
-            g = np.column_stack([ta * np.cos(phi), ta * np.sin(phi), np.ones(len(q))]) @ R.T
-            g /= np.linalg.norm(g, axis=1, keepdims=True)
-            worst = max(worst, float(np.degrees(np.arccos(np.clip((g * p.axes).sum(axis=1), -1, 1))).max()))
-    return worst
-
-
 def test_the_lone_bead_of_a_tube_standing_at_32_degrees_follows_the_tube():
     """The issue's tube: flat ends, its sections shifted along x (a sheared annulus), one bead wide."""
     opt = PlanOptions(width_mm=6.0, five_axis=FiveAxisOptions(nozzle=None))
@@ -84,7 +70,7 @@ def test_the_lone_bead_of_a_tube_standing_at_32_degrees_follows_the_tube():
     assert all(p.role == "gap" and p.normals is not None for L in job.layers for p in L.passes)
     b = np.radians(32.0)
     R = np.array([[1.0, 0.0, np.tan(b)], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # its sections' shift per mm
-    assert _off_generator_deg(job, R, 0.0, np.zeros(3)) < 3.0
+    assert off_generator(job, R, 0.0, np.zeros(3))[0] < 3.0
     tilt = np.degrees(np.arccos(np.clip(np.vstack([p.axes for L in job.layers for p in L.passes])[:, 2], -1, 1)))
     assert 29.0 < tilt.min() and tilt.max() < 35.0, (tilt.min(), tilt.max())   # was 0.8° .. 31°
 
@@ -97,5 +83,5 @@ def test_tool_axis_follows_the_wall_of_leaning_tubes_and_frustums(flare, lean, w
     opt = PlanOptions(width_mm=6.0 if wall < 6 else 5.0, allow_overhang=True, allow_underfill=True,
                       five_axis=FiveAxisOptions(nozzle=None))
     job = plan_part(mesh, opt, MAT)
-    off = _off_generator_deg(job, R, flare, np.array([0.0, 0.0, 10.0]))  # the local frame's origin
+    off = off_generator(job, R, flare, np.array([0.0, 0.0, 10.0]))[0]  # the local frame's origin
     assert off < 3.0, off
