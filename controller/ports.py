@@ -15,8 +15,7 @@ from controller.job.model import CellJob
 from core.errors import CellError
 from drivers.cellio import CellInputs
 from drivers.cyclic import CycleStats
-from drivers.grbl import ProbeResult, StreamResult
-from drivers.grbl_stop import SafeStopResult
+from drivers.grbl import ProbeResult, SafeStopResult, StreamResult
 from drivers.power import PowerStatus
 from drivers.robot import LinkStats, RobotEvent, RobotStatus
 from wire.grbl_protocol import GrblStatus

@@ -38,7 +38,7 @@ E = TypeVar("E")
 
 
 def _grbl() -> type[CncLink]:
-    # Imported on first use, not with this module: drivers/grbl.py belongs to the grbl firmware
+    # Imported on first use, not with this module: drivers/grbl/ belongs to the grbl firmware
     # work (issue 15) and is edited apart from the registry, so a robot cell (and every robot,
     # power or cell I/O test) never loads the CNC driver, and the registry asks nothing of
     # grbl.py (no registration hook, no from_config): it maps the name to the class and calls

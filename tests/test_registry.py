@@ -98,7 +98,7 @@ async def test_open_robot_rlp1_talks_to_the_robot_simulator(tmp_path):
 async def test_open_cnc_grbl_talks_to_the_cnc_simulator(tmp_path):
     async with served(tmp_path, "sims.cnc_sim") as (cell, s):
         cnc = registry.open_cnc(cell.devices.cnc, url=s.url)
-        assert type(cnc).__module__ == "drivers.grbl" and type(cnc).__name__ == "CncLink"
+        assert type(cnc).__module__ == "drivers.grbl.link" and type(cnc).__name__ == "CncLink"
         try:
             st = await cnc.connect()
             assert st.state in ("Idle", "Alarm") and cnc.connected

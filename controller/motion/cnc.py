@@ -22,7 +22,7 @@ from controller.motion.kinematics import Trunnion
 from controller.motion.cnc5 import Five, check_feed
 from controller.job.model import CellJob
 from controller.job.weld_path import move_speed
-from drivers.grbl_stop import SafeStopResult
+from drivers.grbl import SafeStopResult
 from core.errors import CellError
 
 Point = tuple[float, float, float]

@@ -15,7 +15,7 @@ from controller.motion.post5 import weld_axes
 from controller.job.weld_path import move_speed, weld_points
 from controller.job.model import CellJob
 from controller.ports import RobotLinkPort
-from drivers.grbl_stop import SafeStopResult
+from drivers.grbl import SafeStopResult
 from drivers.robot import RobotEvent, RobotStatus
 from core.errors import InputError
 

@@ -186,7 +186,7 @@ def serve(kind: str, env: dict[str, str] | None = None) -> Iterator[str]:
     """Serve firmware `kind` on a fresh pty (socat); yields the pty path as soon as it exists, stops
     the firmware by PID after. No fixed wait for the firmware to come up: grbl-sim reads nothing in
     its first simulated second, and the link's `connect()` sends `?` until a status report or the
-    banner comes back (drivers/grbl.py), as with a board still booting (a contract test's set-up:
+    banner comes back (drivers/grbl/link.py), as with a board still booting (a contract test's set-up:
     1.45 s, against 1.65 s with the fixed 1.2 s wait it replaced)."""
     exe = build(kind)
     run = Path(tempfile.mkdtemp(prefix=f"cell-{kind}-"))

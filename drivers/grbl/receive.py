@@ -1,43 +1,40 @@
-"""The receiving half of the grbl driver (drivers/grbl.py: CncLink builds on it): every line
+"""The receiving half of the grbl driver (`link.py`: CncLink builds on it): every line
 grbl prints is parsed (wire/grbl_protocol.py) and dispatched by its kind to one handler: status
 reports (position, state, `Bf:` buffers, the spans the acknowledgement watchdog judges),
 `ok` / `error:N` (matched in order to the lines sent), `ALARM:N`, the banner (a reset) and
 bracketed feedback. Also what the reports tell about the machine: its axes and buffer sizes."""
 from __future__ import annotations
 
-import asyncio
 import time
 from collections import deque
 from collections.abc import Callable
 from typing import Any
 
 from drivers.errors import LinkLost
-from drivers.grbl_errors import GrblAckLost, GrblAlarm, GrblAxesMissing, GrblReset, GrblStuck, ProbeError
-from drivers.grbl_status import Pending, ReportSpan, dwell_s
-from drivers.serial_async import SerialPort
+from drivers.grbl.errors import GrblAckLost, GrblAlarm, GrblAxesMissing, GrblReset, GrblStuck, ProbeError
+from drivers.grbl.state import LinkState
+from drivers.grbl.status import ReportSpan, dwell_s
 from wire.grbl_protocol import POSITION_LOST_ALARMS, Alarm, Banner, Error, GrblStatus, Ok, Pos5, Probe, Reply, parse_line
 
 __all__ = ["GrblReceiver"]
 
 
 class GrblReceiver:
-    """State heard from one grbl controller and the handlers that keep it; CncLink sends."""
+    """State heard from one grbl controller and the handlers that keep it; CncLink sends.
+    `shared` is what the driver's parts share (state.py)."""
 
-    _port: SerialPort
-
-    def __init__(self, url: str, *, alarm_grace_s: float, ack_grace_s: float, stuck_after_s: float) -> None:
-        self.url = url
+    def __init__(self, shared: LinkState, *, alarm_grace_s: float, ack_grace_s: float, stuck_after_s: float) -> None:
+        self.shared = shared
+        self.url = shared.url
         self.alarm_grace_s = alarm_grace_s
         self.ack_grace_s = ack_grace_s
         # grbl Idle with our bytes unread this long: stuck (grblHAL's spindle delays go up to 20 s)
         self.stuck_after_s = stuck_after_s
-        self._quiet_until = 0.0   # grbl answers nothing during $H: no link/ack watchdog until then
         self._last_ack = time.monotonic()
         self._still = ReportSpan()   # Idle / Alarm reports with grbl's RX buffer empty (or not reported)
         self._held = ReportSpan()    # Idle / Alarm reports with bytes of ours still unread (Bf:)
         self._rx_free_max = 0         # the largest Bf: RX free seen: grbl's empty RX buffer
         self._planner_free_max = 0    # the largest Bf: planner free seen: grbl's empty planner
-        self._last_sent = 0.0
         self.version: str | None = None
         self.firmware = "grbl"          # "Grbl 1.1h", "GrblHAL 1.1f" once the banner was seen
         self.rx_buffer_reported: int | None = None   # from `$I` [OPT:…,blocks,rx]
@@ -49,38 +46,21 @@ class GrblReceiver:
         self.messages: deque[str] = deque(maxlen=200)   # unsolicited feedback lines
         self.alarms: list[int] = []
         self.last_probe: Probe | None = None
-        self._homed = False
-        self._pending: deque[Pending] = deque()
-        self._in_flight = 0
-        self._buf = bytearray()
         self._wco: Pos5 | None = None
-        self._lost: LinkLost | None = None
-        self._last_rx = time.monotonic()
-        self._status_waiters: list[asyncio.Future[GrblStatus]] = []
-        self._banner_event = asyncio.Event()
         self.reset_at = 0.0  # wall time of the last banner (power-up/reset) or homing seen
-        self._changed = asyncio.Event()
-        self._tasks: list[asyncio.Task[None]] = []
-        self._closing = False
-        # stream bookkeeping (time-weighted in-flight bytes)
-        self._stream_error: Pending | None = None
-        self._stream_alarm: Alarm | None = None
         self._handlers: dict[type, Callable[[Any, str], None]] = {
             GrblStatus: self._on_status, Ok: self._on_answer, Error: self._on_answer, Alarm: self._on_alarm,
             Banner: self._on_banner}
-        self._fill_area = 0.0
-        self._fill_t = time.monotonic()
-        self._fill_max = 0
 
     @property
     def homed(self) -> bool:
         """True after a successful `$H` until an alarm or reset loses the machine position."""
-        return self._homed
+        return self.shared.homed
 
     @property
     def in_flight_bytes(self) -> int:
         """Bytes sent and not yet acknowledged (grbl's RX buffer as the driver counts it)."""
-        return self._in_flight
+        return self.shared.in_flight
 
     @property
     def planner_blocks_empty(self) -> int:
@@ -130,19 +110,20 @@ class GrblReceiver:
             f"({n}-axis); use a {n}-axis firmware such as grblHAL", self.firmware, have, lack)
 
     def _on_bytes(self, data: bytes) -> None:
-        self._last_rx = time.monotonic()
-        self._buf += data
+        sh = self.shared
+        sh.last_rx = time.monotonic()
+        sh.buf += data
         while True:
-            i = self._buf.find(b"\n")
+            i = sh.buf.find(b"\n")
             if i < 0:
                 break
-            raw = bytes(self._buf[:i]).decode("ascii", "replace").strip()
-            del self._buf[:i + 1]
+            raw = bytes(sh.buf[:i]).decode("ascii", "replace").strip()
+            del sh.buf[:i + 1]
             if raw:
                 self._on_line(raw)
-        if len(self._buf) > 4096:  # garbage without line ends: do not grow without bound
-            del self._buf[:-256]
-        self._pulse()
+        if len(sh.buf) > 4096:  # garbage without line ends: do not grow without bound
+            del sh.buf[:-256]
+        sh.pulse()
 
     def _on_line(self, text: str) -> None:
         r: Reply = parse_line(text, self._wco)
@@ -152,7 +133,7 @@ class GrblReceiver:
         if r.wco is not None:
             self._wco = r.wco
         self.latest_status = r
-        self.status_t = getattr(self._port, "rx_t", 0.0) or time.monotonic()
+        self.status_t = self.shared.port.rx_t or time.monotonic()
         if r.rx_free is not None and r.planner_free is not None:
             # Bf: the most free ever seen is the empty buffer / planner
             self._rx_free_max = max(self._rx_free_max, r.rx_free)
@@ -166,30 +147,32 @@ class GrblReceiver:
                 span.see(now, activity)
             else:
                 span.clear()
-        waiters, self._status_waiters = self._status_waiters, []
+        waiters, self.shared.status_waiters = self.shared.status_waiters, []
         for f in waiters:
             if not f.done():
                 f.set_result(r)
 
     def _on_answer(self, r: Ok | Error, text: str) -> None:
-        if not self._pending:
+        sh = self.shared
+        if not sh.pending:
             return  # a stray acknowledgement (e.g. after a reset): nothing waits for it
-        p = self._pending.popleft()
+        p = sh.pending.popleft()
         self._last_ack = time.monotonic()
-        self.answer_t = getattr(self._port, "rx_t", 0.0) or self._last_ack
-        self._set_in_flight(self._in_flight - p.nbytes)
-        if isinstance(r, Error) and p.number is not None and self._stream_error is None:
-            self._stream_error = p
+        self.answer_t = sh.port.rx_t or self._last_ack
+        sh.set_in_flight(sh.in_flight - p.nbytes)
+        if isinstance(r, Error) and p.number is not None and sh.stream_error is None:
+            sh.stream_error = p
         if not p.future.done():
             p.future.set_result(r)
 
     def _on_alarm(self, r: Alarm, text: str) -> None:
+        sh = self.shared
         self.alarms.append(r.code)
         if r.code in POSITION_LOST_ALARMS:
-            self._homed = False
-        if self._pending:
-            self._pending[0].alarm = r
-            self._stream_alarm = self._stream_alarm or r
+            sh.homed = False
+        if sh.pending:
+            sh.pending[0].alarm = r
+            sh.stream_alarm = sh.stream_alarm or r
             # grbl still answers the lines it holds (a probe alarm: [PRB:…:0] then `ok` for
             # the G38 line after ~500 ms of silence; later lines `error:9`), or resets and
             # prints its banner. Replies stay matched to the lines sent; lines never
@@ -199,68 +182,41 @@ class GrblReceiver:
             self.messages.append(text)
         # grbl sleeps after printing an alarm (delay_ms(500) in report_alarm_message) and
         # answers nothing, not even `?`: the watchdog allows that on top of link_timeout_s.
-        self._last_rx = time.monotonic() + self.alarm_grace_s
+        sh.last_rx = time.monotonic() + self.alarm_grace_s
 
     def _on_banner(self, r: Banner, text: str) -> None:
         self.version = r.version
         self.reset_at = time.time()  # power-up or reset: the table may not be where it was
         self.firmware = f"{r.name} {r.version}"
-        self._banner_event.set()
-        if self._pending and self._pending[0].alarm is not None:
-            a = self._pending[0].alarm
-            self._fail_pending(GrblAlarm(a.code, self._pending[0].line, self.url,
-                                         " (grbl reset itself; the lines after it were flushed)"))
-        self._fail_pending(GrblReset(f"cnc at {self.url}: controller reset (banner '{r.name} {r.version}') "
+        sh = self.shared
+        sh.banner.set()
+        if sh.pending and sh.pending[0].alarm is not None:
+            a = sh.pending[0].alarm
+            sh.fail_pending(GrblAlarm(a.code, sh.pending[0].line, self.url,
+                                      " (grbl reset itself; the lines after it were flushed)"))
+        sh.fail_pending(GrblReset(f"cnc at {self.url}: controller reset (banner '{r.name} {r.version}') "
                                      "while lines were unacknowledged; they were flushed"))
 
     def _on_feedback(self, r: Reply, text: str) -> None:
         if isinstance(r, Probe):
             self.last_probe = r
-        if self._pending:
-            self._pending[0].lines.append(text)
+        if self.shared.pending:
+            self.shared.pending[0].lines.append(text)
         else:
             self.messages.append(text)
 
-    def _fail_pending(self, exc: Exception) -> None:
-        pend, self._pending = self._pending, deque()
-        self._set_in_flight(0)
-        for p in pend:
-            if not p.future.done():
-                p.future.set_exception(exc)
-                p.future.exception()  # mark retrieved: nobody may be awaiting a stream's lines
-        self._pulse()
-
     def _on_lost(self, exc: LinkLost) -> None:
-        if self._closing:
+        sh = self.shared
+        if sh.closing:
             return
-        self._lost = exc
-        self._fail_pending(exc)
-        for f in self._status_waiters:
+        sh.lost = exc
+        sh.fail_pending(exc)
+        for f in sh.status_waiters:
             if not f.done():
                 f.set_exception(exc)
                 f.exception()
-        self._status_waiters = []
-        self._pulse()
-
-    def _check_lost(self) -> None:
-        if self._lost is not None:
-            raise LinkLost(str(self._lost))
-        if not self._tasks:
-            raise LinkLost(f"cnc at {self.url}: not connected (call connect() first)")
-
-    def _pulse(self) -> None:
-        ev, self._changed = self._changed, asyncio.Event()
-        ev.set()
-
-    async def _wait_changed(self) -> None:
-        await self._changed.wait()
-
-    def _set_in_flight(self, n: int) -> None:
-        now = time.monotonic()
-        self._fill_area += self._in_flight * (now - self._fill_t)
-        self._fill_t = now
-        self._in_flight = max(n, 0)
-        self._fill_max = max(self._fill_max, self._in_flight)
+        sh.status_waiters = []
+        sh.pulse()
 
     def _check_acks(self, now: float) -> None:
         """Fail the pending lines when grbl has kept reporting Idle (or Alarm) without answering
@@ -271,34 +227,35 @@ class GrblReceiver:
         arriving in one burst) is left to the link timeout, not called a lost 'ok'. Where grbl
         reports its buffers (Bf:, grblHAL's default) a report with bytes still in its RX buffer is
         not a standing grbl: it has lines of ours to read, and the span starts again."""
-        if not self._pending or now < self._quiet_until:
+        sh = self.shared
+        if not sh.pending or now < sh.quiet_until:
             return
         activity = self._last_activity()
-        dwell = sum(dwell_s(p.line) for p in self._pending)
+        dwell = sum(dwell_s(p.line) for p in sh.pending)
         held = self._held.length(activity)
         if held is not None and held > self.stuck_after_s + dwell:
             st = self.latest_status
-            self._fail_pending(GrblStuck(
+            sh.fail_pending(GrblStuck(
                 f"cnc at {self.url}: grbl has reported Idle for {held:.0f} s with "
                 f"{self._rx_free_max - (st.rx_free or 0) if st else '?'} byte(s) of ours unread in its RX buffer "
-                f"and {len(self._pending)} line(s) from {self._pending[0].line!r} on unanswered: the firmware "
+                f"and {len(sh.pending)} line(s) from {sh.pending[0].line!r} on unanswered: the firmware "
                 "stopped reading its input; soft reset it (or power-cycle the controller)"))
             return
         still = self._still.length(activity)
         if still is not None and still > self.ack_grace_s + dwell:
-            n = len(self._pending)
-            a = self._pending[0].alarm
+            n = len(sh.pending)
+            a = sh.pending[0].alarm
             if a is not None:   # the alarm's own line was never answered (hard limit, abort)
-                self._fail_pending((ProbeError if a.code in (4, 5) else GrblAlarm)(a.code, self._pending[0].line, self.url))
+                sh.fail_pending((ProbeError if a.code in (4, 5) else GrblAlarm)(a.code, sh.pending[0].line, self.url))
                 return
-            self._fail_pending(GrblAckLost(
+            sh.fail_pending(GrblAckLost(
                 f"cnc at {self.url}: grbl is {self.latest_status.state if self.latest_status else '?'}{self._rx_note()} but "
-                f"{n} line(s) from {self._pending[0].line!r} on were never acknowledged (an 'ok' was lost "
+                f"{n} line(s) from {sh.pending[0].line!r} on were never acknowledged (an 'ok' was lost "
                 "on the line); check the cable, then re-sync with a soft reset"))
 
     def _last_activity(self) -> float:
         """When we last sent a line or grbl last answered one."""
-        return max(self._last_sent, self._last_ack)
+        return max(self.shared.last_sent, self._last_ack)
 
     def _rx_note(self) -> str:
         st = self.latest_status

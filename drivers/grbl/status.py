@@ -1,5 +1,5 @@
 """Bookkeeping of the grbl driver: lines awaiting their answer and the spans of status reports
-the acknowledgement watchdog judges (drivers/grbl.py uses them)."""
+the acknowledgement watchdog judges (`state.py` and `receive.py` use them)."""
 from __future__ import annotations
 
 import asyncio

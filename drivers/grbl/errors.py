@@ -1,20 +1,15 @@
-"""The exceptions of the grbl driver (drivers/grbl.py) and what a probe returns.
+"""The exceptions of the grbl driver (drivers/grbl/).
 
 Every one is a DeviceError (core: the device refused a command or reported a fault) whose
 message names the controller's URL."""
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
-
 from drivers.errors import DeviceError
-from wire.grbl_protocol import Pos5, alarm_meaning, error_meaning
-
-if TYPE_CHECKING:
-    from drivers.grbl_stop import SafeStopResult
+from drivers.grbl.results import SafeStopResult
+from wire.grbl_protocol import alarm_meaning, error_meaning
 
 __all__ = ["GrblError", "GrblAlarm", "ProbeError", "GrblAckLost", "GrblStuck", "GrblReset", "GrblAxesMissing",
-           "GrblStopped", "ProbeResult"]
+           "GrblStopped"]
 
 
 class GrblError(DeviceError):
@@ -80,11 +75,3 @@ class GrblStopped(DeviceError):
     def __init__(self, message: str, result: SafeStopResult) -> None:
         self.result = result
         super().__init__(message)
-
-
-@dataclass(frozen=True)
-class ProbeResult:
-    """Where the probe tripped (machine coordinates x, y, z, a, b) and whether it touched."""
-
-    position: Pos5
-    contact: bool

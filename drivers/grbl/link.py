@@ -1,8 +1,9 @@
 """CncLink: the asyncio driver for a CNC speaking the grbl 1.1 serial interface (5 axes XYZAB).
 
 Works unchanged against real grbl-interface firmware (plain grbl reports 3 axes: positions are
-padded to 5 with 0.0) and against sims/cnc_sim.py. Talks bytes over any pyserial URL through
-drivers/serial_async.py. Protocol details and choices: docs/protocols/grbl.md.
+padded to 5 with 0.0) and against sims/cnc/. Talks bytes over any pyserial URL through
+drivers/serial_async.py. Protocol details and choices: docs/protocols/grbl.md. The parts of this
+package share one `LinkState` (state.py) through its public fields.
 
 Flow control is grbl's character counting: the driver keeps the sum of the lengths of the
 unacknowledged lines (each `len(line) + 1` for its `\\n`) at most `rx_buffer_bytes - 1`, the
@@ -20,21 +21,18 @@ import re
 import time
 from collections.abc import Callable, Iterable
 
-from core.errors import InputError
 from drivers.errors import DeviceError, DeviceTimeout, LinkLost
-from drivers.grbl_errors import (
-    GrblAckLost, GrblAlarm, GrblAxesMissing, GrblError, GrblReset, GrblStopped, GrblStuck, ProbeError, ProbeResult,
-)
-from drivers.grbl_probe import Prober
-from drivers.grbl_receive import GrblReceiver
-from drivers.grbl_status import Pending
-from drivers.grbl_stop import SafeStop, SafeStopResult
-from drivers.grbl_stream import StreamRun
+from drivers.grbl.errors import GrblAlarm, GrblError, GrblReset, ProbeError
+from drivers.grbl.probe import Prober
+from drivers.grbl.receive import GrblReceiver
+from drivers.grbl.results import ProbeResult, SafeStopResult
+from drivers.grbl.state import LinkState
+from drivers.grbl.stop import SafeStop
+from drivers.grbl.stream import StreamRun
 from drivers.serial_async import SerialPort
 from wire.grbl_protocol import RT_CYCLE_START, RT_FEED_HOLD, RT_SOFT_RESET, RT_STATUS, Error, GrblStatus, StreamResult
 
-__all__ = ["CncLink", "GrblError", "GrblAlarm", "ProbeError", "GrblReset", "GrblAckLost", "GrblStuck", "GrblStatus",
-           "GrblAxesMissing", "GrblStopped", "ProbeResult", "SafeStopResult", "StreamResult"]
+__all__ = ["CncLink"]
 
 # States in which a connect may soft-reset the controller to get its banner (nothing moves).
 _RESETTABLE = ("Idle", "Alarm", "Check", "Sleep")
@@ -60,34 +58,36 @@ class CncLink(GrblReceiver):
         if rx_buffer_bytes < 16:
             raise ValueError("rx_buffer_bytes must be at least 16")
         self.baud = baud
-        self.capacity = rx_buffer_bytes - 1   # a ring of N bytes holds N - 1
         self.status_period = 1.0 / status_hz
         self.link_timeout_s = link_timeout_s
         self.connect_timeout_s = connect_timeout_s
-        super().__init__(url, alarm_grace_s=alarm_grace_s, ack_grace_s=ack_grace_s, stuck_after_s=stuck_after_s)
-        self.homing_timeout_s = homing_timeout_s
-        self.report_buffer = report_buffer   # connect() turns on Bf: in the status report ($10 bit 1)
-        # the safe stop's bounds (drivers/grbl_stop.py)
-        self.hold_timeout_s = hold_timeout_s
-        self.reset_timeout_s = reset_timeout_s
-        self.verify_timeout_s = verify_timeout_s
-        self._stop_gen = 0                 # bumped by every safe_stop(): streams stop sending
-        self._stop_task: asyncio.Task[SafeStopResult] | None = None
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._jogging = False     # a `$J=` was sent and may still be running
-        self._pace = pace
         # a simulated line at time scale k carries k times the bytes per wall second (docs/contract.md §6,
         # sims/transport.py): pace the writes to it as the robot link does (1 on hardware)
         self.line_scale = line_scale
-        self._port = SerialPort(url, baud=baud, name="cnc", pace=pace, pace_factor=0.98 * line_scale)
-        self._last_q = 0.0
-        self._send_lock = asyncio.Lock()
+        self._pace = pace
+        port = SerialPort(url, baud=baud, name="cnc", pace=pace, pace_factor=0.98 * line_scale)
+        # a ring of N bytes holds N - 1
+        super().__init__(LinkState(url, rx_buffer_bytes - 1, port), alarm_grace_s=alarm_grace_s,
+                         ack_grace_s=ack_grace_s, stuck_after_s=stuck_after_s)
+        self.homing_timeout_s = homing_timeout_s
+        self.report_buffer = report_buffer   # connect() turns on Bf: in the status report ($10 bit 1)
+        # the safe stop's bounds (stop.py)
+        self.hold_timeout_s = hold_timeout_s
+        self.reset_timeout_s = reset_timeout_s
+        self.verify_timeout_s = verify_timeout_s
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._jogging = False     # a `$J=` was sent and may still be running
 
     # -- properties ---------------------------------------------------------------------------
 
     @property
+    def capacity(self) -> int:
+        """Usable bytes of grbl's RX buffer: its size less one, at most what `$I` reports."""
+        return self.shared.capacity
+
+    @property
     def connected(self) -> bool:
-        return bool(self._tasks) and self._lost is None
+        return bool(self.shared.tasks) and self.shared.lost is None
 
     # -- lifecycle ----------------------------------------------------------------------------
     async def connect(self) -> GrblStatus:
@@ -97,23 +97,24 @@ class CncLink(GrblReceiver):
         taken as is. Otherwise `?` is sent until a status report arrives; a controller that is
         not moving (Idle, Alarm) is then soft-reset to get its banner and a clean parser; one in
         motion (Run, Hold, Home, Jog) is attached to without a reset."""
-        self._closing = False
-        self._lost = None
+        sh = self.shared
+        sh.closing = False
+        sh.lost = None
         self.latest_status = None
-        self._banner_event.clear()
-        self._buf.clear()
-        self._port = SerialPort(self.url, baud=self.baud, name="cnc", pace=self._pace,
-                                pace_factor=0.98 * self.line_scale)
-        await self._port.open()
-        self._last_rx = time.monotonic()
+        sh.banner.clear()
+        sh.buf.clear()
+        sh.port = SerialPort(self.url, baud=self.baud, name="cnc", pace=self._pace,
+                             pace_factor=0.98 * self.line_scale)
+        await sh.port.open()
+        sh.last_rx = time.monotonic()
         self._loop = asyncio.get_running_loop()
-        self._tasks = [self._loop.create_task(self._read_loop())]
+        sh.tasks = [self._loop.create_task(self._read_loop())]
         try:
             await self._provoke_banner()
         except BaseException:
             await self.close()
             raise
-        self._tasks.append(self._loop.create_task(self._poll_loop()))
+        sh.tasks.append(self._loop.create_task(self._poll_loop()))
         st = await self.status()
         if st.state not in ("Run", "Hold", "Home", "Jog"):
             await self._read_build_info()
@@ -123,15 +124,16 @@ class CncLink(GrblReceiver):
 
     async def _provoke_banner(self) -> None:
         deadline = time.monotonic() + self.connect_timeout_s
-        while time.monotonic() < deadline and not self._banner_event.is_set() and self.latest_status is None:
-            await self._write(RT_STATUS)
-            self._last_q = time.monotonic()
+        sh = self.shared
+        while time.monotonic() < deadline and not sh.banner.is_set() and self.latest_status is None:
+            await sh.write(RT_STATUS)
+            sh.last_q = time.monotonic()
             try:
-                await asyncio.wait_for(self._wait_changed(), 0.25)
+                await asyncio.wait_for(sh.wait_changed(), 0.25)
             except asyncio.TimeoutError:
                 pass
-            self._check_lost()
-        if self._banner_event.is_set():
+            sh.check_lost()
+        if sh.banner.is_set():
             return
         if self.latest_status is None:
             raise DeviceTimeout(f"cnc at {self.url}: no answer to '?' within {self.connect_timeout_s:.1f} s; "
@@ -157,7 +159,7 @@ class CncLink(GrblReceiver):
             if m:
                 self.planner_blocks_reported = int(m.group(1))
                 self.rx_buffer_reported = int(m.group(2))
-                self.capacity = min(self.capacity, self.rx_buffer_reported - 1)
+                self.shared.capacity = min(self.shared.capacity, self.rx_buffer_reported - 1)
             m = re.match(r"\[AXS:(\d+):([A-Z]+)\]", text)
             if m:
                 self.axis_letters = m.group(2)
@@ -176,17 +178,18 @@ class CncLink(GrblReceiver):
 
     async def close(self) -> None:
         """Stop polling and close the port (the controller keeps running what it has)."""
-        self._closing = True
-        for t in self._tasks:
+        sh = self.shared
+        sh.closing = True
+        for t in sh.tasks:
             t.cancel()
-        for t in self._tasks:
+        for t in sh.tasks:
             try:
                 await t
             except (asyncio.CancelledError, Exception):
                 pass
-        self._tasks = []
-        self._port.close()
-        self._fail_pending(LinkLost(f"cnc at {self.url}: link closed"))
+        sh.tasks = []
+        sh.port.close()
+        sh.fail_pending(LinkLost(f"cnc at {self.url}: link closed"))
 
     async def __aenter__(self) -> "CncLink":
         await self.connect()
@@ -199,58 +202,26 @@ class CncLink(GrblReceiver):
     async def _read_loop(self) -> None:
         try:
             while True:
-                data = await self._port.read()
+                data = await self.shared.port.read()
                 self._on_bytes(data)
         except LinkLost as exc:
             self._on_lost(exc)
 
-    # -- sending ------------------------------------------------------------------------------
-    async def _write(self, data: bytes) -> None:
-        if self._lost is not None:
-            raise LinkLost(str(self._lost))
-        await self._port.write(data)
-
-    async def _send_line(self, line: str, number: int | None = None) -> Pending:
-        data = line.encode("ascii") + b"\n"
-        p = Pending(line, len(data), asyncio.get_running_loop().create_future(), number)
-        self._pending.append(p)
-        self._last_sent = p.sent_at
-        self._set_in_flight(self._in_flight + p.nbytes)
-        await self._write(data)
-        return p
-
-    def _check_line(self, line: str, number: int | None = None) -> str:
-        if "\n" in line or "\r" in line:
-            raise InputError(f"cnc: one line at a time, got {line!r}")
-        try:
-            line.encode("ascii")
-        except UnicodeEncodeError:
-            raise InputError(f"cnc: {'line ' + str(number) + ' ' if number else ''}{line!r} is not ASCII") from None
-        if len(line) + 1 > self.capacity:
-            raise InputError(f"cnc: {'line ' + str(number) + ' ' if number else ''}{line[:40]!r}… is "
-                             f"{len(line) + 1} bytes, more than grbl's {self.capacity}-byte receive buffer")
-        return line
-
-    async def _room(self, nbytes: int) -> None:
-        while self._in_flight + nbytes > self.capacity:
-            self._check_lost()
-            if self._stream_error is not None or self._stream_alarm is not None or self.stopping:
-                return
-            await self._wait_changed()
-
+    # -- sending (state.py: LinkState.write, send_line, room) --------------------------------
     async def command(self, line: str, timeout: float | None = None) -> list[str]:
         """Send one line and await its `ok`; returns the lines grbl printed before it
         (`[GC:…]`, `$N=V`, `[PRB:…]`, `[MSG:…]`). `error:N` → GrblError; an ALARM raised
         while the line was pending → GrblAlarm (ProbeError for ALARM:4/5); no answer within
         `timeout` seconds (None: wait, the link watchdog still applies) → DeviceTimeout."""
-        line = self._check_line(line.strip())
-        self._check_lost()
+        sh = self.shared
+        line = sh.check_line(line.strip())
+        sh.check_lost()
         self._check_not_stopping(line)
         self._jogging = self._jogging or line.startswith("$J=")
-        async with self._send_lock:
-            self._stream_alarm = None
-            await self._room(len(line) + 1)
-            p = await self._send_line(line)
+        async with sh.send_lock:
+            sh.stream_alarm = None
+            await sh.room(len(line) + 1)
+            p = await sh.send_line(line)
         try:
             r = await asyncio.wait_for(asyncio.shield(p.future), timeout)
         except asyncio.TimeoutError:
@@ -264,7 +235,7 @@ class CncLink(GrblReceiver):
 
     async def stream(self, lines: Iterable[str], progress: Callable[[int, int], None] | None = None) -> StreamResult:
         """Stream G-code with character counting, keeping grbl's RX buffer full
-        (drivers/grbl_stream.py).
+        (stream.py).
 
         Comments and blank lines are stripped before sending (line numbers still count every
         input line). At the first `error:N` it sends nothing more, runs `safe_stop` (so the
@@ -274,15 +245,15 @@ class CncLink(GrblReceiver):
         meanwhile (another task or thread) with GrblStopped. On success it sends `G4 P0` and
         returns once everything sent has executed. `progress(acked, sent)` is called as
         acknowledgements arrive."""
-        self._check_lost()
+        self.shared.check_lost()
         self._check_not_stopping("a stream")
-        return await StreamRun(self, progress).run(lines)
+        return await StreamRun(self.shared, self, progress).run(lines)
 
     # -- the safe stop ------------------------------------------------------------------------
     @property
     def stopping(self) -> bool:
         """A safe stop is in progress: no line is sent meanwhile."""
-        return self._stop_task is not None and not self._stop_task.done()
+        return self.shared.stopping
 
     def _check_not_stopping(self, what: str) -> None:
         if self.stopping:
@@ -290,7 +261,7 @@ class CncLink(GrblReceiver):
 
     async def safe_stop(self, reason: str, *, hold_timeout_s: float | None = None, reset_timeout_s: float | None = None,
                         verify_timeout_s: float | None = None) -> SafeStopResult:
-        """Stop the machine safely and verify it (drivers/grbl_stop.py): feed hold, process off
+        """Stop the machine safely and verify it (stop.py): feed hold, process off
         (soft reset where anything is queued or held, else `M5`), then state, spindle, accessory
         state, queued blocks / bytes and position from fresh status reports, and `M5` from `$G`.
 
@@ -299,28 +270,29 @@ class CncLink(GrblReceiver):
         bounded (`hold_timeout_s`, `reset_timeout_s`, `verify_timeout_s`; defaults from the
         constructor); an expired one is named in `SafeStopResult.timed_out`. Never raises for the
         machine's answers: check `.verified`. An alarm left by the stop is not cleared."""
-        self._stop_gen += 1      # every stream stops sending now
-        self._pulse()
-        if not self.stopping:
-            self._stop_task = asyncio.get_running_loop().create_task(SafeStop(
+        sh = self.shared
+        sh.stop_gen += 1      # every stream stops sending now
+        sh.pulse()
+        if not sh.stopping:
+            sh.stop_task = asyncio.get_running_loop().create_task(SafeStop(
                 self, reason, hold_timeout_s=self.hold_timeout_s if hold_timeout_s is None else hold_timeout_s,
                 reset_timeout_s=self.reset_timeout_s if reset_timeout_s is None else reset_timeout_s,
                 verify_timeout_s=self.verify_timeout_s if verify_timeout_s is None else verify_timeout_s).run())
-        assert self._stop_task is not None
-        return await asyncio.shield(self._stop_task)
+        assert sh.stop_task is not None
+        return await asyncio.shield(sh.stop_task)
 
     async def safe_stop_result(self) -> SafeStopResult:
         """The result of the safe stop in progress or the last one (DeviceError if none ran)."""
-        if self._stop_task is None:
+        if self.shared.stop_task is None:
             raise DeviceError(f"cnc at {self.url}: no safe stop has run")
-        return await asyncio.shield(self._stop_task)
+        return await asyncio.shield(self.shared.stop_task)
 
     def safe_stop_threadsafe(self, reason: str, timeout_s: float | None = None) -> SafeStopResult:
         """`safe_stop(reason)` from another thread (a signal handler's thread, a UI thread):
         runs on the link's event loop and waits at most `timeout_s` (default: the sum of the
         stop's bounds plus 2 s). Not from the link's own loop thread (it would deadlock)."""
         loop = self._loop
-        if loop is None or loop.is_closed() or not self._tasks:
+        if loop is None or loop.is_closed() or not self.shared.tasks:
             raise LinkLost(f"cnc at {self.url}: not connected; no safe stop possible")
         try:
             running = asyncio.get_running_loop()
@@ -339,57 +311,60 @@ class CncLink(GrblReceiver):
     # -- real-time commands -------------------------------------------------------------------
     async def feed_hold(self) -> None:
         """`!`: decelerate to a stop (Hold:1, then Hold:0); queued lines are kept."""
-        self._check_lost()
-        await self._write(RT_FEED_HOLD)
+        self.shared.check_lost()
+        await self.shared.write(RT_FEED_HOLD)
 
     async def resume(self) -> None:
         """`~`: cycle start / resume after a feed hold."""
-        self._check_lost()
-        await self._write(RT_CYCLE_START)
+        self.shared.check_lost()
+        await self.shared.write(RT_CYCLE_START)
 
     async def soft_reset(self, timeout: float = 5.0) -> None:
         """0x18: grbl stops at once, flushes its buffers and prints its banner again.
 
         Unacknowledged lines fail with GrblReset. Resetting while moving loses the position
         (grbl answers ALARM:3 and stays in Alarm)."""
-        self._check_lost()
-        self._banner_event.clear()
-        await self._write(RT_SOFT_RESET)
+        sh = self.shared
+        sh.check_lost()
+        sh.banner.clear()
+        await sh.write(RT_SOFT_RESET)
         try:
-            await asyncio.wait_for(self._banner_event.wait(), timeout)
+            await asyncio.wait_for(sh.banner.wait(), timeout)
         except asyncio.TimeoutError:
             raise DeviceTimeout(f"cnc at {self.url}: no banner within {timeout} s after a soft reset") from None
-        self._fail_pending(GrblReset(f"cnc at {self.url}: soft reset flushed the unacknowledged lines"))
+        sh.fail_pending(GrblReset(f"cnc at {self.url}: soft reset flushed the unacknowledged lines"))
 
     # -- status -------------------------------------------------------------------------------
 
     async def _poll_loop(self) -> None:
+        sh = self.shared
         while True:
             await asyncio.sleep(self.status_period / 2)
             now = time.monotonic()
             self._check_acks(now)
-            if now - self._last_rx > self.link_timeout_s and now >= self._quiet_until:
-                self._port.close()
+            if now - sh.last_rx > self.link_timeout_s and now >= sh.quiet_until:
+                sh.port.close()
                 self._on_lost(LinkLost(f"cnc at {self.url}: silent for {self.link_timeout_s:.1f} s "
                                        "(no answer to status requests); check the cable and the controller"))
                 return
-            if now - self._last_q >= self.status_period * 0.999:
-                self._last_q = now
+            if now - sh.last_q >= self.status_period * 0.999:
+                sh.last_q = now
                 try:
-                    await self._write(RT_STATUS)
+                    await sh.write(RT_STATUS)
                 except LinkLost as exc:
                     self._on_lost(exc)
                     return
 
     async def status(self, timeout: float | None = None) -> GrblStatus:
         """A fresh status report (the next one the ≤ 5 Hz poll brings in)."""
-        self._check_lost()
+        sh = self.shared
+        sh.check_lost()
         fut = asyncio.get_running_loop().create_future()
-        self._status_waiters.append(fut)
+        sh.status_waiters.append(fut)
         now = time.monotonic()
-        if now - self._last_q >= self.status_period:
-            self._last_q = now
-            await self._write(RT_STATUS)
+        if now - sh.last_q >= self.status_period:
+            sh.last_q = now
+            await sh.write(RT_STATUS)
         try:
             return await asyncio.wait_for(fut, timeout or self.link_timeout_s + self.status_period)
         except asyncio.TimeoutError:
@@ -425,16 +400,16 @@ class CncLink(GrblReceiver):
         (not even `?`) meanwhile, so the link watchdog waits `timeout` (default
         `homing_timeout_s`, cell.yaml) instead of `link_timeout_s`."""
         limit = self.homing_timeout_s if timeout is None else timeout
-        self._quiet_until = time.monotonic() + limit
+        self.shared.quiet_until = time.monotonic() + limit
         try:
             await self.command("$H", timeout=limit)
         except DeviceTimeout:
             raise DeviceTimeout(f"cnc at {self.url}: homing ($H) not finished within {limit:.0f} s "
                                 "(cnc.homing_timeout_s in cell.yaml); check the limit switches") from None
         finally:
-            self._quiet_until = 0.0
-            self._last_rx = time.monotonic()
-        self._homed = True
+            self.shared.quiet_until = 0.0
+            self.shared.last_rx = time.monotonic()
+        self.shared.homed = True
         self.reset_at = time.time()  # homing: an alignment probed before it no longer holds
         return await self.status()
 
@@ -456,7 +431,7 @@ class CncLink(GrblReceiver):
 
     async def probe(self, target: dict[str, float] | tuple[float, float, float], feed_mm_min: float, *,
                     mode: str = "G38.2", unlock_on_fail: bool = True) -> ProbeResult:
-        """Probe toward `target` at `feed_mm_min` (drivers/grbl_probe.py): returns the trip
+        """Probe toward `target` at `feed_mm_min` (probe.py): returns the trip
         position in machine coordinates and `contact`; ProbeError on ALARM:4/5 (then `$X`, Z
         retracted to where the probe started, unless `unlock_on_fail=False`)."""
         return await Prober(self).run(target, feed_mm_min, mode=mode, unlock_on_fail=unlock_on_fail)

@@ -1,24 +1,33 @@
-"""Probing for the grbl driver (drivers/grbl.py: `CncLink.probe`): `G38.x` toward a target,
+"""Probing for the grbl driver (link.py: `CncLink.probe`): `G38.x` toward a target,
 the `[PRB:…]` result, and the recovery after a failed probe (unlock, retract, confirm Idle)."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from core.errors import InputError
 from drivers.errors import DeviceError
-from drivers.grbl_errors import ProbeError, ProbeResult
+from drivers.grbl.errors import ProbeError
+from drivers.grbl.results import ProbeResult
 from wire.grbl_protocol import AXES, GrblStatus, fmt, parse_probe
 
-if TYPE_CHECKING:
-    from drivers.grbl import CncLink
+__all__ = ["Prober", "ProbeLink"]
 
-__all__ = ["Prober"]
+
+class ProbeLink(Protocol):
+    """What probing needs of the link (CncLink): public commands only."""
+
+    url: str
+    latest_status: GrblStatus | None
+
+    async def command(self, line: str, timeout: float | None = None) -> list[str]: ...
+    async def status(self, timeout: float | None = None) -> GrblStatus: ...
+    async def wait_idle(self, timeout: float = 60.0) -> GrblStatus: ...
 
 
 class Prober:
     """Probing moves on one link."""
 
-    def __init__(self, link: CncLink) -> None:
+    def __init__(self, link: ProbeLink) -> None:
         self.link = link
 
     async def _recover(self, start: GrblStatus) -> str:

@@ -21,67 +21,25 @@ Sequence (grbl 1.1h `protocol.c` / `motion_control.c`, and grblHAL, which does t
    `A:` only in its `Ov:` reports and leaves it out when nothing is on), `Bf:` showing an empty
    planner and RX buffer, and the position unchanged between two reports. Then `$G` shows `M5`.
 An alarm left by the stop is reported (`needs_unlock`, `needs_homing`), never cleared here.
+
+The stop sends through the link's shared `LinkState` (state.py) and reads what was heard from the
+link's receiving half (receive.py: alarms, status reports, buffer sizes).
 """
 from __future__ import annotations
 
 import asyncio
 import time
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
 from drivers.errors import DeviceError, LinkLost
-from drivers.grbl_status import Pending
-from wire.grbl_protocol import POSITION_LOST_ALARMS, RT_FEED_HOLD, RT_SOFT_RESET, RT_STATUS, Error, GrblStatus, Pos5
+from drivers.grbl.receive import GrblReceiver
+from drivers.grbl.results import SafeStopResult
+from drivers.grbl.status import Pending
+from wire.grbl_protocol import POSITION_LOST_ALARMS, RT_FEED_HOLD, RT_SOFT_RESET, RT_STATUS, Error, GrblStatus
 
-if TYPE_CHECKING:
-    from drivers.grbl import CncLink
-
-__all__ = ["SafeStopResult", "SafeStop"]
+__all__ = ["SafeStop"]
 
 _STANDING = ("Idle", "Alarm")
-
-
-@dataclass(frozen=True)
-class SafeStopResult:
-    """What `CncLink.safe_stop` did and what the firmware's status reports verified.
-
-    `verified` is True only when every check held in a report received after the last step:
-    `state` Idle or Alarm, `spindle` (FS: second field) 0, `spindle_off` (accessory field says
-    off), `planner_queued` and `rx_queued` 0 (from `Bf:`), `settled` (two reports at the same
-    position) and `modal_m5` (`$G` shows M5). `problems` says, in words, which did not and
-    `timed_out` names the bounded waits that expired ("hold", "m5", "reset", "verify", "modal")."""
-
-    reason: str
-    verified: bool
-    state: str
-    position: Pos5
-    spindle: float
-    spindle_off: bool | None
-    planner_queued: int | None
-    rx_queued: int | None
-    settled: bool
-    modal_m5: bool | None
-    unanswered_lines: int          # lines of ours unanswered when the stop began (flushed by a reset)
-    held: bool                     # Hold:0 reached before process off
-    m5_sent: bool
-    reset: bool                    # a soft reset (0x18) was sent
-    alarm: int | None              # an ALARM:N raised during the stop (3: reset while moving)
-    needs_unlock: bool             # state Alarm: `$X` (or `$H`) before any G-code
-    needs_homing: bool             # the alarm lost the position
-    hold_s: float | None           # call → Hold:0 (or standing) seen
-    spindle_off_s: float | None    # call → first report showing spindle 0 with the accessory off
-    elapsed_s: float               # call → everything verified (or given up)
-    timed_out: tuple[str, ...] = ()
-    problems: tuple[str, ...] = ()
-    steps: tuple[str, ...] = field(default=())
-
-    def summary(self) -> str:
-        """One line for an error message or the journal."""
-        how = "reset" if self.reset else ("M5" if self.m5_sent else "no action")
-        lock = "; needs $H (position lost)" if self.needs_homing else ("; needs $X" if self.needs_unlock else "")
-        head = "safe stop verified" if self.verified else "safe stop NOT verified (" + "; ".join(self.problems) + ")"
-        return (f"{head}: {how}, state {self.state}, spindle {self.spindle:g}, "
-                f"queued {self.planner_queued} block(s) / {self.rx_queued} byte(s), {self.elapsed_s:.2f} s{lock}")
 
 
 @dataclass
@@ -98,9 +56,10 @@ class SafeStop:
     """One run of the sequence above for `link`; `run()` never raises for the machine's answers
     (a lost link, a timeout or a failed check is in the result), only for programming errors."""
 
-    def __init__(self, link: CncLink, reason: str, *, hold_timeout_s: float, reset_timeout_s: float,
+    def __init__(self, link: GrblReceiver, reason: str, *, hold_timeout_s: float, reset_timeout_s: float,
                  verify_timeout_s: float, poll_s: float = 0.05) -> None:
         self.link = link
+        self.sh = link.shared
         self.reason = reason
         self.hold_timeout_s = hold_timeout_s
         self.reset_timeout_s = reset_timeout_s
@@ -113,7 +72,7 @@ class SafeStop:
         self.held = self.m5_sent = self.reset = False
         self.hold_s: float | None = None
         self.alarms_before = len(link.alarms)
-        self.unanswered = len(link._pending)
+        self.unanswered = len(link.shared.pending)
         self.seen = _Seen()
         self.modal_m5: bool | None = None
 
@@ -122,7 +81,7 @@ class SafeStop:
 
     async def run(self) -> SafeStopResult:
         try:
-            await self.link._write(RT_FEED_HOLD)
+            await self.sh.write(RT_FEED_HOLD)
             self._step("sent ! (feed hold)")
             st = await self._wait_hold()
             if self._reset_needed(st):
@@ -140,11 +99,11 @@ class SafeStop:
     # -- the steps ----------------------------------------------------------------------------
     async def _report(self, timeout: float) -> GrblStatus | None:
         """The next status report, asking for it at once; None when none came within `timeout`."""
-        link = self.link
+        sh = self.sh
         fut: asyncio.Future[GrblStatus] = asyncio.get_running_loop().create_future()
-        link._status_waiters.append(fut)
-        link._last_q = time.monotonic()
-        await link._write(RT_STATUS)
+        sh.status_waiters.append(fut)
+        sh.last_q = time.monotonic()
+        await sh.write(RT_STATUS)
         try:
             st = await asyncio.wait_for(fut, max(timeout, 0.001))
         except asyncio.TimeoutError:
@@ -187,7 +146,7 @@ class SafeStop:
         return max(link.planner_blocks_empty - st.planner_free, 0), max(link.rx_free_empty - st.rx_free, 0)
 
     def _reset_needed(self, st: GrblStatus | None) -> bool:
-        if st is None or st.state not in _STANDING or self.link._pending:
+        if st is None or st.state not in _STANDING or self.sh.pending:
             return True
         if st.state == "Alarm" and (st.spindle != 0 or st.spindle_on):
             return True
@@ -195,26 +154,25 @@ class SafeStop:
         return bool(blocks) or bool(rx)
 
     async def _reset(self) -> None:
-        link = self.link
-        link._banner_event.clear()
-        await link._write(RT_SOFT_RESET)
+        sh = self.sh
+        sh.banner.clear()
+        await sh.write(RT_SOFT_RESET)
         self.reset = True
         self._step("sent 0x18 (soft reset)")
         try:
-            await asyncio.wait_for(link._banner_event.wait(), self.reset_timeout_s)
+            await asyncio.wait_for(sh.banner.wait(), self.reset_timeout_s)
         except asyncio.TimeoutError:
             self.timed_out.append("reset")
             self.problems.append(f"no banner within reset_timeout_s={self.reset_timeout_s:g} after the reset")
             return
         self._step("banner after the reset")
-        link._fail_pending(DeviceError(f"cnc at {link.url}: safe stop ({self.reason}): the reset flushed this line"))
+        sh.fail_pending(DeviceError(f"cnc at {sh.url}: safe stop ({self.reason}): the reset flushed this line"))
         self.seen = _Seen()   # only reports after the reset count
 
     async def _line(self, line: str, timeout: float) -> Pending | None:
         """Send one line outside the send lock (nothing else is sent during a stop); None when
         it is not answered within `timeout`."""
-        link = self.link
-        p = await link._send_line(line)
+        p = await self.sh.send_line(line)
         try:
             await asyncio.wait_for(asyncio.shield(p.future), timeout)
         except asyncio.TimeoutError:
