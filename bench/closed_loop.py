@@ -220,7 +220,7 @@ async def build(job: CellJob, *, part: str, platform: str, gain: float, mode: st
         assert ctl.journal is not None and ctl.runner is not None
         rows = ctl.journal.query("SELECT kind, message FROM events WHERE kind IN ('layer', 'stick_out', 'alarm')"
                                  " ORDER BY id")
-        built = [ctl.runner.layers[j] for j in range(len(ctl.runner.layers))]
+        built = [ctl.runner.layers.layer(j) for j in range(ctl.runner.layers.layer_count())]
         hm = harness.world.physics.maps.get(platform) if harness.world.physics is not None else None
         run_dir = str(ctl.run_dir)
     finally:

@@ -205,7 +205,7 @@ async def build(job: CellJob, *, part: str, gain: float, mode: str, tmp: Path, s
         assert ctl.journal is not None and ctl.runner is not None
         layer_recs = [json.loads(m) for (m,) in ctl.journal.query(
             "SELECT message FROM events WHERE kind = 'layer' ORDER BY id")]
-        built = [ctl.runner.layers[j] for j in range(len(ctl.runner.layers))]
+        built = [ctl.runner.layers.layer(j) for j in range(ctl.runner.layers.layer_count())]
         assert harness.world.physics is not None
         hm = harness.world.physics.maps["robot"]
         run_dir = Path(str(ctl.run_dir))

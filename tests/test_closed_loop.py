@@ -16,7 +16,7 @@ from controller.align.layer_probe import probe_spots
 from controller.job.model import CellJob
 from controller.job.read import job_from_dict
 from controller.journal.store import Journal
-from controller.runtime.build import WorkItem
+from controller.runtime.work import WorkItem
 from controller.runtime.layer_control import LayerControl
 from controller.runtime.layer_plan import (
     build_layers, decide, extra_layer, fit_gain, layer_z, rise_factor, shift_layer, speed_for, trim_layer,
@@ -190,7 +190,7 @@ async def test_a_resume_reapplies_the_journaled_corrections(tmp_path: Path):
         z = lc.pass_for(la, 0).points[0][2]
         truth = 15.0 + z - (0.62 * (la + 1))
         lc.bead_closed(la, 0, [current_at(rel, MAT.ribeiro, 6.9, truth)] * 10, 6.9)
-        assert await lc.after_pass(work[la], work, la) is None
+        assert (await lc.after_pass(work[la], work[la + 1:])).pause is None
     applied = {la: lc.pass_for(la, 0).points[0][2] for la in range(4)}
     speeds = {la: lc.pass_for(la, 0).speed_mm_min for la in range(4)}
     assert applied[3] < 0.77 * 4 - 0.3              # the next layer follows the low part down
@@ -224,7 +224,7 @@ async def test_an_aligned_job_is_controlled_in_the_frame_its_points_are_in(tmp_p
     lc = LayerControl(job=job, cfg=ProcessControl(mode="layer"), material=MAT, platform="cnc", journal=j, probe=probe)
     work = [WorkItem(i, 0) for i in range(6)]
     for la in range(6):
-        assert await lc.after_pass(work[la], work, la) is None
+        assert (await lc.after_pass(work[la], work[la + 1:])).pause is None
     rows = [json.loads(m) for (m,) in j.query("SELECT message FROM events WHERE kind = 'layer' ORDER BY id")]
     j.close()
     assert [r["layer"] for r in rows] == list(range(6)) and lc.n_total == 6
@@ -312,7 +312,7 @@ def test_a_build_aborted_mid_layer_resumes_at_the_journaled_z(tmp_path: Path):
                     break
             res = await task
             assert ctl.runner is not None
-            return res.state, {la: float(ctl.runner.layers[la].passes[0].points[0][2]) for la in range(3)}
+            return res.state, {la: float(ctl.runner.layers.layer(la).passes[0].points[0][2]) for la in range(3)}
         finally:
             await ctl.close()
 
@@ -323,7 +323,7 @@ def test_a_build_aborted_mid_layer_resumes_at_the_journaled_z(tmp_path: Path):
             ctl.open_job(job)
             res = await ctl.start()
             assert ctl.runner is not None
-            return res.state, {la: float(ctl.runner.layers[la].passes[0].points[0][2]) for la in range(3)}
+            return res.state, {la: float(ctl.runner.layers.layer(la).passes[0].points[0][2]) for la in range(3)}
         finally:
             await ctl.close()
 

@@ -15,7 +15,7 @@ import pytest
 from bench.closed_loop import wall_job
 from bench.path_loop import beads_of, build
 from controller.journal.store import Journal
-from controller.runtime.build import WorkItem
+from controller.runtime.work import WorkItem
 from controller.runtime.layer_control import LayerControl
 from core.config import ProcessControl, load_material
 from core.melting import current_at, relation_for
@@ -46,7 +46,7 @@ async def _lay(lc: LayerControl, la: int, top_at: Callable[[float], float]) -> s
         lc.arc_sample(la, 0, float(s), current_at(rel, MAT.ribeiro, 6.9, 15.0 + z - top_at(x)))
     lc.bead_closed(la, 0, [current_at(rel, MAT.ribeiro, 6.9, 15.0 + z - top_at(15.0))] * 10, 6.9)
     work = [WorkItem(i, 0) for i in range(len(lc.layers))]
-    return await lc.after_pass(work[la], work, la)
+    return (await lc.after_pass(work[la], work[la + 1:])).pause
 
 
 async def test_a_low_stretch_is_slowed_where_it_lies_and_a_resume_lays_the_same_speeds(tmp_path: Path):
@@ -172,7 +172,7 @@ async def test_the_cnc_probes_along_every_pass_and_slows_where_the_probe_found_i
     work = [WorkItem(i, 0) for i in range(6)]
     for la in range(2):
         lc.pass_for(la, 0)
-        assert await lc.after_pass(work[la], work, la) is None
+        assert (await lc.after_pass(work[la], work[la + 1:])).pause is None
     xs = sorted(x for x, _y, _z in seen[0])
     assert xs[0] == pytest.approx(1.75) and xs[-1] == pytest.approx(28.25) and len(xs) == 6   # ends a quarter width in
     p2 = lc.pass_for(2, 0)

@@ -119,7 +119,7 @@ async def test_a_normal_build_never_trips_the_watchdog(tmp_path: Path) -> None:
     async with Cell(tmp_path, scale=20) as c:
         c.ctl.open_job(job_from_dict(job))
         res = await c.ctl.start()
-        dog = c.ctl.runner.watchdog if c.ctl.runner else None
+        dog = c.ctl.runner.passes.watchdog if c.ctl.runner else None
     assert res.state == "complete", res
     assert dog is not None and dog.stood_s is None
     cov = coverage(planned(job), read_segments(c.log / "deposit.jsonl"))

@@ -53,7 +53,7 @@ async def test_a_robot_that_stops_in_travel_is_a_fault_naming_travel(tmp_path: P
     assert msg.startswith("robot made no progress for ") and " in travel " in msg, msg
     assert "layer 0 pass 1, travel to its start" in msg and "motion held, weld start dropped" in msg, msg
     stood = float(msg.split("for ", 1)[1].split(" s", 1)[0])
-    assert runner is not None and runner.progress_s <= 60
+    assert runner is not None and runner.passes.progress_s <= 60
     assert held is not None and robot_state == "HOLD" and status is not None and status.state == "HOLD"
     assert not weld_start and phase in ("idle", "postflow"), (weld_start, phase)
     assert stood < 10 and took < 20, (stood, took)

@@ -30,7 +30,7 @@ from controller.report.worker import record_build_end, records_target
 from controller.runtime.arc_out import RunOn
 from controller.job.check import check_job, job_material
 from controller.runtime.build import BuildOptions, BuildResult, BuildRunner
-from controller.runtime.controlled_build import ControlledRunner, make_control
+from controller.runtime.layer_control import make_control
 from controller.job.identity import run_dir_for
 from controller.runtime.devices import Devices
 from controller.runtime.host_witness import HostWitness
@@ -362,9 +362,10 @@ class CellController:
         self.bus.update(wire_lot=trace.wire_lot, gas=trace.gas, operator=trace.operator)
         self.journal.event("run", json.dumps({"run": self.journal.run, "time_scale": self.options.time_scale,
                                               "passes_left": len(work)}))
-        self.runner = ControlledRunner(control=control, job=self.job, journal=self.journal, machine=self.machine,
-                                       bus=self.bus, executor=self.executor, power=self.devices.power_source(),
-                                       cellio=self.devices.cellio, options=self.options, arc=self.arc)
+        self.runner = BuildRunner(job=self.job, journal=self.journal, machine=self.machine, bus=self.bus,
+                                  executor=self.executor, power=self.devices.power_source(),
+                                  cellio=self.devices.cellio, options=self.options, arc=self.arc,
+                                  layers=control, hooks=control)
         self.interlocks.runner = self.runner
         task = asyncio.get_running_loop().create_task(self.runner.run(work))
         self.interlocks.build_task = task
@@ -372,7 +373,7 @@ class CellController:
             self.last_result = await task
         except CellError as exc:  # a device refused during the build: latch a fault with it
             self.interlocks.trip("fault", str(exc))
-            self.last_result = self.runner._result()
+            self.last_result = self.runner.result()
         finally:
             self.interlocks.build_task = None
             await self.interlocks.settle()

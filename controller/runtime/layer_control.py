@@ -1,12 +1,15 @@
 """Closed-loop layer height (docs/contract.md §6b, docs/closed-loop.md): the build runner's process control.
 
-The runner asks it for each pass as built (`pass_for`: the layer's z offset and travel-speed trim
-applied), tells it each bead's current samples (`bead_closed`: the robot's stick-out through the
-arc) and, after each pass, lets it close a layer (`after_pass`): measure the layer's top (robot:
-from the beads' stick-out; CNC: probed every `probe_every_layers`), update the gain, choose the
-next layer's z and the remaining layers' trim / count (controller/runtime/layer_plan.py), record
-it, and return a pause message when the stick-out left `ctwd_window_mm` or the correction needed
-exceeds `max_z_correction_mm`.
+It is the build runner's layer source and hooks (controller/runtime/hooks.py), for the `open`,
+`layer` and `path` modes alike: the runner asks it for each layer as built (`layer(i)`: the
+layer's z offset and travel-speed trim applied, journaled before its first bead), tells it every
+arc-stable sample (`arc_sample`, forwarded to the path loop) and each bead's current samples
+(`bead_closed`: the robot's stick-out through the arc) and, after each pass, lets it close a
+layer (`after_pass`): measure the layer's top (robot: from the beads' stick-out; CNC: probed every
+`probe_every_layers`), update the gain, choose the next layer's z and the remaining layers' trim /
+count (controller/runtime/layer_plan.py), record it, and answer a pause message when the stick-out
+left `ctwd_window_mm` or the correction needed exceeds `max_z_correction_mm`, and the work to lay
+next when top layers were added or dropped. `make_control` builds it for a cell.
 
 Journal (events, one JSON object per message; nothing of the schema changes):
 - `layer_plan` {layer, z_offset_mm, speed_factor}: written before the layer's first bead; a
@@ -21,50 +24,28 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import replace
-from typing import Any, Awaitable, Callable, Sequence, SupportsIndex, overload
+from typing import Any, Awaitable, Callable, Sequence
 
 import numpy as np
 
-from controller.align.layer_probe import probe_spots
+from controller.align.layer_probe import probe_layer_top, probe_spots
 from controller.job.model import CellJob
 from controller.journal.store import Journal
-from controller.runtime.build import WorkItem
+from controller.ports import MotionExecutor
+from controller.runtime.hooks import GO_ON, AfterPass
+from controller.runtime.work import WorkItem
 from controller.runtime.events import EventBus
 from controller.runtime.layer_plan import (
     adjusted_layer, build_layers, decide, layer_height, layer_z, rise_factor, fit_gain,
 )
 from controller.runtime.path_control import PathControl
 from controller.runtime.stickout import StickOutEstimator
-from core.config import ProcessControl
+from core.config import CellConfig, ProcessControl
 from core.material import Material
 from planner.job import Layer, Pass
 
 Spot = tuple[float, float, float]
 ProbeFn = Callable[[int, Sequence[Spot]], Awaitable[list[float]]]   # (layer, spots on it) -> probed tops
-
-
-class BuiltLayers(list[Layer]):
-    """The layers the runner indexes: `layers[i]` is layer i as built (LayerControl.layer); the
-    list itself holds the plan's layers (planned, then added ones), iteration and slices too."""
-
-    def __init__(self, lc: "LayerControl", layers: list[Layer]) -> None:
-        super().__init__(layers)
-        self.lc = lc
-
-    @overload
-    def __getitem__(self, i: SupportsIndex) -> Layer: ...
-
-    @overload
-    def __getitem__(self, i: slice) -> list[Layer]: ...
-
-    def __getitem__(self, i: SupportsIndex | slice) -> Layer | list[Layer]:
-        if isinstance(i, slice):
-            return super().__getitem__(i)
-        k = i.__index__()
-        return self.lc.layer(k if k >= 0 else len(self) + k)
-
-    def raw(self, i: int) -> Layer:
-        return list.__getitem__(self, i)
 
 
 def layers_as_commanded(job: CellJob) -> list[Layer]:
@@ -98,7 +79,7 @@ class LayerControl:
         self.job_layers: list[Layer] = layers_as_commanded(job)
         self.n_planned = len(self.job_layers)
         self.n_total = self.n_planned
-        self.layers = BuiltLayers(self, self.job_layers)   # the runner builds this list (edited in place)
+        self.layers: list[Layer] = list(self.job_layers)   # the plan: planned layers, then added ones
         self.est = StickOutEstimator(material, cfg.steady_share)
         self.l0 = self.est.nominal_mm
         self.p = 1.0   # the rise follows the metal (controller/runtime/layer_plan.py)
@@ -152,14 +133,20 @@ class LayerControl:
         """The remaining work of the planned layers, without dropped layers, with added ones."""
         out = [w for w in work if w.layer < self.n_total]
         out += [WorkItem(j, pi) for j in range(self.n_planned, self.n_total)
-                for pi in range(len(self.layers.raw(j).passes)) if (j, pi) not in done]
+                for pi in range(len(self.layers[j].passes)) if (j, pi) not in done]
         return out
 
-    # -- the runner's hooks ----------------------------------------------------------------------
+    # -- the runner's layer source and hooks (controller/runtime/hooks.py) ------------------------
+    def layer_count(self) -> int:
+        return len(self.layers)
+
+    def passes_in(self, i: int) -> int:
+        return len(self.layers[i].passes)
+
     def layer(self, la: int) -> Layer:
         """Layer `la` as built (its z offset and trim journaled before its first bead)."""
         if not self.closed:
-            return self.layers.raw(la)
+            return self.layers[la]
         got = self._built.get(la)
         if got is not None:
             return got
@@ -168,7 +155,7 @@ class LayerControl:
             self.applied[la] = (dz, k)
             self._event("layer_plan", {"layer": la, "z_offset_mm": dz, "speed_factor": k}, layer=la)
         dz, k = self.applied[la]
-        got = adjusted_layer(self.layers.raw(la), dz, k)
+        got = adjusted_layer(self.layers[la], dz, k)
         if self.path is not None:
             got = self.path.apply(la, got)
         self._built[la] = got
@@ -198,11 +185,11 @@ class LayerControl:
         if self.bus is not None:
             self.bus.update(stick_out_mm=e.stick_out_mm)
 
-    async def after_pass(self, item: WorkItem, work: list[WorkItem], k: int) -> str | None:
-        """After each pass: at the end of a layer, close it (may edit `work[k+1:]`); a pause message or None."""
-        if k + 1 < len(work) and work[k + 1].layer == item.layer:
-            return None
-        return await self.layer_done(item.layer, work, k)
+    async def after_pass(self, item: WorkItem, rest: Sequence[WorkItem]) -> AfterPass:
+        """After each pass: at the end of a layer (`rest` goes on with another), close it."""
+        if rest and rest[0].layer == item.layer:
+            return GO_ON
+        return await self.layer_done(item.layer)
 
     # -- a layer's end ------------------------------------------------------------------------------
     async def _measure(self, la: int, z_cmd: float) -> tuple[float | None, str, float | None, list[float]]:
@@ -229,11 +216,13 @@ class LayerControl:
             return self.path.probe_spots(self.layer(la))
         return [(float(x), float(y), float(z)) for x, y, z in probe_spots(self.layer(la).passes, self.cfg.probe_points)]
 
-    async def layer_done(self, la: int, work: list[WorkItem], k: int) -> str | None:
+    async def layer_done(self, la: int) -> AfterPass:
+        """Layer la was laid: measure, record, decide the next layers; pause or go on, and the
+        work after it when layers were added or dropped."""
         dz, kf = self.applied.get(la, (0.0, 1.0))
-        z_cmd = layer_z(self.layers.raw(la)) + dz
+        z_cmd = layer_z(self.layers[la]) + dz
         planned = self.replanned_z(la)
-        h = layer_height(self.layers.raw(la))
+        h = layer_height(self.layers[la])
         expected = h * rise_factor(kf, self.p)
         top, source, so, vals = await self._measure(la, z_cmd)
         self.expected_cum += expected
@@ -249,20 +238,20 @@ class LayerControl:
             "stick_out_max_mm": _r(max(vals)) if vals else None, "height_error_mm": _r(top - planned),
             "z_offset_mm": _r(dz), "correction_mm": _r(z_cmd - planned), "speed_factor": _r(kf, 5), "gain": _r(self.gain, 5),
             "expected_rise_mm": _r(expected), "expected_cum_mm": _r(self.expected_cum), "mode": self.cfg.mode,
-            "added": bool(self.layers.raw(la).extra.get("added")),
+            "added": bool(self.layers[la].extra.get("added")),
         }
-        pause = None
+        pause, rest = None, None
         if self.closed:
-            rec["next"], rec["action"], pause = self._next(la, top, so, vals, work, k)
+            rec["next"], rec["action"], pause, rest = self._next(la, top, so, vals)
         if self.path is not None:
             pause = self._path_close(la, z_cmd, planned, rec) or pause
         elif source == "model":
-            return None   # open loop without a measurement: nothing to record
+            return AfterPass(rest=rest)   # no measurement: nothing to record
         self.records.append(rec)
         self._event("layer", rec, layer=la)
         if self.bus is not None:
             self.bus.update(stick_out_mm=so, layer_height_error_mm=top - planned)
-        return pause
+        return AfterPass(pause=pause, rest=rest)
 
     def _path_close(self, la: int, z_cmd: float, planned: float, rec: dict[str, Any]) -> str | None:
         """The path loop after layer la: its tops along every pass, learned; a pause message or None."""
@@ -273,8 +262,8 @@ class LayerControl:
             rows = self.path.probe_rows(la, built, *probed)
         else:   # the robot's bins through the arc; a CNC layer not probed teaches nothing
             rows = self.path.arc_tops(la, built, z_cmd) if self.platform == "robot" else []
-        nxt = self.layers.raw(la + 1) if la + 1 < self.n_total else None
-        rise = self.gain * layer_height(nxt or self.layers.raw(la)) * rise_factor(self.next_k, self.p)
+        nxt = self.layers[la + 1] if la + 1 < self.n_total else None
+        rise = self.gain * layer_height(nxt or self.layers[la]) * rise_factor(self.next_k, self.p)
         prec, pause = self.path.close(la, rows, planned, rise, nxt)
         if prec is not None:
             rec["path_rms_mm"], rec["path_spread_mm"] = prec["rms_mm"], prec["spread_mm"]
@@ -283,28 +272,30 @@ class LayerControl:
     def replanned_z(self, j: int) -> float:
         """Layer j's top in the current plan: the planned final top spread over the current layer
         count in proportion to the layers' heights (the job's z while no layer is added or dropped)."""
-        hs = [layer_height(x) for x in list.__iter__(self.layers)]
+        hs = [layer_height(x) for x in self.layers]
         base = layer_z(self.job_layers[0]) - layer_height(self.job_layers[0])
         if len(hs) == self.n_planned or sum(hs) <= 0:
-            return layer_z(self.layers.raw(j))
+            return layer_z(self.layers[j])
         return base + (self.final_mm - base) * sum(hs[:j + 1]) / sum(hs)
 
-    def _next(self, la: int, top: float, so: float | None, vals: list[float], work: list[WorkItem],
-              k: int) -> tuple[dict[str, Any], str, str | None]:
+    def _next(self, la: int, top: float, so: float | None,
+              vals: list[float]) -> tuple[dict[str, Any], str, str | None, list[WorkItem] | None]:
+        """The next layer's z and trim, the layer count; (record, action, pause, the work after
+        layer la when the count changed)."""
         n_max = self.n_planned + math.ceil(self.n_planned * self.cfg.max_layer_change_pct / 100.0)
         heights = [layer_height(x) for x in build_layers(self.job_layers, max(self.n_total + 1, self.n_planned))]
         d = decide(top_mm=top, final_mm=self.final_mm, heights=heights, gain=self.gain, p=self.p,
                    k_range=self.k_range, n_done=la + 1, n_total=self.n_total, n_planned=self.n_planned,
                    layer_change=self.cfg.layer_change == "add_drop",
                    n_range=(self.n_planned - (n_max - self.n_planned), n_max))
+        rest = None
         if d.n_total != self.n_total:
             self._set_count(d.n_total)
-            work[k + 1:] = [WorkItem(j, pi) for j in range(la + 1, self.n_total)
-                            for pi in range(len(self.layers.raw(j).passes))]
+            rest = [WorkItem(j, pi) for j in range(la + 1, self.n_total) for pi in range(len(self.layers[j].passes))]
             self._event("layer_count", {"after_layer": la, "layers": self.n_total}, layer=la)
         self.next_k = d.speed_factor
         pause, corr = None, 0.0
-        rise = self.gain * layer_height(self.layers.raw(min(la + 1, self.n_total - 1))) * rise_factor(self.next_k, self.p)
+        rise = self.gain * layer_height(self.layers[min(la + 1, self.n_total - 1)]) * rise_factor(self.next_k, self.p)
         # the layers the saturated trim needs to reach the planned top: beyond the allowed change,
         # the disturbance cannot be corrected in range (judged once the gain rests on enough layers)
         most = self.gain * layer_height(self.job_layers[-1]) * rise_factor(self.k_range[0], self.p)
@@ -315,7 +306,7 @@ class LayerControl:
                      f"layers for the planned {self.final_mm:.2f} mm, beyond {n_max} "
                      f"(process_control.max_layer_change_pct {self.cfg.max_layer_change_pct:g})")
         if la + 1 < self.n_total:
-            nxt = self.layers.raw(la + 1)
+            nxt = self.layers[la + 1]
             plan = self.replanned_z(la + 1)
             lim = self.cfg.max_z_correction_mm
             want = top + rise - plan
@@ -335,7 +326,7 @@ class LayerControl:
                      f"paused before layer {la + 1}")
         nxt_rec = {"z_offset_mm": _r(self.next_dz), "correction_mm": _r(corr), "speed_factor": _r(self.next_k, 5),
                    "layers": self.n_total, "projected_top_mm": _r(d.projected_top_mm)}
-        return nxt_rec, d.action, pause
+        return nxt_rec, d.action, pause, rest
 
     def _set_count(self, n: int) -> None:
         self.n_total = n
@@ -343,4 +334,19 @@ class LayerControl:
         for j in [j for j in self._built if j >= n]:
             del self._built[j]
         if self.bus is not None:
-            self.bus.update(layers_total=n, passes_total=sum(len(x.passes) for x in list.__iter__(self.layers)))
+            self.bus.update(layers_total=n, passes_total=sum(len(x.passes) for x in self.layers))
+
+
+def make_control(cfg: CellConfig, job: CellJob, material: Material, journal: Journal, bus: EventBus | None,
+                 executor: MotionExecutor) -> LayerControl:
+    """The build's layer control (restored from the journal on a resume); the CNC's probe when it has one."""
+    pc = cfg.process_control
+    probe: ProbeFn | None = None
+    link = executor.cnc_link
+    if link is not None:
+        async def probe(la: int, spots: Sequence[Spot]) -> list[float]:
+            return await probe_layer_top(link, cfg.probe, list(spots), cfg.probe.clearance_mm, name=f"layer {la} top")
+    lc = LayerControl(job=job, cfg=pc, material=material, platform=cfg.cell.platform, journal=journal, bus=bus,
+                      max_speed_mm_min=cfg.limits.max_speed_mm_min, probe=probe)
+    lc.restore()
+    return lc

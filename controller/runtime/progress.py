@@ -11,7 +11,7 @@ the travel's length at the travel speed × 2 + 1 s (never less than the weld bou
 On a stall the watchdog drops weld start, waits (at most `ARC_CONFIRM_S`) until the power source
 has seen the dropped start (two fresh status cycles), then holds motion and returns the fault
 message naming the device, the state, the layer/pass/point and how long it stood; the build
-runner raises it as the fault that latches the cell (controller/runtime/build.py).
+runner raises it as the fault that latches the cell (controller/runtime/pass_run.py).
 """
 from __future__ import annotations
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from controller.runtime.build import WorkItem
+from controller.runtime.work import WorkItem
 from controller.job.model import CellJob
 from controller.journal.store import Journal
 from core.errors import CellError
