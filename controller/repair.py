@@ -18,6 +18,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from controller.align.intact import MIN_SIDE_MM, intact_spots
 from controller.align.surface_probe import probe_cad_points, repaired_spots
 from controller.motion.mill import change_tool, program_lines, run_program
 from controller.align.routine import alignment_record, plan_for_mesh
@@ -86,30 +87,19 @@ def load_cad(job: CellJob, job_path: Path | None, which: str = "cad") -> Any:
 
 
 def probe_plan(cad: Any, job: CellJob) -> Any:
-    """The alignment's touches on the CAD, kept 3 mm clear of the repair region (its xy bounds).
-
-    Limitation (docs/repair.md): the region must leave the middle of the top face and of the +X
-    face intact, where the routine touches.
-    """
-
+    """The alignment's touches on the CAD, on the intact faces off the repair region and its
+    keep-out (controller/align/intact.py): refused only when too little intact face is left."""
     lo, hi = np.asarray(cad.bounds, dtype=float)
-    size, ctr = hi - lo, (lo + hi) / 2
-    rb = job.repair.bounds_mm if job.repair is not None and job.repair.bounds_mm is not None else np.array([hi, hi])
-
-    def dist(k: int) -> float:  # how far the region stays from the centre line along axis k
-        if rb[0, k] <= ctr[k] <= rb[1, k]:
-            return 0.0
-        return float(min(abs(rb[0, k] - ctr[k]), abs(rb[1, k] - ctr[k])))
-
-    half = max(dist(0), dist(1)) - 3.0
-    span = float(min(2 * half, size[0] - 20, size[1] - 20))
-    if span < 8.0:
-        raise InputError("repair: the repair region covers the middle of the top face, where the alignment "
-                         "probes; this workflow needs it intact")
-    side = size[1] - 20
-    if rb[1, 0] >= hi[0] - 1e-6:  # the region reaches the +X face: touch it away from the region
-        side = min(side, 2 * (dist(1) - 3.0))
-    return plan_for_mesh(cad, top_span_mm=span, side_span_mm=float(max(side, 4.0)))
+    rb = job.repair.bounds_mm if job.repair is not None and job.repair.bounds_mm is not None else None
+    if rb is None:   # no region: the routine's own grid
+        return plan_for_mesh(cad)
+    depth = min(5.0, (hi[2] - lo[2]) / 2)   # plan_for_mesh's side touches: this far under the top
+    spots = intact_spots(np.asarray(cad.triangles, dtype=float), np.asarray(rb, dtype=float), face_z=hi[2] - depth)
+    a, b = spots.side_y
+    half = min(b - a, max(hi[1] - lo[1] - 20.0, MIN_SIDE_MM)) / 2   # the row at most the face less 10 mm a side
+    mid = (a + b) / 2
+    return plan_for_mesh(cad, top_xy=spots.top_xy, side_y=np.linspace(mid - half, mid + half, 5),
+                         tertiary_x=spots.tertiary_x)
 
 
 def _layer_footprint(L: Layer, job: CellJob) -> Any:

@@ -44,6 +44,8 @@ def _failures(tmp: Path) -> list[list[str]]:
         ["resume", "--run", missing, "--json"],
         ["report", missing, "--json"],
         ["export", missing, "--format", "gcode", "--json"],
+        ["finish", "plan", missing, "--json"],
+        ["finish", "plan", missing, "--tool", "nope", "--json"],
         ["journal", "check", missing, "--json"],
         ["demo", "--json", "--no-such-option"],
     ]

@@ -63,21 +63,29 @@ class ProbePlan:
 
 def plan_for_mesh(mesh: Any, *, grid: tuple[int, int] = (3, 3), top_span_mm: float | None = None,
                   side_touches: int = 5, side_span_mm: float | None = None, margin_mm: float = 10.0,
-                  depth_mm: float = 5.0) -> ProbePlan:
-    """A plan on a block-like CAD mesh: top grid within the top face, +X face row, one touch on -Y."""
+                  depth_mm: float = 5.0, top_xy: F | None = None, side_y: F | None = None,
+                  tertiary_x: float | None = None) -> ProbePlan:
+    """A plan on a block-like CAD mesh: top grid within the top face, +X face row, one touch on -Y.
+
+    `top_xy`, `side_y`, `tertiary_x` (a repair: spots off its region, controller/align/intact.py)
+    replace the grid, the row and the third touch's x."""
     lo, hi = np.asarray(mesh.bounds, dtype=float)
     size = hi - lo
     ctr = (lo + hi) / 2
     span_x = top_span_mm if top_span_mm is not None else size[0] - 2 * margin_mm
     span_y = top_span_mm if top_span_mm is not None else size[1] - 2 * margin_mm
-    if span_x <= 0 or span_y <= 0 or span_x >= size[0] or span_y >= size[1]:
+    if top_xy is None and (span_x <= 0 or span_y <= 0 or span_x >= size[0] or span_y >= size[1]):
         raise InputError(f"probe plan: a top grid over {span_x:.1f} × {span_y:.1f} mm does not fit inside the "
                          f"{size[0]:.1f} × {size[1]:.1f} mm top face with room to spare; use a larger part or a smaller grid")
     side_span = side_span_mm if side_span_mm is not None else size[1] - 2 * margin_mm
     depth = min(depth_mm, size[2] / 2)
     ys = np.linspace(ctr[1] - side_span / 2, ctr[1] + side_span / 2, side_touches) if side_touches > 1 else np.array([ctr[1]])
-    return ProbePlan(top_xy=grid_points(ctr, (span_x, span_y), grid), top_z=float(hi[2]), side_x=float(hi[0]),
-                     side_y=ys, side_z=float(hi[2] - depth), tertiary_xy=(float(ctr[0]), float(lo[1])),
+    if side_y is not None:
+        ys = np.asarray(side_y, dtype=float)
+    top = np.asarray(top_xy, dtype=float) if top_xy is not None else grid_points(ctr, (span_x, span_y), grid)
+    tx = float(ctr[0]) if tertiary_x is None else float(tertiary_x)
+    return ProbePlan(top_xy=top, top_z=float(hi[2]), side_x=float(hi[0]),
+                     side_y=ys, side_z=float(hi[2] - depth), tertiary_xy=(tx, float(lo[1])),
                      bounds=np.array([lo, hi]), mesh=mesh)
 
 

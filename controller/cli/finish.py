@@ -45,7 +45,8 @@ def _job_path(source: str) -> Path:
     return p
 
 
-def _cad(job: Any, path: Path) -> np.ndarray:
+def job_cad(job: Any, path: Path) -> np.ndarray:
+    """The job's CAD triangles in the job's frame: a repair job's `repair.cad`, else `source.file`."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.repair import load_cad
     from planner.mesh import read_mesh
@@ -65,75 +66,20 @@ def _cad(job: Any, path: Path) -> np.ndarray:
     return tri
 
 
-def _planned_top(job: Any, region: tuple[float, float, float, float], cell_mm: float = 0.5) -> Any:
-    """The plan's deposit top over the region: per cell the highest layer whose passes cover it."""
-    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    import shapely
-    from shapely.geometry import LineString, Point
-    from shapely.ops import unary_union
-    from planner.finish import Surface
-
-    xs = np.arange(region[0], region[2] + 1e-9, cell_mm)
-    ys = np.arange(region[1], region[3] + 1e-9, cell_mm)
-    gx, gy = np.meshgrid(xs, ys)
-    top = np.full(gx.shape, np.nan)
-    for L in sorted(job.layers, key=lambda x: x.z_mm):
-        shapes = []
-        for ps in L.passes:
-            pts = [(float(q[0]), float(q[1])) for q in ps.points.tolist()]
-            w = (ps.width_mm or job.job.bead.width_mm) / 2
-            shapes.append(LineString(pts).buffer(w) if len(pts) >= 2 else Point(pts[0]).buffer(w))
-        if shapes:
-            inside = shapely.contains_xy(unary_union(shapes), gx, gy)
-            top = np.where(inside, L.z_mm, top)
-    return Surface(top, (float(region[0]), float(region[1])), cell_mm)
-
-
 def run_finish_plan(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
+    from controller.export.milling import finish_top, milling_program
     from controller.job.read import read_job
-    from controller.motion.mill import program_lines, tool_change_lines
     from core.config import load_cell
-    from planner.dropcutter import ToolShape
-    from planner.finish import Cut, cad_top, plan_finish
 
     path = _job_path(args.source)
     job = read_job(path)
     cell = load_cell(args.cell_config)
-    try:
-        name, cutter = cell.tools.cutter(args.tool or cell.machining.cutter)
-    except KeyError as exc:
-        raise InputError(f"--tool: {exc.args[0]}") from None
-    tri = _cad(job, path)
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    up = n[:, 2] / np.maximum(np.linalg.norm(n, axis=1), 1e-12) > 0.99
-    zt = tri[:, :, 2].max()
-    top = tri[up & (tri[:, :, 2].min(axis=1) >= zt - 1e-3)]
-    if not len(top):
-        raise InputError(f"{path}: the CAD has no horizontal top face to finish")
-    lo, hi = top[:, :, :2].reshape(-1, 2).min(axis=0), top[:, :, :2].reshape(-1, 2).max(axis=0)
-    region = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
-    stock = _planned_top(job, region)
-    xs = stock.xy()
-    gx, gy = np.meshgrid(*xs)
-    cadz = cad_top(tri, np.column_stack([gx.ravel(), gy.ravel()])).reshape(gx.shape)
-    h = np.where(np.isfinite(stock.heights), stock.heights, cadz)
-    stock = type(stock)(h, stock.origin, stock.cell_mm)
-    over = h - cadz
-    m = cell.machining
-    plan = plan_finish(tri, stock, region, Cut(name, ToolShape(cutter.type, cutter.radius_mm),
-                                               cutter.max_depth_of_cut_mm, cutter.max_stepover_mm, cutter.feed_mm_min,
-                                               cell.limits.travel_speed_mm_min),
-                       finish_stock_mm=m.finish_stock_mm, scallop_mm=m.scallop_mm)
-    out = {"tool": name, "passes": len(plan.passes), "removal_mm3": round(plan.removal_mm3, 2),
-           "est_time_s": round(plan.est_time_s, 1),
-           "min_stock_mm": round(float(np.nanmin(over[np.isfinite(over)])), 4) if np.isfinite(over).any() else None,
-           "scallop_mm": round(plan.scallop_mm, 5), "stepover_mm": round(plan.stepover_mm, 4),
-           "levels": plan.levels, "region_mm": [round(v, 3) for v in region], "job": str(path)}
+    fin = finish_top(job, job_cad(job, path), cell, args.tool, str(path))
+    out = {**fin.summary(), "job": str(path)}
     if args.out:
-        lines = tool_change_lines(args.firmware, cutter.number, name, cutter.length_offset_mm)
-        lines += program_lines(plan, np.eye(4), cutter)
+        lines = milling_program(fin, args.firmware)
         Path(args.out).write_text("\n".join(lines) + "\n", encoding="utf-8")
         out.update(out_file=str(args.out), lines=len(lines))
     if args.json:
