@@ -23,7 +23,7 @@ from pathlib import Path
 from core.config import Workpiece as WorkpieceConfig
 from drivers.grbl import CncLink, GrblError
 from sims.clock import SimClock
-from sims.cnc_sim import CncSim
+from sims.cnc import CncSim
 from sims.transport import SerialServer
 from sims.workpiece import Workpiece
 from sims.world import World
@@ -71,7 +71,7 @@ async def run_full(n: int, time_scale: float) -> dict:
         async def sample() -> None:
             while streaming:
                 rx.append(sim.rx_fill)
-                planner.append(sim._motion_in_queue)
+                planner.append(sim.machine.motion_in_queue)
                 await asyncio.sleep(0.005)
 
         sampler = asyncio.ensure_future(sample())
@@ -80,7 +80,7 @@ async def run_full(n: int, time_scale: float) -> dict:
         wall = time.monotonic() - t0
         streaming = False
         await sampler
-        sim._log.flush()
+        sim.flush_log()
         ran = [json.loads(x)["line"] for x in (tmp / "cnc.jsonl").read_text().splitlines()]
         ran = [x for x in ran if x != "G4P0"]
         once_in_order = ran == [ln.replace(" ", "") for ln in prog]
@@ -118,7 +118,7 @@ async def run_error(n: int, bad: int, time_scale: float) -> dict:
             err = exc
         wall = time.monotonic() - t0
         await link.wait_idle(60)
-        sim._log.flush()
+        sim.flush_log()
         ran = [json.loads(x)["line"] for x in (tmp / "cnc.jsonl").read_text().splitlines()]
         ran = [x for x in ran if x != "G4P0"]
         last_good = prog[bad - 2].replace(" ", "")

@@ -20,7 +20,7 @@ from core.realtime import SIM_RT_PRIORITY, elevate, quiet_gc
 from sims.clock import SimClock
 from sims.world import World
 
-SIM_MODULES = ["sims.robot_sim", "sims.cnc_sim", "sims.power_sim", "sims.cellio_sim"]
+SIM_MODULES = ["sims.robot_sim", "sims.cnc", "sims.power_sim", "sims.cellio_sim"]
 
 
 @dataclass

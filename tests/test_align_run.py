@@ -141,11 +141,11 @@ async def test_not_homed_and_already_tripped():
 async def test_a_loaded_host_does_not_leave_the_probe_tripped_at_the_next_touch(tmp_path):
     # The flaky ALARM:4 of test_spread_above_tolerance_after_retries_names_the_point, made
     # deterministic: a loaded host gives the simulator's executor long ticks, so every probing move
-    # fits in one tick. The move must still end where the stylus touched (sims/cnc_motion.py): when
+    # fits in one tick. The move must still end where the stylus touched (sims/cnc/motion.py): when
     # it ran on to its commanded end, 10 mm inside the part, the back-off of 2 mm left the stylus
     # inside and the next touch raised "already tripped" (ALARM:4) every time.
     from sims.clock import SimClock
-    from sims.cnc_sim import CncSim
+    from sims.cnc import CncSim
     from sims.faults import parse_fault_spec
     from sims.transport import SerialServer
     from sims.workpiece import Workpiece
@@ -168,7 +168,7 @@ async def test_a_loaded_host_does_not_leave_the_probe_tripped_at_the_next_touch(
         probes = [b for b in sim.executed if b.probe]
         assert len(probes) == 8 and all(b.contact for b in probes)
         assert all(abs(b.target[2] - probes[0].target[2]) < 0.5 for b in probes if b.target is not None)
-        assert not piece.inside(tuple(sim.pos[:3]), sim.pos[3], sim.pos[4])
+        assert not piece.inside(tuple(sim.machine.pos[:3]), sim.machine.pos[3], sim.machine.pos[4])
     finally:
         await link.close()
         await server.close()

@@ -1,6 +1,6 @@
 """Contract suite: the same tests against the project's CNC simulator and real firmware.
 
-Targets: `sim` (sims/cnc_sim.py over loopback TCP), `grbl` (grbl 1.1h in grbl-sim, 3 axes) and
+Targets: `sim` (sims/cnc/sim.py over loopback TCP), `grbl` (grbl 1.1h in grbl-sim, 3 axes) and
 `grblhal` (grblHAL's Simulator built with 5 axes), the last two built once into
 ~/.cache/cell-peers by tests/peers/firmware.py and served on a pty through socat. Where gcc,
 make, cmake or socat are missing the firmware targets are skipped with one line naming what
@@ -22,7 +22,7 @@ from core.config import load_cell
 from drivers.errors import DeviceError
 from drivers.grbl import CncLink, GrblAxesMissing, GrblError, GrblStopped, ProbeError, SafeStopResult
 from sims.clock import SimClock
-from sims.cnc_sim import CncSim
+from sims.cnc import CncSim
 from sims.transport import SerialServer
 from planner.dropcutter import ToolShape
 from planner.finish import Cut, Surface, plan_finish

@@ -1,4 +1,4 @@
-"""The CNC simulator cuts (sims/cnc_cut.py): a cutter in the spindle takes metal off the workpiece's
+"""The CNC simulator cuts (sims/cnc/cut.py): a cutter in the spindle takes metal off the workpiece's
 height map, logged in cut.jsonl; the touch probe reads the cut; a cut with the spindle stopped is a
 tool breakage alarm. Driven over its serial bytes by the grbl driver."""
 from __future__ import annotations
@@ -12,7 +12,7 @@ from core.config import Workpiece as WorkpieceConfig, load_cell
 from controller.motion.mill import pause
 from drivers.grbl import CncLink, GrblAlarm, GrblError
 from sims.clock import SimClock
-from sims.cnc_sim import CncSim
+from sims.cnc import CncSim
 from sims.transport import SerialServer
 from sims.workpiece import Workpiece
 

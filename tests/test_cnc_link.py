@@ -19,8 +19,8 @@ from core.config import load_cell, load_sim
 from drivers.errors import LinkLost
 from drivers.grbl import CncLink, GrblAckLost, GrblAlarm, GrblError, GrblReset, GrblStopped, GrblStuck, ProbeError
 from sims.clock import SimClock
-from sims.cnc_sim import CncSim
-from sims.cnc_block import Block
+from sims.cnc import CncSim
+from sims.cnc.block import Block
 from sims.faults import parse_fault_spec
 from sims.transport import SerialServer
 from sims.up import SimContext, close_all
@@ -39,7 +39,7 @@ class Rig:
     log: Path
 
     def executed(self) -> list[dict]:
-        self.sim._log.flush()
+        self.sim.flush_log()
         return [json.loads(s) for s in self.log.read_text().splitlines()]
 
 
@@ -183,7 +183,7 @@ async def test_lines_that_cannot_fit_grbls_buffer_are_refused_before_sending(rig
     from core.errors import InputError
     with pytest.raises(InputError, match="line 2"):
         await r.link.stream(["G0 X1", "G1 X" + "1" * 130])
-    assert r.sim.lines_received == 0
+    assert r.sim.machine.lines_received == 0
 
 
 # -- real-time commands --------------------------------------------------------------------------
@@ -450,7 +450,7 @@ async def test_served_by_sim_up_with_exec_log_and_world(tmp_path):
     world = World(tmp_path)
     ctx = SimContext(cell=cell, sim=simcfg, world=world, clock=SimClock(200.0), log_dir=tmp_path,
                      ephemeral=True)
-    from sims import cnc_sim
+    from sims import cnc as cnc_sim
     served = await cnc_sim.serve(ctx)
     try:
         (s,) = served
@@ -499,10 +499,10 @@ def test_a_probing_move_that_ends_within_one_tick_stops_at_the_surface(tmp_path)
     piece = Workpiece.from_config(WorkpieceConfig(), 0.0, seed=11)
     sim = CncSim(clock=SimClock(60.0), workpiece=piece, log_path=tmp_path / "cnc.jsonl", homing_enabled=False)
     top = float(piece.top_z(np.array([0.0]), np.array([0.0]))[0])
-    sim.pos = [0.0, 0.0, top + 5.0, 0.0, 0.0]
+    sim.machine.pos = [0.0, 0.0, top + 5.0, 0.0, 0.0]
     b = Block(1, "G38.2", "G38.2 Z-10 F300", target=(0.0, 0.0, top - 10.0, 0.0, 0.0), feed=300.0, probe="G38.2")
-    sim._push(b)
+    sim.machine.push(b)
     sim.advance(0.0, 1000.0)                          # far more process time than the move needs
     assert b.done and b.contact
-    assert abs(sim.pos[2] - top) < 1e-6, sim.pos       # on the surface, not 10 mm into the part
-    assert not piece.inside(tuple(sim.pos[:3]), 0.0, 0.0)
+    assert abs(sim.machine.pos[2] - top) < 1e-6, sim.machine.pos      # on the surface, not 10 mm into the part
+    assert not piece.inside(tuple(sim.machine.pos[:3]), 0.0, 0.0)

@@ -159,7 +159,7 @@ def test_gcode_streams_on_the_cnc_simulator_every_line_ok(tmp_path):
 
     from drivers.grbl import CncLink
     from sims.clock import SimClock
-    from sims.cnc_sim import CncSim
+    from sims.cnc import CncSim
     from sims.faults import parse_fault_spec
     from sims.transport import SerialServer
     from sims.workpiece import Workpiece

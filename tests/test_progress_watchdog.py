@@ -96,7 +96,7 @@ async def test_a_cnc_that_reports_run_without_moving_trips_within_the_bound_arc_
         await asyncio.sleep(0.5)
         log = _power_log(harness)
         cnc = harness.sim("cnc")
-        hold_t = harness.call(lambda: (cnc._hold_t, cnc.spindle_on, cnc.state))
+        hold_t = harness.call(lambda: (cnc.machine.hold_t, cnc.machine.spindle_on, cnc.state))
         msg = ctl.interlocks.trips[0].message
     finally:
         await ctl.close()

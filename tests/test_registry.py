@@ -96,7 +96,7 @@ async def test_open_robot_rlp1_talks_to_the_robot_simulator(tmp_path):
 
 
 async def test_open_cnc_grbl_talks_to_the_cnc_simulator(tmp_path):
-    async with served(tmp_path, "sims.cnc_sim") as (cell, s):
+    async with served(tmp_path, "sims.cnc") as (cell, s):
         cnc = registry.open_cnc(cell.devices.cnc, url=s.url)
         assert type(cnc).__module__ == "drivers.grbl.link" and type(cnc).__name__ == "CncLink"
         try:

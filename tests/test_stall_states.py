@@ -74,7 +74,7 @@ async def test_a_cnc_that_stands_in_run_on_its_travel_is_a_fault_with_the_spindl
         ctl.open_job(job_from_dict(job))
         res = await asyncio.wait_for(ctl.start(), 30)
         cnc = harness.sim("cnc")
-        sim_state = harness.call(lambda: (cnc.spindle_on, cnc.state))
+        sim_state = harness.call(lambda: (cnc.machine.spindle_on, cnc.state))
         weld_start, phase = _power_state(harness)
         link = ctl.devices.cnc if ctl.devices else None
         report = await link.status() if link is not None else None
@@ -106,7 +106,7 @@ async def _align_until_stall(faults: str, time_scale: float = 10.0) -> tuple[str
         t0 = time.monotonic()
         with pytest.raises(StallFault) as err:
             await asyncio.wait_for(align_at(url, cell, plan), 30)
-        return str(err.value), time.monotonic() - t0, (sim.spindle_on, sim.state, sim.homing, sim.status_line())
+        return str(err.value), time.monotonic() - t0, (sim.machine.spindle_on, sim.state, sim.machine.homing, sim.status_line())
 
     return await _with_sim(cell, sim_cfg, None, body)
 

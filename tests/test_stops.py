@@ -316,7 +316,7 @@ def test_align_no_level_measures_the_tilt_and_commands_no_ab(tmp_path):
     import numpy as np
 
     # time scale 200: two alignments are probing moves alone (no bead to feed), and the simulator
-    # ends a touch at the surface however far one tick carries it (sims/cnc_motion.py); at 60 the
+    # ends a touch at the surface however far one tick carries it (sims/cnc/motion.py); at 60 the
     # two took 20 s
     cfgp = SimCell(tmp_path / "cell", platform="cnc", time_scale=200.0).cfg_path
     runs = {}

@@ -7,7 +7,7 @@ from typing import Any, Awaitable, Callable, TypeVar
 from controller.align.routine import AlignResult, ProbePlan
 from controller.api import align_at
 from core.config import CellConfig, SimConfig
-from sims import cnc_sim
+from sims import cnc
 from sims.clock import SimClock
 from sims.up import SimContext
 from sims.world import World
@@ -20,7 +20,7 @@ async def _with_sim(cell: CellConfig, sim_cfg: SimConfig, config_dir: Path | Non
     """Serve the CNC simulator in this loop on an ephemeral loopback port and run body(url, sim)."""
     ctx = SimContext(cell=cell, sim=sim_cfg, world=World(None), clock=SimClock(cell.cell.time_scale),
                      ephemeral=True, faults=sim_cfg.faults, config_dir=config_dir)
-    served = await cnc_sim.serve(ctx)
+    served = await cnc.serve(ctx)
     try:
         return await body(served[0].url, served[0].sim)
     finally:

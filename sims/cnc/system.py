@@ -8,13 +8,11 @@ from __future__ import annotations
 
 import re
 from collections.abc import Awaitable, Callable
-from typing import TYPE_CHECKING
+from typing import Protocol
 
+from sims.cnc.block import NUMBER, GrblError
+from sims.cnc.state import CncState
 from wire.grbl_protocol import fmt, format_probe
-from sims.cnc_block import _NUM, GrblError
-
-if TYPE_CHECKING:
-    from sims.cnc_sim import CncSim
 
 VERSION = "1.1h"
 
@@ -30,61 +28,73 @@ DEFAULT_SETTINGS: dict[int, float] = {
 }
 _INT_SETTINGS = {0, 1, 2, 3, 4, 5, 6, 10, 13, 20, 21, 22, 23, 26, 30, 31, 32}
 
-SystemCommand = Callable[["CncSim"], Awaitable[list[str]]]
 
 
-def _require_idle_or_alarm(sim: CncSim) -> None:
+class SystemHost(Protocol):
+    """What the `$` commands use of the simulator: its machine state and the homing cycle."""
+
+    machine: CncState
+
+    @property
+    def state(self) -> str: ...
+    async def run_homing(self) -> None: ...
+
+
+SystemCommand = Callable[[SystemHost], Awaitable[list[str]]]
+
+
+def _require_idle_or_alarm(sim: SystemHost) -> None:
     if sim.state not in ("Idle", "Alarm"):
         raise GrblError(8)
 
 
-async def _help(sim: CncSim) -> list[str]:
+async def _help(sim: SystemHost) -> list[str]:
     return ["[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]"]
 
 
-async def _settings(sim: CncSim) -> list[str]:
+async def _settings(sim: SystemHost) -> list[str]:
     _require_idle_or_alarm(sim)
-    return [f"${n}={int(v) if n in _INT_SETTINGS else f'{v:.3f}'}" for n, v in sim.settings.items()]
+    return [f"${n}={int(v) if n in _INT_SETTINGS else f'{v:.3f}'}" for n, v in sim.machine.settings.items()]
 
 
-async def _parameters(sim: CncSim) -> list[str]:
+async def _parameters(sim: SystemHost) -> list[str]:
     z = ",".join(fmt(0.0) for _ in range(5))
     out = [f"[{g}:{z}]" for g in ("G54", "G55", "G56", "G57", "G58", "G59", "G28", "G30", "G92")]
-    out += [f"[TLO:{sim.tlo:.3f}]", format_probe(sim.probe_pos, sim.probe_ok)]
+    out += [f"[TLO:{sim.machine.tlo:.3f}]", format_probe(sim.machine.probe_pos, sim.machine.probe_ok)]
     return out
 
 
-async def _parser_state(sim: CncSim) -> list[str]:
+async def _parser_state(sim: SystemHost) -> list[str]:
     return ["[GC:" + " ".join([
-        sim.motion_mode, "G54", "G17", "G20" if sim.inches else "G21",
-        "G90" if sim.absolute else "G91", "G94", "M3" if sim.spindle_on else "M5", "M9", "T0",
-        f"F{sim.feed_rate:.0f}", f"S{sim.s_word:.0f}"]) + "]"]
+        sim.machine.motion_mode, "G54", "G17", "G20" if sim.machine.inches else "G21",
+        "G90" if sim.machine.absolute else "G91", "G94", "M3" if sim.machine.spindle_on else "M5", "M9", "T0",
+        f"F{sim.machine.feed_rate:.0f}", f"S{sim.machine.s_word:.0f}"]) + "]"]
 
 
-async def _build_info(sim: CncSim) -> list[str]:
+async def _build_info(sim: SystemHost) -> list[str]:
     # the rotary letters of the configured table (XYZAB or XYZAC), as grblHAL names its own axes
-    return [f"[VER:{VERSION}.20190825:5-axis {sim.letters} (cell simulator)]", "[OPT:VNM,15,128]",
-            f"[AXS:5:{sim.letters}]"]
+    return [f"[VER:{VERSION}.20190825:5-axis {sim.machine.letters} (cell simulator)]", "[OPT:VNM,15,128]",
+            f"[AXS:5:{sim.machine.letters}]"]
 
 
-async def _startup_lines(sim: CncSim) -> list[str]:
+async def _startup_lines(sim: SystemHost) -> list[str]:
     return ["$N0=", "$N1="]
 
 
-async def _unlock(sim: CncSim) -> list[str]:
+async def _unlock(sim: SystemHost) -> list[str]:
     _require_idle_or_alarm(sim)
-    if sim.alarm:
-        sim.alarm = False
-        sim._notify()
+    if sim.machine.alarm:
+        sim.machine.alarm = False
+        sim.machine.notify()
         return ["[MSG:Caution: Unlocked]"]
     return []
 
 
-async def _home(sim: CncSim) -> list[str]:
-    if not sim.settings[22]:
+async def _home(sim: SystemHost) -> list[str]:
+    if not sim.machine.settings[22]:
         raise GrblError(5)
     _require_idle_or_alarm(sim)
-    await sim._home()
+    await sim.run_homing()
     return []
 
 
@@ -94,22 +104,22 @@ SYSTEM_COMMANDS: dict[str, SystemCommand] = {
 }
 
 
-def _write_setting(sim: CncSim, number: str, value: str) -> list[str]:
+def _write_setting(sim: SystemHost, number: str, value: str) -> list[str]:
     """`$<n>=<value>`."""
     _require_idle_or_alarm(sim)
     n = int(number)
-    if n not in sim.settings:
+    if n not in sim.machine.settings:
         raise GrblError(3)
-    if not _NUM.fullmatch(value):
+    if not NUMBER.fullmatch(value):
         raise GrblError(2)
     v = float(value)
     if v < 0:
         raise GrblError(4)
-    sim.settings[n] = int(v) if n in _INT_SETTINGS else v
+    sim.machine.settings[n] = int(v) if n in _INT_SETTINGS else v
     return []
 
 
-async def system_command(sim: CncSim, line: str) -> list[str]:
+async def system_command(sim: SystemHost, line: str) -> list[str]:
     """One `$` line: the lines to print before `ok`; GrblError for `error:N`."""
     command = SYSTEM_COMMANDS.get(line)
     if command is not None:

@@ -4,7 +4,8 @@ A line is split into words (`split_words`), its G and M words looked up in the t
 and `M_CODES` (a code in neither is `error:20`: arcs, G10/G28/G30/G92, G38.4/5 are not
 simulated), the words checked, the modal state updated in grbl's order of execution, and the
 blocks queued on the simulator's planner (`run_gcode`). Probing (G38.2/G38.3) waits for the
-move and answers the `[PRB:...]` line (`probe_cycle`).
+move and answers the `[PRB:...]` line (`probe_cycle`). The modal state, the parser's position and
+the planner are the shared `CncState` (state.py).
 """
 from __future__ import annotations
 
@@ -12,13 +13,10 @@ import asyncio
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
+from sims.cnc.block import NUMBER, Block, GrblError, Pos5, pos5
+from sims.cnc.state import CncParts
 from wire.grbl_protocol import format_probe
-from sims.cnc_block import _NUM, Block, GrblError, Pos5, pos5
-
-if TYPE_CHECKING:
-    from sims.cnc_sim import CncSim
 
 
 @dataclass
@@ -92,7 +90,7 @@ def split_words(line: str) -> tuple[dict[str, float], list[float], list[int]]:
         letter = line[i]
         if not "A" <= letter <= "Z":
             raise GrblError(1)
-        m = _NUM.match(line, i + 1)
+        m = NUMBER.match(line, i + 1)
         if m is None:
             raise GrblError(2)
         val = float(m.group(0))
@@ -132,23 +130,23 @@ def _check_words(words: dict[str, float], letters: str, dwell: bool) -> None:
         raise GrblError(28)
 
 
-def _set_modal(sim: CncSim, modes: LineModes, words: dict[str, float]) -> float:
+def _set_modal(sim: CncParts, modes: LineModes, words: dict[str, float]) -> float:
     """The modal updates, in grbl's order of execution; the unit factor (mm per unit)."""
-    sim.absolute, sim.inches = modes.absolute, modes.inches
-    if modes.inverse != sim.inverse_time:
-        sim.inverse_time = modes.inverse
-        sim.feed_rate = 0.0  # grbl: switching feed modes leaves the feed undefined
+    sim.machine.absolute, sim.machine.inches = modes.absolute, modes.inches
+    if modes.inverse != sim.machine.inverse_time:
+        sim.machine.inverse_time = modes.inverse
+        sim.machine.feed_rate = 0.0  # grbl: switching feed modes leaves the feed undefined
     unit = 25.4 if modes.inches else 1.0
     if "F" in words:
-        sim.feed_rate = words["F"] * (1.0 if modes.inverse else unit)
+        sim.machine.feed_rate = words["F"] * (1.0 if modes.inverse else unit)
     if "S" in words:
-        sim.s_word = words["S"]
+        sim.machine.s_word = words["S"]
     if modes.motion is not None:
-        sim.motion_mode = modes.motion
+        sim.machine.motion_mode = modes.motion
     return unit
 
 
-def _tool_words(sim: CncSim, modes: LineModes, words: dict[str, float], unit: float) -> None:
+def _tool_words(sim: CncParts, modes: LineModes, words: dict[str, float], unit: float) -> None:
     """`T<n>` selects a tool (M0, the operator, loads it: grbl 1.1h has no M6); `G43.1 Z…` sets the
     dynamic tool length offset (its Z word is no move), `G49` clears it."""
     if "T" in words:
@@ -156,97 +154,97 @@ def _tool_words(sim: CncSim, modes: LineModes, words: dict[str, float], unit: fl
     if modes.tlo == "set":
         if "Z" not in words:
             raise GrblError(37)
-        sim.tlo = words.pop("Z") * unit
+        sim.machine.tlo = words.pop("Z") * unit
     elif modes.tlo == "clear":
-        sim.tlo = 0.0
+        sim.machine.tlo = 0.0
 
 
-async def run_gcode(sim: CncSim, line: str) -> list[str]:
+async def run_gcode(sim: CncParts, line: str) -> list[str]:
     """Execute one G-code line: the lines to print before `ok`; GrblError for `error:N`."""
     words, gs, ms = split_words(line)
     nline = words.pop("N", None)
-    seq = int(nline) if nline is not None else sim.lines_received
+    seq = int(nline) if nline is not None else sim.machine.lines_received
 
-    modes = LineModes(inverse=sim.inverse_time, absolute=sim.absolute, inches=sim.inches)
+    modes = LineModes(inverse=sim.machine.inverse_time, absolute=sim.machine.absolute, inches=sim.machine.inches)
     for g in gs:
         code = round(g, 1)
         if code not in G_CODES:
             raise GrblError(20)  # arcs, G10/G28/G30/G92, G38.4/5: not simulated
         G_CODES[code](modes, code)
     spindle = _spindle(ms)
-    _check_words(words, sim.letters, modes.dwell)
+    _check_words(words, sim.machine.letters, modes.dwell)
 
     unit = _set_modal(sim, modes, words)
     _tool_words(sim, modes, words, unit)
-    axes = {k: v for k, v in words.items() if k in sim.letters}
-    mode = sim.motion_mode
+    axes = {k: v for k, v in words.items() if k in sim.machine.letters}
+    mode = sim.machine.motion_mode
     if spindle is not None:
-        sim._push(Block(seq, "M3" if spindle else "M5", line, s=sim.s_word, spindle=spindle))
+        sim.machine.push(Block(seq, "M3" if spindle else "M5", line, s=sim.machine.s_word, spindle=spindle))
     if modes.dwell:
-        await sim._sync()
+        await sim.machine.sync()
         await asyncio.sleep(sim.clock.wall(max(words["P"], 0.0)))
-        sim._log_block(Block(seq, "G4", line), sim.clock.now())
+        sim.log_block(Block(seq, "G4", line), sim.clock.now())
     if axes or 0 in ms:
         out = await _move(sim, seq, line, mode, words, axes, modes, unit) if axes else []
         if 0 in ms:   # program pause once the motion before it is done; grbl answers `ok` after `~`
             pause = Block(seq, "M0", line)
-            sim._push(pause)
-            await sim._wait_for(lambda: pause.done and not sim.hold)
+            sim.machine.push(pause)
+            await sim.machine.wait_for(lambda: pause.done and not sim.machine.hold)
         return out
     if modes.motion is not None and modes.motion.startswith("G38"):
         raise GrblError(26)
     if spindle is None and not modes.dwell:
-        sim._push(Block(seq, modes.motion or ("F" if "F" in words else "G"), line))  # modal-only: logged in order
+        sim.machine.push(Block(seq, modes.motion or ("F" if "F" in words else "G"), line))  # modal-only: logged in order
     return []
 
 
-async def _move(sim: CncSim, seq: int, line: str, mode: str, words: dict[str, float], axes: dict[str, float],
+async def _move(sim: CncParts, seq: int, line: str, mode: str, words: dict[str, float], axes: dict[str, float],
                 modes: LineModes, unit: float) -> list[str]:
     """A line with axis words in motion mode `mode` (the modal one in effect): queue the move (or probe)."""
     if mode == "G80":
         raise GrblError(31)
-    target = list(sim._gc_pos)
+    target = list(sim.machine.gc_pos)
     for k, v in axes.items():
-        j = sim.letters.index(k)
+        j = sim.machine.letters.index(k)
         v = v * unit if j < 3 else v
         target[j] = v if (modes.absolute or modes.machine) else target[j] + v
     if "Z" in axes and modes.absolute and not modes.machine:
-        target[2] += sim.tlo   # machine Z = programmed Z + the tool length offset
+        target[2] += sim.machine.tlo   # machine Z = programmed Z + the tool length offset
     tgt = pos5(target)
     if mode.startswith("G38"):
         return await probe_cycle(sim, seq, mode, line, tgt)
     if mode == "G1":
-        if sim.feed_rate <= 0 or (sim.inverse_time and "F" not in words):
+        if sim.machine.feed_rate <= 0 or (sim.machine.inverse_time and "F" not in words):
             raise GrblError(22)  # G93: every G1 carries its own F
-        feed = sim.feed_rate
-        if sim.inverse_time:  # F = 1/minutes for the move: the rate along the 5-D path
-            feed = math.dist(tgt, sim._gc_pos) * sim.feed_rate
+        feed = sim.machine.feed_rate
+        if sim.machine.inverse_time:  # F = 1/minutes for the move: the rate along the 5-D path
+            feed = math.dist(tgt, sim.machine.gc_pos) * sim.machine.feed_rate
     else:
-        moving = [j for j in range(5) if abs(tgt[j] - sim._gc_pos[j]) > 1e-9]
-        feed = min((float(sim.settings[110 + j]) for j in moving), default=float(sim.settings[110]))
-    await sim._wait_for(lambda: sim._motion_in_queue < sim.planner_blocks)
-    sim._push(Block(seq, mode, line, target=tgt, feed=feed, s=sim.s_word))
-    sim._gc_pos = list(tgt)
+        moving = [j for j in range(5) if abs(tgt[j] - sim.machine.gc_pos[j]) > 1e-9]
+        feed = min((float(sim.machine.settings[110 + j]) for j in moving), default=float(sim.machine.settings[110]))
+    await sim.machine.wait_for(lambda: sim.machine.motion_in_queue < sim.machine.planner_blocks)
+    sim.machine.push(Block(seq, mode, line, target=tgt, feed=feed, s=sim.machine.s_word))
+    sim.machine.gc_pos = list(tgt)
     return []
 
 
-async def probe_cycle(sim: CncSim, seq: int, mode: str, line: str, target: Pos5) -> list[str]:
+async def probe_cycle(sim: CncParts, seq: int, mode: str, line: str, target: Pos5) -> list[str]:
     """G38.2 / G38.3 toward `target`: the `[PRB:...]` line (ALARM:4 / ALARM:5 as grbl raises them)."""
-    if sim.feed_rate <= 0:
+    if sim.machine.feed_rate <= 0:
         raise GrblError(22)
-    await sim._sync()
-    if all(abs(a - b) < 1e-9 for a, b in zip(target[:3], sim.pos[:3])):
+    await sim.machine.sync()
+    if all(abs(a - b) < 1e-9 for a, b in zip(target[:3], sim.machine.pos[:3])):
         raise GrblError(33)
     if sim.probe_tripped():
-        sim._raise_alarm(4)
-        sim._notify()
+        sim.raise_alarm(4)
+        sim.machine.notify()
         return []
-    b = Block(seq, mode, line, target=target, feed=sim.feed_rate, s=sim.s_word, probe=mode)
-    sim._push(b)
-    await sim._wait_for(lambda: b.done)
-    sim._gc_pos = list(sim.pos)
-    sim.probe_pos = pos5(sim.pos)
-    sim.probe_ok = b.contact
+    b = Block(seq, mode, line, target=target, feed=sim.machine.feed_rate, s=sim.machine.s_word, probe=mode)
+    sim.machine.push(b)
+    await sim.machine.wait_for(lambda: b.done)
+    sim.machine.gc_pos = list(sim.machine.pos)
+    sim.machine.probe_pos = pos5(sim.machine.pos)
+    sim.machine.probe_ok = b.contact
     if not b.contact and mode == "G38.2":
-        sim._raise_alarm(5)
-    return [format_probe(sim.probe_pos, b.contact)]
+        sim.raise_alarm(5)
+    return [format_probe(sim.machine.probe_pos, b.contact)]

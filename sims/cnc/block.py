@@ -1,5 +1,5 @@
 """The CNC simulator's planner block and grbl's error: what the G-code interpreter, the `$`
-commands and the executor of sims/cnc_sim.py share.
+commands and the executor of the simulator (sim.py) share.
 
 `Block` is one planner entry (or a non-motion line kept in order for the execution log);
 `GrblError(code)` is answered as `error:<code>` (docs/protocols/grbl.md).
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 DEVICE = "cnc"
 Pos5 = tuple[float, float, float, float, float]
 
-_NUM = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)")
+NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)")
 
 
 def pos5(p: Sequence[float]) -> Pos5:

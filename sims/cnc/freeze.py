@@ -6,17 +6,16 @@ it stays on."""
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING
+from collections.abc import Callable
 
-from sims.cnc_block import Block
-
-if TYPE_CHECKING:
-    from sims.cnc_sim import CncSim
+from sims.cnc.block import Block
 
 
 class Freeze:
-    def __init__(self, sim: CncSim) -> None:
-        self.sim = sim
+    """The fault's state; `executed()` counts the blocks the simulator has executed."""
+
+    def __init__(self, executed: Callable[[], int]) -> None:
+        self.executed = executed
         self.when: tuple[str, float] | None = None
         self.frozen = False
         self.t0 = time.monotonic()
@@ -31,7 +30,7 @@ class Freeze:
         if cond == "t":
             self.frozen = time.monotonic() - self.t0 >= n
         elif cond == "move":
-            self.frozen = self.sim.executed_count >= n
+            self.frozen = self.executed() >= n
         elif head is not None:
             self.starting(head)
         return self.frozen

@@ -27,7 +27,7 @@ from sims.process_world import attach
 
 if TYPE_CHECKING:
     from core.tools import Tools
-    from sims.cnc_block import Block, Pos5
+    from sims.cnc.block import Block, Pos5
     from sims.up import SimContext
     from sims.workpiece import Workpiece
 
