@@ -9,19 +9,27 @@
   the operator, cycle start, then the cutter's length measured on the tool setter (`G38.2` down
   onto `tools.setter_mm`) and applied as `G43.1 Z<measured>`. The deposition head with its touch
   probe is the length reference (`G49`).
-- `run_program(link, lines)`: `$32=0` set and read back, the program streamed, every line `ok`.
+- `run_program(link, lines)`: `$32=0` set and read back, the program streamed, every line `ok`,
+  under the progress watch (controller/motion/watch.py): a machine that stands, in Run or not, for
+  the program's bound (twice its longest dwell + 1 s of process time: between dwells a machining
+  program moves all the time) is a StallFault after the safe stop (feed hold, then `M5` or a soft
+  reset, the spindle verified off); at the end the status report must show the spindle off
+  (`FS:` speed 0, no `S`/`C` in `A:`) before the next step (a probe touch) may start.
 """
 from __future__ import annotations
 
 import asyncio
+import re
 import time
 
 import numpy as np
 from numpy.typing import NDArray
 
+from controller.motion.watch import MotionWatch, Sample
 from controller.ports import CncLinkPort
 from core.errors import CellError
 from core.tools import Cutter, Tools
+from wire.grbl_protocol import GrblStatus
 from planner.finish import FinishPlan
 
 F = NDArray[np.float64]
@@ -141,12 +149,43 @@ async def change_tool(link: CncLinkPort, tools: Tools, number: int, clear_z: flo
     return length
 
 
+def program_bound_s(lines: list[str]) -> float:
+    """The progress bound of a milling program (process s): twice its longest dwell + 1 s."""
+    dwells = [float(m.group(1)) for line in lines for m in [re.search(r"\bG4\s*P([0-9.]+)", line)] if m]
+    return 2.0 * max(dwells, default=0.0) + 1.0
+
+
+def machining_watch(link: CncLinkPort, lines: list[str]) -> MotionWatch:
+    """The watch of a milling program on `link` (its bound from `program_bound_s`)."""
+    async def read() -> Sample:
+        st = await link.status()
+        return Sample(time.monotonic(), tuple(float(v) for v in st.mpos), None, st.state)
+
+    async def stop(_s: Sample) -> str:
+        res = await link.safe_stop("machining made no progress")
+        return f"motion held, spindle and laser off ({res.summary()})"
+
+    return MotionWatch(device="cnc", state="machining", read=read, stop=stop, bound_process_s=program_bound_s(lines),
+                       time_scale=float(link.line_scale), status_period_s=float(link.status_period))
+
+
 async def run_program(link: CncLinkPort, lines: list[str]) -> float:
-    """`$32=0` (read back), then the program streamed, every line `ok`; returns its wall seconds."""
+    """`$32=0` (read back), then the program streamed under the progress watch, every line `ok`,
+    the spindle off in the status report at its end; returns its wall seconds."""
     await link.laser_mode(False)
     t0 = time.monotonic()
-    await link.stream(lines)
-    st = await link.wait_idle(600.0)
+
+    async def body() -> GrblStatus:
+        await link.stream(lines)
+        return await link.wait_idle(600.0)
+
+    st = await machining_watch(link, lines).guard(body())
     if st.state.startswith("Alarm"):
         raise CellError(f"cnc at {link.url}: alarm while machining; see the controller's messages")
+    st = await link.status()
+    if st.spindle > 0 or st.spindle_on:
+        res = await link.safe_stop("the spindle still turned after the milling program")
+        raise CellError(f"cnc at {link.url}: the spindle still turns after the milling program's M5 (status "
+                        f"{st.state}, spindle {st.spindle:g} rpm, accessories {st.accessories!r}); stopped: "
+                        f"{res.summary()}")
     return time.monotonic() - t0
