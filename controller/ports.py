@@ -198,6 +198,9 @@ class MotionExecutor(Protocol):
     def hold_now(self) -> None: ...
     async def held_position(self) -> Point: ...
     async def position(self) -> Point | None: ...
+    def reported_position(self) -> Point | None:
+        """Where the device's newest own report (a CNC's status report) put the tool, at once;
+        None where it reports no position between moves (a robot reports by EXE)."""
 
 
 class ArcControl(Protocol):

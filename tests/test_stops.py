@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import pty
 import select
 import signal
+import socket
 import sqlite3
 import subprocess
 import sys
@@ -106,9 +108,25 @@ def test_sigterm_on_a_robot_build_drops_weld_start_holds_journals_and_resumes(si
     assert cov["lost_mm"] < 0.05 and cov["max_overlap_mm"] <= 2.0, cov
 
 
+def _grbl_setting(url: str, line: str) -> None:
+    """One `$N=v` line straight to the CNC simulator's socket, answered `ok`."""
+    host, port = url.split("://", 1)[1].rsplit(":", 1)
+    with socket.create_connection((host, int(port)), timeout=3.0) as s:
+        s.sendall(line.encode() + b"\n")
+        buf = b""
+        while b"ok" not in buf and b"error" not in buf:
+            chunk = s.recv(256)
+            assert chunk, f"no answer to {line}"
+            buf += chunk
+    assert b"ok" in buf, buf
+
+
 @pytest.mark.parametrize("sim_cell", ["cnc"], indirect=True)
 def test_sigint_twice_on_a_cnc_build_safe_stops_the_firmware(sim_cell):
     c = sim_cell
+    # grbl's default acceleration: the feed hold takes 1 s and 5 mm to stop from 600 mm/min, while
+    # the arc burns back for 80 ms: the deposit ends well before the held position
+    _grbl_setting(c.url("cnc"), "$120=10")
     jobp, jd = _write_job(c)
     p = c.run("run", str(jobp))
     lines = wait_arc(p)
@@ -129,12 +147,26 @@ def test_sigint_twice_on_a_cnc_build_safe_stops_the_firmware(sim_cell):
     assert any(m.startswith("cnc safe stop: safe stop verified") and "spindle 0" in m for m in msgs), msgs
     assert any("noted, not obeyed" in m for m in msgs)
     assert "complete" not in _states(run_dir)
+    # the journaled stop point: where the arc went out, before the position the hold reached
+    (held,) = _rows(run_dir, "SELECT info FROM passes WHERE state='held'")
+    (alarm,) = _rows(run_dir, "SELECT x, y FROM events WHERE kind='alarm' AND x IS NOT NULL")
+    stop_mm, pts = json.loads(held[0])["stop_mm"], jd["layers"][0]["passes"][0]["points"]
+    assert stop_mm < _along(pts, alarm) - 2.0, (stop_mm, alarm)
     _resume_complete(c, run_dir)
     cov = judge(c, jd)
-    # nothing lost; the CNC's re-arc overlap (its progress comes from 5 Hz status reports: up to
-    # one report period of travel, 2 mm at 600 mm/min) is wt-watchdog's precision target, seen up
-    # to 2.7 mm after a safe stop under load (bench/stops.py): bounded here, not judged
-    assert cov["lost_mm"] < 0.05 and cov["max_overlap_mm"] <= 3.0, cov
+    # nothing lost, at most 2 mm laid twice (issue 38): the resume re-arcs at that stop point
+    assert cov["lost_mm"] < 0.05 and cov["twice_mm"] <= 2.0, cov
+
+
+def _along(pts: list, xy: tuple) -> float:
+    """Length along the polyline `pts` of the point (x, y) that lies on it."""
+    s = 0.0
+    for a, b in zip(pts, pts[1:]):
+        seg = math.dist(a[:2], b[:2])
+        if abs(math.dist(a[:2], xy) + math.dist(xy, b[:2]) - seg) < 1e-3:
+            return s + math.dist(a[:2], xy)
+        s += seg
+    raise AssertionError(f"{xy} is not on the pass")
 
 
 def test_sighup_on_an_in_process_sim_build(tmp_path):

@@ -377,8 +377,8 @@ class CellController:
         finally:
             self.interlocks.build_task = None
             await self.interlocks.settle()
-            if self.runner.closing is not None:  # an interrupted bead's measured length
-                await asyncio.wait([self.runner.closing], timeout=3.0)
+            if self.runner.closing is not None:  # an interrupted bead's measured length (a CNC: its stop point)
+                await asyncio.wait([self.runner.closing], timeout=6.0)
             self._publish_state()
             # the links' health over the run goes into the record (late / lost / bad)
             self.journal.event("links", json.dumps([dataclasses.asdict(x) for x in self._links()]))

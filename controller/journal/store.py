@@ -94,6 +94,7 @@ class PassResume:
     arc_run: int | None       # the latest run that lit the arc on the pass
     arc_unstable: bool        # that run saw the arc unstable while depositing (arc loss)
     ahead: int | None = None  # that run's robot lookahead (weld moves unexecuted; None: the window)
+    stop_mm: float | None = None  # where the latest trip's deposit surely ended (`held` row), along the pass
 
 
 class Journal(JournalQueries):
@@ -338,6 +339,7 @@ class Journal(JournalQueries):
         start_mm: float | None = None
         arc_run: int | None = None
         ahead: int | None = None
+        stop_mm: float | None = None
         for state, run, info in rows:
             try:
                 d = json.loads(info or "{}")
@@ -348,11 +350,13 @@ class Journal(JournalQueries):
             if state == "arc_on":
                 arc_run = int(run)
                 ahead = d.get("ahead")
+            if state == "held" and d.get("stop_mm") is not None:
+                stop_mm = float(d["stop_mm"])
         unstable = arc_run is not None and bool(self.query(
             "SELECT 1 FROM events WHERE kind='arc' AND layer=? AND pass=? AND run=? LIMIT 1",
             (layer, pass_, arc_run)))
         return PassResume(rows[-1][0], int(rows[-1][1]), start_mm, arc_run, unstable,
-                          int(ahead) if ahead else None)
+                          int(ahead) if ahead else None, stop_mm)
 
     def pass_tickets(self, layer: int, pass_: int, run: int) -> tuple[int, int] | None:
         """(first, last) ticket of the weld moves a run wrote ahead for a pass, None if none."""

@@ -245,6 +245,13 @@ class CncExecutor:
     async def position(self) -> Point | None:
         return await self.held_position()
 
+    def reported_position(self) -> Point | None:
+        """The tool tip at the newest status report the link received (part coordinates on a 5-axis pass)."""
+        st = self.link.latest_status
+        if st is None:
+            return None
+        return self.five.part_point(st.mpos) if self.five.active else _xyz(st.mpos)
+
 
 def job_axes_need(job: CellJob) -> str | None:
     """Why the job needs the rotary axes (A/B), None when X/Y/Z do: 5-axis passes, or an

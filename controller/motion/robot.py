@@ -216,6 +216,10 @@ class RobotExecutor:
         st = await self.link.status()
         return _xyz(st.pos)
 
+    def reported_position(self) -> None:
+        """A robot reports where it is by EXE, not by a status stream (controller/runtime/stop_point.py)."""
+        return None
+
 
 def _xyz(pos: tuple[float, ...]) -> Point:
     """The first three coordinates of a reported position, as a point."""

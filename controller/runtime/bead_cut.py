@@ -1,6 +1,8 @@
 """How far a bead went on after its last executed move when a trip cut it (the arc stays on
 until the start drops and the robot holds): measured from where the robot says it held, else
-estimated from the time and the planned speed when the robot cannot say (link lost, garbled)."""
+estimated from the time and the planned speed when the robot cannot say (link lost, garbled).
+A device that reports its position as it goes (a CNC) also says where the arc went out
+(controller/runtime/stop_point.py): that end is journaled for the resume (`held`, stop_mm)."""
 from __future__ import annotations
 
 import asyncio
@@ -8,8 +10,13 @@ from dataclasses import dataclass
 from typing import Sequence
 
 from controller.job.weld_path import Point
+from controller.journal.store import Journal
 from controller.ports import MotionExecutor
 from controller.runtime.arc_out import project
+from controller.runtime.stop_point import ArcOutWatch, deposit_end
+
+
+STOP_WAIT_S = 5.0   # the CNC's safe stop awaited for its held position (grblHAL's simulator took 3.9 s)
 
 
 @dataclass(frozen=True)
@@ -23,18 +30,45 @@ class BeadCut:
     time_scale: float
 
 
-async def run_on_after_trip(ex: MotionExecutor, cut: BeadCut, t_trip: float, t_exe: float) -> tuple[float, str | None]:
-    """(mm deposited after the last EXE, a note for the journal when it is an estimate)."""
+@dataclass(frozen=True)
+class CutEnd:
+    """What a trip left of a bead: the mm deposited after the last executed move, a note for the
+    journal when that is an estimate, and the stop point along the pass when the device said
+    where the deposit ended (None: only the journaled progress is known)."""
+
+    more_mm: float
+    note: str | None = None
+    stop_mm: float | None = None
+
+    def journal(self, journal: Journal, layer: int, pass_: int) -> None:
+        """The note (an estimate), and the stop point as a `held` row (the resume re-arcs there)."""
+        if self.note:
+            journal.event("info", self.note, layer=layer, pass_=pass_)
+        if self.stop_mm is not None:
+            journal.pass_state(layer, pass_, "held", stop_mm=round(self.stop_mm, 4))
+
+
+async def run_on_after_trip(ex: MotionExecutor, cut: BeadCut, t_trip: float, t_exe: float,
+                            watch: ArcOutWatch | None = None, wait_s: float = 1.0) -> CutEnd:
+    """How far the bead went on after the trip (the hold's position, at most `wait_s` away once a
+    CNC's safe stop, given up to `STOP_WAIT_S`, has verified it)."""
+    stop = ex.stopping
+    if stop is not None and not stop.done():   # a slow hold (a firmware's low $120) takes seconds
+        await asyncio.wait([stop], timeout=STOP_WAIT_S)
     try:
-        pos = await asyncio.wait_for(ex.held_position(), 1.0)
+        pos = await asyncio.wait_for(ex.held_position(), wait_s)
     except Exception:   # the robot cannot say where it stopped: estimated below
         pos = None
+    finally:
+        if watch is not None:
+            watch.close()
     if pos is not None:
-        s = project(cut.pts, cut.cum, pos, cut.from_s)
-        return (max(0.0, s - cut.from_s), None) if s is not None else (0.0, None)
+        end = deposit_end(cut.pts, cut.cum, cut.from_s, pos, watch)
+        s = end if end is not None else project(cut.pts, cut.cum, pos, cut.from_s)
+        return CutEnd(max(0.0, s - cut.from_s), None, end) if s is not None else CutEnd(0.0)
     blind = _blind_run_on(ex, cut, t_trip, t_exe)
-    return blind, (f"bead cut with the robot unreachable: {blind:.2f} mm after the last executed move "
-                   "estimated from the time and the planned speed")
+    return CutEnd(blind, f"bead cut with the robot unreachable: {blind:.2f} mm after the last executed move "
+                  "estimated from the time and the planned speed")
 
 
 def _blind_run_on(ex: MotionExecutor, cut: BeadCut, t_trip: float, t_exe: float) -> float:

@@ -29,6 +29,7 @@ from controller.runtime.events import EventBus
 from controller.runtime.hooks import BuildHooks
 from controller.runtime.machine import CellMachine
 from controller.runtime.progress import ProgressWatchdog, travel_bound_s
+from controller.runtime.stop_point import ArcOutWatch, known_end
 from controller.runtime.work import BuildOptions, WorkItem
 from drivers.power import PowerStatus
 from planner.job import Layer, Pass
@@ -108,19 +109,18 @@ class PassRunner:
     def _start_point(self, item: WorkItem, pts: list[Point], speed: float) -> tuple[int, Point, float]:
         """(k, P, s): re-arc at P, at length s along the pass, on the move pts[k] -> pts[k + 1].
 
-        From the journal: the last point reached with the arc stable, or the latest re-arc point,
-        whichever lies further; when the controller died with the arc on, further still, to a
-        lower bound of where the arc went out (controller/runtime/arc_out.py).
+        From the journal: the last point reached with the arc stable, the latest re-arc point, or
+        the stop point a CNC gave at the latest trip (controller/runtime/stop_point.py), whichever
+        lies further; when the controller died with the arc on, further still, to a lower bound of
+        where the arc went out (controller/runtime/arc_out.py).
         """
         first, self._first_pass = self._first_pass, False
         start_idx = min(item.start_idx, len(pts) - 1)
         if (item.layer, item.pass_) not in self._journaled:  # never started: from its first point
             return start_idx, pts[start_idx], arc_lengths(pts[:start_idx + 1])[-1]
         cum = arc_lengths(pts)
-        s = cum[start_idx]
         hist = self.journal.pass_resume(item.layer, item.pass_)
-        if hist is not None and hist.start_mm is not None:
-            s = max(s, min(hist.start_mm, cum[-1]))
+        s = known_end(cum[start_idx], hist, cum[-1])
         if first and hist is not None and hist.state == "arc_on" and not hist.arc_unstable:
             # the controller died while this bead was depositing: the device's record decides
             s, line = crash_rearc(self.ex, self.journal, item.layer, item.pass_, hist, pts, cum, s, speed,
@@ -335,8 +335,7 @@ class PassRunner:
         t_trip, t_exe = time.monotonic(), (self._t_exe_rx or self._t_exe)
         if not faltered and idx is not None and self._pts and len(self._pts) == len(pts):
             cut = BeadCut(pts, self._cum, max(self._cum[idx], self._start_mm), speed, self.o.time_scale)
-            more, note = await run_on_after_trip(self.ex, cut, t_trip, t_exe)
-            self._measured_mm += more
-            if note:
-                self.journal.event("info", note, layer=la, pass_=pa)
+            end = await run_on_after_trip(self.ex, cut, t_trip, t_exe, ArcOutWatch(self.ex, self.power))
+            self._measured_mm += end.more_mm
+            end.journal(self.journal, la, pa)   # an estimate's note; where the device said the deposit ended
         self._close_bead(la, pa, speed, interrupted=True)
