@@ -62,7 +62,7 @@ async def test_a_cnc_that_stops_moving_mid_program_is_a_fault_naming_machining()
         with pytest.raises(StallFault) as err:
             await asyncio.wait_for(run_program(link, lines), 30)
         st = await link.status()
-        return str(err.value), time.monotonic() - t0, sim.spindle_on, st
+        return str(err.value), time.monotonic() - t0, sim.machine.spindle_on, st
 
     # the simulator reports Run with lines queued and stops moving once 12 blocks ran (mid-raster)
     msg, took, spindle, st = await _on_sim("freeze@move=12", body)
@@ -79,7 +79,7 @@ async def test_a_milling_program_that_runs_is_not_tripped_and_ends_with_the_spin
 
     async def body(link, sim):
         wall = await run_program(link, lines)
-        return wall, sim.spindle_on, await link.status()
+        return wall, sim.machine.spindle_on, await link.status()
 
     wall, spindle, st = await _on_sim(None, body)
     assert wall > 0 and spindle is False and st.state == "Idle" and st.spindle == 0, st
