@@ -14,17 +14,14 @@ from __future__ import annotations
 import asyncio
 import time
 from collections.abc import Awaitable, Callable
-from typing import TYPE_CHECKING
 
 from sims.clock import SimClock
-from sims.faults import FaultSpec
+from sims.context import Served, SimContext, attach
+from sims.faults import FaultSpec, parse_fault_spec
 from sims.thermal import LumpedThermal
 from sims.world import World
 from wire.cellio_map import COILS, INPUTS, to_register
 from wire.urls import parse_tcp_url
-
-if TYPE_CHECKING:
-    from sims.up import Served, SimContext
 
 GAS_FLOW_L_MIN = 15.0
 TICK_S = 0.010
@@ -160,10 +157,6 @@ async def serve_modbus_tcp(sim: CellIOSim, host: str = "127.0.0.1", port: int = 
 
 async def serve(ctx: SimContext) -> list[Served]:
     """`cell sim up`: the cell I/O coupler on cell.yaml's URL."""
-    # lazy: sims.up imports every simulator module (a cycle at import time)
-    from sims.faults import parse_fault_spec
-    from sims.process_world import attach
-    from sims.up import Served
     cfg = ctx.cell.devices.cellio
     th = ctx.sim.thermal
     thermal = LumpedThermal(th.ambient_c, th.heat_capacity_j_k, th.cooling_time_constant_s)

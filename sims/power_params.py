@@ -45,7 +45,9 @@ DEFAULT_TIMES = ProcessTimes()
 
 
 @dataclass
-class _Cmd:
+class HostCommand:
+    """One host cycle's command as the model took it (the command registers or WELD_CMD, decoded)."""
+
     bits: dict[str, bool] = field(default_factory=lambda: {k: False for k in COMMAND_BITS})
     mode: int = 0
     job: int = 0

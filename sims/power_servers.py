@@ -10,19 +10,28 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Awaitable, Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
-from wire.power_registers import (
-    COMMAND_BITS, POWER_MAP, STATUS_BITS, decode_block, pack_bits, unpack_bits, to_raw,
-)
-from wire.can_codec import DEFAULT_DBC
+from sims.power_params import HostCommand, PowerStatus
+from wire.can_codec import DEFAULT_DBC, CanCodec
 from wire.can_net import open_bus
-from wire.can_codec import CanCodec
-
-if TYPE_CHECKING:
-    from sims.power_sim import PowerSourceSim
+from wire.power_registers import (
+    COMMAND_BITS, POWER_MAP, STATUS_BITS, decode_block, pack_bits, to_raw, unpack_bits,
+)
 
 Close = Callable[[], Awaitable[None]]
+
+
+class PowerSourceModel(Protocol):
+    """What a transport needs of the power-source model (power_sim.py: PowerSourceSim)."""
+
+    cmd: HostCommand          # the last host cycle's command
+
+    def silent(self) -> bool: ...
+    async def run(self) -> None: ...
+    def status(self) -> PowerStatus: ...
+    def command(self, bits: dict[str, bool], mode: int, job: int, wfs: float, arc_trim: float,
+                dynamic_trim: float, counter: int) -> None: ...
 
 
 # --- Modbus -----------------------------------------------------------------------------------
@@ -31,7 +40,7 @@ class PowerModbusView:
     """The source's Modbus holding registers (docs/contract.md §5, wire/power_registers.py) for the
     server of sims/modbus_server.py: a write of the command block is one host cycle."""
 
-    def __init__(self, sim: PowerSourceSim) -> None:
+    def __init__(self, sim: PowerSourceModel) -> None:
         self.sim = sim
 
     def silent(self) -> bool:
@@ -95,7 +104,7 @@ class CanNode:
     """The power source as node `n` on a python-can bus: answers every WELD_CMD with
     WELD_STATUS and WELD_ACTUALS (config/power_source.dbc)."""
 
-    def __init__(self, sim: PowerSourceSim, bus: Any, db: Any, node: int = 1) -> None:   # python-can / cantools: untyped
+    def __init__(self, sim: PowerSourceModel, bus: Any, db: Any, node: int = 1) -> None:   # python-can / cantools: untyped
         self.sim = sim
         self.bus = bus
         self.codec = CanCodec(db, node)
@@ -132,7 +141,7 @@ class CanNode:
 
 # --- serving ----------------------------------------------------------------------------------
 
-async def serve_modbus_tcp(sim: PowerSourceSim, host: str = "127.0.0.1", port: int = 0,
+async def serve_modbus_tcp(sim: PowerSourceModel, host: str = "127.0.0.1", port: int = 0,
                            device_id: int = 1) -> tuple[str, Close]:
     """Start the Modbus TCP server and the model's ticking; returns (url, close)."""
     # lazy: sims.up imports every simulator module (a cycle at import time)
@@ -140,7 +149,7 @@ async def serve_modbus_tcp(sim: PowerSourceSim, host: str = "127.0.0.1", port: i
     return await serve_tcp(PowerModbusView(sim), host, port, device_id)
 
 
-async def serve_modbus_rtu(sim: PowerSourceSim, url: str = "socket://127.0.0.1:0",
+async def serve_modbus_rtu(sim: PowerSourceModel, url: str = "socket://127.0.0.1:0",
                            device_id: int = 1) -> tuple[str, Close]:
     """Start the Modbus RTU server on a serial URL and the model's ticking; returns (url, close)."""
     # lazy: sims.up imports every simulator module (a cycle at import time)
@@ -148,7 +157,7 @@ async def serve_modbus_rtu(sim: PowerSourceSim, url: str = "socket://127.0.0.1:0
     return await serve_rtu(PowerModbusView(sim), url, device_id)
 
 
-async def serve_can(sim: PowerSourceSim, interface: str, channel: str, dbc: str | Path | None = None,
+async def serve_can(sim: PowerSourceModel, interface: str, channel: str, dbc: str | Path | None = None,
                     node: int = 1, allow_network: bool = False, **bus_kwargs: Any) -> tuple[str, Close]:
     """Start the CAN node on a python-can bus (kept on this host unless `allow_network`);
     returns (description, close)."""

@@ -33,16 +33,17 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
 from core.material import Material
 from sims.clock import SimClock
-from sims.faults import FaultSpec
+from sims.context import Served, SimContext, attach
+from sims.faults import FaultSpec, parse_fault_spec
 from sims.power_params import (
     ARC_HOLD_S, DEFAULT_LINE, DEFAULT_TIMES, ERR_COLLISION, ERR_GAS, ERR_NONE, ERR_WATCHDOG, ERR_WIRE_OUT, ERR_WIRE_STICK, ERROR_TEXT,
-    MIN_PHASE_WALL_S, SELF_STALL_S, TICK_S, WATCHDOG_S, PowerStatus, ProcessTimes, SynergicLine, _Cmd,
+    MIN_PHASE_WALL_S, SELF_STALL_S, TICK_S, WATCHDOG_S, PowerStatus, ProcessTimes, SynergicLine, HostCommand,
 )
 from sims.power_servers import CanNode, serve_can, serve_modbus_rtu, serve_modbus_tcp
 from sims.world import World
@@ -51,9 +52,6 @@ from core.errors import ConfigError
 from wire.can_codec import dbc_path
 from core.config import load_material
 import json
-
-if TYPE_CHECKING:
-    from sims.up import Served, SimContext
 
 # what tests, benchmarks and `cell sim up` import from here (their home modules: power_params, power_servers)
 __all__ = ["ARC_HOLD_S", "ERROR_TEXT", "ERR_COLLISION", "ERR_GAS", "ERR_NONE", "ERR_WATCHDOG", "ERR_WIRE_OUT",
@@ -84,7 +82,7 @@ class PowerSourceSim:
         self.world = world
         self.line = line
         self.times = times
-        self.cmd = _Cmd()
+        self.cmd = HostCommand()
         self._prev_reset = False
         self.phase = "idle"
         self._phase_t = time.monotonic()
@@ -233,7 +231,7 @@ class PowerSourceSim:
         if reset and not self._prev_reset:
             self._error_reset()
         self._prev_reset = reset
-        self.cmd = _Cmd(dict(bits), mode, job, wfs, arc_trim, dynamic_trim, counter)
+        self.cmd = HostCommand(dict(bits), mode, job, wfs, arc_trim, dynamic_trim, counter)
         self.history.append((now, counter, dict(bits)))
         self.cycles += 1
         self._heartbeat = not self._heartbeat
@@ -435,12 +433,7 @@ class PowerSourceSim:
 
 async def serve(ctx: SimContext) -> list[Served]:
     """`cell sim up`: the power source on the transport and URL of cell.yaml."""
-    # lazy: sims.up imports every simulator module (a cycle at import time)
-    from sims.faults import parse_fault_spec
-    from sims.up import Served
     cfg = ctx.cell.devices.power_source
-    # lazy: sims.up imports every simulator module (a cycle at import time)
-    from sims.process_world import attach
     material = load_material(ctx.cell.cell.material)
     spec = parse_fault_spec(ctx.faults or ctx.sim.faults)
     attach(ctx)

@@ -1,7 +1,7 @@
 """The simulated world's process physics: bead geometry, stick-out and the melting rate (§6b).
 
 `ProcessPhysics` belongs to the World (sims/world.py) when the simulators are served with a
-material and sim.yaml's `process:` section (`attach(ctx)`, called by every simulator's `serve`):
+material and sim.yaml's `process:` section (`sims.context.attach(ctx)`, called by every simulator's `serve`):
 
 - one height map (sims/heightmap.py) per motion device, in its substrate frame: the robot's
   own frame (substrate z = 0), the CNC's workpiece frame (the workpiece mesh under it);
@@ -21,7 +21,7 @@ Conventions and figures: docs/process-physics.md.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Callable, Generator
+from typing import Callable, Generator
 
 import numpy as np
 
@@ -30,10 +30,6 @@ from core.config import ProcessSim
 from core.material import Material
 from core.melting import MeltingRelation, current_at, relation_for, stick_out_factor
 from sims.heightmap import HeightMap, Laid, Substrate, finish
-from core.config import load_material
-
-if TYPE_CHECKING:
-    from sims.up import SimContext
 
 Vec3 = tuple[float, float, float]
 REF_TEMP_C = 100.0
@@ -176,18 +172,3 @@ class ProcessPhysics:
         if synergic_a is None:
             return current_at(self.melting, self.material.ribeiro, wfs_m_min, stick_out_mm)
         return synergic_a * stick_out_factor(self.melting, wfs_m_min, stick_out_mm)
-
-
-def attach(ctx: SimContext) -> ProcessPhysics | None:
-    """Give `ctx.world` its process physics once (every simulator's `serve` calls this)."""
-    world = ctx.world
-    if world is None or not hasattr(world, "use_physics"):
-        return None
-    if world.physics is None:
-        # lazy: sims.up imports every simulator module (a cycle at import time)
-        from sims.faults import parse_fault_spec
-
-        material = load_material(ctx.cell.cell.material)
-        seed = parse_fault_spec(ctx.faults or ctx.sim.faults).seed
-        world.use_physics(ProcessPhysics(material, ctx.sim.process, seed=seed))
-    return world.physics

@@ -20,13 +20,21 @@ import asyncio
 import json
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-from wire import rlp
 from sims.faults import FaultSpec
+from wire import rlp
 
-if TYPE_CHECKING:
-    from sims.robot_sim import RobotSim
+
+class Misbehaving(Protocol):
+    """What the modes read of the robot simulator (robot_sim.py: RobotSim) and how they write to its line."""
+
+    last_rx: int
+    slots: int
+    executed_count: int
+    travels: int
+
+    def write_raw(self, data: bytes) -> None: ...
 
 MODES = ("flood", "lie", "garble", "mute", "freeze")
 LIE_PERIOD_S = 0.5
@@ -37,7 +45,7 @@ FLOOD_UNTHROTTLED_PER_S = 20000
 class Misbehaviour:
     """The misbehaviour modes of one RobotSim; falsy when the spec names none."""
 
-    def __init__(self, sim: RobotSim, spec: FaultSpec | None, log_path: str | Path | None, line_rate: float | None) -> None:
+    def __init__(self, sim: Misbehaving, spec: FaultSpec | None, log_path: str | Path | None, line_rate: float | None) -> None:
         self.sim = sim
         self.when: dict[str, tuple[str, float]] = {}
         if spec is not None:
@@ -114,6 +122,5 @@ class Misbehaviour:
                 self._raw(rlp.encode(rlp.ack(seq, self.sim.slots)) + rlp.encode(rlp.exe(seq)))
 
     def _raw(self, data: bytes) -> None:
-        w = self.sim._write
-        if w is not None and not self.active("mute"):
-            w(data)
+        if not self.active("mute"):
+            self.sim.write_raw(data)

@@ -15,18 +15,15 @@ import json
 import time
 from collections import deque
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Callable
+from typing import IO, Callable
 
 from wire import rlp
 from sims.clock import SimClock
 from sims.faults import FaultSpec, parse_fault_spec
-from sims.process_world import attach
+from sims.context import Served, SimContext, attach
 from sims.robot_lies import Misbehaviour
 from sims.transport import SerialServer, serve_serial
 from sims.world import World
-
-if TYPE_CHECKING:
-    from sims.up import Served, SimContext
 
 DEVICE = "robot"
 ERR_WORKSPACE = 10
@@ -151,6 +148,11 @@ class RobotSim:
 
     def detach(self) -> None:
         self._write = None
+
+    def write_raw(self, data: bytes) -> None:
+        """Bytes onto the line as they are (a misbehaviour's frames: robot_lies.py), when a host is attached."""
+        if self._write is not None:
+            self._write(data)
 
     def feed(self, data: bytes) -> None:
         self._last_heard = time.monotonic()

@@ -17,11 +17,11 @@ from typing import TYPE_CHECKING, Callable, Protocol
 from urllib.parse import urlparse
 
 from core.errors import ConfigError
+from sims.context import Served, SimContext
 from sims.faults import FaultPipe, FaultSpec, bytes_per_second
 
 if TYPE_CHECKING:
     from core.config import CncDevice, RobotDevice
-    from sims.up import Served, SimContext
 
 
 class ByteSim(Protocol):
@@ -212,8 +212,6 @@ async def serve_serial(sim: SerialSim, device: str, dev_cfg: RobotDevice | CncDe
                        spec: FaultSpec, extra: dict[str, object]) -> list[Served]:
     """Start `sim` and serve it on `dev_cfg.url` (or port 0 / a pty, per ctx): the tail of a
     serial simulator's `serve(ctx)`. The simulator is closed again if the server cannot start."""
-    from sims.up import Served  # sims.up imports the simulator modules
-
     sim.start()
     server = SerialServer(sim, name=device, spec=spec, baud=dev_cfg.baud, time_scale=ctx.clock.time_scale)
     sim.server = server  # tests pull the cable with sim.server.unplug()

@@ -11,41 +11,14 @@ import importlib
 import os
 import signal
 import sys
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Awaitable, Callable
+from typing import Callable
 
-from core.config import CellConfig, SimConfig
 from core.realtime import SIM_RT_PRIORITY, elevate, quiet_gc
-from sims.clock import SimClock
-from sims.world import World
+from sims.context import Served, SimContext
+
+__all__ = ["SIM_MODULES", "SimContext", "Served", "serve_all", "close_all", "run_forever"]
 
 SIM_MODULES = ["sims.robot_sim", "sims.cnc", "sims.power_sim", "sims.cellio_sim"]
-
-
-@dataclass
-class SimContext:
-    cell: CellConfig
-    sim: SimConfig
-    world: World
-    clock: SimClock
-    log_dir: Path | None = None
-    pty: bool = False            # serial devices on ptys instead of loopback TCP
-    ephemeral: bool = False      # bind port 0 (tests), report the real URL
-    faults: str = ""             # seeded fault spec (sim.yaml's, or --fault)
-    config_dir: Path | None = None
-
-
-@dataclass
-class Served:
-    device: str                  # robot, cnc, power_source, cellio
-    url: str                     # what a driver connects to
-    close: Callable[[], Awaitable[None]]
-    sim: object = None           # the simulator object (tests reach its state, e.g. open the door)
-    extra: dict[str, object] = field(default_factory=dict)
-
-    def describe(self) -> dict[str, object]:
-        return {"device": self.device, "url": self.url, **self.extra}
 
 
 async def serve_all(ctx: SimContext, modules: list[str] | None = None) -> list[Served]:

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator, Protocol, Sequence
 
+from controller.records.schema import migrate
 from core.errors import CellError
 
 Params = Sequence[Any]
@@ -95,9 +96,6 @@ def sqlite_path(url: str) -> Path:
 def connect(url: str, timeout_s: float = 5.0) -> Store:
     """Open the store at `url` and bring its schema up to date (controller/records/schema.py);
     StoreUnreachable naming the URL (without its password) when it cannot be reached."""
-    # the schema's migrations: imported here so that schema.py may use Store's type
-    from controller.records.schema import migrate
-
     store = _open(url, timeout_s)
     try:
         migrate(store)

@@ -10,12 +10,19 @@ change is a new one appended to MIGRATIONS.
 from __future__ import annotations
 
 import datetime as dt
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from contextlib import AbstractContextManager
+from typing import Any, Protocol
 
 from core.errors import CellError
 
-if TYPE_CHECKING:  # annotations only
-    from controller.records.db import Store
+
+class Migrating(Protocol):
+    """What a migration needs of the store (db.py: Store)."""
+
+    def execute(self, sql: str, params: Sequence[object] = ()) -> object: ...
+    def rows(self, sql: str, params: Sequence[object] = ()) -> list[tuple[Any, ...]]: ...   # row values as the driver gives them
+    def transaction(self, *, lock: str | None = None) -> AbstractContextManager[None]: ...
 
 F = "DOUBLE PRECISION"
 # report.json's per-bead figures stored as columns (beads.csv's, controller/report/record.py)
@@ -67,7 +74,7 @@ MIGRATIONS: tuple[tuple[int, str, tuple[str, ...]], ...] = (
 LATEST = MIGRATIONS[-1][0]
 
 
-def migrate(store: Store) -> int:
+def migrate(store: Migrating) -> int:
     """Apply the migrations the store lacks (once, whoever connects first); the schema's version.
     A store newer than this controller is refused (it would write what that schema no longer means)."""
     with store.transaction(lock="cell-records-schema"):

@@ -23,12 +23,11 @@ import numpy as np
 
 from sims.heightmap import HeightMap
 
-from sims.process_world import attach
+from sims.context import SimContext, attach
 
 if TYPE_CHECKING:
     from core.tools import Tools
     from sims.cnc.block import Block, Pos5
-    from sims.up import SimContext
     from sims.workpiece import Workpiece
 
 TABLE_CLEAR_MM = 0.0     # the part's lowest point is on the table

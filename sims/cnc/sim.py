@@ -21,6 +21,7 @@ from typing import IO, TYPE_CHECKING, Callable
 
 
 from sims.clock import SimClock
+from sims.context import Served, SimContext
 from sims.cnc.block import DEVICE, Block, GrblError, Pos5, pos5
 from sims.cnc.cut import Spindle, sim_tools, use_deposit_map
 from sims.cnc.freeze import Freeze
@@ -36,7 +37,6 @@ from wire.grbl_protocol import GrblStatus, format_status
 
 if TYPE_CHECKING:
     from core.tools import Tools
-    from sims.up import Served, SimContext
 
 BANNER = f"Grbl {VERSION} ['$' for help]"
 LINE_BUFFER_SIZE = 80     # grbl: at most 79 characters per line after stripping
