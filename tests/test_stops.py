@@ -274,6 +274,9 @@ def test_a_full_disk_mid_build_is_a_fault_naming_the_path_and_free_space(sim_cel
         run_dir = Path(res["run_dir"])
         assert f"journal {run_dir / 'journal.sqlite'}: a write failed" in msg, msg
         assert "MB free of" in msg and str(run_dir) in msg
+        # the journal's reserve (controller/journal/reserve.py) took the rows of its own fault
+        assert _rows(run_dir, "SELECT 1 FROM passes WHERE state='interrupted'"), "the cut bead is not journaled"
+        assert any("a write failed" in m for (m,) in _rows(run_dir, "SELECT message FROM events WHERE kind='alarm'"))
         filler.unlink()
         assert "complete" not in _states(run_dir)
         _resume_complete(c, run_dir)

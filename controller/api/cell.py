@@ -40,6 +40,7 @@ from controller.runtime.events import EventBus, LinkStat, Snapshot
 from controller.runtime.interlocks import Interlocks
 from controller.job.model import CellJob
 from controller.job.read import read_job
+from controller.journal.reserve import RESERVE_BYTES
 from controller.journal.store import Journal
 from controller.journal.trace import Trace, require_lot, trace_message
 from controller.runtime.machine import CellMachine, State, TransitionRefused
@@ -296,7 +297,7 @@ class CellController:
         self.run_dir = Path(run_dir) if run_dir else run_dir_for(job, self.runs_dir)
         if self.journal is not None:
             self.journal.close()
-        self.journal = Journal(self.run_dir / "journal.sqlite", background=True)
+        self.journal = Journal(self.run_dir / "journal.sqlite", background=True, reserve_bytes=RESERVE_BYTES)
         self.journal.start_job(job.hash, job.name, self.cfg.cell.platform, job.json)
         if self.interlocks is not None:
             self.interlocks.journal = self.journal

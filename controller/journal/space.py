@@ -11,7 +11,8 @@ The estimate, measured on real journals (docs/controller.md, "Journal space"):
 - the WAL: SQLite checkpoints it every 1 000 pages, so it peaks at about 4.1 MB (measured
   4 124 152 B); taken as 4.5 MB;
 - the build record (report.json, CSV, four PNGs): about 0.1 MB measured; taken as 1 MB;
-- the empty journal with the job stored: 48 kB plus the job's JSON.
+- the empty journal with the job stored: 48 kB plus the job's JSON;
+- the reserve for the rows of the journal's own fault (controller/journal/reserve.py): 0.5 MB.
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from pathlib import Path
 
 from controller.job.model import CellJob
 from controller.job.weld_path import weld_points
+from controller.journal.reserve import RESERVE_BYTES
 from core.errors import InputError
 
 BYTES_PER_WELD_POINT = 160
@@ -46,7 +48,7 @@ def journal_estimate(job: CellJob, max_step_mm: float, time_scale: float = 1.0) 
             points += len(pts)
             arc_s += p.arc_time_s / max(time_scale, 1e-9)   # each segment at its own speed (cell-job/2)
     total = (BASE_BYTES + len(job.json) + points * BYTES_PER_WELD_POINT
-             + int(arc_s * BYTES_PER_ARC_SECOND) + WAL_PEAK_BYTES + RECORD_BYTES)
+             + int(arc_s * BYTES_PER_ARC_SECOND) + WAL_PEAK_BYTES + RECORD_BYTES + RESERVE_BYTES)
     return JournalEstimate(points, arc_s, total)
 
 

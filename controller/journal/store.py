@@ -36,6 +36,7 @@ from typing import Any, Callable, Iterable, Sequence
 from controller.journal.check import Row, inspect, uri
 from controller.journal.extra import BEAD_EXTRA
 from controller.journal.queries import JournalQueries
+from controller.journal.reserve import Reserve
 from core.errors import CellError
 from core.realtime import RT_PRIORITY, elevate
 
@@ -100,7 +101,7 @@ class PassResume:
 class Journal(JournalQueries):
     """Append-only SQLite journal of one build (all runs of it: first run and every resume)."""
 
-    def __init__(self, path: str | Path, *, background: bool = False) -> None:
+    def __init__(self, path: str | Path, *, background: bool = False, reserve_bytes: int = 0) -> None:
         self.path = Path(path)
         self._lock = threading.RLock()
         self._q: queue.Queue[tuple[str, Any, bool] | None] | None = None
@@ -132,6 +133,14 @@ class Journal(JournalQueries):
         if str(mode).lower() != "wal":
             raise JournalError(f"{self.path}: the file system does not support SQLite WAL mode")
         self.run = self._next_run()
+        # space for the rows of its own fault on a full disk (controller/journal/reserve.py)
+        self._reserve = Reserve(self.path.with_name("journal.reserve"), reserve_bytes)
+        try:
+            self._reserve.make()
+        except OSError as exc:
+            self.db.close()
+            raise JournalError(f"journal {self.path}: cannot hold its {reserve_bytes // 1024} kB reserve "
+                               f"({exc.strerror or exc}); free space or give --runs on another disk") from None
         if background:
             self._q = queue.Queue()
             self._thread = threading.Thread(target=self._writer, name="journal", daemon=True)
@@ -148,7 +157,7 @@ class Journal(JournalQueries):
                 self._q.task_done()
                 return
             try:
-                self._do(*item)
+                self._do_kept(*item)
             except sqlite3.Error as exc:
                 self._write_failed(exc)
             finally:
@@ -180,12 +189,27 @@ class Journal(JournalQueries):
             else:
                 self.db.execute(sql, params)
 
+    def _do_kept(self, sql: str, params: Any, many: bool) -> None:
+        """`_do`; at the first write that fails, the fault is raised (`_write_failed`), the reserve
+        freed and the row written again into its space (sqlite3.Error when that fails too)."""
+        try:
+            self._do(sql, params, many)
+        except sqlite3.Error as exc:
+            if not self._reserve.held:
+                raise
+            self._write_failed(exc)   # the fault stands, naming the free space as the write found it
+            self._reserve.release()
+            with self._lock:
+                if self.db.in_transaction:   # a COMMIT that failed leaves its transaction open
+                    self.db.execute("ROLLBACK")
+            self._do(sql, params, many)
+
     def _write(self, sql: str, params: Any, many: bool = False) -> None:
         if self._q is not None:
             self._q.put((sql, params, many))
         else:
             try:
-                self._do(sql, params, many)
+                self._do_kept(sql, params, many)
             except sqlite3.Error as exc:
                 self._write_failed(exc)
                 raise
@@ -401,6 +425,7 @@ class Journal(JournalQueries):
             self.db.close()
         except sqlite3.Error:
             pass
+        self._reserve.release()
 
 
 def write_failure_message(path: Path, exc: BaseException) -> str:
