@@ -32,7 +32,7 @@ from controller.harness.sim import SimHarness
 from controller.job.model import CellJob
 from controller.job.read import read_job
 from controller.repair import verify_split, verify_targets
-from controller.job.repair_volume import _manifold, _trimesh
+from controller.job.repair_volume import to_manifold, to_trimesh
 from core.config import load_cell
 
 
@@ -61,11 +61,11 @@ def worn_parts(tmp: Path, shape: str = "pocket") -> tuple[Path, Path]:
         cuts.append(trimesh.convex.convex_hull(v))
     else:
         raise ValueError(shape)
-    stock = _manifold(cad, "cad")
+    stock = to_manifold(cad, "cad")
     for k, c in enumerate(cuts):
-        stock = stock - _manifold(c, f"cut{k}")
+        stock = stock - to_manifold(c, f"cut{k}")
     cad.export(tmp / "cad.stl")
-    _trimesh(stock).export(tmp / "stock.stl")
+    to_trimesh(stock).export(tmp / "stock.stl")
     return tmp / "cad.stl", tmp / "stock.stl"
 
 

@@ -30,7 +30,7 @@ import numpy as np
 from core.errors import InputError
 from planner.bead_fit import ProfileFit, fit_arc, fit_cosine, fit_parabola, fit_profiles
 from planner.profiles import (
-    DING_ARC_ASPECT, PROFILES, Arc, Cosine, Parabola, Profile, _aspect, _check_profile, area_factor,
+    DING_ARC_ASPECT, PROFILES, Arc, Cosine, Parabola, Profile, profile_aspect, check_profile, area_factor,
     profile_from_width_height, wire_area_mm2,
 )
 from planner.roots import brentq
@@ -75,12 +75,12 @@ def tangent_f(d_over_w: float, profile: str = "parabola", aspect: float | None =
     trapezoid ABCF − area under bead 1 over [x1, 1/2] − area under bead 2 over [x1, x2].
     Defined for 1/2 ≤ d < 1.
     """
-    _check_profile(profile)
+    check_profile(profile)
     d = float(d_over_w)
     if not 0.5 <= d < 1.0:
         raise InputError(f"centre distance d/w must be in [0.5, 1) (got {d:g})")
-    b1 = profile_from_width_height(profile, 1.0, _aspect(profile, aspect), 0.0)
-    b2 = profile_from_width_height(profile, 1.0, _aspect(profile, aspect), d)
+    b1 = profile_from_width_height(profile, 1.0, profile_aspect(profile, aspect), 0.0)
+    b2 = profile_from_width_height(profile, 1.0, profile_aspect(profile, aspect), d)
     x1 = d - 0.5
     y1 = float(b1.y(x1))
 
@@ -128,8 +128,8 @@ def critical_ratio(profile: str = "parabola", aspect: float | None = None) -> fl
     on the bead's height/width (an affine stretch keeps tangency and area ratios); the arc's
     does, so ``aspect`` (h/w) applies to the arc only, by default :data:`DING_ARC_ASPECT`.
     """
-    _check_profile(profile)
-    asp = _aspect(profile, aspect) if profile == "arc" else 0.25
+    check_profile(profile)
+    asp = profile_aspect(profile, aspect) if profile == "arc" else 0.25
     return _critical_ratio(profile, round(asp, 12))
 
 
@@ -153,7 +153,7 @@ def step_over(
     """
     if not (isinstance(width_mm, (int, float)) and math.isfinite(width_mm) and width_mm > 0.0):
         raise InputError(f"bead width must be a positive, finite number of mm (got {width_mm!r})")
-    _check_profile(profile)
+    check_profile(profile)
     aspect = None if height_mm is None else float(height_mm) / float(width_mm)
     if overlap_model == "tangent":
         return critical_ratio(profile, aspect) * float(width_mm)

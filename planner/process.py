@@ -112,7 +112,7 @@ def forward(
     return _out(np.asarray(w)), _out(np.asarray(h))
 
 
-def _inverse_arrays(k: RibeiroCoefficients, w: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def inverse_arrays(k: RibeiroCoefficients, w: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     a = k.k2 * k.k6 - k.k3 * k.k5
     # Evaluated in logarithms: the same formula, better conditioned for large exponents.
     lw, lh, lk1, lk4 = np.log(w), np.log(h), math.log(k.k1), math.log(k.k4)
@@ -177,7 +177,7 @@ def inverse(
     k = _coeffs(material)
     w = float(_positive("bead width", width_mm, "mm"))
     h = k.ratio * w if height_mm is None else float(_positive("bead height", height_mm, "mm"))
-    i_arr, s_arr = _inverse_arrays(k, np.asarray(w), np.asarray(h))
+    i_arr, s_arr = inverse_arrays(k, np.asarray(w), np.asarray(h))
     current, speed = float(i_arr), float(s_arr)
     if not (math.isfinite(current) and math.isfinite(speed)):
         raise InputError(

@@ -229,7 +229,7 @@ _DING_ARC_ROWS = (
 DING_ARC_ASPECT: float = float(np.mean([(a + b) / (2.0 * math.sqrt(a * a - b * b)) for a, b in _DING_ARC_ROWS]))
 
 
-def _check_profile(profile: str) -> str:
+def check_profile(profile: str) -> str:
     if profile not in _CLASSES:
         raise InputError(f"unknown bead profile '{profile}'; choose one of {', '.join(PROFILES)}")
     return profile
@@ -237,7 +237,7 @@ def _check_profile(profile: str) -> str:
 
 def profile_from_width_height(profile: str, width_mm: float, height_mm: float, centre_mm: float = 0.0) -> Profile:
     """The profile of this kind with this width and height (mm)."""
-    _check_profile(profile)
+    check_profile(profile)
     for name, v in (("width", width_mm), ("height", height_mm)):
         if not (math.isfinite(v) and v > 0.0):
             raise InputError(f"bead {name} must be a positive, finite number of mm (got {v!r})")
@@ -247,8 +247,8 @@ def profile_from_width_height(profile: str, width_mm: float, height_mm: float, c
 
 def area_factor(profile: str = "parabola", aspect: float | None = None) -> float:
     """A / (w·h): 2/3 for the parabola, 2/π for the cosine, between 2/3 and π/4 for the arc."""
-    _check_profile(profile)
-    asp = _aspect(profile, aspect)
+    check_profile(profile)
+    asp = profile_aspect(profile, aspect)
     p = profile_from_width_height(profile, 1.0, asp)
     return p.area_mm2 / (p.width_mm * p.height_mm)
 
@@ -259,7 +259,7 @@ def wire_area_mm2(wire_diameter_mm: float, wfs_m_min: float, speed_mm_min: float
     return math.pi * lam * wire_diameter_mm**2 / 4.0
 
 
-def _aspect(profile: str, aspect: float | None) -> float:
+def profile_aspect(profile: str, aspect: float | None) -> float:
     """Height/width used for the normalised bead (irrelevant for the parabola and cosine)."""
     if profile != "arc":
         return 0.25 if aspect is None else float(aspect)

@@ -19,7 +19,7 @@ from shapely.geometry.polygon import orient
 from planner.gapfill import centre_lines
 from planner.path2d import Path2D
 from planner.process import ENVELOPE_RTOL, wfs_for_current
-from planner.process import _inverse_arrays  # noqa: PLC2701  (the vectorised inverse, same model)
+from planner.process import inverse_arrays  # noqa: PLC2701  (the vectorised inverse, same model)
 from planner.regions import polygons_of
 
 if TYPE_CHECKING:  # annotations only: `cell plan` passes a remembered material (core.config_cache) and
@@ -54,7 +54,7 @@ def legal_widths(material: Material, height: float, nominal: float, r_hi: float,
     if allow_outside:
         return Widths(0.3 * nominal, 1.5 * nominal, nominal, r_lo, r_hi)
     ws = np.linspace(0.2 * nominal, 3.0 * nominal, 2801)
-    cur, _ = _inverse_arrays(material.ribeiro, ws, np.full_like(ws, height))
+    cur, _ = inverse_arrays(material.ribeiro, ws, np.full_like(ws, height))
     k = material.ribeiro
     wfs = np.asarray(wfs_for_current(material, cur))
     tol_i, tol_v = ENVELOPE_RTOL * k.i_max_a, ENVELOPE_RTOL * k.wfs_max_m_min  # as envelope_violations

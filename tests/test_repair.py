@@ -14,7 +14,7 @@ from controller.cli.main import main
 from controller.motion.cnc5 import Five
 from controller.job.model import CellJob
 from controller.job.read import job_from_dict
-from controller.job.repair_volume import _manifold, _trimesh
+from controller.job.repair_volume import to_manifold, to_trimesh
 from core.errors import InputError
 
 
@@ -24,7 +24,7 @@ def block_with_pocket(tmp: Path) -> tuple[Path, Path]:
     cad.apply_translation((0, 0, -10))
     pocket = trimesh.creation.box(extents=(20, 15, 6))
     pocket.apply_translation((20, 12.5, -3))
-    stock = _trimesh(_manifold(cad, "cad") - _manifold(pocket, "pocket"))
+    stock = to_trimesh(to_manifold(cad, "cad") - to_manifold(pocket, "pocket"))
     cad.export(tmp / "cad.stl")
     stock.export(tmp / "stock.stl")
     return tmp / "cad.stl", tmp / "stock.stl"

@@ -13,7 +13,7 @@ from controller.cli.main import main
 from controller.harness.align_sim import run_with_sim
 from controller.harness.repair_parts import posed_sim
 from controller.job.read import read_job
-from controller.job.repair_volume import _manifold, _trimesh
+from controller.job.repair_volume import to_manifold, to_trimesh
 from controller.motion.kinematics import Trunnion
 from controller.repair import probe_plan
 from core.config import load_cell
@@ -30,7 +30,7 @@ def _parts(tmp: Path) -> tuple[Path, Path]:
     pocket = trimesh.creation.box(extents=(14, 10, 2))
     pocket.apply_translation((13, -9, -1))
     cad.export(tmp / "cad.stl")
-    _trimesh(_manifold(cad, "cad") - _manifold(pocket, "pocket")).export(tmp / "stock.stl")
+    to_trimesh(to_manifold(cad, "cad") - to_manifold(pocket, "pocket")).export(tmp / "stock.stl")
     return tmp / "cad.stl", tmp / "stock.stl"
 
 

@@ -14,7 +14,7 @@ from controller.cli.main import main
 from controller.harness.repair import repair_run_sim
 from controller.harness.repair_parts import posed_sim
 from controller.job.read import read_job
-from controller.job.repair_volume import _manifold, _trimesh
+from controller.job.repair_volume import to_manifold, to_trimesh
 from controller.runtime.devices import with_urls
 from core.config import load_cell
 
@@ -28,7 +28,7 @@ def _parts(tmp: Path) -> tuple[Path, Path]:
     slot = trimesh.creation.box(extents=(8, 14, 1.5))
     slot.apply_translation((-15, 8, -0.75))
     cad.export(tmp / "cad.stl")
-    _trimesh(_manifold(cad, "cad") - _manifold(slot, "slot")).export(tmp / "stock.stl")
+    to_trimesh(to_manifold(cad, "cad") - to_manifold(slot, "slot")).export(tmp / "stock.stl")
     return tmp / "cad.stl", tmp / "stock.stl"
 
 

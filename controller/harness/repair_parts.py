@@ -6,7 +6,7 @@ from pathlib import Path
 
 import trimesh
 
-from controller.job.repair_volume import _manifold, _trimesh
+from controller.job.repair_volume import to_manifold, to_trimesh
 from core.config import SimConfig, load_sim
 
 
@@ -15,7 +15,7 @@ def make_parts(tmp: Path) -> tuple[Path, Path]:
     cad.apply_translation((0, 0, -10))
     pocket = trimesh.creation.box(extents=(20, 20, 4))
     pocket.apply_translation((40, 40, -2))
-    stock = _trimesh(_manifold(cad, "cad") - _manifold(pocket, "pocket"))
+    stock = to_trimesh(to_manifold(cad, "cad") - to_manifold(pocket, "pocket"))
     cad.export(tmp / "cad.stl")
     stock.export(tmp / "stock.stl")
     return tmp / "cad.stl", tmp / "stock.stl"

@@ -30,7 +30,7 @@ class RepairVolume:
     sticking_out_mm3: float     # stock outside the CAD (+ allowance): 0 for a valid stock
 
 
-def _manifold(mesh: trimesh.Trimesh, name: str) -> manifold3d.Manifold:
+def to_manifold(mesh: trimesh.Trimesh, name: str) -> manifold3d.Manifold:
     # lazy: manifold3d loads only when this path runs (start-up time)
     import manifold3d
 
@@ -41,7 +41,7 @@ def _manifold(mesh: trimesh.Trimesh, name: str) -> manifold3d.Manifold:
     return m
 
 
-def _trimesh(m: manifold3d.Manifold) -> trimesh.Trimesh:
+def to_trimesh(m: manifold3d.Manifold) -> trimesh.Trimesh:
     # lazy: trimesh loads only when this path runs (start-up time)
     import trimesh
 
@@ -54,8 +54,8 @@ def repair_volume(cad: trimesh.Trimesh, stock: trimesh.Trimesh, allowance_mm: fl
     """CAD (swept up by the allowance) minus the stock; errors when the stock sticks out or nothing is missing."""
     if not (allowance_mm >= 0 and np.isfinite(allowance_mm)):
         raise InputError(f"--allowance: must be ≥ 0 mm, got {allowance_mm}")
-    c = _manifold(cad, cad_name)
-    s = _manifold(stock, stock_name)
+    c = to_manifold(cad, cad_name)
+    s = to_manifold(stock, stock_name)
     out = s - c
     sticking = float(out.volume())
     if sticking > tolerance_mm3:
@@ -70,4 +70,4 @@ def repair_volume(cad: trimesh.Trimesh, stock: trimesh.Trimesh, allowance_mm: fl
     if vol < max(tolerance_mm3, _MIN_VOLUME_MM3):
         raise InputError(f"nothing to repair: the stock {stock_name} fills the CAD {cad_name} "
                          f"(missing volume {vol:.3f} mm³)")
-    return RepairVolume(_trimesh(rep), vol, np.asarray(rep.bounding_box()).reshape(2, 3), sticking)
+    return RepairVolume(to_trimesh(rep), vol, np.asarray(rep.bounding_box()).reshape(2, 3), sticking)

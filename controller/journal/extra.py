@@ -12,7 +12,7 @@ from typing import Any
 BEAD_EXTRA = ("arc_s", "still_n", "still_s", "still_max_s", "lag_s", "i_p5", "i_p95", "u_p5", "u_p95", "wfs_p5", "wfs_p95")
 
 
-def _extra(info: str) -> dict[str, Any]:
+def read_extra(info: str) -> dict[str, Any]:
     """One row's figures; a damaged row gives none (the bead keeps its other figures)."""
     try:
         d = json.loads(info)

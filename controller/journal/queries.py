@@ -6,7 +6,7 @@ import json
 from typing import Any, Sequence, TypeAlias
 
 from controller.journal.check import Row
-from controller.journal.extra import BEAD_EXTRA, _extra
+from controller.journal.extra import BEAD_EXTRA, read_extra
 from controller.journal.trace import parse_trace
 
 SampleRow: TypeAlias = tuple[float, float | None, float | None, float | None, float | None, int | None, int | None]
@@ -60,7 +60,7 @@ class JournalQueries:
             " ORDER BY id")}
         for b in out:
             b.update(measured.get((b["layer"], b["pass"], b["run"]), dict.fromkeys(extra)))
-        more = {(la, pa, run): _extra(info) for la, pa, run, info in self.query(
+        more = {(la, pa, run): read_extra(info) for la, pa, run, info in self.query(
             "SELECT layer, pass, run, info FROM bead_extra ORDER BY id")}
         for b in out:
             b.update({k: more.get((b["layer"], b["pass"], b["run"]), {}).get(k) for k in BEAD_EXTRA})

@@ -122,7 +122,7 @@ def rotation_about_pivot(rotations: Sequence[tuple[str | ArrayLike, float]], piv
 # --- trunnion tables -----------------------------------------------------------------------------
 
 
-def _signed_angle(v: F, w: F, axis: F) -> float:
+def signed_angle(v: F, w: F, axis: F) -> float:
     """Angle (rad) that turns v into w about axis, both projected on the plane normal to axis."""
     vp = v - axis * (v @ axis)
     wp = w - axis * (w @ axis)
@@ -152,8 +152,8 @@ def two_axis_solutions(v: ArrayLike, target: ArrayLike, inner: ArrayLike, outer:
     out = []
     for g in gs:
         c = alpha * u1 + beta * u2 + g * w
-        t1 = _signed_angle(v, c, u1)
-        t2 = _signed_angle(c, target, u2)
+        t1 = signed_angle(v, c, u1)
+        t2 = signed_angle(c, target, u2)
         out.append((float(np.degrees(t1)), float(np.degrees(t2))))
     return out
 

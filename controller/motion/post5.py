@@ -15,7 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
-from controller.motion.kinematics import Trunnion, _signed_angle, apply_transform, rotation_matrix, unit
+from controller.motion.kinematics import Trunnion, signed_angle, apply_transform, rotation_matrix, unit
 from core.errors import InputError
 
 Z = np.array([0.0, 0.0, 1.0])
@@ -93,7 +93,7 @@ class Post5:
         u1, u2 = t.axes()
         inner = prev[0] if t.table == "AB" else prev[1]
         v = rotation_matrix(u1, inner) @ axis
-        outer = float(np.degrees(_signed_angle(v, Z, u2)))
+        outer = float(np.degrees(signed_angle(v, Z, u2)))
         return (inner, outer) if t.table == "AB" else (outer, inner)
 
     def angles(self, axes: np.ndarray, prev: tuple[float, float] | None = None) -> np.ndarray:

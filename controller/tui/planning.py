@@ -29,7 +29,7 @@ def probe_plan(cfg: Any, sim_cfg: Any = None) -> tuple[tuple[str, tuple[float, f
     return tuple(out)
 
 
-def _plan_main(argv: list[str]) -> int:
+def plan_main(argv: list[str]) -> int:
     """Child process of `CellSession.plan`: PATH WIDTH MATERIAL OUT.
 
     Prints `progress i n` lines, writes the job JSON to OUT, or prints `error <message>`.
@@ -57,4 +57,4 @@ def _plan_main(argv: list[str]) -> int:
 if __name__ == "__main__":
     import sys
 
-    raise SystemExit(_plan_main(sys.argv[2:]))
+    raise SystemExit(plan_main(sys.argv[2:]))

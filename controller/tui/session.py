@@ -35,7 +35,7 @@ from controller.job.read import read_job
 from controller.tui.trace_ask import TraceAsk
 from core.errors import CellError, InputError
 
-from controller.tui.planning import _plan_main, probe_plan  # noqa: F401  (re-exported)
+from controller.tui.planning import plan_main, probe_plan  # noqa: F401  (re-exported)
 from controller.tui.replay import ReplaySession  # noqa: F401  (re-exported)
 from controller.tui.view import *  # noqa: F401,F403  (the view types, re-exported for the screens)
 from controller.tui.view import (DEVICE_WORDS, HISTORY_LEN, PROBE_STATES, SAMPLE_PERIOD_S,
