@@ -29,7 +29,8 @@ from typing import Any
 import numpy as np
 
 from controller.api import CellController
-from controller.harness.sim import SimHarness, with_urls
+from controller.harness.cell import open_cell
+from controller.harness.sim import with_urls
 from controller.job.model import CellJob
 from controller.job.read import job_from_dict
 from core.config import load_cell, load_material, load_sim
@@ -211,21 +212,16 @@ async def build(job: CellJob, *, part: str, platform: str, gain: float, mode: st
 
     cfg, sim = _configs(platform, mode, scale, gain, temp_coeff, noise_pct, heat_capacity, pc)
     log = run_dir_for(job, tmp / "runs") / "sim"   # where the build record finds the truth
-    harness = SimHarness(cfg, sim, log_dir=log)
-    cfg = with_urls(cfg, harness.start())
-    ctl = CellController(cfg, runs_dir=tmp / "runs")
-    t0 = time.monotonic()
-    try:
+    async with open_cell(cfg, sim=sim, log_dir=log, runs_dir=tmp / "runs", connect=False) as ctl:
+        harness = ctl.simulators
+        t0 = time.monotonic()
         res, paused = await _run(ctl, job, t0, timeout_s)
-        assert ctl.journal is not None and ctl.runner is not None
+        assert ctl.journal is not None and ctl.runner is not None and harness is not None
         rows = ctl.journal.query("SELECT kind, message FROM events WHERE kind IN ('layer', 'stick_out', 'alarm')"
                                  " ORDER BY id")
         built = [ctl.runner.layers.layer(j) for j in range(ctl.runner.layers.layer_count())]
         hm = harness.world.physics.maps.get(platform) if harness.world.physics is not None else None
         run_dir = str(ctl.run_dir)
-    finally:
-        await ctl.close()
-        harness.stop()
     records = [json.loads(m) for k, m in rows if k == "layer"]
     beads = [json.loads(m) for k, m in rows if k == "stick_out"]
     segs = _segments(log, platform)

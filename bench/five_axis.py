@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.api import CellController
 from controller.job.weld_path import weld_points, weld_segments
-from controller.harness.sim import SimHarness, with_urls
+from controller.harness.cell import open_cell
+from controller.harness.sim import with_urls
 from controller.job.read import job_from_dict
 from core.config import load_cell, load_material, load_sim
 from controller.motion.post5 import weld_axes
@@ -60,16 +60,10 @@ async def build(job: dict, tmp: Path, table: str = "AB", scale: float = 60.0) ->
     typed = job_from_dict(job)   # the job file's object, read as `cell run` reads it
     cfg, _note = limit_time_scale(with_urls(kin_cfg(table), {}, time_scale=scale), typed)
     log = tmp / "log"
-    harness = SimHarness(cfg, level_sim(), log_dir=log)
-    cfg = with_urls(cfg, harness.start())
-    ctl = CellController(cfg, runs_dir=tmp / "runs")
-    try:
-        await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
+    async with open_cell(cfg, sim=level_sim(), log_dir=log, runs_dir=tmp / "runs",
+                         reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:
         ctl.open_job(typed)
         res = await ctl.start()
-    finally:
-        await ctl.close()
-        harness.stop()
     return res, log
 
 

@@ -27,8 +27,8 @@ from bench.kill_resume import soak_job  # noqa: E402
 
 async def run(trials: int, seed: int) -> dict:
     # lazy: only this benchmark's path needs it
-    from controller.api import CellController
-    from controller.harness.sim import SimHarness, with_urls
+    from controller.harness.cell import open_cell
+    from controller.harness.sim import with_urls
     from controller.defaults import SIM_REPLY_TIMEOUT_MS
     from controller.job.read import job_from_dict
     from core.config import load_cell, load_sim
@@ -36,14 +36,11 @@ async def run(trials: int, seed: int) -> dict:
     rng = random.Random(seed)
     work = Path(tempfile.mkdtemp(prefix="interlock-"))
     cfg = with_urls(load_cell(), {}, time_scale=2.0)
-    harness = SimHarness(cfg, load_sim())
-    cfg = with_urls(cfg, harness.start())
-    ctl = CellController(cfg, runs_dir=work)
-    door = harness.sim("cellio")
     act, drop, hold = [], [], []
     statuses: list[tuple[float, bool]] = []
-    try:
-        await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
+    async with open_cell(cfg, sim=load_sim(), runs_dir=work, reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:
+        harness = ctl.simulators
+        door = harness.sim("cellio")
         ctl.devices.power.subscribe(lambda st: statuses.append((st.t, st.command.weld_start)))
         ctl.open_job(job_from_dict(soak_job(20)))
         for _ in range(trials):
@@ -69,9 +66,6 @@ async def run(trials: int, seed: int) -> dict:
             harness.call(door.close_door)
             await asyncio.sleep(0.05)
             await ctl.reset()
-    finally:
-        await ctl.close()
-        harness.stop()
 
     def stat(xs: list[float]) -> dict:
         return {"n": len(xs), "median_ms": round(statistics.median(xs), 3), "max_ms": round(max(xs), 3)} if xs else {}

@@ -80,19 +80,17 @@ def _started(log: Path, mode: str) -> float | None:
 
 async def _build(tmp: Path, spec: str, scale: float, reset_errors: bool = False) -> dict[str, Any]:
     # lazy: only this benchmark's path needs it
-    from controller.api import CellController
-    from controller.harness.sim import SimHarness, with_urls
+    from controller.harness.cell import open_cell
+    from controller.harness.sim import with_urls
     from controller.job.read import job_from_dict
     from core.config import load_cell, load_sim
 
     cfg = with_urls(load_cell(), {}, time_scale=scale)
     log = tmp / "log"
-    harness = SimHarness(cfg, load_sim(), log_dir=log, faults=spec)
-    cfg = with_urls(cfg, harness.start())
-    ctl = CellController(cfg, runs_dir=tmp / "runs")
-    ctl.options.reset_errors = reset_errors
     out: dict[str, Any] = {}
-    try:
+    async with open_cell(cfg, sim=load_sim(), log_dir=log, faults=spec, runs_dir=tmp / "runs", connect=False) as ctl:
+        harness = ctl.simulators
+        ctl.options.reset_errors = reset_errors
         await ctl.connect(reply_timeout_ms=500.0)
         job = small_job()
         ctl.open_job(job_from_dict(job))
@@ -121,9 +119,6 @@ async def _build(tmp: Path, spec: str, scale: float, reset_errors: bool = False)
         out["controller_mm"] = float(ctl.journal.query("SELECT coalesce(sum(length_mm), 0) FROM beads")[0][0])
         out["planned_mm"] = planned_mm(job)
         jpath = ctl.run_dir / "journal.sqlite"
-    finally:
-        await ctl.close()
-        harness.stop()
     out["sim_mm"] = deposit_log_mm(log / "deposit.jsonl")
     with sqlite3.connect(str(jpath)) as db:
         out["journal_ok"] = db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"

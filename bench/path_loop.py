@@ -34,8 +34,8 @@ from typing import Any
 import numpy as np
 
 from bench.closed_loop import MATERIAL, wall_job
-from controller.api import CellController
-from controller.harness.sim import SimHarness, with_urls
+from controller.harness.cell import open_cell
+from controller.harness.sim import with_urls
 from controller.job.model import CellJob
 from core.config import CellConfig, SimConfig, SimRegion, load_cell, load_material, load_sim
 
@@ -186,12 +186,10 @@ async def build(job: CellJob, *, part: str, gain: float, mode: str, tmp: Path, s
 
     cfg, sim = configs(job, mode, scale, gain, pc, disturbed)
     log = run_dir_for(job, tmp / "runs") / "sim"
-    harness = SimHarness(cfg, sim, log_dir=log)
-    cfg = with_urls(cfg, harness.start())
-    ctl = CellController(cfg, runs_dir=tmp / "runs")
-    t0 = time.monotonic()
     paused = None
-    try:
+    async with open_cell(cfg, sim=sim, log_dir=log, runs_dir=tmp / "runs", connect=False) as ctl:
+        harness = ctl.simulators
+        t0 = time.monotonic()
         await ctl.connect(reply_timeout_ms=500.0)
         ctl.open_job(job)
         task = asyncio.ensure_future(ctl.start())
@@ -206,12 +204,9 @@ async def build(job: CellJob, *, part: str, gain: float, mode: str, tmp: Path, s
         layer_recs = [json.loads(m) for (m,) in ctl.journal.query(
             "SELECT message FROM events WHERE kind = 'layer' ORDER BY id")]
         built = [ctl.runner.layers.layer(j) for j in range(ctl.runner.layers.layer_count())]
-        assert harness.world.physics is not None
+        assert harness is not None and harness.world.physics is not None
         hm = harness.world.physics.maps["robot"]
         run_dir = Path(str(ctl.run_dir))
-    finally:
-        await ctl.close()
-        harness.stop()
     out = {"part": part, "gain": gain, "mode": mode, "scale": scale, "state": res.state, "paused": paused,
            "layers": f"{res.layers_done}/{len(job.layers)}", "wall_s": round(time.monotonic() - t0, 1)}
     rms = figures(out, job, built, hm, log / "deposit.jsonl", layer_recs)

@@ -295,17 +295,25 @@ async def finish_repair(link: CncLinkPort, cell: CellConfig, job: CellJob, cad: 
     return {"stock": stock_rec, "machining": machining, "verify": verify}
 
 
-async def repair_run(job: CellJob, cell: CellConfig, *, job_path: Path | None = None, runs_dir: str | Path = "runs",
-                     reply_timeout_ms: float | None = None, apply_alignment: bool = True,
+def repair_cell(cell: CellConfig) -> CellConfig:
+    """The cell a repair runs on: its CNC (the platform set to `cnc`)."""
+    if cell.cell.platform == "cnc":
+        return cell
+    return cell.model_copy(update={"cell": cell.cell.model_copy(update={"platform": "cnc"})})
+
+
+async def repair_run(ctl: CellController, job: CellJob, *, job_path: Path | None = None, apply_alignment: bool = True,
                      tolerance_mm: float = 0.1, phase: Callable[[str], None] | None = None,
                      finish: bool = True, time_scale_of: Callable[[str], float] | None = None) -> dict[str, Any]:
-    """The whole chain on the CNC cell of `cell` (its device URLs: hardware, `cell sim up` or the
-    in-process simulators of controller.harness); returns the report. `phase(name)` is told
-    "align", "build" and "verify" as each begins, the machine idle (the harness sets its clock)."""
+    """The whole chain on the CNC cell `ctl` was opened on, not yet connected (controller/harness/cell.py
+    `open_cell(repair_cell(cfg), connect=False)`: hardware, `cell sim up` or the in-process
+    simulators); returns the report. `phase(name)` is told "align", "build" and "verify" as each
+    begins, the machine idle (the harness sets its clock). The cell is closed at the end."""
     say = phase or (lambda _name: None)
-
+    cell = ctl.cfg
     if cell.cell.platform != "cnc":
-        cell = cell.model_copy(update={"cell": cell.cell.model_copy(update={"platform": "cnc"})})
+        raise InputError(f"a repair runs on the CNC: cell.yaml's platform is {cell.cell.platform} "
+                         "(open the cell with controller.repair.repair_cell(cfg))")
     if job.alignment is not None:
         raise InputError("the repair job already carries an alignment; give the job `cell repair plan` wrote")
     cad = load_cad(job, job_path)
@@ -313,10 +321,9 @@ async def repair_run(job: CellJob, cell: CellConfig, *, job_path: Path | None = 
     # every refusal that needs no device before the first motion (homing and probing included):
     # a time scale the CNC link cannot feed (the in-process simulators were lowered to what it can)
     refuse_unfed(job, Trunnion.from_config(cell.kinematics), float(cell.cell.time_scale), cell.devices.cnc.baud)
-    ctl = CellController(cell, runs_dir=runs_dir)
     stops.attach(ctl)  # SIGINT / SIGTERM / SIGHUP: the fault path (when the CLI installed them)
     try:
-        await ctl.connect(reply_timeout_ms=reply_timeout_ms)
+        await ctl.connect()
         say("align")
         res = await ctl.run_alignment(plan)
         built = apply_to_job(job, res.transform, alignment_record(res)) if apply_alignment else job

@@ -10,7 +10,8 @@ import pytest
 
 from bench._coverage import coverage, exec_log_duplicates, read_segments
 from controller.api import CellController
-from controller.harness.sim import SimHarness, with_urls
+from controller.harness.cell import open_cell
+from controller.harness.sim import SimHarness, with_urls  # noqa: F401  (tests/test_opcua.py takes them from here)
 from controller.job.read import job_from_dict
 from core.config import load_cell, load_sim
 from controller.runtime.machine import State
@@ -52,20 +53,22 @@ SIM_REPLY_TIMEOUT_MS = 500.0  # in-process simulators share the GIL with the con
 
 
 class Cell:
+    """A simulated cell, opened the one way (controller/harness/cell.py `open_cell`): `ctl` the API
+    object, `harness` its simulators, `log` their record."""
+
     def __init__(self, tmp: Path, scale: float, faults: str = "") -> None:
-        cfg = with_urls(load_cell(), {}, time_scale=scale)
         self.log = tmp / "log"
-        self.harness = SimHarness(cfg, load_sim(), log_dir=self.log, faults=faults)
-        self.cfg = with_urls(cfg, self.harness.start())
-        self.ctl = CellController(self.cfg, runs_dir=tmp / "runs")
+        self._open = open_cell(with_urls(load_cell(), {}, time_scale=scale), sim=load_sim(), log_dir=self.log,
+                               faults=faults, runs_dir=tmp / "runs", reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
 
     async def __aenter__(self) -> "Cell":
-        await self.ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
+        self.ctl: CellController = await self._open.__aenter__()
+        self.harness = self.ctl.simulators
+        self.cfg = self.ctl.cfg
         return self
 
     async def __aexit__(self, *exc: object) -> None:
-        await self.ctl.close()
-        self.harness.stop()
+        await self._open.__aexit__(*exc)
 
     async def wait_for(self, pred, timeout: float = 30.0) -> None:
         t0 = time.monotonic()

@@ -290,18 +290,14 @@ def test_a_build_aborted_mid_layer_resumes_at_the_journaled_z(tmp_path: Path):
     """Abort inside layer 2 of a closed-loop block, continue with a new controller on the same
     journal (what `cell resume` does): the rest of layer 2 is laid at the z the first run gave it."""
     from bench.closed_loop import _configs, block_job
-    from controller.api import CellController
-    from controller.harness.sim import SimHarness, with_urls
+    from controller.harness.cell import open_cell, start_simulators
 
     job = block_job(4)
     cfg, sim = _configs("robot", "layer", 30.0, 0.85, 0.0, 0.0, 2000.0)
-    harness = SimHarness(cfg, sim, log_dir=tmp_path / "log")
-    cfg = with_urls(cfg, harness.start())
+    cfg, harness = asyncio.run(start_simulators(cfg, sim, log_dir=tmp_path / "log"))
 
     async def first() -> tuple[str, dict[int, float]]:
-        ctl = CellController(cfg, runs_dir=tmp_path / "runs")
-        try:
-            await ctl.connect(reply_timeout_ms=500.0)
+        async with open_cell(cfg, simulators=harness, runs_dir=tmp_path / "runs", reply_timeout_ms=500.0) as ctl:
             ctl.open_job(job)
             task = asyncio.ensure_future(ctl.start())
             n_first = len(job.layers[0].passes) + len(job.layers[1].passes) + 1
@@ -313,19 +309,13 @@ def test_a_build_aborted_mid_layer_resumes_at_the_journaled_z(tmp_path: Path):
             res = await task
             assert ctl.runner is not None
             return res.state, {la: float(ctl.runner.layers.layer(la).passes[0].points[0][2]) for la in range(3)}
-        finally:
-            await ctl.close()
 
     async def second() -> tuple[str, dict[int, float]]:
-        ctl = CellController(cfg, runs_dir=tmp_path / "runs")
-        try:
-            await ctl.connect(reply_timeout_ms=500.0)
+        async with open_cell(cfg, simulators=harness, runs_dir=tmp_path / "runs", reply_timeout_ms=500.0) as ctl:
             ctl.open_job(job)
             res = await ctl.start()
             assert ctl.runner is not None
             return res.state, {la: float(ctl.runner.layers.layer(la).passes[0].points[0][2]) for la in range(3)}
-        finally:
-            await ctl.close()
 
     try:
         s1, z1 = asyncio.run(first())

@@ -50,6 +50,7 @@ import importlib
 from core.config import load_sim
 from controller.runtime.arc_handshake import ArcHandshake
 from controller.api.offline import align_at
+from controller.api.simulated import Simulators
 
 COMMANDS = ("open_job", "run_alignment", "start", "pause", "resume", "abort", "reset", "estop")
 
@@ -72,9 +73,12 @@ class CellController:
     """One cell: devices, state machine, interlocks, journal, build runner, event bus."""
 
     def __init__(self, cfg: CellConfig, *, runs_dir: str | Path | None = None,
-                 options: BuildOptions | None = None) -> None:
+                 options: BuildOptions | None = None, reply_timeout_ms: float | None = None,
+                 simulators: Simulators | None = None) -> None:
         self.result_json: dict[str, Any] = {}   # the command line's summary of the last build
         self.cfg = cfg
+        self.reply_timeout_ms = reply_timeout_ms   # the bus devices' reply timeout (None: the devices' own)
+        self.simulators = simulators    # the simulators it was opened on (controller/harness/cell.py), else None
         self.material = load_material(cfg.cell.material)
         self.runs_dir = Path(runs_dir or cfg.cell.runs_dir)
         mat = self.material
@@ -166,7 +170,7 @@ class CellController:
             self.witness = HostWitness()
             self.bus.update(message=self.witness.start())
         self.devices = await Devices.open(self.cfg, self.material, resume_ticket=resume_ticket,
-                                          reply_timeout_ms=reply_timeout_ms)
+                                          reply_timeout_ms=reply_timeout_ms or self.reply_timeout_ms)
         if self.witness is not None and self.witness.running:
             for dev in (self.devices.power, self.devices.cellio):
                 if isinstance(dev, CyclicDevice):

@@ -17,7 +17,7 @@ from controller.cli import guard, runargs
 from controller.cli.run import _drive, _err, _out, _print_summary, exit_code
 from controller.job.model import CellJob
 from controller.defaults import DEMO_MAX_STEP_MM, DEMO_PART, DEMO_TIME_SCALE, DEMO_WIDTH_MM
-from core.config import load_cell, load_sim
+from core.config import CellConfig, load_cell, load_sim
 from core.errors import CellError
 
 
@@ -41,8 +41,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 def _demo(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.api import CellController
-    from controller.runtime.build import BuildOptions
     from controller.job.identity import run_dir_for
     from controller.job.read import job_from_dict
     from controller.runtime.devices import with_urls
@@ -80,18 +78,7 @@ def _demo(args: argparse.Namespace) -> int:
         # a fresh demo each time: keep the old one beside it
         old = run_dir.with_name(run_dir.name + time.strftime("-%Y%m%d-%H%M%S"))
         run_dir.rename(old)
-    # the simulators in a process of their own, as real devices are (`cell sim up`)
-    from controller.cli.sim_process import SimProcess
-
-    session = SimProcess(cfg, run_dir / "sim")
-    say(f"simulators up (`cell sim up`, pid {session.proc.pid}) at time scale {cfg.cell.time_scale:g} "
-        f"(process time {cfg.cell.time_scale:g}x wall time)")
-    try:
-        ctl = CellController(session.cfg, runs_dir=runs)
-        ctl.options = BuildOptions(**{**ctl.options.__dict__, "max_step_mm": DEMO_MAX_STEP_MM})
-        res, report, align = asyncio.run(_demo_drive(ctl, job, session, say, not args.no_align))
-    finally:
-        session.close()
+    ctl, align = asyncio.run(_demo_cell(cfg, job, run_dir, runs, say, not args.no_align))
     out = ctl.result_json
     out["alignment"] = align
     out["wall_time_s"] = round(time.monotonic() - t0, 1)
@@ -107,13 +94,30 @@ def _demo(args: argparse.Namespace) -> int:
     return exit_code(out)
 
 
-async def _demo_drive(ctl: Any, job: CellJob, session: Any, say: Callable[[str], None],
+async def _demo_cell(cfg: CellConfig, job: CellJob, run_dir: Path, runs: Path, say: Callable[[str], None],
+                     do_align: bool) -> tuple[Any, dict[str, Any] | None]:
+    """The demo's cell: the simulators in a process of their own, as real devices are (`cell sim
+    up`, controller/harness/cell.py); aligned, built; the API object and the alignment."""
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
+    from controller.harness.cell import open_cell
+    from controller.runtime.build import BuildOptions
+
+    async with open_cell(cfg, sim=True, process=True, log_dir=run_dir / "sim", runs_dir=runs, connect=False) as ctl:
+        assert ctl.simulators is not None
+        say(f"simulators up (`cell sim up`, pid {ctl.simulators.process_id}) at time scale {cfg.cell.time_scale:g} "
+            f"(process time {cfg.cell.time_scale:g}x wall time)")
+        ctl.options = BuildOptions(**{**ctl.options.__dict__, "max_step_mm": DEMO_MAX_STEP_MM})
+        _res, _report, align = await _demo_drive(ctl, job, say, do_align)
+    return ctl, align
+
+
+async def _demo_drive(ctl: Any, job: CellJob, say: Callable[[str], None],
                       do_align: bool) -> tuple[Any, Path | None, dict[str, Any] | None]:
     align = None
     guard.attach(None, say)  # a signal while aligning: cancelled, the CNC safe-stopped (run_on_url)
     if do_align:
-        align = await _align(session, say)
-    res, report = await _drive(ctl, job, None, session, [], say, False)
+        align = await _align(ctl, say)
+    res, report = await _drive(ctl, job, None, [], say, False)
     if align is not None and report is not None:
         rep = json.loads(report.read_text(encoding="utf-8"))
         rep["alignment"] = align
@@ -127,14 +131,14 @@ async def _demo_drive(ctl: Any, job: CellJob, session: Any, say: Callable[[str],
     return res, report, align
 
 
-async def _align(session: Any, say: Callable[[str], None]) -> dict[str, Any] | None:
+async def _align(ctl: Any, say: Callable[[str], None]) -> dict[str, Any] | None:
     """Probe and align the substrate over the CNC link."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.align.routine import cad_mesh, plan_for_mesh
     from controller.api import align_at
 
-    cfg = session.cfg
-    sim_cfg = session.harness.sim_cfg if session.harness is not None else getattr(session, "sim_cfg", None) or load_sim()
+    cfg = ctl.cfg
+    sim_cfg = ctl.simulators.sim_cfg if ctl.simulators is not None else load_sim()
     say("probing and aligning the substrate on the CNC (touch probe, G38.2)...")
     try:
         plan = plan_for_mesh(cad_mesh(sim_cfg.cnc.workpiece))

@@ -135,9 +135,8 @@ def run_repair(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from controller.cli.runargs import with_trace
-    from controller.harness.repair import repair_run_sim
+    from controller.harness.repair import repair_run_devices, repair_run_sim
     from controller.job.read import read_job
-    from controller.repair import repair_run
     from core.config import load_cell, load_sim
 
     path = Path(args.job)
@@ -155,8 +154,8 @@ def run_repair(args: argparse.Namespace) -> int:
         rep = asyncio.run(repair_run_sim(job, cell, sim_cfg, job_path=path, runs_dir=runs, log_dir=args.log,
                                          tolerance_mm=args.tolerance, finish=not args.no_finish))
     else:
-        rep = asyncio.run(repair_run(job, cell, job_path=path, runs_dir=runs, tolerance_mm=args.tolerance,
-                                     finish=not args.no_finish))
+        rep = asyncio.run(repair_run_devices(job, cell, job_path=path, runs_dir=runs, tolerance_mm=args.tolerance,
+                                             finish=not args.no_finish))
     if args.json:
         emit_json(rep)
         return 1 if rep["verify"]["defects"] else 0   # docs/repair.md: a verify defect exits 1, either way

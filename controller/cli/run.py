@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from core.config import CellConfig, load_cell, load_sim
+from core.config import CellConfig, SimConfig, load_cell, load_sim
 from controller.cli import guard, outcome, runargs
 from controller.cli.pause_prompt import PausePrompt
 from controller.job.model import CellJob
@@ -157,33 +157,6 @@ def _result_json(ctl: Any, res: Any, report: Path | None) -> dict[str, Any]:
             "links": [dataclasses.asdict(x) for x in ctl.snapshot().links]}
 
 
-class SimSession:
-    """The simulators in this process (with --sim) or nothing (devices of cell.yaml)."""
-
-    def __init__(self, cfg: CellConfig, use_sim: bool, sim_config: str | None, log_dir: Path | None,
-                 faults: str = "") -> None:
-        self.harness = None
-        self.cfg = cfg
-        if use_sim:
-            # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-            from controller.harness.sim import SimHarness, with_urls
-
-            self.harness = SimHarness(cfg, load_sim(sim_config), log_dir=log_dir, faults=faults)
-            self.cfg = with_urls(cfg, self.harness.start())
-
-    @property
-    def simulated(self) -> bool:
-        return self.harness is not None
-
-    @property
-    def reply_timeout_ms(self) -> float | None:
-        return sim_reply_timeout_ms() if self.harness is not None else None
-
-    def close(self) -> None:
-        if self.harness is not None:
-            self.harness.stop()
-
-
 # -- cell run -------------------------------------------------------------------------------------
 
 
@@ -261,10 +234,6 @@ def _resume(args: argparse.Namespace) -> int:
 
 def _build(args: argparse.Namespace, cfg: CellConfig, job: CellJob, run_dir: Path | None, faults: str,
            scen: list[tuple[str, int, float | None]], log_dir: Path, runs: Path, resume: bool = False) -> int:
-    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.api import CellController
-    from controller.runtime.build import BuildOptions
-
     if args.sim:  # issue 29: the time scale the CNC link can feed (controller/motion/cnc5.py), said on stderr
         from controller.motion.cnc5 import limit_time_scale
 
@@ -277,16 +246,11 @@ def _build(args: argparse.Namespace, cfg: CellConfig, job: CellJob, run_dir: Pat
 
         refuse_unfed(job, Trunnion.from_config(cfg.kinematics), float(cfg.cell.time_scale), cfg.devices.cnc.baud,
                      args.max_step)
-    session = SimSession(cfg, args.sim, args.sim_config, log_dir if args.sim else None, faults)
     say = _err if args.json else _out
-    try:
-        ctl = CellController(session.cfg, runs_dir=runs)
-        o = ctl.options
-        ctl.options = BuildOptions(**{**o.__dict__, "max_step_mm": args.max_step,
-                                      "reset_errors": resume or bool(getattr(args, "reset_errors", False))})
-        res, report = asyncio.run(_drive(ctl, job, run_dir, session, scen, say, resume))
-    finally:
-        session.close()
+    sim = load_sim(args.sim_config) if args.sim else None
+    reset = resume or bool(getattr(args, "reset_errors", False))
+    ctl = asyncio.run(_open_and_drive(cfg, job, run_dir, runs, sim, log_dir, faults, scen, say, resume,
+                                      {"max_step_mm": args.max_step, "reset_errors": reset}))
     out = ctl.result_json
     if args.json:
         # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
@@ -311,7 +275,23 @@ def exit_code(out: dict[str, Any]) -> int:
     return EXIT_COMPLETE_WITH_DEFECTS if out.get("defects") else 0
 
 
-async def _drive(ctl: Any, job: CellJob, run_dir: Path | None, session: Any, scen: list[tuple[str, int, float | None]],
+async def _open_and_drive(cfg: CellConfig, job: CellJob, run_dir: Path | None, runs: Path, sim: SimConfig | None,
+                          log_dir: Path, faults: str, scen: list[tuple[str, int, float | None]],
+                          say: Callable[[str], None], resume: bool, options: dict[str, Any]) -> Any:
+    """The cell opened (controller/harness/cell.py: the simulators in this process with `sim`),
+    the build driven, the cell closed; the API object (its `result_json`)."""
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
+    from controller.harness.cell import open_cell
+    from controller.runtime.build import BuildOptions
+
+    async with open_cell(cfg, sim=sim, runs_dir=runs, log_dir=log_dir if sim is not None else None,
+                         faults=faults, connect=False) as ctl:
+        ctl.options = BuildOptions(**{**ctl.options.__dict__, **options})
+        await _drive(ctl, job, run_dir, scen, say, resume)
+    return ctl
+
+
+async def _drive(ctl: Any, job: CellJob, run_dir: Path | None, scen: list[tuple[str, int, float | None]],
                  say: Callable[[str], None], resume: bool) -> tuple[Any, Path | None]:
     resume_ticket = None
     if resume and run_dir is not None:
@@ -322,10 +302,10 @@ async def _drive(ctl: Any, job: CellJob, run_dir: Path | None, session: Any, sce
         resume_ticket = j.max_progress_ticket() or None
         j.close()
     guard.attach(ctl, say)  # SIGINT / SIGTERM / SIGHUP: the fault path from here on
-    await ctl.connect(resume_ticket=resume_ticket, reply_timeout_ms=session.reply_timeout_ms)
+    await ctl.connect(resume_ticket=resume_ticket)
     try:
         ctl.open_job(job, run_dir)
-        ctl.journal.event("mode", json.dumps({"sim": session.simulated}))
+        ctl.journal.event("mode", json.dumps({"sim": ctl.simulators is not None}))
         ctl.subscribe(Progress(say))
         prompt = PausePrompt(ctl, say)   # a pause says why and how to go on, and takes the answer here
         if resume:
@@ -338,8 +318,8 @@ async def _drive(ctl: Any, job: CellJob, run_dir: Path | None, session: Any, sce
                 ctl.journal.event("info", f"robot: last executed seq {st.last_exec} (ticket {st.last_exec_ticket}), "
                                           f"state {st.state}")
         tasks = []
-        if scen and session.harness is not None:
-            tasks.append(asyncio.ensure_future(_scenario(ctl, session.harness, scen)))
+        if scen and ctl.simulators is not None:
+            tasks.append(asyncio.ensure_future(_scenario(ctl, ctl.simulators, scen)))
         say(f"building {ctl.bus.latest.job_name}: {ctl.bus.latest.layers_total} layers, "
             f"{ctl.bus.latest.passes_total} passes ({ctl.bus.latest.passes_done} already done); run dir {ctl.run_dir}")
         res = await ctl.start()
@@ -351,8 +331,7 @@ async def _drive(ctl: Any, job: CellJob, run_dir: Path | None, session: Any, sce
         ctl.result_json = _result_json(ctl, res, report)
         return res, report
     finally:
-        guard.detach()
-        await ctl.close()
+        guard.detach()   # the caller closes the cell (controller/harness/cell.py)
 
 
 def _report(ctl: Any) -> Path | None:

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import asyncio
 import gc
+import os
 import sys
 import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -24,12 +23,15 @@ from sims.world import World
 class SimHarness:
     """Every simulator in this process, on a background thread and loop of its own."""
 
+    in_process = True   # controller/api/simulated.py: its simulators' objects are reachable
+
     def __init__(self, cfg: CellConfig, sim: SimConfig, log_dir: str | Path | None = None,
-                 faults: str = "", modules: list[str] | None = None) -> None:
+                 faults: str = "", modules: list[str] | None = None, config_dir: Path | None = None) -> None:
         self.cfg, self.sim_cfg = cfg, sim
         self.log_dir = Path(log_dir) if log_dir else None
         self.faults = faults
         self.modules = modules
+        self.config_dir = config_dir   # where the sim config's relative paths start (None: config/)
         self.loop = precise_loop()   # the simulators' timers on time (sims/loop.py)
         self.thread = threading.Thread(target=self._run, name="sims", daemon=True)
         self.served: dict[str, Any] = {}
@@ -53,7 +55,7 @@ class SimHarness:
         self.world = World(self.log_dir, arc_efficiency=mat.arc_efficiency)
         self.clock = SimClock(self.cfg.cell.time_scale)
         ctx = SimContext(cell=self.cfg, sim=self.sim_cfg, world=self.world, clock=self.clock,
-                         log_dir=self.log_dir, ephemeral=True, faults=self.faults)
+                         log_dir=self.log_dir, ephemeral=True, faults=self.faults, config_dir=self.config_dir)
         self.thread.start()
         fut = asyncio.run_coroutine_threadsafe(serve_all(ctx, self.modules), self.loop)
         served = fut.result(timeout)
@@ -74,6 +76,14 @@ class SimHarness:
             return res
         return asyncio.run_coroutine_threadsafe(_do(), self.loop).result(10)
 
+    @property
+    def process_id(self) -> int:
+        return os.getpid()
+
+    def set_time_scale(self, scale: float) -> None:
+        """Process time / wall time of every simulated device from now on."""
+        self.clock.set_scale(scale)
+
     def stop(self) -> None:
         if self.thread.is_alive():
             try:
@@ -88,17 +98,6 @@ class SimHarness:
 
 # in-process simulators share the interpreter with the controller: the bus devices get more time
 SIM_REPLY_TIMEOUT_MS = 500.0
-
-
-@contextmanager
-def simulated(cfg: CellConfig, sim: SimConfig, log_dir: str | Path | None = None,
-              faults: str = "") -> Iterator[tuple[CellConfig, SimHarness]]:
-    """The simulators up for the body: (cfg pointing at them, the harness); stopped after it."""
-    harness = SimHarness(cfg, sim, log_dir=log_dir, faults=faults)
-    try:
-        yield with_urls(cfg, harness.start()), harness
-    finally:
-        harness.stop()
 
 
 def check_fault_spec(spec: str) -> None:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import contextlib
 import gc
 import math
 import sys
@@ -41,16 +42,10 @@ from controller.tui.view import *  # noqa: F401,F403  (the view types, re-export
 from controller.tui.view import (DEVICE_WORDS, HISTORY_LEN, PROBE_STATES, SAMPLE_PERIOD_S,
                                  DeviceInfo, JobInfo, LogRow, PlanStatus, Sample, View,
                                  alignment_dict, job_info)
-from controller.defaults import sim_reply_timeout_ms
 from core.config import load_cell, load_sim
 from controller.runtime.devices import with_urls
 from controller.journal.store import read_events_after
 from controller.motion.kinematics import apply_to_job
-
-
-def _sim_reply_timeout_ms() -> float:
-    """The bus devices' reply timeout with in-process simulators: `cell run --sim`'s own figure."""
-    return sim_reply_timeout_ms()
 
 
 def freeze_heap() -> None:
@@ -78,8 +73,9 @@ class CellSession(TraceAsk):
         self.runs_dir = runs_dir
         self.faults = faults
         self.sim_log_dir = sim_log_dir
-        self.harness: Any = None          # the SimHarness of --sim (tests reach the simulators through it)
+        self.harness: Any = None          # the simulators of --sim (tests reach them through it)
         self.ctl: Any = None
+        self._cell: contextlib.AsyncExitStack | None = None   # the open cell (controller/harness/cell.py)
         self.loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._run_loop, name="controller", daemon=True)
         self._lock = threading.Lock()
@@ -139,23 +135,22 @@ class CellSession(TraceAsk):
         async def _do() -> None:
             # lazy: the controller API (drivers, the build runner) loads when the session first needs it,
             # so `cell tui` paints before it; the TUI never imports a driver itself
-            from controller.api import CellController
+            from controller.harness.cell import open_cell, start_simulators
 
             try:
-                if self.ctl is not None:
-                    await self.ctl.close()
+                if self._cell is not None:   # a reconnect: the previous controller closed, the simulators kept
+                    cell, self._cell = self._cell, None
+                    await cell.aclose()
                     if self._unsub:
                         self._unsub()
                 if self.sim and self.harness is None:
-                    # lazy: the simulators load only for a --sim session
-                    from controller.harness.sim import SimHarness, with_urls
-
-                    self.harness = SimHarness(self.cfg, self.sim_cfg, log_dir=self.sim_log_dir, faults=self.faults)
-                    urls = await asyncio.get_running_loop().run_in_executor(None, self.harness.start)
-                    self.cfg = with_urls(self.cfg, urls)
-                self.ctl = CellController(self.cfg, runs_dir=self.runs_dir)
+                    self.cfg, self.harness = await start_simulators(self.cfg, self.sim_cfg or True,
+                                                                    log_dir=self.sim_log_dir, faults=self.faults)
+                self._cell = contextlib.AsyncExitStack()
+                self.ctl = await self._cell.enter_async_context(
+                    open_cell(self.cfg, simulators=self.harness, runs_dir=self.runs_dir, connect=False))
                 self._unsub = self.ctl.subscribe(self._on_snapshot)
-                await self.ctl.connect(reply_timeout_ms=_sim_reply_timeout_ms() if self.sim else None)
+                await self.ctl.connect()
                 self._connect_error = None
                 freeze_heap()
                 self._note("info", "connected: " + ", ".join(f"{ls.device} {ls.url}" for ls in self.ctl.snapshot().links))
@@ -187,9 +182,9 @@ class CellSession(TraceAsk):
                 self._build.result(max(timeout, 60.0))
             except Exception:
                 pass
-        if self.ctl is not None:
+        if self._cell is not None:   # the controller closed (controller/harness/cell.py)
             try:
-                self._submit(self.ctl.close).result(timeout)
+                self._submit(self._cell.aclose).result(timeout)
             except Exception:
                 pass
         self.loop.call_soon_threadsafe(self.loop.stop)

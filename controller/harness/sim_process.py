@@ -16,6 +16,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any, Callable
 
 import yaml
 
@@ -40,13 +41,12 @@ def _free_ports(n: int) -> list[int]:
 class SimProcess:
     """`cell sim up` in a child process, on free loopback ports; `.cfg` points at it."""
 
-    harness = None                    # no in-process simulators to reach into
-    simulated = True                  # journaled: `cell resume` of this run starts simulators
-    reply_timeout_ms = None           # the devices' own link timeouts: a separate process
+    in_process = False                # controller/api/simulated.py: no simulator object to reach into
 
     def __init__(self, cfg: CellConfig, log_dir: Path, sim_config: str | None = None,
                  timeout_s: float = 60.0) -> None:
         self.sim_cfg: SimConfig = load_sim(sim_config)
+        self.log_dir: Path | None = log_dir
         p = _free_ports(4)
         urls = {"robot": f"socket://127.0.0.1:{p[0]}", "cnc": f"socket://127.0.0.1:{p[1]}",
                 "power_source": f"tcp://127.0.0.1:{p[2]}", "cellio": f"tcp://127.0.0.1:{p[3]}"}
@@ -86,6 +86,22 @@ class SimProcess:
             return self._err_path.read_text(encoding="utf-8", errors="replace").strip()[-500:]
         except OSError:
             return ""
+
+    @property
+    def process_id(self) -> int:
+        return self.proc.pid
+
+    def sim(self, device: str) -> Any:
+        raise CellError(f"the simulated {device} runs in `cell sim up` (pid {self.proc.pid}), not in this process")
+
+    def call(self, fn: Callable[..., object], *args: object, **kwargs: object) -> Any:
+        raise CellError(f"the simulators run in `cell sim up` (pid {self.proc.pid}), not in this process")
+
+    def set_time_scale(self, scale: float) -> None:
+        raise CellError(f"`cell sim up` (pid {self.proc.pid}) keeps the time scale it was started with")
+
+    def stop(self) -> None:
+        self.close()
 
     def close(self) -> None:
         if self.proc.poll() is None:
