@@ -1,4 +1,5 @@
-"""`cell align run --sim`: the alignment routine against a CNC simulator served in this loop."""
+"""`cell align run --sim`: the alignment routine on a cell opened with its CNC simulator alone;
+`_with_sim`: the CNC simulator served in this loop, for rigs that drive its link directly."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -6,6 +7,7 @@ from typing import Any, Awaitable, Callable, TypeVar
 
 from controller.align.routine import AlignResult, ProbePlan
 from controller.api import align_at
+from controller.harness.cell import open_cell
 from core.config import CellConfig, SimConfig
 from sims import cnc
 from sims.clock import SimClock
@@ -13,6 +15,7 @@ from sims.up import SimContext
 from sims.world import World
 
 T = TypeVar("T")
+CNC_MODULE = "sims.cnc"   # the CNC's simulator (sims/up.py SIM_MODULES)
 
 
 async def _with_sim(cell: CellConfig, sim_cfg: SimConfig, config_dir: Path | None,
@@ -31,7 +34,7 @@ async def _with_sim(cell: CellConfig, sim_cfg: SimConfig, config_dir: Path | Non
 
 async def run_with_sim(cell: CellConfig, sim_cfg: SimConfig, plan: ProbePlan, *, config_dir: Path | None = None,
                        settings: Any = None, no_level: bool = False) -> AlignResult:
-    async def body(url: str, _sim: object) -> AlignResult:
-        return await align_at(url, cell, plan, settings=settings, no_level=no_level)
-
-    return await _with_sim(cell, sim_cfg, config_dir, body)
+    """The alignment routine on a cell opened with its CNC simulator alone (controller/harness/cell.py)."""
+    async with open_cell(cell, sim=sim_cfg, faults=sim_cfg.faults, modules=[CNC_MODULE], config_dir=config_dir,
+                         connect=False) as ctl:
+        return await align_at(ctl.cfg.devices.cnc.url, ctl.cfg, plan, settings=settings, no_level=no_level)

@@ -57,17 +57,20 @@ async def start_simulators(cfg: CellConfig, sim: SimConfig | bool | None, *, log
 async def open_cell(cfg: CellConfig, *, sim: SimConfig | bool | None = None, runs_dir: str | Path | None = None,
                     options: BuildOptions | None = None, log_dir: str | Path | None = None, faults: str = "",
                     process: bool = False, connect: bool = True, resume_ticket: int | None = None,
-                    reply_timeout_ms: float | None = None,
-                    simulators: SimHarness | SimProcess | None = None) -> AsyncIterator[CellController]:
+                    reply_timeout_ms: float | None = None, simulators: SimHarness | SimProcess | None = None,
+                    modules: list[str] | None = None, config_dir: Path | None = None) -> AsyncIterator[CellController]:
     """The cell of `cfg` (on the simulators `sim`, in this process or with `process` in a child),
     its API object yielded connected (unless `connect=False`), closed and the simulators stopped
     after the body. `reply_timeout_ms`: the bus devices' reply timeout (default: the devices' own;
     in-process simulators: `controller.defaults.sim_reply_timeout_ms()`, they share this interpreter).
     `simulators`: ones already running (`start_simulators`, `cfg` pointing at them): the cell opens
-    on them and leaves them running (a second controller on the same simulated cell, a reconnect)."""
+    on them and leaves them running (a second controller on the same simulated cell, a reconnect).
+    `modules`: only these simulators (sims/up.py SIM_MODULES names; `cell align run --sim`: the
+    CNC's); `config_dir`: where the sim config's relative paths start."""
     own = simulators is None
     if own:
-        cfg, simulators = await start_simulators(cfg, sim, log_dir=log_dir, faults=faults, process=process)
+        cfg, simulators = await start_simulators(cfg, sim, log_dir=log_dir, faults=faults, process=process,
+                                                 modules=modules, config_dir=config_dir)
     sims = simulators
     try:
         if reply_timeout_ms is None and isinstance(sims, SimHarness):
