@@ -19,7 +19,7 @@ from typing import Any, Callable
 import numpy as np
 
 from controller.align.intact import MIN_SIDE_MM, intact_spots
-from controller.align.surface_probe import probe_cad_points, repaired_spots
+from controller.align.surface_probe import probe_cad_points, repaired_spots, stock_spots
 from controller.motion.mill import change_tool, program_lines, run_program
 from controller.align.routine import alignment_record, plan_for_mesh
 from controller.api import CellController
@@ -261,12 +261,14 @@ async def finish_repair(link: CncLinkPort, cell: CellConfig, job: CellJob, cad: 
     cad_tri, stock_tri = np.asarray(cad.triangles, dtype=float), np.asarray(stock.triangles, dtype=float)
     assert job.repair is not None and job.repair.bounds_mm is not None
     rb = np.asarray(job.repair.bounds_mm, dtype=float)
-    spots = repaired_spots(cad_tri, stock_tri, rb, m.probe_points)
+    spots, kinds = stock_spots(cad_tri, stock_tri, rb)     # dense where a deposit falls short
+    vspots = repaired_spots(cad_tri, stock_tri, rb, m.probe_points)
     top = float(max(L.z_mm for L in job.layers)) + 1.0
     say("stock")
     pts = await probe_cad_points(link, cell, spots, top, transform, "stock")
     margin = stock_margin(cad_tri, pts)
     stock_rec = {"min_mm": _rounded(np.nanmin(margin)), "max_mm": _rounded(np.nanmax(margin)), "points": len(pts),
+                 "kinds": {k: kinds.count(k) for k in ("corner", "ring", "inside")},
                  "min_stock_mm": m.min_stock_mm, "at": np.round(pts, 3).tolist()}
     if not np.all(margin >= m.min_stock_mm):
         raise CellError(f"repair: the deposit stands less than {m.min_stock_mm} mm above CAD at "
@@ -285,7 +287,7 @@ async def finish_repair(link: CncLinkPort, cell: CellConfig, job: CellJob, cad: 
     wall_s = await run_program(link, program_lines(plan, transform, cutter))
     await change_tool(link, cell.tools, cell.tools.deposition.number, clear_z)
     say("verify")
-    vpts = await probe_cad_points(link, cell, spots, top, transform, "verify")
+    vpts = await probe_cad_points(link, cell, vspots, top, transform, "verify")
     verify = machined_verify(vpts, stock_margin(cad_tri, vpts), m.verify_tolerance_mm)
     machining = {"tool": name, "removal_mm3": _rounded(removal), "wall_s": round(wall_s, 2),
                  "est_time_s": round(plan.est_time_s, 1), "passes": len(plan.passes), "levels": plan.levels,

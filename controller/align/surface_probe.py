@@ -1,9 +1,11 @@
 """Probing a surface from above at CAD-frame spots: the repair's stock probe and its verify.
 
-`repaired_spots` picks the spots: a grid over the repaired region (where the stock lies below
-the CAD top by more than 0.05 mm), kept `inset_mm` in from its boundary, spread by farthest-point
-sampling. `probe_cad_points` touches them through the alignment transform (CAD → machine) and
-reads the touches back into the CAD frame.
+`repaired_spots` picks the verify's spots: a grid over the repaired region (where the stock lies
+below the CAD top by more than 0.05 mm), kept `inset_mm` in from its boundary, spread by
+farthest-point sampling. `stock_spots` picks the stock probe's, dense where a deposit falls short
+(docs/machining.md "The stock probe"): the region's corners, a ring along its boundary, then a
+grid over its inside. `probe_cad_points` touches them through the alignment transform
+(CAD → machine) and reads the touches back into the CAD frame.
 """
 from __future__ import annotations
 
@@ -54,6 +56,61 @@ def repaired_spots(cad_tri: F, stock_tri: F, bounds_xy: F, n: int, inset_mm: flo
     if not core.any():
         raise InputError("repair: no repaired region to probe (the stock meets the CAD everywhere in the bounds)")
     return _spread(xy[core.ravel()], n)
+
+
+def _repaired_mask(cad_tri: F, stock_tri: F, bounds_xy: F, step_mm: float) -> tuple[F, np.ndarray, tuple[int, int]]:
+    """Cell centres over the bounds (step_mm), and where the stock lies > 0.05 mm below the CAD top."""
+    lo, hi = np.asarray(bounds_xy, dtype=float)[0, :2], np.asarray(bounds_xy, dtype=float)[1, :2]
+    xs = np.arange(lo[0] + step_mm / 2, hi[0], step_mm)
+    ys = np.arange(lo[1] + step_mm / 2, hi[1], step_mm)
+    gx, gy = np.meshgrid(xs, ys)
+    xy = np.column_stack([gx.ravel(), gy.ravel()])
+    missing = cad_top(cad_tri, xy) - np.nan_to_num(cad_top(stock_tri, xy), neginf=-1e9)
+    return xy, (np.isfinite(missing) & (missing > 0.05)).reshape(gx.shape), gx.shape
+
+
+def _spaced(xy: F, order: np.ndarray, spacing: float, fixed: F | None = None) -> list[int]:
+    """Indices taken in `order`, each at least `spacing` from every one taken before (and from `fixed`)."""
+    taken: list[int] = []
+    near = np.empty((0, 2)) if fixed is None else np.asarray(fixed, dtype=float).reshape(-1, 2)
+    for i in order:
+        if not len(near) or float(np.min(np.hypot(*(near - xy[i]).T))) >= spacing - 1e-9:
+            taken.append(int(i))
+            near = np.vstack([near, xy[i]])
+    return taken
+
+
+def stock_spots(cad_tri: F, stock_tri: F, bounds_xy: F, *, ring_step_mm: float = 1.5, inner_step_mm: float = 3.0,
+                ring_inset_mm: float = 0.75, step_mm: float = 0.5) -> tuple[F, list[str]]:
+    """The stock probe's spots (CAD frame) and their kinds ("corner", "ring", "inside").
+
+    A deposit falls short first where its beads end: the repaired region's corners and along its
+    boundary. Ring: the cells about `ring_inset_mm` in from the boundary, taken most-enclosed first
+    (the count of outside cells within 2 mm: corners come first), `ring_step_mm` apart; inside: the
+    cells deeper than twice that, deepest first, `inner_step_mm` from every spot taken."""
+    # lazy: scipy's ndimage loads only when this path runs (start-up time)
+    from scipy.ndimage import convolve, distance_transform_edt
+
+    xy, mask, shape = _repaired_mask(cad_tri, stock_tri, bounds_xy, step_mm)
+    if not mask.any():
+        raise InputError("repair: no repaired region to probe (the stock meets the CAD everywhere in the bounds)")
+    depth = distance_transform_edt(np.pad(mask, 1)).astype(float)[1:-1, 1:-1] * step_mm   # to the nearest outside
+    r = int(np.ceil(2.0 / step_mm))
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    outside = convolve((~mask).astype(float), ((xx * xx + yy * yy) <= r * r).astype(float), mode="constant", cval=1.0)
+    d, o = depth.ravel(), outside.ravel()
+    ring = np.flatnonzero(mask.ravel() & (np.abs(d - ring_inset_mm - step_mm / 2) <= step_mm / 2 + 1e-9))
+    ring = ring[np.argsort(-o[ring], kind="stable")]
+    pick = _spaced(xy, ring, ring_step_mm)
+    n_ring = len(pick)
+    corner = max(float(np.median(o[ring])) * 1.3, 1.0) if len(ring) else np.inf
+    inner = np.flatnonzero(mask.ravel() & (d >= 2 * ring_inset_mm + step_mm))
+    inner = inner[np.argsort(-d[inner], kind="stable")]
+    pick_inner = _spaced(xy, inner, inner_step_mm, xy[pick])
+    if not pick and not pick_inner:   # a sliver: its middle
+        pick_inner = [int(np.flatnonzero(mask.ravel())[np.argmax(d[mask.ravel()])])]
+    kinds = ["corner" if o[i] >= corner else "ring" for i in pick] + ["inside"] * len(pick_inner)
+    return xy[pick + pick_inner], kinds
 
 
 async def probe_cad_points(link: ProbePort, cell: Any, xy: F, top_z: float, transform: F,
