@@ -102,7 +102,6 @@ def stock_spots(cad_tri: F, stock_tri: F, bounds_xy: F, *, ring_step_mm: float =
     ring = np.flatnonzero(mask.ravel() & (np.abs(d - ring_inset_mm - step_mm / 2) <= step_mm / 2 + 1e-9))
     ring = ring[np.argsort(-o[ring], kind="stable")]
     pick = _spaced(xy, ring, ring_step_mm)
-    n_ring = len(pick)
     corner = max(float(np.median(o[ring])) * 1.3, 1.0) if len(ring) else np.inf
     inner = np.flatnonzero(mask.ravel() & (d >= 2 * ring_inset_mm + step_mm))
     inner = inner[np.argsort(-d[inner], kind="stable")]
