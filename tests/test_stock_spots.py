@@ -7,18 +7,18 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from controller.align.surface_probe import stock_spots
-from controller.job.repair_volume import _manifold, _trimesh
+from controller.job.repair_volume import to_manifold, to_trimesh
 
 
 def _block_with(cuts: list[tuple[tuple[float, float, float], tuple[float, float, float]]]):
     cad = trimesh.creation.box(extents=(100, 100, 20))
     cad.apply_translation((0, 0, -10))
-    stock = _manifold(cad, "cad")
+    stock = to_manifold(cad, "cad")
     for k, (ext, ctr) in enumerate(cuts):
         b = trimesh.creation.box(extents=ext)
         b.apply_translation(ctr)
-        stock = stock - _manifold(b, f"cut{k}")
-    return np.asarray(cad.triangles), np.asarray(_trimesh(stock).triangles)
+        stock = stock - to_manifold(b, f"cut{k}")
+    return np.asarray(cad.triangles), np.asarray(to_trimesh(stock).triangles)
 
 
 def test_a_pocket_is_probed_at_its_corners_first_along_its_walls_and_inside():
