@@ -181,6 +181,11 @@ class MotionExecutor(Protocol):
         """The pass the next weld moves belong to (its tool axes)."""
     def on_position(self, fn: Callable[[float, float], None]) -> None:
         """`fn(t, s)` as the device reports the tool s mm along the pass (CNC; a robot reports by EXE)."""
+    def on_power(self, fn: Callable[[float, float, float, float], None]) -> None:
+        """`fn(t, s, feed, power)` as the device reports its feed and process power s mm along the pass (CNC)."""
+    @property
+    def power_follows_speed(self) -> float | None:
+        """The S the device scales its process power from with its actual speed (grbl `M4`), else None."""
     def weld_points_by_ticket(self) -> dict[int, int]:
         """Robot: the weld point each sent move ends at, by ticket (a CNC: empty)."""
     def on_link_lost(self, fn: Callable[[str], None]) -> None:

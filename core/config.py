@@ -16,7 +16,6 @@ from core.tools import Machining, Tools
 
 M = TypeVar("M", bound=BaseModel)
 
-
 _NET_SCHEMES = ("socket", "tcp", "rfc2217", "udp")
 
 
@@ -112,6 +111,7 @@ class CncDevice(_Frozen):
     rx_buffer_bytes: int = Field(default=128, ge=32, le=4096)
     status_hz: float = Field(default=5.0, gt=0.0, le=5.0)
     homing_timeout_s: float = Field(default=120.0, gt=0.0)   # $H is silent until done
+    process_power: Literal["dynamic", "constant"] = "dynamic"   # M4 follows the speed; M3 (docs/laser-power.md)
 
 
 class CanSettings(_Frozen):

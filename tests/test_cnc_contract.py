@@ -326,3 +326,35 @@ async def test_a_milling_program_streams_in_spindle_mode_with_its_tool_change(ta
     st = await link.wait_idle(120)
     assert st.state == "Idle" and not link.alarms
     assert _settings(await link.command("$$"))[32] == "0"          # still spindle mode, read back
+
+
+async def test_m4_laser_power_follows_the_actual_speed(target: Target) -> None:
+    """Issue 35 item 5 (docs/laser-power.md): in laser mode `M4 S1000` puts out S × the actual
+    speed / the programmed feed in a feed move (through the corner's slow-down and the stop at the
+    end), nothing standing still: every status report's FS power against its own feed."""
+    if target.name == "grblhal":
+        pytest.skip("grblHAL's Simulator reports the programmed S under M4 (its PWM spindle's laser "
+                    "capability is never updated: spindleConfig leaves spindle_update_caps out)")
+    link = target.link
+    await link.laser_mode(True)
+    await link.command("G21 G90 G94")
+    await link.command("G1 F600")              # above grbl-sim's max rate (500): the actual speed is lower
+    await link.command("M4 S1000")
+    idle = await link.status()
+    assert idle.spindle == 0                    # M4 standing still: off
+    assert "M4" in (await link.command("$G"))[0]
+    k = 40 if target.name == "sim" else 1      # the simulator runs at 50x, grbl-sim at ~0.37x
+    stream = asyncio.ensure_future(link.stream([f"G1 X{6 * k}", f"G1 X{6 * k} Y{6 * k}", "G1 X0 Y0"]))
+    seen = []
+    while not stream.done():
+        st = await link.status()
+        if st.state == "Run":
+            seen.append((st.feed, st.spindle))
+        await asyncio.sleep(0.02)
+    await stream
+    assert len(seen) >= 5
+    for feed, power in seen:                    # S × feed / F, rounded to whole units in the report
+        assert power == pytest.approx(1000.0 * feed / 600.0, abs=2.0), seen
+    assert target.name == "sim" or min(f for f, _ in seen) < 450   # grbl slowed down (corners, the end)
+    assert (await link.wait_idle(30)).spindle == 0
+    await link.command("M5")

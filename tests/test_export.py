@@ -216,12 +216,13 @@ def _tiny_job(axes: bool) -> dict:
     """Two short layers: quick on firmware that runs at a third of real time."""
     job = _job(axes=axes)
     job["layers"] = job["layers"][:2]
+    job["schema"] = "cell-job/2"
     for L in job["layers"]:
         L["interpass"]["dwell_s"] = 0.1
         L["passes"] = L["passes"][:1]
         p = L["passes"][0]
         p["points"] = [[x, 5.0, L["z_mm"]] for x in (0.0, 4.0, 8.0)]
-        p["speed_mm_min"] = 3000.0
+        p["speed_mm_min"] = [3000.0, 2400.0]     # cell-job/2: a speed per segment
         if axes:
             p["axes"] = p["axes"][:3]
     return job
@@ -279,3 +280,4 @@ async def test_exported_gcode_runs_on_real_firmware_every_line_ok(tmp_path, kind
     code = [ln for ln in lines if not ln.startswith("(")]
     out, _axes = await firmware.stream_program(kind, lines, fast=True)   # GrblError names the first refused line
     assert out.acked == out.lines >= len(code)
+    assert any(ln.startswith("M4 S") for ln in code) and any("F2400" in ln for ln in code) or axes

@@ -306,3 +306,28 @@ def test_a_cnc_beads_timing_from_its_status_positions_its_closing_ok_and_its_set
     p = cnc(0.030)
     p.t_go = None
     assert abs(p.figures(k, 80.0)["arc_s"] - 8.0) < 0.01
+
+
+def test_a_cnc_corner_slow_down_under_m4_is_judged_by_its_power_not_as_a_stand_still() -> None:
+    """Issue 35 item 5 (docs/laser-power.md): grbl slows to 10 % through a corner for 0.2 s. Under
+    `M4` its status reports show the power falling with the speed (S × feed / F): a slow-down
+    (`slowed_n`), no stand-still. The same reports at constant power (`M3`, or an M4 power that did
+    not follow) are a stand-still, as before."""
+    def bead(dynamic: bool, power_follows: bool) -> Pace:
+        p = Pace(t_release=0.0, s_release=0.0, planned_mm_min=600.0, speed_tol=0.10,
+                 power_s=1000.0 if dynamic else None)
+        t = s = 0.0
+        for k in range(20):                     # a report each 20 ms at 10 mm/s, 50 ms at 1 mm/s (k 8-11)
+            slow = 8 <= k < 12
+            t, s = t + (0.05 if slow else 0.02), s + (0.05 if slow else 0.2)
+            feed = 60.0 if slow else 600.0
+            p.at(t, s)
+            p.powered(t, s, feed, 1000.0 * feed / 600.0 if power_follows else 1000.0)
+        return p
+
+    m4 = bead(True, True).figures(1.0, 3.4)
+    assert m4["still_n"] == 0 and (m4["slowed_n"] or 0) >= 1
+    m3 = bead(False, False).figures(1.0, 3.4)
+    assert (m3["still_n"] or 0) >= 1 and m3["slowed_n"] is None
+    stuck = bead(True, False).figures(1.0, 3.4)   # M4 asked, but the power stayed up: the energy rose
+    assert (stuck["still_n"] or 0) >= 1 and stuck["slowed_n"] == 0

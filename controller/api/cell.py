@@ -186,7 +186,8 @@ class CellController:
             from controller.motion.cnc import CncExecutor
 
             self.executor = CncExecutor(self.devices.cnc_link(), self.devices.power_source(),
-                                        trunnion=Trunnion.from_config(self.cfg.kinematics))
+                                        trunnion=Trunnion.from_config(self.cfg.kinematics),
+                                        dynamic_power=self.cfg.devices.cnc.process_power == "dynamic")
         self.interlocks = Interlocks(machine=self.machine, journal=self.journal, bus=self.bus,
                                      power=self.devices.power_source(), executor=self.executor,
                                      cellio=self.devices.cellio)

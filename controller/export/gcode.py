@@ -1,7 +1,8 @@
 """G-code for grbl 1.1 / grblHAL (docs/contract.md §5, CNC): the program the live CNC executor streams.
 
 Per layer an interpass dwell (`G4 P<s>`, grbl's P is seconds); per pass a travel above the start,
-down to it, `M3 S<power>` (process on), the `G1` weld moves at the pass's feed, `M5` (process off).
+down to it, `M4 S<power>` (process on, grbl's dynamic laser power in laser mode `$32=1`: the power
+follows the actual speed, docs/laser-power.md), the `G1` weld moves at the pass's feed, `M5` (process off).
 Each pass is headed by a comment carrying its welding parameters, so the file round-trips.
 5-axis passes go through the same post-processor and lines as the executor (controller/motion/post5.py,
 lines5.py): the same chord tolerance, each line at least twice its serial time at the cell's baud.
@@ -55,7 +56,7 @@ def _five_axis_pass(prog: Program, p: ProgramPass, post: Post5, letters: str, pr
     up = lm[0].copy()
     up[2] += clearance_mm
     out = [_pass_comment(p), "G94", move_line(up, letters, verb="G0"), f"G1 Z{_f(lm[0][2])} F{travel_mm_min:.0f}",
-           f"M3 S{power_s}", "G93"]
+           f"M4 S{power_s}", "G93"]
     out += [compact_line(lm[k - 1], lm[k], letters, 60.0 / float(t[k - 1])) for k in range(1, len(lm))]
     out += ["G94", "M5", f"G0 Z{_f(lm[-1][2] + clearance_mm)}"]
     return out, (float(lm[-1][3]), float(lm[-1][4]))
@@ -73,7 +74,7 @@ def write_gcode(prog: Program, *, clearance_mm: float, travel_mm_min: float, pow
     letters = "XYZA" + ("B" if trunnion is not None and trunnion.table == "AB" else "C")
     prev: tuple[float, float] | None = None
     out = [f"(cell export: {prog.name})", f"(job sha256 {prog.sha256[:16]})",
-           "G21 G90 G94", "M5"]
+           "(laser mode: set $32=1 before streaming; M4 power follows the speed)", "G21 G90 G94", "M5"]
     if prog.aligned:
         out.append("(alignment applied: points in the machine frame)")
     last_layer: int | None = None
@@ -91,7 +92,7 @@ def write_gcode(prog: Program, *, clearance_mm: float, travel_mm_min: float, pow
         pts, _ = prog.machine(p)
         x0, y0, z0 = pts[0]
         out += [_pass_comment(p), f"G0 Z{_f(z0 + clearance_mm)}", f"G0 X{_f(x0)} Y{_f(y0)}",
-                f"G1 Z{_f(z0)} F{travel_mm_min:.0f}", f"M3 S{power_s}"]
+                f"G1 Z{_f(z0)} F{travel_mm_min:.0f}", f"M4 S{power_s}"]
         out += _weld_moves(pts, p)
         out += ["M5", f"G0 Z{_f(pts[-1][2] + clearance_mm)}"]
     out += ["M5", "M30"]
@@ -180,7 +181,7 @@ class _Reader:
             self.feed = float(words["F"])
         if any(k in words for k in "XYZABC"):
             self._move(words)
-        if words.get("M") == "3":
+        if words.get("M") in ("3", "4"):   # M3 constant, M4 dynamic power: the process on
             self.on, self.pts, self.feeds, self.speed = True, [dict(self.pos)], [], self.feed
         elif words.get("M") == "5" and self.on:
             self._process_off()

@@ -9,7 +9,8 @@ from __future__ import annotations
 import json
 from typing import Any
 
-BEAD_EXTRA = ("arc_s", "still_n", "still_s", "still_max_s", "lag_s", "i_p5", "i_p95", "u_p5", "u_p95", "wfs_p5", "wfs_p95")
+BEAD_EXTRA = ("arc_s", "still_n", "still_s", "still_max_s", "lag_s", "i_p5", "i_p95", "u_p5", "u_p95", "wfs_p5", "wfs_p95",
+               "slowed_n")
 
 
 def read_extra(info: str) -> dict[str, Any]:

@@ -1,7 +1,8 @@
-"""CNC executor (grbl 1.1, docs/contract.md §5): the robot's sequence with `G4 P0` sync points and M3/M5.
+"""CNC executor (grbl 1.1, docs/contract.md §5): the robot's sequence with `G4 P0` sync points and M4/M5.
 
 Per pass: `G0` above the start and down to it, `G4 P0` (grbl answers `ok` only once motion has
-stopped: the torch is at the start); arc start handshake on the power source; then `M3 S…`,
+stopped: the torch is at the start); arc start handshake on the power source; then `M4 S…`
+(grbl's dynamic laser power: the power follows the actual speed, docs/laser-power.md),
 the `G1` weld moves streamed with character counting, `M5`, and the stream's closing `G4 P0`
 marks the last weld move executed. grbl reports no per-line execution, so progress comes from
 the status reports (≤ 5 Hz): a point counts as reached once the machine position lies on a
@@ -36,7 +37,7 @@ class CncExecutor:
     platform = "cnc"
 
     def __init__(self, link: CncLinkPort, power: PowerSourcePort | None = None, spindle_s: int = 1000,
-                 trunnion: Trunnion | None = None) -> None:
+                 trunnion: Trunnion | None = None, dynamic_power: bool = True) -> None:
         self.link = link
         self.five = Five(trunnion)  # 5-axis passes (controller/motion/cnc5.py); inactive for 3-axis jobs
         self.power = power
@@ -47,6 +48,8 @@ class CncExecutor:
         self.min_ahead: int | None = None
         self._lost_cbs: list[Callable[[str], None]] = []
         self._pos_cbs: list[Callable[[float, float], None]] = []
+        self._power_cbs: list[Callable[[float, float, float, float], None]] = []
+        self.dynamic_power = dynamic_power   # `M4`: the process power follows the actual speed (docs/laser-power.md)
         self.exe_t = 0.0   # when the latest progress (status report, the closing `ok`) came off the wire
         self.go_t = 0.0    # when the current bead's weld lines began to go out (grbl sets off at once)
         self.stopping: asyncio.Task[SafeStopResult] | None = None   # the safe stop of the latest hold_now()
@@ -80,6 +83,15 @@ class CncExecutor:
         """`fn(t, s)` for every status report during a weld: at wall time t (as the report came off
         the wire) the tool was s mm along the pass's points (the bead's pace: runtime/bead_measure.py)."""
         self._pos_cbs.append(fn)
+
+    def on_power(self, fn: Callable[[float, float, float, float], None]) -> None:
+        """`fn(t, s, feed, power)` for every status report during a weld: its `FS:` feed and power."""
+        self._power_cbs.append(fn)
+
+    @property
+    def power_follows_speed(self) -> float | None:
+        """`M4` (laser mode, $32=1): grbl scales the power S with the actual speed (docs/laser-power.md)."""
+        return float(self.spindle_s) if self.dynamic_power else None
 
     async def prepare(self) -> None:
         st = await self.link.status()
@@ -156,7 +168,7 @@ class CncExecutor:
                    on_exec: Callable[[int, int], None]) -> "asyncio.Task[int]":
         self._release = asyncio.Event()
         self.go_t = 0.0
-        lines = [f"M3 S{self.spindle_s}"]
+        lines = [f"{'M4' if self.dynamic_power else 'M3'} S{self.spindle_s}"]
         if self.five.active:  # chord-tolerance split moves: the track maps back to the planned points
             lines += self.five.weld_lines(i0, speed)
             track, t0, on_track = self.five.track(i0, on_exec)
@@ -205,6 +217,8 @@ class CncExecutor:
             if at is not None:
                 for fn in self._pos_cbs:
                     fn(self.exe_t, at)
+                for pf in self._power_cbs:
+                    pf(self.exe_t, at, st.feed, st.spindle)
 
     async def at_start(self) -> None:
         return None  # approach() returned after its G4 P0: the torch is there

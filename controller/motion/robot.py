@@ -72,6 +72,13 @@ class RobotExecutor:
     def on_position(self, fn: Callable[[float, float], None]) -> None:
         """Never called: a robot's pace comes from its EXEs (runtime/bead_measure.py)."""
 
+    def on_power(self, fn: Callable[[float, float, float, float], None]) -> None:
+        """Never called: the robot's source holds its own power (the bead judge reads the source)."""
+
+    @property
+    def power_follows_speed(self) -> None:
+        return None
+
     async def post_job(self, job: CellJob, max_step_mm: float) -> None:
         """The planned tool axis per weld point of every 5-axis pass (`axes`), before any motion."""
         if job.frame == "cad" and job.alignment is None:

@@ -95,6 +95,7 @@ def _bead_run(b: dict[str, Any], plan: Pass | None, scale: float, samples: list[
         arc = max(0.0, b["arc_off"] - b["arc_on"]) * scale
     return {"run": b["run"], "interrupted": bool(b["interrupted"]), "arc_s": arc, "motion_s": b.get("motion_s"),
             "still_s": b.get("still_s"), "still_n": b.get("still_n"), "still_max_s": b.get("still_max_s"),
+            "slowed_n": b.get("slowed_n"),
             "length_mm": b["length_mm"], "i_mean": b["i_mean"], "i_min": b["i_min"], "i_max": b["i_max"],
             "i_p5": b.get("i_p5"), "i_p95": b.get("i_p95"), "u_mean": b["u_mean"], "u_min": b["u_min"],
             "u_max": b["u_max"], "u_p5": b.get("u_p5"), "u_p95": b.get("u_p95"), "w_mean": w_mean,
@@ -161,6 +162,7 @@ def bead_records(journal: Journal, job: Job | None, scale: float, defects: list[
             "arc_time_s": _r(arc, 3), "motion_time_s": _r(motion, 3),
             "still_time_s": _r(_sum(rows, "still_s"), 3), "still_count": _sum(rows, "still_n"),
             "still_max_s": _r(_ext(rows, "still_max_s", max), 3),
+            "slowed_count": _sum(rows, "slowed_n"),   # report.json only: M4 slow-downs (docs/laser-power.md)
             "length_planned_mm": _r(_polyline_mm(plan.points.tolist()), 2) if plan else None,
             "length_measured_mm": _r(length, 2),
             "current_planned_a": plan.current_a if plan else None, "current_mean_a": _r(i_mean),

@@ -15,8 +15,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
+
+from controller.ports import MotionExecutor
 
 BUS_CYCLE_S = 0.010   # the power source's bus cycle (wall): how finely the controller sees the process
 # wall: how late a device's report may come without the torch having stood; the arc time forgives
@@ -98,6 +101,10 @@ class Pace:
     # per-move planned speeds (cell-job/2): mm along the weld points and the process s to reach them
     plan_s: list[float] | None = None
     plan_t: list[float] | None = None
+    # M4 (docs/laser-power.md): the S the device scales its process power from with its actual
+    # speed; then its status reports (wall t, mm along, feed, power) judge a slow-down's energy
+    power_s: float | None = None
+    power: list[tuple[float, float, float, float]] = field(default_factory=list)
 
     def planned_wall(self, s: float, time_scale: float) -> float:
         """Wall seconds the plan takes from the pass's first point to `s` mm along it (each move at
@@ -127,6 +134,34 @@ class Pace:
         At the start it may not have set off yet: that says nothing of its pace."""
         if s > self.s_release + 1e-3:
             self.reached(t, s)
+
+    def powered(self, t: float, s: float, feed: float, power: float) -> None:
+        """A status report's feed and process power (mm/min, S) at wall time t, s mm along the pass."""
+        self.power.append((t, s, feed, power))
+
+    def _plan_mm_min(self, s: float) -> float | None:
+        """The planned speed (process mm/min) of the move at `s` mm along the pass, or of the move
+        after it where that is slower: grbl computes the power of the step segments it prepares,
+        which run ahead of the position it reports, into the next block."""
+        if self.plan_s is not None and self.plan_t is not None and len(self.plan_s) >= 2:
+            k = min(max(int(np.searchsorted(self.plan_s, s, side="right")) - 1, 0), len(self.plan_s) - 2)
+            v = [(self.plan_s[j + 1] - self.plan_s[j]) / (self.plan_t[j + 1] - self.plan_t[j]) * 60.0
+                 for j in (k, k + 1) if j + 1 < len(self.plan_s) and self.plan_t[j + 1] > self.plan_t[j]]
+            return min(v) if v else None
+        return self.planned_mm_min
+
+    def power_followed(self, t0: float, t1: float) -> bool:
+        """With M4 in force: the device's reports in [t0, t1] all show its power at most its actual
+        speed's share of S (S × feed / the planned speed, within the speed tolerance and one unit
+        of the report's rounding): whatever slowed it put no more energy into a millimetre."""
+        got = [p for p in self.power if t0 <= p[0] <= t1]
+        if self.power_s is None or not got:
+            return False
+        for _, s, feed, power in got:
+            v = self._plan_mm_min(s)
+            if v is None or v <= 0 or power > self.power_s * feed / v * (1.0 + self.speed_tol) + 1.0:
+                return False
+        return True
 
     def speed_mm_s(self) -> float | None:
         """Wall mm/s: the slope over the EXEs (two or more), else from the release to the one EXE.
@@ -269,16 +304,35 @@ class Pace:
         stretch and once for the one closing it) is a stand-still. Returned in
         process seconds: `still_n` stand-stills, `still_s` their total, `still_max_s` the longest;
         `lag_s` is how much longer the whole bead took than its length at the planned speed.
+        With M4 in force a stretch whose reports show the power following the speed
+        (`power_followed`) is a slow-down, not a stand-still: `slowed_n` counts them (None: no M4).
         """
         st = self._stretches(time_scale, cycle_s)
         if st is None:
             return {"still_n": None, "still_s": None, "still_max_s": None, "lag_s": None}
         pts, _, stretches = st
-        rises = [rise for rise, allowed in stretches if rise > allowed]
+        slow = [(rise, pts[k][0], pts[k + 1][0]) for k, (rise, allowed) in enumerate(stretches) if rise > allowed]
+        rises = [rise for rise, t0, t1 in slow if not self.power_followed(t0, t1)]
         t_end, s_end = pts[-1]
         lag = (t_end - pts[0][0]) - max(0.0, self.planned_wall(s_end, time_scale) - self.planned_wall(self.s_release, time_scale))
         return {"still_n": len(rises), "still_s": sum(rises) * time_scale,
+                "slowed_n": None if self.power_s is None else len(slow) - len(rises),
                 "still_max_s": max(rises, default=0.0) * time_scale, "lag_s": lag * time_scale}
+
+
+def follow_pace(executor: MotionExecutor, pace: Callable[[], Pace | None]) -> None:
+    """The device's position (and process power) reports into the current bead's pace, if any."""
+    def at(t: float, s: float) -> None:
+        p = pace()
+        if p is not None:
+            p.at(t, s)
+
+    def powered(t: float, s: float, feed: float, power: float) -> None:
+        p = pace()
+        if p is not None:
+            p.powered(t, s, feed, power)
+    executor.on_position(at)
+    executor.on_power(powered)
 
 
 def envelope_speed(points: list[tuple[float, float]]) -> float | None:

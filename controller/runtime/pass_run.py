@@ -22,7 +22,7 @@ from controller.ports import ArcControl, CellIOPort, MotionExecutor, PowerSource
 from controller.runtime.arc_out import arc_lengths, point_at
 from controller.runtime.bead_check import judge
 from controller.runtime.bead_cut import BeadCut, run_on_after_trip
-from controller.runtime.bead_measure import BeadStats, Pace
+from controller.runtime.bead_measure import BeadStats, Pace, follow_pace
 from controller.runtime.bead_plan import MovePlan, move_plan
 from controller.runtime.device_record import crash_rearc, dry_lookahead
 from controller.runtime.events import EventBus
@@ -80,7 +80,7 @@ class PassRunner:
         self._stream: asyncio.Task[int] | None = None
         self._at: Point | None = None          # where the torch stands after the previous bead
         # the CNC's status positions: the bead's pace (a robot's pace comes from its EXEs)
-        executor.on_position(lambda t, s: self._pace.at(t, s) if self._pace is not None else None)
+        follow_pace(executor, lambda: self._pace)   # and, under M4, its feed and power (docs/laser-power.md)
 
     # -- the devices' callbacks, for one run ------------------------------------------------------
     def attach(self) -> None:
@@ -172,7 +172,7 @@ class PassRunner:
         self.bus.update(arc_starts=self.bus.latest.arc_starts + 1, travel_speed_mm_min=speed)
         self.m.send("arc_on")
         self._t_exe = time.monotonic()
-        self._pace = Pace(self._t_exe, start_mm, starved=-self.ex.starved, planned_mm_min=speed,
+        self._pace = Pace(self._t_exe, start_mm, starved=-self.ex.starved, planned_mm_min=speed, power_s=self.ex.power_follows_speed,
                           speed_tol=self.o.bead_tolerance().speed_pct / 100, plan_s=plan.plan_s, plan_t=plan.plan_t)
         self.ex.release()
         self.watchdog = ProgressWatchdog.of(self.ex, self.power, self.progress_s, self.o.time_scale,

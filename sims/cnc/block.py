@@ -32,6 +32,7 @@ class Block:
     feed: float = 0.0                    # mm/min (rapids: the max rate)
     s: float = 0.0                       # laser / process power in effect
     spindle: bool | None = None          # M3/M4 → True, M5 → False, None: no change
+    ccw: bool = False                    # M4: in laser mode the power follows the actual speed
     probe: str | None = None             # "G38.2" | "G38.3"
     started: bool = False
     done: bool = False

@@ -118,6 +118,12 @@ def _spindle(ms: list[int]) -> bool | None:
     return spindle
 
 
+def _spindle_block(seq: int, line: str, on: bool, ms: list[int], s: float) -> Block:
+    """The spindle / laser block of a line: M3, M4 (sims/cnc/laser.py: dynamic power) or M5."""
+    ccw = on and 4 in ms
+    return Block(seq, ("M4" if ccw else "M3") if on else "M5", line, s=s, spindle=on, ccw=ccw)
+
+
 def _check_words(words: dict[str, float], letters: str, dwell: bool) -> None:
     for letter in words:
         if letter not in letters + "FSPT":
@@ -179,7 +185,7 @@ async def run_gcode(sim: CncParts, line: str) -> list[str]:
     axes = {k: v for k, v in words.items() if k in sim.machine.letters}
     mode = sim.machine.motion_mode
     if spindle is not None:
-        sim.machine.push(Block(seq, "M3" if spindle else "M5", line, s=sim.machine.s_word, spindle=spindle))
+        sim.machine.push(_spindle_block(seq, line, spindle, ms, sim.machine.s_word))
     if modes.dwell:
         await sim.machine.sync()
         await asyncio.sleep(sim.clock.wall(max(words["P"], 0.0)))

@@ -28,6 +28,7 @@ def move_block(sim: CncParts, b: Block, target: Pos5, t: float, now: float) -> f
     delta = [e - s for s, e in zip(p0, target)]
     dist = math.sqrt(sum(d * d for d in delta))
     v = max(b.feed, 1e-6) / 60.0
+    sim.machine.speed_mm_min = b.feed
     if sim.machine.hold:  # decelerating to a stop (Hold:1): speed falls linearly to 0
         _decelerate(sim, b, target, p0, delta, dist, t, now)
         return None
@@ -50,6 +51,7 @@ def _decelerate(sim: CncParts, b: Block, target: Pos5, p0: Pos5, delta: list[flo
     th, dec = sim.machine.hold_t or t, max(sim.machine.hold_decel, 1e-9)
     a0, a1 = max(t - th, 0.0), min(now - th, dec)
     travel = sim.machine.hold_v * ((a1 - a0) - (a1 * a1 - a0 * a0) / (2 * dec)) if a1 > a0 else 0.0
+    sim.machine.speed_mm_min = sim.machine.hold_v * 60.0 * max(1.0 - a1 / dec, 0.0)   # the speed at `now`
     stop = now - th >= dec
     if travel >= dist:
         p1, t1 = target, now

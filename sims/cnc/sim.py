@@ -26,6 +26,7 @@ from sims.cnc.block import DEVICE, Block, GrblError, Pos5, pos5
 from sims.cnc.cut import Spindle, sim_tools, use_deposit_map
 from sims.cnc.freeze import Freeze
 from sims.cnc.gcode import run_gcode
+from sims.cnc.laser import process_power
 from sims.cnc.motion import finish, move_block
 from sims.cnc.state import CncState
 from sims.cnc.system import DEFAULT_SETTINGS, VERSION, system_command
@@ -181,11 +182,11 @@ class CncSim:
         cur = self.machine.current()
         moving = cur is not None and not (self.machine.hold and self.machine.hold_sub == 0) and not self.machine.alarm
         feed = cur.feed if moving and cur is not None else 0.0
-        s = self.machine.spindle_s if self.machine.spindle_on else 0.0
+        s = process_power(self.machine, cur if moving else None)
         pins = "P" if self.probe_tripped() else ""
         return GrblStatus(state=name, mpos=pos5(self.machine.pos), feed=feed, spindle=s,
                           probe_tripped=bool(pins), substate=int(sub) if sub else None, pins=pins,
-                          accessories="S" if self.machine.spindle_on else "")
+                          accessories=("C" if self.machine.spindle_ccw else "S") if self.machine.spindle_on else "")
 
     def status_line(self) -> str:
         return format_status(self.status(), report_buffer=bool(int(self.machine.settings[10]) & 2),
@@ -243,7 +244,7 @@ class CncSim:
         self.machine.hold = False
         self.machine.hold_sub = 0
         self.machine.homing = False
-        self.machine.spindle_on = False
+        self.machine.spindle_on = self.machine.spindle_ccw = False
         self.machine.reset_modal()
         self.machine.gc_pos = list(self.machine.pos)
         if moving:
@@ -357,7 +358,7 @@ class CncSim:
             b = self.machine.queue[0]
             if b.target is None:
                 if b.spindle is not None:
-                    self.machine.spindle_on = b.spindle
+                    self.machine.spindle_on, self.machine.spindle_ccw = b.spindle, b.ccw
                     self.machine.spindle_s = b.s
                 finish(self, b, t)
                 if b.verb == "M0":   # program pause: Hold:0 until `~`; the operator changes the tool

@@ -44,7 +44,9 @@ class CncState:
     hold_decel: float = 0.0            # seconds the deceleration takes
     latch: tuple[float, ...] | None = None   # where the stylus touched: still tripped while it stays there
     spindle_on: bool = False
+    spindle_ccw: bool = False          # M4: in laser mode the power follows the speed (sims/cnc/laser.py)
     spindle_s: float = 0.0
+    speed_mm_min: float = 0.0          # the actual speed of the motion block under way
     probe_pos: Pos5 = (0.0, 0.0, 0.0, 0.0, 0.0)
     probe_ok: bool = False
     tlo: float = 0.0                   # G43.1 Z: the tool length offset in effect

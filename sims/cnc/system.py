@@ -67,7 +67,7 @@ async def _parameters(sim: SystemHost) -> list[str]:
 async def _parser_state(sim: SystemHost) -> list[str]:
     return ["[GC:" + " ".join([
         sim.machine.motion_mode, "G54", "G17", "G20" if sim.machine.inches else "G21",
-        "G90" if sim.machine.absolute else "G91", "G94", "M3" if sim.machine.spindle_on else "M5", "M9", "T0",
+        "G90" if sim.machine.absolute else "G91", "G94", ("M4" if sim.machine.spindle_ccw else "M3") if sim.machine.spindle_on else "M5", "M9", "T0",
         f"F{sim.machine.feed_rate:.0f}", f"S{sim.machine.s_word:.0f}"]) + "]"]
 
 
