@@ -40,6 +40,7 @@ class LayerCtx:
     min_coverage: float = 0.97  # an island covered less gets narrower legal beads where they fit
     height: float = 0.0  # layer height (mm): how far the allowance reaches to the layers around (near-net)
     min_share: float = 0.0  # the narrowest strip (mm) the cell can weld: wire at its least feed, its max speed
+    support_mm: float = 0.0  # near-net: the step out a layer may take over the stock filled under it (0: none)
 
 
 @dataclass

@@ -47,18 +47,26 @@ def grow(polys: list[Polygon], allowance_mm: float) -> list[Polygon]:
 def grow_layers(nets: list[list[Polygon]], allowance_mm: float, layer_mm: float) -> list[list[Polygon]]:
     """Every layer's region grown by the allowance in 3-D (the part's points within `a`): its own
     islands grown by a, and those of each layer dz < a away grown by sqrt(a² − dz²). A neighbour
-    with the same islands adds nothing (its offset is inside this layer's own)."""
+    whose islands this layer's cover adds nothing (its offset is inside this layer's own)."""
     if allowance_mm <= 0.0:
         return nets
     reach = int(math.floor(allowance_mm / layer_mm - 1e-9))
-    keys = [shapely.to_wkb(shapely.normalize(shapely.set_precision(shapely.union_all(n), 1e-6))) if n else b""
-            for n in nets]
+    unions = [shapely.set_precision(shapely.union_all(n), 1e-6) if n else Polygon() for n in nets]
+    first: dict[bytes, int] = {}
+    ids = [first.setdefault(shapely.to_wkb(shapely.normalize(u)) if n else b"", j)  # the first layer alike
+           for j, (u, n) in enumerate(zip(unions, nets))]
+    # a neighbour inside this layer (the wall above a pocket's floor, a boss above its plate) adds
+    # nothing either: a layer grows from the neighbours that stick out of it only, so the layers
+    # that grow the same repeat (their plan is the memo's, planner.plan)
+    for u in unions:
+        shapely.prepare(u)
+    inside: dict[tuple[int, int], bool] = {}
     out: list[list[Polygon]] = []
     for i, net in enumerate(nets):
         parts = list(net)
         radii = [allowance_mm] * len(net)
         for k in range(max(0, i - reach), min(len(nets), i + reach + 1)):
-            if k == i or not nets[k] or keys[k] == keys[i]:
+            if k == i or not nets[k] or ids[k] == ids[i] or _covers(unions, ids[i], ids[k], inside):
                 continue
             r = math.sqrt(max(allowance_mm ** 2 - ((k - i) * layer_mm) ** 2, 0.0))
             parts += nets[k]
@@ -69,6 +77,43 @@ def grow_layers(nets: list[list[Polygon]], allowance_mm: float, layer_mm: float)
         grown = shapely.union_all(shapely.buffer(np.asarray(parts, dtype=object), np.asarray(radii), quad_segs=8))
         out.append([p for p in polygons_of(grown) if p.area > 1e-9])
     return out
+
+
+def supported(grown: list[list[Polygon]], step_mm: float, allowance_mm: float) -> list[list[Polygon]]:
+    """Near-net: the stock under an overhang of the grown region filled, from the top down, so that
+    no layer steps out over the one below by more than `step_mm` (the overhang rule's step, with a
+    margin): a layer holds the layer above shrunk by the step, where that lies within the allowance
+    of its own grown region (the stock a bead may stand in). The roof of a hole the allowance has
+    narrowed to a slot is built on the stock under it, and machined away with the rest; an overhang
+    beyond the allowance (a lip, an underside) stays one, and the verdict names it (issue 40)."""
+    if step_mm <= 0.0 or allowance_mm <= 0.0 or len(grown) < 2:
+        return grown
+    out = list(grown)
+    above = shapely.union_all(out[-1]) if out[-1] else Polygon()
+    for i in range(len(out) - 2, -1, -1):
+        here = shapely.union_all(grown[i]) if grown[i] else Polygon()
+        if above.is_empty or here.is_empty:
+            above = here
+            continue
+        need = above.buffer(-step_mm, quad_segs=8)
+        shapely.prepare(here)
+        if need.is_empty or here.covers(need):
+            above = here
+            continue
+        extra = need.difference(here).intersection(here.buffer(allowance_mm, quad_segs=8))
+        if extra.area > 1e-6:
+            here = shapely.union_all([here, extra])
+            out[i] = [p for p in polygons_of(here) if p.area > 1e-9]
+        above = here
+    return out
+
+
+def _covers(unions: list[shapely.Geometry], a: int, b: int, memo: dict[tuple[int, int], bool]) -> bool:
+    """Whether layer a's islands cover layer b's (a and b the first layers with their islands: a
+    prism asks once)."""
+    if (a, b) not in memo:
+        memo[(a, b)] = bool(shapely.covers(unions[a], unions[b]))
+    return memo[(a, b)]
 
 
 def layer_count(height_mm: float, layer_mm: float, allowance_mm: float, net_layers: int) -> int:

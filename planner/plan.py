@@ -19,6 +19,7 @@ from planner.job import BeadInfo, Interpass, Job, Layer, Source
 from planner.ahead import Ahead, Later
 from planner.layer import LayerCtx, LayerPlan, placed, reseamed
 from planner.nearnet import layer_count
+from planner.overhang import overhang_limit_mm
 from planner.mesh import PreparedMesh, check_size, prepare_mesh, read_mesh
 from planner.process import inverse
 from planner.path2d import Path2D
@@ -108,7 +109,7 @@ class _Run:
                             legal_widths(material, height, w, step / w, options.allow_outside),
                             area_factor(material.bead.profile), material.min_bead_length_mm or 2.0 * w,
                             _allowance(options, material), options.min_coverage, height,
-                            _min_share(material, options.cell_limits, height))
+                            _min_share(material, options.cell_limits, height), _support(options, material, height))
         self.options, self.material, self.height = options, material, height
         self.proc = Process(material, height, options.allow_outside, w)
         self.verdict = Verdict(options, material, self.ctx)
@@ -259,6 +260,14 @@ def _min_share(material: Material, lim: CellLimits, height: float) -> float:
     the material's least feed over the cell's max speed, per layer height (docs/contract.md §3.10)."""
     wire = np.pi * material.wire_diameter_mm ** 2 / 4.0
     return float(wire * material.ribeiro.wfs_min_m_min * 1000.0 / lim.max_speed_mm_min / height)
+
+
+def _support(options: PlanOptions, material: Material, height: float) -> float:
+    """Near-net on 3 axes: the step out per layer the stock under an overhang is filled to (nine
+    tenths of the overhang rule's, planner.overhang); 0 for a net or a 5-axis plan (it tilts instead)."""
+    if _allowance(options, material) <= 0.0 or options.five_axis is not None:
+        return 0.0
+    return 0.9 * overhang_limit_mm(height, options.width_mm, material.max_overhang_deg)
 
 
 def _allowance(options: PlanOptions, material: Material) -> float:

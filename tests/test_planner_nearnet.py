@@ -135,3 +135,41 @@ def test_a_refusal_in_the_grown_region_names_the_allowance_that_builds_it():
     assert "narrower than the smallest legal bead (5.46 mm) (buildable with --machining-allowance 1.30 mm)" in str(err.value)
     job = plan_part(fin, PlanOptions(width_mm=8.0, machining_allowance_mm=1.3), MAT)
     assert job.summary["underfill_features"] == 0
+
+
+def _bored_block(bore_d: float = 5.0) -> trimesh.Trimesh:
+    """A 40 x 20 x 12 mm block with a horizontal bore along y, its axis 6 mm up (the roof of a bore
+    is an overhang at every layer above its widest)."""
+    prof = box(0, 0, 40, 12).difference(shapely.Point(20, 6).buffer(bore_d / 2, quad_segs=24))
+    m = extrude(prof, 20.0)
+    m.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))
+    m.apply_translation(-m.bounds[0])
+    return m
+
+
+def test_the_stock_under_a_narrowed_bore_is_filled_so_its_roof_is_no_overhang():
+    """A 5 mm bore: net, its roof overhangs (refused); near-net, the allowance narrows it to a 2 mm slot
+    whose roof still overhangs the grown region, so the stock under it is filled from the top down
+    (a layer steps out at most the rule's step over the one below) within the allowance, and machined
+    away with the rest: planned, nothing beyond the rule, the net part inside the deposit."""
+    part = _bored_block()
+    with pytest.raises(MeshError, match="overhang rule"):
+        plan_part(part, PlanOptions(width_mm=6.0), MAT)
+    job = plan_part(part, PlanOptions(width_mm=6.0, machining_allowance_mm=1.5), MAT)
+    assert job.summary["overhang_layers"] == []
+    net = shapely.box(0, 0, 40, 20)
+    for layer in job.layers:
+        fp = shapely.union_all([shapely.buffer(shapely.linestrings(p.points[:, :2]), p.width_mm / 2)
+                                for p in layer.passes])
+        z = (layer.index + 0.5) * layer.height_mm
+        d = 2 * np.sqrt(max(2.5 ** 2 - (z - 6.0) ** 2, 0.0))  # the bore's chord at this layer
+        part_here = net.difference(shapely.box(20 - d / 2, 0, 20 + d / 2, 20)) if z < 12 else net
+        assert fp.intersection(part_here).area >= 0.99 * part_here.area
+        assert fp.difference(net.buffer(3.0)).area <= 0.03 * fp.area  # beads stand out at most 2a
+
+
+def test_an_overhang_beyond_the_allowance_is_still_refused_near_net():
+    """A shelf standing out 8 mm over its column: the stock the allowance gives cannot carry it."""
+    part = trimesh.util.concatenate([extrude(box(0, 0, 30, 20), 6.0), extrude(box(0, 0, 38, 20), 3.0, z0=6.0)])
+    with pytest.raises(MeshError, match="overhang rule"):
+        plan_part(part, PlanOptions(width_mm=6.0, machining_allowance_mm=1.5), MAT)
