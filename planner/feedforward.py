@@ -117,121 +117,127 @@ def subdivide(p: Pass, step_mm: float) -> Pass:
 
 
 def _sample(passes: tuple[Pass, ...], cell: float, width: float) -> _Samples:
-    xy, ds, nrm, seg, seg_pass, seg_len, seg_s, seg0 = [], [], [], [], [], [], [], [0]
-    caps = _Caps(width)
-    base = n_base = 0
-    for pi, p in enumerate(passes):
-        pts = p.points[:, :2]
-        lens = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-        cum = np.r_[0.0, np.cumsum(lens)]
-        total = float(cum[-1])
-        n = max(1, int(math.ceil(total / cell)))
-        s = (np.arange(n) + 0.5) * (total / n)
-        k = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(lens) - 1)
-        t = (s - cum[k]) / np.maximum(lens[k], 1e-12)
-        u = (pts[1:] - pts[:-1]) / np.maximum(lens, 1e-12)[:, None]
-        xy.append(pts[k] + (pts[k + 1] - pts[k]) * t[:, None])
-        ds.append(np.full(n, total / n))
-        nrm.append(np.column_stack([-u[k, 1], u[k, 0]]))
-        seg.append(k + base)
-        seg_pass.append(np.full(len(lens), pi))
-        seg_len.append(lens)
-        seg_s.append(cum[:-1] + 0.5 * lens)
-        caps.add_pass(pts, u, lens, cum, s, n_base)
-        base += len(lens)
-        n_base += n
-        seg0.append(base)
-    return _Samples(np.concatenate(xy), np.concatenate(ds), np.concatenate(nrm), np.concatenate(seg),
-                    np.concatenate(seg_pass), np.concatenate(seg_len), np.concatenate(seg_s), np.array(seg0),
-                    *caps.arrays())
+    """Every pass sampled along its centre line at about `cell` mm (all passes at once: each
+    pass's lengths shifted past the previous pass's, so one sorted search finds every segment)."""
+    pts_of = [p.points[:, :2] for p in passes]
+    npts = np.array([len(q) for q in pts_of])
+    P = np.concatenate(pts_of)
+    nseg = npts - 1
+    seg0 = np.r_[0, np.cumsum(nseg)]
+    seg_pass = np.repeat(np.arange(len(passes)), nseg)
+    a_idx = np.arange(seg0[-1]) + np.repeat(np.r_[0, np.cumsum(npts)][:-1] - seg0[:-1], nseg)
+    A, B = P[a_idx], P[a_idx + 1]
+    lens = np.linalg.norm(B - A, axis=1)
+    cg = np.r_[0.0, np.cumsum(lens)]
+    total = cg[seg0[1:]] - cg[seg0[:-1]]
+    cum0 = cg[:-1] - cg[seg0[:-1]][seg_pass]            # each segment's start along its pass
+    n = np.maximum(1, np.ceil(total / cell)).astype(np.int64)
+    first = np.r_[0, np.cumsum(n)]
+    sp = np.repeat(np.arange(len(passes)), n)
+    step = total / n
+    s = (np.arange(first[-1]) - first[:-1][sp] + 0.5) * step[sp]
+    shift = np.r_[0.0, np.cumsum(total + 1.0)][:-1]      # pass p's lengths start at shift[p]
+    key = s + shift[sp]
+    k = np.searchsorted(cum0 + shift[seg_pass], key, side="right") - 1
+    k = np.clip(k, seg0[:-1][sp], seg0[1:][sp] - 1)
+    t = (s - cum0[k]) / np.maximum(lens[k], 1e-12)
+    u = (B - A) / np.maximum(lens, 1e-12)[:, None]
+    xy = A[k] + (B[k] - A[k]) * t[:, None]
+    caps = _caps(width, P, a_idx, u, lens, seg0, seg_pass, cum0, total, shift, key, first)
+    return _Samples(xy, step[sp], np.column_stack([-u[k, 1], u[k, 0]]), k, seg_pass, lens, cum0 + 0.5 * lens,
+                    seg0, *caps)
 
 
-class _Caps:
+TURN_DEG = 20.0   # a turn sharper than this ends one pool and starts the next (round ends)
+CHUNK_MM = 1.0    # the metal of a pool's last mm spreads over its round end
+
+
+def _caps(width: float, P: np.ndarray, a_idx: np.ndarray, u: np.ndarray, lens: np.ndarray, seg0: np.ndarray,
+          seg_pass: np.ndarray, cum0: np.ndarray, total: np.ndarray, shift: np.ndarray, key: np.ndarray,
+          first: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The round ends of the pools: at a bead's start and end, and where its path turns by more
     than `TURN_DEG` (the pool of the leg before ends there, the next one's starts), the metal of
-    the last `CHUNK_MM` spreads over a half disc as well as over its strip of the bead."""
-
-    TURN_DEG = 20.0
-    CHUNK_MM = 1.0
-
-    def __init__(self, width: float) -> None:
-        self.r = width / 2.0
-        a_cap = math.pi * self.r ** 2 / 2.0
-        self.frac = a_cap / (a_cap + width * self.CHUNK_MM)
-        self.xy: list[np.ndarray] = []
-        self.dir: list[np.ndarray] = []
-        self.src: list[np.ndarray] = []
-        self.of: list[np.ndarray] = []
-
-    def _one(self, at: np.ndarray, direction: np.ndarray, samples: np.ndarray) -> None:
-        if len(samples) == 0:
-            return
-        self.of.append(np.full(len(samples), len(self.xy)))
-        self.xy.append(at)
-        self.dir.append(direction)
-        self.src.append(samples)
-
-    def add_pass(self, pts: np.ndarray, u: np.ndarray, lens: np.ndarray, cum: np.ndarray, s: np.ndarray, n0: int) -> None:
-        c = self.CHUNK_MM
-        idx = np.arange(len(s)) + n0
-        self._one(pts[0], -u[0], idx[s < c])
-        self._one(pts[-1], u[-1], idx[s > cum[-1] - c])
-        turn = np.degrees(np.arccos(np.clip(np.sum(u[:-1] * u[1:], axis=1), -1.0, 1.0)))
-        for v in np.flatnonzero((turn > self.TURN_DEG) & (lens[:-1] > 1e-9) & (lens[1:] > 1e-9)) + 1:
-            at = cum[v]
-            self._one(pts[v], u[v - 1], idx[(s > at - c) & (s <= at)])
-            self._one(pts[v], -u[v], idx[(s > at) & (s < at + c)])
-
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        if not self.xy:
-            e2, e = np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
-            return e2, e2, e, e, np.zeros(0)
-        src = np.concatenate(self.src)
-        return (np.array(self.xy), np.array(self.dir), src, np.concatenate(self.of), np.full(len(src), self.frac))
+    the last `CHUNK_MM` spreads over a half disc as well as over its strip of the bead. Each round
+    end takes from a run of samples of its pass (sorted by `key`): their index ranges."""
+    c = CHUNK_MM
+    r = width / 2.0
+    a_cap = math.pi * r ** 2 / 2.0
+    frac = a_cap / (a_cap + width * c)
+    last = seg0[1:] - 1
+    ss = np.searchsorted
+    # the starts and the ends of the beads
+    at = [P[a_idx[seg0[:-1]]], P[a_idx[last] + 1]]
+    dirs = [-u[seg0[:-1]], u[last]]
+    lo = [first[:-1], ss(key, shift + total - c, side="right")]
+    hi = [ss(key, shift + c, side="left"), first[1:]]
+    # the turns inside a pass (between segment j and j + 1)
+    j = np.flatnonzero(seg_pass[:-1] == seg_pass[1:]) if len(seg_pass) > 1 else np.zeros(0, dtype=np.int64)
+    cos = np.clip(np.sum(u[j] * u[j + 1], axis=1), -1.0, 1.0)
+    j = j[(np.degrees(np.arccos(cos)) > TURN_DEG) & (lens[j] > 1e-9) & (lens[j + 1] > 1e-9)]
+    pos = cum0[j + 1] + shift[seg_pass[j + 1]]
+    at += [P[a_idx[j + 1]], P[a_idx[j + 1]]]
+    dirs += [u[j], -u[j + 1]]
+    lo += [ss(key, pos - c, side="right"), ss(key, pos, side="right")]
+    hi += [ss(key, pos, side="right"), ss(key, pos + c, side="left")]
+    at_all, dir_all = np.concatenate(at), np.concatenate(dirs)
+    lo_all, hi_all = np.concatenate(lo), np.concatenate(hi)
+    keep = hi_all > lo_all
+    at_all, dir_all, lo_all, hi_all = at_all[keep], dir_all[keep], lo_all[keep], hi_all[keep]
+    cnt = hi_all - lo_all
+    ends = np.cumsum(cnt)
+    src = np.arange(int(ends[-1]) if len(ends) else 0) - np.repeat(ends - cnt - lo_all, cnt)
+    return at_all.reshape(-1, 2), dir_all.reshape(-1, 2), src, np.repeat(np.arange(len(cnt)), cnt), np.full(len(src), frac)
 
 
 class _Grid:
     """The layer's prediction grid: each sample's metal across its bead in Ding's parabola, the
-    round ends' over half discs with the same profile, onto cells of `cell` mm."""
+    round ends' over half discs with the same profile, onto cells of `cell` mm.
+
+    The splat is linear in the metal, so it is one sparse matrix built once per layer (a column
+    per sample and per round end, its cells and weights per unit of metal: CSC straight from the
+    fixed number of points each column pours into, no sorting); a round is one product."""
 
     ACROSS = 15          # points across a bead (half a cell apart at 8 cells a width)
     RINGS, RAYS = 5, 11  # a half disc's polar points
 
     def __init__(self, smp: _Samples, width: float, cell: float) -> None:
+        # lazy: the planning has imported scipy already; `cell plan`'s start-up does not need it
+        from scipy.sparse import csc_array
+
         r = width / 2.0
         self.smp, self.cell = smp, cell
         d = np.linspace(-r, r, self.ACROSS + 2)[1:-1]
         w = 1.0 - (d / r) ** 2
-        self.w_across = w / w.sum()
-        strip = smp.xy[:, None, :] + smp.nrm[:, None, :] * d[None, :, None]
+        w_across = w / w.sum()
         rr = (np.arange(self.RINGS) + 0.5) / self.RINGS * r
         th = np.linspace(-np.pi / 2, np.pi / 2, self.RAYS + 2)[1:-1]
         R, T = np.meshgrid(rr, th)
         wq = (1.0 - (R / r) ** 2) * R
-        self.w_cap = (wq / wq.sum()).ravel()
+        w_cap = (wq / wq.sum()).ravel()
+        # the box: every point lies within r of a sample or a round end's centre
+        centres = np.concatenate([smp.xy, smp.cap_xy])
+        self.lo = centres.min(axis=0) - r - 2 * cell
+        hi = centres.max(axis=0) + r + 2 * cell
+        self.shape = (int(math.ceil((hi[1] - self.lo[1]) / cell)) + 2, int(math.ceil((hi[0] - self.lo[0]) / cell)) + 2)
+        # each point to its nearest cell (the model's resolution is the bead's, not the cell's)
+        u = (smp.xy - self.lo) / cell
+        v = smp.nrm / cell
+        strip = self._cell(u[:, 0:1] + v[:, 0:1] * d[None, :], u[:, 1:2] + v[:, 1:2] * d[None, :])
         cx, cy = smp.cap_dir[:, 0:1], smp.cap_dir[:, 1:2]
         px, py = (R * np.cos(T)).ravel()[None, :], (R * np.sin(T)).ravel()[None, :]
-        cap = np.stack([smp.cap_xy[:, 0:1] + cx * px - cy * py, smp.cap_xy[:, 1:2] + cy * px + cx * py], axis=-1)
-        # the box of every point (a strip's ends bound it: each strip is a straight line across)
-        ends = [strip[:, 0], strip[:, -1], cap.reshape(-1, 2), smp.xy]
-        self.lo = np.min([e.min(axis=0) for e in ends if len(e)], axis=0) - 2 * cell
-        hi = np.max([e.max(axis=0) for e in ends if len(e)], axis=0) + 2 * cell
-        self.shape = (int(math.ceil((hi[1] - self.lo[1]) / cell)) + 2, int(math.ceil((hi[0] - self.lo[0]) / cell)) + 2)
-        # every splat entry once, for all rounds: the strips' (grid cell, weight per unit of
-        # metal) by sample and point across, then the round ends' (grid cell, weight, whose metal)
-        # (each point to its nearest cell: the model's resolution is the bead's, not the cell's)
-        self.cells = np.concatenate([self._cell(strip.reshape(-1, 2)), self._cell(cap.reshape(-1, 2))])
-        self.w_strip = self.w_across / (cell * cell)
-        self.w_ends = np.tile(self.w_cap, len(smp.cap_xy)) / (cell * cell)
-        self.ends_of = np.repeat(np.arange(len(smp.cap_xy)), len(self.w_cap))
-        u = (smp.xy - self.lo) / cell
+        cap = self._cell((smp.cap_xy[:, 0:1] - self.lo[0] + cx * px - cy * py) / cell,
+                         (smp.cap_xy[:, 1:2] - self.lo[1] + cy * px + cx * py) / cell)
+        n, c = len(smp.xy), len(smp.cap_xy)
+        data = np.concatenate([np.tile(w_across, n), np.tile(w_cap, c)]) / (cell * cell)
+        indptr = np.concatenate([np.arange(n + 1) * self.ACROSS, n * self.ACROSS + np.arange(1, c + 1) * len(w_cap)])
+        self.splat = csc_array((data, np.concatenate([strip.ravel(), cap.ravel()]), indptr),
+                               shape=(self.shape[0] * self.shape[1], n + c))
         i0 = np.floor(u).astype(np.int64)
         fx, fy = u[:, 0] - i0[:, 0], u[:, 1] - i0[:, 1]
         self.at = (i0[:, 1], i0[:, 0], fx, fy, 1 - fx, 1 - fy)
 
-    def _cell(self, p: np.ndarray) -> np.ndarray:
-        ij = np.rint((p - self.lo) / self.cell).astype(np.int64)
-        out: np.ndarray = ij[:, 1] * self.shape[1] + ij[:, 0]
+    def _cell(self, ux: np.ndarray, uy: np.ndarray) -> np.ndarray:
+        out: np.ndarray = np.rint(uy).astype(np.int64) * self.shape[1] + np.rint(ux).astype(np.int64)
         return out
 
     def heights(self, volume: np.ndarray) -> np.ndarray:
@@ -240,8 +246,7 @@ class _Grid:
         moved = volume[smp.cap_src] * smp.cap_frac
         strip_v = volume - np.bincount(smp.cap_src, weights=moved, minlength=len(volume))
         cap_v = np.bincount(smp.cap_of, weights=moved, minlength=len(smp.cap_xy))
-        poured = np.concatenate([(strip_v[:, None] * self.w_strip[None, :]).ravel(), self.w_ends * cap_v[self.ends_of]])
-        g = np.bincount(self.cells, weights=poured, minlength=self.shape[0] * self.shape[1]).reshape(self.shape)
+        g = np.asarray(self.splat @ np.concatenate([strip_v, cap_v])).reshape(self.shape)
         # a [1 2 1] / 4 filter each way takes out the aliasing of points onto their nearest cells
         g[:, 1:-1] = 0.25 * g[:, :-2] + 0.5 * g[:, 1:-1] + 0.25 * g[:, 2:]
         g[1:-1, :] = 0.25 * g[:-2, :] + 0.5 * g[1:-1, :] + 0.25 * g[2:, :]
@@ -309,6 +314,20 @@ def level_layer(passes: tuple[Pass, ...], wire_diameter_mm: float, env: Envelope
         return passes, LayerLevel(0.0, 0.0, 0)   # 5-axis passes: not levelled (their beads lean)
     width = max(p.width_mm for p in passes)
     cut = tuple(subdivide(p, opts.step_mm or width / 2.0) for p in passes)
+    best, before, after, seg0 = _level_rounds(cut, wire_diameter_mm, opts)
+    out, n = _apply(cut, passes, best, seg0, env, opts.min_change)
+    if n == 0 or after > before - opts.min_gain_mm:
+        return passes, LayerLevel(before, before, 0)
+    return out, LayerLevel(before, after, n)
+
+
+_Levelled = tuple[np.ndarray, float, float, np.ndarray]
+
+
+def _level_rounds(cut: tuple[Pass, ...], wire_diameter_mm: float, opts: FeedForwardOptions) -> _Levelled:
+    """Predict, correct, predict again (`opts.rounds`): the best metal multipliers per segment, the
+    predicted spread before and after, the first segment of each pass."""
+    width = max(p.width_mm for p in cut)
     cell_mm = width / opts.cells_per_width
     smp = _sample(cut, cell_mm / 2, width)
     grid = _Grid(smp, width, cell_mm)
@@ -330,10 +349,7 @@ def level_layer(passes: tuple[Pass, ...], wire_diameter_mm: float, env: Envelope
         target = float(np.sum(h * smp.seg_len) / np.sum(smp.seg_len))
         f = _smooth(target / np.maximum(h, 1e-6 * target), smp, opts.smooth_mm or width)
         m = _balanced(np.clip(m * f ** opts.gain, lo, hi), smp, seg_metal, lo, hi)
-    out, n = _apply(cut, passes, best, smp, env, opts.min_change)
-    if n == 0 or after > before - opts.min_gain_mm:
-        return passes, LayerLevel(before, before, 0)
-    return out, LayerLevel(before, after, n)
+    return best, before, after, smp.seg0
 
 
 def _balanced(m: np.ndarray, smp: _Samples, seg_metal: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -353,12 +369,12 @@ def _balanced(m: np.ndarray, smp: _Samples, seg_metal: np.ndarray, lo: float, hi
     return out
 
 
-def _apply(cut: tuple[Pass, ...], orig: tuple[Pass, ...], m: np.ndarray, smp: _Samples, env: Envelope,
+def _apply(cut: tuple[Pass, ...], orig: tuple[Pass, ...], m: np.ndarray, seg0: np.ndarray, env: Envelope,
            min_change: float) -> tuple[tuple[Pass, ...], int]:
     """Metal multipliers to per-segment speeds (and wire feeds past the speed limits)."""
     out, n = [], 0
     for pi, (p, p0) in enumerate(zip(cut, orig)):
-        mm = m[smp.seg0[pi]:smp.seg0[pi + 1]]
+        mm = m[seg0[pi]:seg0[pi + 1]]
         if float(np.max(np.abs(mm - 1.0))) < min_change:
             out.append(p0)
             continue
