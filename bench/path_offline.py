@@ -103,18 +103,19 @@ async def build(job: CellJob, *, gain: float, pc: dict[str, Any], tmp: Path, dis
     ripple = mat.melting.current_noise_pct / 100.0
     rows: list[dict[str, Any]] = []
     pauses: list[str] = []
-    k, t0 = 0, time.monotonic()
-    while k < len(work):
-        item = work[k]
+    t0 = time.monotonic()
+    while work:
+        item, work = work[0], work[1:]
         p = lc.pass_for(item.layer, item.pass_)
         got, currents = lay_pass(phys, p, noise, sample_mm, ripple,
                                  lambda s, i, la=item.layer, pa=item.pass_: lc.arc_sample(la, pa, s, i))
         rows += got
         lc.bead_closed(item.layer, item.pass_, currents, p.wfs_m_min)
-        why = await lc.after_pass(item, work, k)
-        if why:
-            pauses.append(why)
-        k += 1
+        after = await lc.after_pass(item, work)
+        if after.pause:
+            pauses.append(after.pause)
+        if after.rest is not None:
+            work = list(after.rest)
     out = figures(lc, job, rows, phys, pauses)
     out["wall_s"] = round(time.monotonic() - t0, 1)
     return out, layer_rms(beads_of(rows), _planned(lc))

@@ -226,8 +226,7 @@ class ProcessControl(_Frozen):
     """Closed-loop layer height (docs/contract.md §6b, docs/closed-loop.md); `open` keeps the plan's z."""
 
     mode: Literal["open", "layer", "path"] = "open"   # path: the layer loop plus per-segment speeds along the path
-    # the stick-out (CTWD) the torch may have: an estimate outside pauses before the next layer
-    ctwd_window_mm: tuple[float, float] = (12.0, 18.0)
+    ctwd_window_mm: tuple[float, float] = (12.0, 18.0)   # the stick-out (CTWD) allowed: outside pauses before the next layer
     probe_every_layers: int = Field(default=1, ge=1, le=1000)   # CNC: probe the top every n layers
     probe_points: int = Field(default=4, ge=1, le=50)           # CNC: points per probed layer
     max_z_correction_mm: float = Field(default=5.0, gt=0.0, le=100.0)  # beyond: pause with a message
@@ -243,6 +242,7 @@ class ProcessControl(_Frozen):
     path_kp: float = Field(default=0.4, ge=0.0, le=2.0)         # learning on the change of the error since the last layer
     path_ki: float = Field(default=0.2, ge=0.0, le=2.0)        # learning on the error
     path_max_error_mm: float = Field(default=1.0, gt=0.0, le=50.0)  # off the layer's mean by more, at the bound: pause
+    path_wfs_trim_pct: float = Field(default=10.0, ge=0.0, le=40.0)  # wire feed within ± this where the speed is at its bound
 
     @model_validator(mode="after")
     def _window(self) -> "ProcessControl":

@@ -41,9 +41,11 @@ async def _lay(lc: LayerControl, la: int, top_at: Callable[[float], float]) -> s
     p = lc.pass_for(la, 0)
     z = float(p.points[0][2])
     cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p.points[:, :2], axis=0).T))])
+    wfs = p.wire_feeds()
     for s in np.linspace(0.0, float(cum[-1]), 60):
         x = float(np.interp(s, cum, p.points[:, 0]))
-        lc.arc_sample(la, 0, float(s), current_at(rel, MAT.ribeiro, 6.9, 15.0 + z - top_at(x)))
+        k = min(int(np.searchsorted(cum, s, side="right")) - 1, len(wfs) - 1)   # the feed of the move there
+        lc.arc_sample(la, 0, float(s), current_at(rel, MAT.ribeiro, float(wfs[k]), 15.0 + z - top_at(x)))
     lc.bead_closed(la, 0, [current_at(rel, MAT.ribeiro, 6.9, 15.0 + z - top_at(15.0))] * 10, 6.9)
     work = [WorkItem(i, 0) for i in range(len(lc.layers))]
     return (await lc.after_pass(work[la], work[la + 1:])).pause
@@ -87,6 +89,35 @@ async def test_a_stretch_the_bound_cannot_level_pauses_before_the_next_layer(tmp
             break
     assert why is not None and "speed_trim_pct 10" in why and "off the layer's mean" in why
     j.close()
+
+
+async def test_where_the_speed_is_at_its_bound_the_wire_feed_takes_the_rest_and_a_resume_lays_it_again(tmp_path: Path):
+    job = _job(6)
+    cfg = ProcessControl(mode="path", speed_trim_pct=10, path_wfs_trim_pct=10, path_max_error_mm=50)
+    j = Journal(tmp_path / "journal.sqlite")
+    j.start_job("h", "wall", "robot", "{}")
+    lc = LayerControl(job=job, cfg=cfg, material=MAT, platform="robot", journal=j)
+    for la in range(3):   # the stretch x > 20 rises 0.6 of the rest a layer: beyond a 10 % speed trim
+        await _lay(lc, la, lambda x, la=la: 0.77 * (la + 1) * (0.6 if x > 20 else 1.0))
+    p3 = lc.pass_for(3, 0)
+    mid = 0.5 * (p3.points[1:, 0] + p3.points[:-1, 0])
+    sp, wf = p3.speeds(), p3.wire_feeds()
+    assert p3.seg_wfs_m_min is not None
+    low = mid > 24
+    k = lc.applied[3][1]                                                   # the layer loop's trim of layer 3
+    assert np.allclose(sp[low], 0.9 * k * 1500.0, rtol=1e-3)              # the speed at its bound there
+    assert np.all(wf[low] > 6.9 * 1.03) and wf.max() <= 6.9 * 1.1 + 1e-6  # more wire where low, within the trim
+    assert wf.max() <= MAT.ribeiro.wfs_max_m_min + 1e-9                   # and the synergic envelope
+    off = np.abs(wf - 6.9) > 1e-6                                          # off the plan only where the speed
+    assert np.allclose(np.minimum(np.abs(sp[off] / (k * 1500.0) - 0.9), np.abs(sp[off] / (k * 1500.0) - 1.1)), 0.0,
+                       atol=1e-3)                                          # is at a bound
+    j.close()
+    j2 = Journal(tmp_path / "journal.sqlite")
+    lc2 = LayerControl(job=job, cfg=cfg, material=MAT, platform="robot", journal=j2)
+    lc2.restore()
+    assert np.allclose(lc2.pass_for(3, 0).wire_feeds(), wf, rtol=1e-6)     # the same wire feeds after a restart
+    assert np.allclose(lc2.pass_for(3, 0).speeds(), sp, rtol=1e-6)
+    j2.close()
 
 
 @pytest.mark.realtime

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller.runtime.path_plan import Field, PathLaw, bin_samples, plan_factors, resample, spots_along
+from controller.runtime.path_plan import Field, PathLaw, bin_samples, bounded_metal, plan_factors, resample, spots_along
 
 
 def test_resample_keeps_every_point_and_caps_the_segments():
@@ -72,7 +72,19 @@ def test_the_law_levels_a_top_whose_gain_differs_along_the_path():
 def test_the_factors_keep_the_layers_metal_and_their_bound():
     xy = np.c_[np.arange(0.0, 50.0, 5.0), np.zeros(10)]
     d = Field(xy, np.where(xy[:, 0] > 25, 2.0, -2.0))
-    m, need = plan_factors(xy, np.full(10, 5.0), d, None, None, 0.7, PathLaw(bounds=(0.75, 1.25)))
+    m, need = plan_factors(xy, np.full(10, 5.0), d, None, None, 0.7, PathLaw(bounds=(0.75, 1.25), max_step=2.0))
     assert need.max() > 1.25 and m.max() == pytest.approx(1.25)
     assert m.min() >= 0.75
     assert float(np.mean(1.0 / need)) == pytest.approx(1.0)
+    # one layer's reading moves a factor by at most `max_step` (a noisy bin does not throw it to a bound)
+    m, need = plan_factors(xy, np.full(10, 5.0), d, None, None, 0.7, PathLaw(bounds=(0.75, 1.25), max_step=0.1))
+    assert need.max() > 1.25 and m.max() < 1.15 and m.min() > 0.85
+
+
+def test_one_stretch_far_out_does_not_push_the_others_to_the_bound():
+    # a wall's end that needs 0.3 x the speed: the rest keeps the layer's metal without it
+    w = np.full(10, 5.0)
+    m = bounded_metal(np.r_[0.3, np.ones(9)], w, 0.6, 1.4)
+    assert m[0] == pytest.approx(0.6)
+    assert np.all(m[1:] < 1.15)
+    assert float(np.sum(w / m)) == pytest.approx(float(w.sum()))

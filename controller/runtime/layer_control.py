@@ -99,6 +99,7 @@ class LayerControl:
         self.records: list[dict[str, Any]] = []
         width = min((p.width_mm for la in self.job_layers for p in la.passes), default=7.0)
         self._probed: dict[int, tuple[list[Spot], list[float]]] = {}
+        self._rows: dict[int, list[tuple[float, float, float, float]]] = {}   # path mode: a layer's bins, read once
         self.path = PathControl(cfg=cfg, journal=journal, bus=bus, platform=platform, est=self.est, width_mm=width,
                                 max_speed_mm_min=max_speed_mm_min) if cfg.mode == "path" else None
 
@@ -195,6 +196,13 @@ class LayerControl:
     async def _measure(self, la: int, z_cmd: float) -> tuple[float | None, str, float | None, list[float]]:
         """(top, source, stick-out, per-point stick-outs) of a layer just laid."""
         beads = self.beads.pop(la, [])
+        if self.platform == "robot" and self.path is not None and self.path.wfs_varies(la):
+            # the path loop laid some of it at another wire feed: each bin read at its own (a bead's
+            # estimate reads the whole bead at its mean wire feed)
+            rows = self._rows[la] = self.path.arc_tops(la, self.layer(la), z_cmd)
+            if rows:
+                top = float(np.mean([r[2] for r in rows]))
+                return top, "arc", z_cmd + self.l0 - top, list(self.path.pass_stick_outs)
         if self.platform == "robot" and beads:
             vals = [b.stick_out_mm for b in beads]
             so = sum(vals) / len(vals)
@@ -260,6 +268,8 @@ class LayerControl:
         probed = self._probed.pop(la, None)
         if probed:
             rows = self.path.probe_rows(la, built, *probed)
+        elif la in self._rows:   # read already (the layer's top from its bins)
+            rows = self._rows.pop(la)
         else:   # the robot's bins through the arc; a CNC layer not probed teaches nothing
             rows = self.path.arc_tops(la, built, z_cmd) if self.platform == "robot" else []
         nxt = self.layers[la + 1] if la + 1 < self.n_total else None

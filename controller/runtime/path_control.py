@@ -54,19 +54,26 @@ class PathControl:
                  est: StickOutEstimator, width_mm: float, max_speed_mm_min: float = 1e9) -> None:
         self.cfg, self.journal, self.bus, self.platform, self.est = cfg, journal, bus, platform, est
         self.width = width_mm
-        trim = cfg.speed_trim_pct / 100.0
+        trim, wt = cfg.speed_trim_pct / 100.0, cfg.path_wfs_trim_pct / 100.0
+        self.speed_bounds = (max(1.0 - trim, 0.05), 1.0 + trim)
+        self.wfs_bounds = (max(1.0 - wt, 0.05), 1.0 + wt)
+        line = est.material.ribeiro
+        self.wfs_envelope = (line.wfs_min_m_min, line.wfs_max_m_min)
+        # the law's factor is the metal's (speed over wire feed): the speed's bound, then the wire feed's
         self.law = PathLaw(kp=cfg.path_kp, ki=cfg.path_ki, filter_mm=max(cfg.path_filter_mm or 1.5 * width_mm, width_mm,
                                                                                  cfg.probe_spacing_mm if platform == "cnc" else 0.0),
-                           bounds=(max(1.0 - trim, 0.05), 1.0 + trim))
+                           bounds=(self.speed_bounds[0] / self.wfs_bounds[1], self.speed_bounds[1] / self.wfs_bounds[0]))
         self.max_speed = max_speed_mm_min
         self.spacing = width_mm / 2.0
         self.bin_mm = cfg.path_bin_mm or width_mm
-        self.applied: dict[int, dict[int, list[float]]] = {}
+        self.applied: dict[int, dict[int, list[float]]] = {}       # the metal factor (speed / wire feed) per segment
+        self.applied_wfs: dict[int, dict[int, list[float]]] = {}   # the wire feed's share of it
         self.samples: dict[tuple[int, int], list[tuple[float, float]]] = {}
         self.fields: list[tuple[Field, Field]] = []     # (d, m) of the last measured layers, newest last
         self.records: list[dict[str, Any]] = []
         self.rise_mm = 0.0
         self._bad = np.zeros((0, 2))    # where the last layer needed a correction beyond the bound
+        self.pass_stick_outs: list[float] = []   # per pass of the last `arc_tops`: its stick-out
 
     # -- journal --------------------------------------------------------------------------------
     def _event(self, kind: str, data: dict[str, Any], layer: int) -> None:
@@ -79,6 +86,7 @@ class PathControl:
             d = json.loads(msg)
             if kind == "path_plan":
                 self.applied[int(d["layer"])] = {int(k): [float(x) for x in v] for k, v in d["factors"].items()}
+                self.applied_wfs[int(d["layer"])] = {int(k): [float(x) for x in v] for k, v in (d.get("wfs") or {}).items()}
             else:
                 self.records.append(d)
                 self.rise_mm = float(d.get("rise_mm") or self.rise_mm)
@@ -106,28 +114,53 @@ class PathControl:
         xy, ln = np.concatenate(mids), np.concatenate(lens)
         got, need = plan_factors(xy, ln, d_now, d_prev, m_now, self.rise_mm, self.law)
         top_speed = max(float(p.speeds().max()) for p in passes)
-        got = np.minimum(got, max(self.max_speed / top_speed, 1e-3))
+        got = np.minimum(got, max(self.max_speed / top_speed, 1e-3) / self.wfs_bounds[0])
         out, k = {}, 0
         for pa, m in enumerate(mids):
             out[pa] = [round(float(v), 5) for v in got[k:k + len(m)]]
             k += len(m)
         return out, need, xy, d_now.at(xy, self.law.filter_mm / 4.0, self.law.filter_mm)
 
+    def split(self, m: np.ndarray, speeds: np.ndarray, wfs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A metal factor m (speed / wire feed) as (speed factor, wire feed factor): the speed
+        within its bound and the cell's top speed first; the wire feed takes the rest where the
+        speed is at a bound, within its own trim and the material's synergic envelope."""
+        lo, hi = self.speed_bounds
+        sp = np.clip(m, lo, np.minimum(hi, self.max_speed / np.maximum(speeds, 1e-9)))
+        f = np.clip(sp / np.maximum(m, 1e-9), *self.wfs_bounds)
+        f = np.clip(wfs * f, *self.wfs_envelope) / np.maximum(wfs, 1e-9)
+        return sp, np.where(np.abs(f - 1.0) < 1e-4, 1.0, f)
+
     def apply(self, la: int, layer: Layer) -> Layer:
-        """Layer la as built: resampled, its segment speeds times the path factors (journaled)."""
+        """Layer la as built: resampled, its segment speeds (and wire feeds where the speed is at
+        its bound) times the path factors (journaled before its first bead)."""
         passes = [self._resampled(p)[0] for p in layer.passes]
         if la not in self.applied:
             self.applied[la] = self._plan(la, passes)[0]
+            self.applied_wfs[la] = {}
+            for pa, p in enumerate(passes):
+                m = np.asarray(self.applied[la].get(pa, []), dtype=float)
+                if len(m) == len(p.points) - 1:
+                    _, f = self.split(m, p.speeds(), p.wire_feeds())
+                    if np.any(f != 1.0):
+                        self.applied_wfs[la][pa] = [round(float(v), 5) for v in f]
             self._event("path_plan", {"layer": la, "spacing_mm": self.spacing,
-                                      "factors": {str(k): v for k, v in self.applied[la].items()}}, la)
-        f = self.applied[la]
+                                      "factors": {str(k): v for k, v in self.applied[la].items()},
+                                      "wfs": {str(k): v for k, v in self.applied_wfs[la].items()}}, la)
         out = []
         for pa, p in enumerate(passes):
-            fac = np.asarray(f.get(pa, []), dtype=float)
-            if len(fac) != len(p.points) - 1:   # a pass the journal did not see (never: same geometry)
-                fac = np.ones(len(p.points) - 1)
-            out.append(p.with_process(p.speeds() * fac, None))
+            m = np.asarray(self.applied[la].get(pa, []), dtype=float)
+            if len(m) != len(p.points) - 1:   # a pass the journal did not see (never: same geometry)
+                m = np.ones(len(p.points) - 1)
+            f = np.asarray(self.applied_wfs.get(la, {}).get(pa) or np.ones(len(m)), dtype=float)
+            # metal ∝ wire feed / speed: the speed factor is m·f, inside its bound and the top speed
+            sp = np.clip(m * f, self.speed_bounds[0], np.minimum(self.speed_bounds[1], self.max_speed / np.maximum(p.speeds(), 1e-9)))
+            out.append(p.with_process(p.speeds() * sp, p.wire_feeds() * f if np.any(f != 1.0) else None))
         return replace(layer, passes=tuple(out))
+
+    def wfs_varies(self, la: int) -> bool:
+        """Does layer la lay any segment at another wire feed than planned (the path loop's)?"""
+        return bool(self.applied_wfs.get(la))
 
     # -- sensing ------------------------------------------------------------------------------------
     def arc_sample(self, la: int, pa: int, s_mm: float, current_a: float) -> None:
@@ -136,8 +169,10 @@ class PathControl:
     def arc_tops(self, la: int, layer: Layer, z_cmd: float) -> list[tuple[float, float, float, float]]:
         """Robot: (x, y, top, factor) per bin of about one bead width along every pass of the layer
         as built, from the current binned by the robot's reported position."""
-        rows = []
+        rows: list[tuple[float, float, float, float]] = []
+        self.pass_stick_outs = []
         for pa, p in enumerate(layer.passes):
+            n0 = len(rows)
             cum = arc_length(p.points)
             fac = self.applied.get(la, {}).get(pa, [])
             # the first half width of a bead: the pool not yet risen under the torch (it reads the ground)
@@ -148,6 +183,8 @@ class PathControl:
                 L = stick_out_at(self.est.rel, self.est.material.ribeiro, wfs, cur)
                 x, y = point_at(p.points, cum, s)[:2]
                 rows.append((float(x), float(y), z_cmd + self.est.nominal_mm - L, fac[k] if k < len(fac) else 1.0))
+            if len(rows) > n0:   # the bead's stick-out: its bins' median (a wall's end bin is one of them)
+                self.pass_stick_outs.append(float(np.median([z_cmd + self.est.nominal_mm - r[2] for r in rows[n0:]])))
         return rows
 
     def probe_spots(self, layer: Layer) -> list[tuple[float, float, float]]:
@@ -210,7 +247,8 @@ class PathControl:
                 k = int(np.argmax(np.where(bad, np.abs(need - 1.0), -1.0)))
                 pause = (f"layer {la + 1}: the top at x {xy[k, 0]:.1f}, y {xy[k, 1]:.1f} mm is {dn[k]:+.2f} mm off the "
                          f"layer's mean after layer {la}; levelling it needs {need[k]:.2f} × the speed there, beyond "
-                         f"process_control.speed_trim_pct {self.cfg.speed_trim_pct:g} (the path loop's bound)")
+                         f"process_control.speed_trim_pct {self.cfg.speed_trim_pct:g} with path_wfs_trim_pct "
+                         f"{self.cfg.path_wfs_trim_pct:g} (the path loop's bounds)")
         self.records.append(rec)
         self._event("path", rec, la)
         if self.bus is not None:

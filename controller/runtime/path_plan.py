@@ -134,6 +134,25 @@ class PathLaw:
     ki: float = 0.2            # on the error (learning)
     filter_mm: float = 10.5    # the kernel spans it: σ = filter_mm / 4
     bounds: tuple[float, float] = (0.75, 1.25)
+    elasticity: float = 1.0    # p: the rise follows m^-p (a wall: 1 + Ribeiro's K3, the bead widening as it slows)
+    max_step: float = 0.15     # the factor changes by at most this from one layer to the next
+
+
+def bounded_metal(m: FloatArray, w: FloatArray, lo: float, hi: float, rounds: int = 6) -> FloatArray:
+    """The factors scaled so their length-weighted mean of 1/m is 1 (the layer's metal unchanged)
+    after the bound: the stretches at a bound keep it and the others take up the difference, so one
+    stretch far out (a wall's end) does not push every other one to the bound."""
+    out = np.clip(m, lo, hi)
+    if w.sum() <= 0:
+        return out
+    for _ in range(rounds):
+        free = (out > lo + 1e-9) & (out < hi - 1e-9)
+        need = float(w.sum() - np.sum(w[~free] / out[~free]))     # Σ w/m the free ones must make
+        have = float(np.sum(w[free] / out[free]))
+        if not free.any() or have <= 0 or need <= 0:
+            break
+        out = np.where(free, np.clip(out * have / need, lo, hi), out)
+    return out
 
 
 def plan_factors(mid_xy: FloatArray, seg_len: FloatArray, d_now: Field, d_prev: Field | None,
@@ -146,10 +165,10 @@ def plan_factors(mid_xy: FloatArray, seg_len: FloatArray, d_now: Field, d_prev: 
     mn = m_now.at(mid_xy, sigma, reach) if m_now is not None else np.full(len(dn), np.nan)
     mn = np.where(np.isfinite(mn), mn, 1.0)
     dp = np.where(np.isfinite(dp), dp, 0.0)       # first measured layer: the one under it level
-    step = np.where(np.isfinite(dn), law.kp * (dn - dp) + law.ki * dn, 0.0) / max(rise_mm, 1e-3)
-    m = np.maximum(mn + step, 0.05)
+    step = np.where(np.isfinite(dn), law.kp * (dn - dp) + law.ki * dn, 0.0) / (max(rise_mm, 1e-3) * law.elasticity)
     w = np.asarray(seg_len, dtype=float)
-    if w.sum() > 0:
-        m = m * float(np.sum(w / m) / np.sum(w))   # the layer's metal unchanged
+    want = np.maximum(mn + step, 0.05)
+    need = want * float(np.sum(w / want) / np.sum(w)) if w.sum() > 0 else want
+    m = np.maximum(mn + np.clip(step, -law.max_step, law.max_step), 0.05)   # one layer's reading moves it this far at most
     lo, hi = law.bounds
-    return np.clip(m, lo, hi), m
+    return bounded_metal(m, w, lo, hi), need
