@@ -15,7 +15,7 @@ itself and the rooms listed for it, nothing else of ours. From the bottom up:
     controller.runtime   <- those                       (never harness, sims, the TUI or the CLI)
     controller.api, controller.repair                   <- runtime and below
     controller.harness   <- the only room of the product that imports sims/
-    controller.tui, controller.cli                      <- the top (the TUI never a driver, a simulator or the CLI)
+    controller.tui, controller.cli                      <- the top (the TUI only the API and open_cell: a rule below)
     bench                <- the product (never tests/); tests <- anything
 """
 from __future__ import annotations
@@ -56,8 +56,7 @@ RULES: dict[str, frozenset[str]] = {
     "controller.repair": _PURE | {"drivers", "controller.runtime", "controller.api"} | _BELOW_RUNTIME,
     "controller.harness": _PURE | {"sims", "drivers", "controller.runtime", "controller.api", "controller.repair"}
     | _BELOW_RUNTIME,
-    "controller.tui": _PURE | {"controller.runtime", "controller.api", "controller.repair", "controller.harness"}
-    | _BELOW_RUNTIME,
+    "controller.tui": _PURE | {"controller.api", "controller.harness", "controller.defaults"},   # the API only
     "controller.cli": _PURE | {"drivers", "controller.runtime", "controller.api", "controller.repair",
                                "controller.harness", "controller.tui", "controller.opcua"} | _BELOW_RUNTIME,
     "bench": frozenset(PRODUCT),    # a package named here grants every room inside it
@@ -168,6 +167,32 @@ def test_the_contract_sees_the_code() -> None:
 def test_no_import_against_the_layers() -> None:
     bad = layer_violations()
     assert not bad, "imports against the layer direction (docs/architecture.md):\n" + "\n".join(bad)
+
+
+# The operator's views reach the controller only through its API (docs/architecture.md "Opening a
+# cell"): the facade and its types (controller.api), the one way to open a cell
+# (controller.harness.cell) and the shipped defaults; nothing of the rooms behind them.
+VIEWS = ("controller.tui",)
+THROUGH_THE_API = ("controller.api", "controller.harness.cell", "controller.defaults")
+
+
+def views_past_the_api(imports: list[tuple[str, int, str, bool]] | None = None) -> list[str]:
+    """Every import by a view of a controller module outside the API, as 'file:line: a -> b'."""
+    bad = []
+    for mod, line, target, _typing in IMPORTS if imports is None else imports:
+        view = next((v for v in VIEWS if _within(mod, (v,))), None)
+        if view is None or not _within(target, ("controller",)) or _within(target, (view, *THROUGH_THE_API)):
+            continue
+        bad.append(f"{MODS[mod].relative_to(ROOT) if mod in MODS else mod}:{line}: {mod} -> {target}")
+    return bad
+
+
+def test_the_views_reach_the_controller_only_through_the_api() -> None:
+    bad = views_past_the_api()
+    assert not bad, "the TUI reaches past the controller's API (docs/architecture.md):\n" + "\n".join(bad)
+    assert views_past_the_api([("controller.tui.x", 3, "controller.runtime.events", False),
+                               ("controller.tui.x", 4, "controller.api.cell", False)]) == [
+        "controller.tui.x:3: controller.tui.x -> controller.runtime.events"]
 
 
 def test_no_import_cycles() -> None:

@@ -1,6 +1,7 @@
 """The controller's API without a cell session: the build record of a run directory, the list of
-runs, and an alignment that opens and closes its own CNC link (`cell report`, `cell runs`,
-`cell align run`, the demo's probe, the TUI's Align screen)."""
+runs, a run's journal events, an alignment that opens and closes its own CNC link and its probe
+plan, a job moved by an alignment (`cell report`, `cell runs`, `cell align run`, the demo's probe,
+the TUI's Log and Align screens)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -11,6 +12,10 @@ from core.config import CellConfig, ProbeSettings
 if TYPE_CHECKING:
     from controller.align.probe_cycle import ProbedPoint
     from controller.align.routine import AlignResult, ProbePlan
+    from controller.job.model import CellJob
+    from controller.journal.check import Row
+    from numpy.typing import ArrayLike
+    from core.config import SimConfig
 
 
 def write_run_report(run_dir: str | Path, *, plots: bool = True, operator: str | None = None,
@@ -40,3 +45,29 @@ async def align_at(url: str, cell: CellConfig, plan: ProbePlan, *, settings: Pro
     from controller.align.routine import run_on_url
 
     return await run_on_url(url, cell, plan, settings=settings, on_point=on_point, no_level=no_level)
+
+
+def events_after(run_dir: str | Path, after_id: int = 0, limit: int = 2000) -> list[Row]:
+    """A run's journal events with id > after_id: (id, t, kind, state, message, layer, pass), on a
+    read-only connection (another thread may read mid-build: the TUI's Log screen)."""
+    # lazy: the journal loads only when a run is read
+    from controller.journal.store import read_events_after
+
+    return read_events_after(Path(run_dir) / "journal.sqlite", after_id, limit)
+
+
+def workpiece_probe_plan(sim_cfg: SimConfig) -> ProbePlan:
+    """The alignment routine's touches on the nominal part of a sim config's workpiece."""
+    # lazy: the alignment routine (ICP, trimesh) loads only when a cell is aligned
+    from controller.align.routine import cad_mesh, plan_for_mesh
+
+    return plan_for_mesh(cad_mesh(sim_cfg.cnc.workpiece))
+
+
+def aligned_job(job: CellJob, transform: ArrayLike, record: dict[str, Any], *, name: str) -> CellJob:
+    """`job` moved by an alignment's transform (the CAD model moves, not the part), the alignment
+    recorded in it; a job that already carries one is refused (one alignment per job)."""
+    # lazy: the kinematics load only when a job is aligned
+    from controller.motion.kinematics import apply_to_job
+
+    return apply_to_job(job, transform, record, name=name)

@@ -23,12 +23,13 @@ from pathlib import Path
 from controller.api import CellController
 from controller.api.simulated import Simulators
 from controller.defaults import sim_reply_timeout_ms
-from controller.harness.sim import SimHarness, with_urls
+from controller.harness.sim import SimHarness
+from controller.runtime.devices import with_urls as with_urls   # a cell's config pointed at URLs / a time scale
 from controller.harness.sim_process import SimProcess
 from controller.runtime.build import BuildOptions
 from core.config import CellConfig, SimConfig, load_sim
 
-__all__ = ["open_cell", "start_simulators"]
+__all__ = ["open_cell", "start_simulators", "with_urls"]
 
 
 async def start_simulators(cfg: CellConfig, sim: SimConfig | bool | None, *, log_dir: str | Path | None = None,

@@ -7,7 +7,7 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widgets import DataTable, Label, ProgressBar, Static
 
-from controller.runtime.events import Snapshot
+from controller.api import Snapshot
 from controller.tui.widgets import LayerPreview, Trend
 from controller.tui.session import View
 

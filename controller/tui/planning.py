@@ -16,11 +16,10 @@ def probe_plan(cfg: Any, sim_cfg: Any = None) -> tuple[tuple[str, tuple[float, f
     workpiece); nothing on a robot cell, or when the routine is not there.
     """
     try:
-        # lazy: the alignment routine (ICP, trimesh) loads only when a cell is aligned
-        from controller.align.routine import cad_mesh, plan_for_mesh
+        # lazy: the controller's API loads when the Align screen first needs the plan
+        from controller.api import workpiece_probe_plan
 
-        wp = (sim_cfg or load_sim()).cnc.workpiece
-        plan = plan_for_mesh(cad_mesh(wp))
+        plan = workpiece_probe_plan(sim_cfg or load_sim())
     except Exception:  # no routine, no workpiece: the screen says the plan is the routine's
         return ()
     out = [("top", (float(x), float(y), plan.top_z)) for x, y in plan.top_xy]

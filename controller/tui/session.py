@@ -30,9 +30,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
-from controller.runtime.events import Snapshot
-from controller.job.model import CellJob
-from controller.job.read import read_job
+from controller.api import CellJob, Snapshot, aligned_job, events_after, read_job, workpiece_probe_plan
 from controller.tui.trace_ask import TraceAsk
 from core.errors import CellError, InputError
 
@@ -43,9 +41,7 @@ from controller.tui.view import (DEVICE_WORDS, HISTORY_LEN, PROBE_STATES, SAMPLE
                                  DeviceInfo, JobInfo, LogRow, PlanStatus, Sample, View,
                                  alignment_dict, job_info)
 from core.config import load_cell, load_sim
-from controller.runtime.devices import with_urls
-from controller.journal.store import read_events_after
-from controller.motion.kinematics import apply_to_job
+from controller.harness.cell import with_urls
 
 
 def freeze_heap() -> None:
@@ -240,7 +236,7 @@ class CellSession(TraceAsk):
         if not rd:
             return []
 
-        rows = read_events_after(Path(rd) / "journal.sqlite", after_id, limit)
+        rows = events_after(rd, after_id, limit)
         return [LogRow(*r) for r in rows]
 
     def ui_log(self) -> list[LogRow]:
@@ -415,14 +411,11 @@ class CellSession(TraceAsk):
         return self._submit(_do)
 
     def _align_on_cnc_link(self) -> Any:
-        # lazy: the alignment routine (ICP, trimesh) loads only when a cell is aligned
-        from controller.align.routine import cad_mesh, plan_for_mesh
         # lazy: the controller API (drivers, the build runner) loads when the session first needs it,
         # so `cell tui` paints before it; the TUI never imports a driver itself
         from controller.api import align_at
-        from core.config import load_sim
 
-        plan = plan_for_mesh(cad_mesh((self.sim_cfg or load_sim()).cnc.workpiece))
+        plan = workpiece_probe_plan(self.sim_cfg or load_sim())  # the routine loads here (ICP, trimesh)
         dev = self.cfg.devices.cnc
 
         def on_point(pp: Any) -> None:
@@ -455,7 +448,7 @@ class CellSession(TraceAsk):
             try:
                 # a new job, read and hashed off the controller's loop; a second alignment is refused
                 job = await asyncio.get_running_loop().run_in_executor(
-                    None, lambda: apply_to_job(src, tf, record, name=name))
+                    None, lambda: aligned_job(src, tf, record, name=name))
                 await self._open_job(job)
             except BaseException:
                 self._alignment_applied = False

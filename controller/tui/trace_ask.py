@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from controller.journal.trace import Trace
+from controller.api import Trace
 from core.config import CellConfig
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from planner.job import Job, Pass
-from controller.runtime.events import Snapshot
+from controller.api import Snapshot
 
 HISTORY_LEN = 300          # samples kept for the live plots (30 s at 10 Hz)
 SAMPLE_PERIOD_S = 0.1      # history sampling period (wall seconds)
