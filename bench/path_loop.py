@@ -38,7 +38,6 @@ from controller.harness.cell import open_cell
 from controller.harness.sim import with_urls
 from controller.job.model import CellJob
 from core.config import CellConfig, SimConfig, SimRegion, load_cell, load_material, load_sim
-from core.melting import synergic_current
 
 RUN_IN_MM = 5.0
 END_SAG = 0.2
@@ -47,7 +46,6 @@ L0 = 15.0
 # the bench's process control: a region at 1.25 in a part at 0.85 lays 1.47 x the metal of the
 # rest, beyond a ±25 % speed trim (docs/closed-loop.md "Figures")
 PC: dict[str, Any] = {"speed_trim_pct": 40.0}
-_LINE = load_material(MATERIAL)
 
 
 def demo_job(layers: int | None = None) -> CellJob:
@@ -101,17 +99,9 @@ def _len(s: dict[str, Any]) -> float:
     return math.dist(s["from"][:2], s["to"][:2])
 
 
-def _planned_current(s: dict[str, Any], current_a: float) -> float:
-    """A segment's planned current: the synergic line's at the wire feed it was laid with (the
-    path loop's second actuator moves it with the feed), else the job's."""
-    wfs = s.get("wfs_m_min")
-    return synergic_current(_LINE.ribeiro, float(wfs)) if wfs else current_a
-
-
 def judge_beads(beads: list[list[dict[str, Any]]], current_a: float, width: float) -> dict[str, Any]:
-    """Stick-out and current figures over every bead (deposit.jsonl's truth); the current against
-    the job's (`current_dev_max_pct`) and against each segment's own feed (`current_dev_seg_pct`)."""
-    worst_share, lo, hi, cur_dev, seg_dev = 1.0, math.inf, -math.inf, 0.0, 0.0
+    """Stick-out and current figures over every bead (deposit.jsonl's truth)."""
+    worst_share, lo, hi, cur_dev = 1.0, math.inf, -math.inf, 0.0
     for b in beads:
         lens = np.array([_len(s) for s in b])
         ctwd = np.array([float(s.get("ctwd_mm", math.nan)) for s in b])
@@ -126,11 +116,8 @@ def judge_beads(beads: list[list[dict[str, Any]]], current_a: float, width: floa
         if steady.any():
             cur = np.array([float(x["current_a"]) for x in b])[steady]
             cur_dev = max(cur_dev, float(np.max(np.abs(cur / current_a - 1.0))))
-            plan = np.array([_planned_current(x, current_a) for x in b])[steady]
-            seg_dev = max(seg_dev, float(np.max(np.abs(cur / plan - 1.0))))
     return {"stick_out_share_min": round(worst_share, 4), "stick_out_min_mm": round(lo, 2),
-            "stick_out_max_mm": round(hi, 2), "current_dev_max_pct": round(100 * cur_dev, 2),
-            "current_dev_seg_pct": round(100 * seg_dev, 2)}
+            "stick_out_max_mm": round(hi, 2), "current_dev_max_pct": round(100 * cur_dev, 2)}
 
 
 def layer_rms(beads: list[list[dict[str, Any]]], planned: dict[float, float]) -> list[tuple[float, float, float]]:

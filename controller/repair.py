@@ -328,8 +328,9 @@ async def repair_run(ctl: CellController, job: CellJob, *, job_path: Path | None
         await ctl.connect()
         say("align")
         res = await ctl.run_alignment(plan)
-        built = apply_to_job(job, res.transform, alignment_record(res)) if apply_alignment else job
-        ctl.open_job(built)
+        # the job moved, checked and journaled off the loop that cycles the devices (docs/testing.md)
+        built = await asyncio.to_thread(apply_to_job, job, res.transform, alignment_record(res)) if apply_alignment else job
+        await asyncio.to_thread(ctl.open_job, built)
         say("build")
         result = await ctl.start()
         if result.state != "complete":

@@ -20,6 +20,29 @@ from core.errors import CellError
 S = TypeVar("S")
 T = TypeVar("T")
 
+# Threads of this process that stand for devices (the in-process simulators of `--sim` and the
+# tests): the CPU time they take is the devices', not the controller's (`controller_cpu_s`).
+_DEVICE_THREADS: set[int] = set()
+
+
+def device_thread(ident: int, present: bool = True) -> None:
+    """Count thread `ident` (threading.get_ident()) as a device's while `present`."""
+    if present:
+        _DEVICE_THREADS.add(ident)
+    else:
+        _DEVICE_THREADS.discard(ident)
+
+
+def controller_cpu_s() -> float:
+    """CPU seconds this process has run, less what its device threads ran."""
+    total = time.process_time()
+    for ident in list(_DEVICE_THREADS):
+        try:
+            total -= time.clock_gettime(time.pthread_getcpuclockid(ident))
+        except (OSError, ValueError):
+            _DEVICE_THREADS.discard(ident)   # that thread has ended
+    return total
+
 
 @dataclass
 class CycleStats:
@@ -33,9 +56,24 @@ class CycleStats:
     periods: list[float] = field(default_factory=list)   # wall seconds between cycle starts
     max_period_s: float = 0.0   # the longest wall time between two cycle starts
     host_stalls: int = 0        # reply timeouts that fired late: this process stalled, not the device
+    # The longest period this process is to blame for (docs/testing.md, "A loop that never
+    # blocks"): one cycle plus the time the loop came late to the cycle (a timer that fired late,
+    # subscribers' work), at most the CPU time the controller's threads ran meanwhile (late while
+    # none ran: the OS ran something else, e.g. while a time-shared thread held the interpreter
+    # lock, or an in-process simulator did: `device_thread`), less a CPU of the host witnessed stopped. A device that answers late does not count
+    # here: the loop ran its timers on time while it waited.
+    max_own_period_s: float = 0.0
+    os_delay_at_max_s: float = 0.0   # the OS's share (no thread of ours ran, a stopped CPU) of the longest period
     keep: bool = False          # record periods (benchmark)
     # every cycle period in 0.1 ms bins up to 1 s (the last bin: longer): percentiles, bounded memory
     hist: list[int] = field(default_factory=lambda: [0] * 10_001)
+
+    def restart_periods(self) -> None:
+        """Count the periods from now on (a build's record: its own cycles, not the idle time
+        before it, when a job was opened or planned)."""
+        self.max_period_s = self.max_own_period_s = self.os_delay_at_max_s = 0.0
+        self.hist = [0] * len(self.hist)
+        self.periods = []
 
     def add_period(self, seconds: float) -> None:
         self.hist[min(int(seconds * 10_000), 10_000)] += 1
@@ -77,6 +115,7 @@ class CyclicDevice(ABC, Generic[S]):
         # controller when it watches its CPUs (controller/runtime/host_witness.py), else never
         self.host_stalled_s: Callable[[float, float], float] | None = None
         self._kicked = False                       # cycle_now() asked for an exchange at once
+        self._late_s = 0.0   # this cycle's lateness of the loop: timers that fired late, work after the exchange
         self._wake: asyncio.Future[bool] | None = None
 
     def where(self) -> str:
@@ -111,9 +150,10 @@ class CyclicDevice(ABC, Generic[S]):
                         await asyncio.sleep(0)
                         if task.done():
                             break
+                now = time.monotonic()
+                self._late_s += max(0.0, now - t0 - step)   # the step's timer fired late (or the reply was read late)
                 if task.done():
                     return task.result()
-                now = time.monotonic()
                 if now - t0 - step > self.cycle_s / 2:
                     self.stats.host_stalls += 1
                 else:
@@ -170,16 +210,15 @@ class CyclicDevice(ABC, Generic[S]):
         period = self.cycle_s
         deadline = time.monotonic()
         last_start: float | None = None
+        last_cpu = 0.0
         try:
             while not self._closing:
                 now = time.monotonic()
+                cpu = controller_cpu_s()   # did a thread of the controller run while the loop was late?
                 if last_start is not None:
-                    gap = now - last_start
-                    self.stats.max_period_s = max(self.stats.max_period_s, gap)
-                    self.stats.add_period(gap)
-                    if self.stats.keep:
-                        self.stats.periods.append(gap)
-                last_start = now
+                    self._note_period(now - last_start, last_start, now, cpu - last_cpu)
+                last_start, last_cpu = now, cpu
+                self._late_s = 0.0
                 try:
                     st = await self._one_cycle()
                 except CellError as exc:
@@ -190,28 +229,54 @@ class CyclicDevice(ABC, Generic[S]):
                     self._fail(exc)
                     return
                 self.stats.cycles += 1
-                if time.monotonic() - now > period:
+                done = time.monotonic()
+                if done - now > period:
                     self.stats.late += 1    # valid, but after its cycle: counted, not a fault
-                for fn in list(self._subs):
-                    try:
-                        fn(st)
-                    except Exception:  # a subscriber's bug must not stop the bus cycle
-                        pass
-                waiters, self._waiters = self._waiters, []
-                for fut in waiters:
-                    if not fut.done():
-                        fut.set_result(st)
+                self._deliver(st)
                 # absolute deadlines: no drift; after an overrun resynchronise instead of bursting
                 deadline += period
-                now = time.monotonic()
-                if now - deadline > period:
-                    deadline = now
-                if await self._sleep_until(deadline):
+                after = time.monotonic()
+                self._late_s += after - done     # work on the device loop after the exchange
+                if after - deadline > period:
+                    deadline = after
+                kicked = await self._sleep_until(deadline)
+                self._late_s += max(0.0, time.monotonic() - max(deadline, after))   # woke late
+                if kicked:
                     deadline -= period   # an extra exchange: the scheduled one still comes on time
         except asyncio.CancelledError:
             raise
         except Exception as exc:  # an unexpected transport error is still a lost link
             self._fail(LinkLost(f"{self.where()}: cycle stopped ({exc!r})"))
+
+    def _note_period(self, gap: float, t0: float, t1: float, cpu_s: float) -> None:
+        """Count one period (wall seconds between two cycle starts; `cpu_s` the CPU time this
+        process ran meanwhile) and the share this process is to blame for (`max_own_period_s`)."""
+        st = self.stats
+        st.max_period_s = max(st.max_period_s, gap)
+        st.add_period(gap)
+        if st.keep:
+            st.periods.append(gap)
+        if gap <= 1.5 * self.cycle_s:
+            own, os_s = gap, 0.0
+        else:
+            stalled = self.host_stalled_s(t0, t1) if self.host_stalled_s is not None else 0.0
+            late = max(0.0, min(self._late_s, cpu_s) - stalled)
+            own = min(gap, self.cycle_s + late)
+            os_s = max(0.0, self._late_s - late)
+        if own > st.max_own_period_s:
+            st.max_own_period_s, st.os_delay_at_max_s = own, os_s
+
+    def _deliver(self, st: S) -> None:
+        """One cycle's reading to the subscribers and to the tasks waiting for it."""
+        for fn in list(self._subs):
+            try:
+                fn(st)
+            except Exception:  # a subscriber's bug must not stop the bus cycle
+                pass
+        waiters, self._waiters = self._waiters, []
+        for fut in waiters:
+            if not fut.done():
+                fut.set_result(st)
 
     def cycle_now(self) -> None:
         """Exchange at once instead of at the next cycle (an interlock's drop goes out now); the

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import time
+from typing import Callable
 
 
 class SimClock:
@@ -17,6 +18,12 @@ class SimClock:
         # (process time at the anchor, monotonic time of the anchor, scale): one tuple, replaced
         # whole, so a reader on another thread never mixes an old anchor with a new scale
         self._anchor = (0.0, time.monotonic(), float(time_scale))
+        self._watchers: list[Callable[[float], None]] = []
+
+    def watch(self, fn: Callable[[float], None]) -> None:
+        """Call `fn(new scale)` whenever the scale changes (the serial lines keep their rate in
+        simulated time)."""
+        self._watchers.append(fn)
 
     @property
     def time_scale(self) -> float:
@@ -30,6 +37,8 @@ class SimClock:
         now = time.monotonic()
         base, t0, k = self._anchor
         self._anchor = (base + (now - t0) * k, now, float(time_scale))
+        for fn in list(self._watchers):
+            fn(float(time_scale))
 
     def now(self) -> float:
         """Simulated seconds since the clock started."""

@@ -18,18 +18,14 @@ if TYPE_CHECKING:
 
 
 def rot(axis: ArrayLike, deg: float) -> np.ndarray:
-    """4x4 right-handed rotation by `deg` about the unit vector `axis` (Rodrigues), in plain floats:
-    the executor asks for two per stretch of motion, about a millisecond apart at time scale 10."""
-    x, y, z = (float(v) for v in np.asarray(axis, dtype=float).reshape(3))
-    n = math.sqrt(x * x + y * y + z * z)
-    x, y, z = x / n, y / n, z / n
+    """4x4 right-handed rotation by `deg` about the unit vector `axis` (Rodrigues)."""
+    k = np.asarray(axis, dtype=float)
+    k = k / np.linalg.norm(k)
     t = math.radians(deg)
-    s, c = math.sin(t), math.cos(t)
-    v = 1.0 - c
-    return np.array([[c + x * x * v, x * y * v - z * s, x * z * v + y * s, 0.0],
-                     [y * x * v + z * s, c + y * y * v, y * z * v - x * s, 0.0],
-                     [z * x * v - y * s, z * y * v + x * s, c + z * z * v, 0.0],
-                     [0.0, 0.0, 0.0, 1.0]])
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    m = np.eye(4)
+    m[:3, :3] = np.eye(3) + math.sin(t) * kx + (1 - math.cos(t)) * (kx @ kx)
+    return m
 
 
 def trans(v: ArrayLike) -> np.ndarray:
@@ -64,11 +60,7 @@ class TableKin:
             inner, outer = rot(self.axis_second, second_deg), rot(self.axis_a, a_deg)
         else:
             inner, outer = rot(self.axis_a, a_deg), rot(self.axis_second, second_deg)
-        # T(c2) O T(-c2) T(c1) I T(-c1) with the translations folded in: x -> O (I (x - c1) + c1 - c2) + c2
-        o, i = outer[:3, :3], inner[:3, :3]
-        m = np.eye(4)
-        m[:3, :3] = o @ i
-        m[:3, 3] = o @ (c1 - c2 - i @ c1) + c2
+        m: np.ndarray = trans(c2) @ outer @ trans(-c2) @ trans(c1) @ inner @ trans(-c1)
         return m
 
     def tool_in_table(self, a_deg: float, second_deg: float) -> np.ndarray:

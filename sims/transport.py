@@ -69,7 +69,8 @@ class SerialServer:
         # The line keeps its rate in simulated time (docs/contract.md §6): at time scale k it carries k
         # times the bytes per wall second, so a time scale never starves a bead that real
         # hardware would not starve.
-        self.rate = bytes_per_second(baud) * time_scale if baud else None
+        self._base_rate = bytes_per_second(baud) if baud else None
+        self.rate = self._base_rate * time_scale if self._base_rate else None
         self.url = ""
         self.connections = 0
         self.pipes: tuple[FaultPipe, FaultPipe] | None = None  # (to the sim, from the sim)
@@ -79,6 +80,13 @@ class SerialServer:
         self._unplugged_until = 0.0
         self._t0 = time.monotonic()
         self._timers: list[asyncio.TimerHandle] = []
+
+    def set_scale(self, time_scale: float) -> None:
+        """The line's rate at a new time scale (the simulators' clock changed), the open
+        connection's included."""
+        self.rate = self._base_rate * time_scale if self._base_rate else None
+        for pipe in self.pipes or ():
+            pipe.rate = self.rate
 
     # -- lifecycle -------------------------------------------------------------------------------
     async def start(self, url: str | None, *, pty: bool = False, ephemeral: bool = False) -> str:
@@ -214,6 +222,7 @@ async def serve_serial(sim: SerialSim, device: str, dev_cfg: RobotDevice | CncDe
     serial simulator's `serve(ctx)`. The simulator is closed again if the server cannot start."""
     sim.start()
     server = SerialServer(sim, name=device, spec=spec, baud=dev_cfg.baud, time_scale=ctx.clock.time_scale)
+    ctx.clock.watch(server.set_scale)
     sim.server = server  # tests pull the cable with sim.server.unplug()
     try:
         url = await server.start(dev_cfg.url, pty=ctx.pty, ephemeral=ctx.ephemeral)

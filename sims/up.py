@@ -14,6 +14,8 @@ import sys
 from typing import Callable
 
 from core.realtime import SIM_RT_PRIORITY, elevate, quiet_gc
+from core.runtime_dir import runtime_dir
+from sims.clock_server import ClockServer
 from sims.context import Served, SimContext
 
 __all__ = ["SIM_MODULES", "SimContext", "Served", "serve_all", "close_all", "run_forever"]
@@ -51,6 +53,7 @@ async def run_forever(ctx: SimContext, on_ready: Callable[[list[Served]], None])
         except (NotImplementedError, RuntimeError):  # not the main thread: Ctrl-C still cancels
             pass
     served: list[Served] = []
+    clock = ClockServer(ctx.clock, ctx.cell.devices.cnc.url, runtime_dir())
     # Before the servers start; every simulator runs on this thread's loop.
     rt = elevate("simulators", SIM_RT_PRIORITY)
     if "cannot" in rt:  # the clear line the operator needs; nothing when it worked
@@ -61,9 +64,11 @@ async def run_forever(ctx: SimContext, on_ready: Callable[[list[Served]], None])
         loop.slow_callback_duration = float(slow_ms) / 1000.0
     try:
         served = await serve_all(ctx)
+        await clock.start()   # a command lowers the time scale to what it can feed (docs/controller.md)
         quiet_gc(collect=True)  # full collections of this heap stalled replies 58-84 ms
         on_ready(served)
         await stop.wait()
     finally:
+        await clock.close()
         await close_all(served)
         ctx.world.close()

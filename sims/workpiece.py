@@ -72,7 +72,6 @@ class Workpiece:
         self.deposit_map: HeightMap | None = None
         self.settle: Callable[[], object] | None = None   # lays the World's deferred beads first
         self.kin = TableKin(table, _vec3(self.pivot), _vec3(axis_a), _vec3(axis_second), _vec3(offset_mm))
-        self._frame_memo: tuple[tuple[tuple[float, ...], int], tuple[np.ndarray, np.ndarray]] | None = None
         # How close to the surface the stylus counts as deflected (a real probe trips within
         # microns); wide enough that a noisy trip point still reads as tripped.
         self.trigger_mm = trigger_mm if trigger_mm is not None else max(0.01, 5.0 * self.noise_mm)
@@ -143,20 +142,10 @@ class Workpiece:
         return out
 
     def part_frame(self, pos5: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
-        """The tool tip (machine X Y Z at rotary A, B|C) and the tool axis, in the workpiece frame.
-
-        The executor asks for both ends of every stretch it moves, and a stretch starts where the
-        last one ended: the last answer is kept (a 5-axis line at time scale 10 lasts about a
-        millisecond of wall time, and this was the simulator's largest cost per line)."""
-        key = (tuple(float(v) for v in pos5[:5]), id(self.pose))
-        if self._frame_memo is not None and self._frame_memo[0] == key:
-            return self._frame_memo[1]
-        m = self.part_to_machine(key[0][3], key[0][4])
-        rt = m[:3, :3].T   # a rigid motion: its inverse is R^T, -R^T t
-        q = rt @ (np.asarray(key[0][:3]) - m[:3, 3])
-        out = (q, rt[:, 2].copy())
-        self._frame_memo = (key, out)
-        return out
+        """The tool tip (machine X Y Z at rotary A, B|C) and the tool axis, in the workpiece frame."""
+        inv = np.linalg.inv(self.part_to_machine(float(pos5[3]), float(pos5[4])))
+        q = inv[:3, :3] @ np.asarray(pos5[:3], dtype=float) + inv[:3, 3]
+        return q, inv[:3, :3] @ np.array([0.0, 0.0, 1.0])
 
     # -- geometry ---------------------------------------------------------------------------
     def _ray_hits(self, origin: np.ndarray, direction: np.ndarray) -> np.ndarray:

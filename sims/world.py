@@ -231,7 +231,6 @@ class World:
             "t1": round(o.t1, 4),
             "current_a": round(sum(o.currents) / len(o.currents), 2),
             "voltage_v": round(sum(o.voltages) / len(o.voltages), 2),
-            "wfs_m_min": round(sum(o.wfs) / len(o.wfs), 3) if o.wfs else None,
             "device": o.device,
         }
         if o.part is not None:

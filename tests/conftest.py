@@ -11,6 +11,7 @@ from typing import Iterator
 import pytest
 
 from controller import one_blas_thread
+from tests.link_check import JournalWatch
 from tests.records_fixtures import pg_server, store_url  # noqa: F401  (the record store's fixtures: docs/records.md)
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -74,6 +75,19 @@ def _share_the_cpus(request: pytest.FixtureRequest) -> Iterator[None]:
     alone = request.node.get_closest_marker("owns_cpus") is not None or getattr(request.node, "execution_count", 1) > 1
     with _cpus(exclusive=alone):
         yield
+
+
+_JOURNALS = JournalWatch()
+
+
+@pytest.fixture(autouse=True)
+def _no_late_device_cycle(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """Every build of the suite: no power source or cell I/O cycle late by the controller's doing
+    (tests/link_check.py; docs/testing.md, "A loop that never blocks")."""
+    yield
+    late = _JOURNALS.new_late(tmp_path_factory.getbasetemp())
+    if late:
+        pytest.fail("a device cycle came late because the controller was busy: " + "; ".join(late), pytrace=False)
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

@@ -225,13 +225,17 @@ class CellController:
             out.append(LinkStat("power_source", d.power.url, d.power.error is None, ps.cycles, ps.cycles,
                                 ps.late + ps.bad, late=ps.late, lost=ps.lost, bad=ps.bad,
                                 max_period_ms=round(ps.max_period_s * 1000, 1),
-                                p99_period_ms=ps.period_percentile_ms(99)))
+                                p99_period_ms=ps.period_percentile_ms(99),
+                                max_own_period_ms=round(ps.max_own_period_s * 1000, 1),
+                                os_delay_ms=round(ps.os_delay_at_max_s * 1000, 1)))
         if d.cellio is not None:
             cs = d.cellio.stats
             out.append(LinkStat("cellio", d.cellio.url, d.cellio.error is None, cs.cycles, cs.cycles,
                                 cs.late + cs.bad, late=cs.late, lost=cs.lost, bad=cs.bad,
                                 max_period_ms=round(cs.max_period_s * 1000, 1),
-                                p99_period_ms=cs.period_percentile_ms(99)))
+                                p99_period_ms=cs.period_percentile_ms(99),
+                                max_own_period_ms=round(cs.max_own_period_s * 1000, 1),
+                                os_delay_ms=round(cs.os_delay_at_max_s * 1000, 1)))
         return tuple(out)
 
     async def _stats_loop(self) -> None:
@@ -357,10 +361,21 @@ class CellController:
         if not self._journal_faults(self.journal, self.interlocks):
             self.last_result = BuildResult(state=self.machine.state.value, layers_done=0, passes_done=0, arc_starts=0)
             return self.last_result
+        # the journal's reads below wait for every queued row to be committed (an fsync): wait for
+        # that off this loop, which cycles the devices, and read before writing anew (docs/testing.md,
+        # "A loop that never blocks")
+        await asyncio.to_thread(self.journal.flush)
+        for dev in (self.devices.power, self.devices.cellio):
+            if isinstance(dev, CyclicDevice):
+                dev.stats.restart_periods()   # the record's cycle periods are the build's
         work = remaining_work(self.job, self.journal)
         # process_control (docs/closed-loop.md): the layers as built, restored from the journal
         control = make_control(self.cfg, self.job, self.material, self.journal, self.bus, self.executor)
         work = control.adjust_work(work, self.journal.done_passes())
+        self.runner = BuildRunner(job=self.job, journal=self.journal, machine=self.machine, bus=self.bus,
+                                  executor=self.executor, power=self.devices.power_source(),
+                                  cellio=self.devices.cellio, options=self.options, arc=self.arc,
+                                  layers=control, hooks=control)
         quiet_gc()
         self.journal.event("info", f"run {self.journal.run}: {len(work)} passes to deposit")
         trace = self.trace.given(gas=self.material.gas) if self.trace.gas is None else self.trace  # the material's
@@ -368,10 +383,6 @@ class CellController:
         self.bus.update(wire_lot=trace.wire_lot, gas=trace.gas, operator=trace.operator)
         self.journal.event("run", json.dumps({"run": self.journal.run, "time_scale": self.options.time_scale,
                                               "passes_left": len(work)}))
-        self.runner = BuildRunner(job=self.job, journal=self.journal, machine=self.machine, bus=self.bus,
-                                  executor=self.executor, power=self.devices.power_source(),
-                                  cellio=self.devices.cellio, options=self.options, arc=self.arc,
-                                  layers=control, hooks=control)
         self.interlocks.runner = self.runner
         task = asyncio.get_running_loop().create_task(self.runner.run(work))
         self.interlocks.build_task = task

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -154,8 +155,11 @@ def run_repair(args: argparse.Namespace) -> int:
         rep = asyncio.run(repair_run_sim(job, cell, sim_cfg, job_path=path, runs_dir=runs, log_dir=args.log,
                                          tolerance_mm=args.tolerance, finish=not args.no_finish))
     else:
+        # `cell sim up` or hardware: the simulators' clock lowered for the build where the host cannot
+        # feed it at cell.yaml's time scale, said before any motion (docs/controller.md)
         rep = asyncio.run(repair_run_devices(job, cell, job_path=path, runs_dir=runs, tolerance_mm=args.tolerance,
-                                             finish=not args.no_finish))
+                                             finish=not args.no_finish,
+                                             say=lambda m: print(m, file=sys.stderr, flush=True)))
     if args.json:
         emit_json(rep)
         return 1 if rep["verify"]["defects"] else 0   # docs/repair.md: a verify defect exits 1, either way

@@ -234,24 +234,34 @@ def _resume(args: argparse.Namespace) -> int:
 
 def _build(args: argparse.Namespace, cfg: CellConfig, job: CellJob, run_dir: Path | None, faults: str,
            scen: list[tuple[str, int, float | None]], log_dir: Path, runs: Path, resume: bool = False) -> int:
+    fed: Any = None
+    note = None
     if args.sim:  # issue 29: the time scale the CNC link can feed (controller/motion/cnc5.py), said on stderr
         from controller.motion.cnc5 import limit_time_scale
 
         cfg, note = limit_time_scale(cfg, job)
-        if note:
-            _err(note)
-    elif cfg.cell.platform == "cnc":  # `cell sim up`: refused before any device (docs/controller.md, "Simulated time")
-        from controller.motion.cnc5 import refuse_unfed
-        from controller.motion.kinematics import Trunnion
+    elif cfg.cell.platform == "cnc":
+        # `cell sim up`: its clock lowered to what the host can feed, before any device, or refused
+        # (docs/controller.md, "Simulated time the host can feed")
+        from controller.harness.sim_clock import FedScale
 
-        refuse_unfed(job, Trunnion.from_config(cfg.kinematics), float(cfg.cell.time_scale), cfg.devices.cnc.baud,
-                     args.max_step)
+        fed = FedScale.lower(cfg, job, args.max_step)
+        cfg, note = fed.cfg, fed.note
+    if note:
+        _err(note)
     say = _err if args.json else _out
     sim = load_sim(args.sim_config) if args.sim else None
     reset = resume or bool(getattr(args, "reset_errors", False))
-    ctl = asyncio.run(_open_and_drive(cfg, job, run_dir, runs, sim, log_dir, faults, scen, say, resume,
-                                      {"max_step_mm": args.max_step, "reset_errors": reset}))
+    try:
+        ctl = asyncio.run(_open_and_drive(cfg, job, run_dir, runs, sim, log_dir, faults, scen, say, resume,
+                                          {"max_step_mm": args.max_step, "reset_errors": reset}, note))
+    finally:
+        if fed is not None:
+            fed.restore()
     out = ctl.result_json
+    if out and note:
+        out["time_scale"] = cfg.cell.time_scale
+        out["notes"] = [note]
     if args.json:
         # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
         from controller.cli.main import emit_json
@@ -277,7 +287,8 @@ def exit_code(out: dict[str, Any]) -> int:
 
 async def _open_and_drive(cfg: CellConfig, job: CellJob, run_dir: Path | None, runs: Path, sim: SimConfig | None,
                           log_dir: Path, faults: str, scen: list[tuple[str, int, float | None]],
-                          say: Callable[[str], None], resume: bool, options: dict[str, Any]) -> Any:
+                          say: Callable[[str], None], resume: bool, options: dict[str, Any],
+                          note: str | None = None) -> Any:
     """The cell opened (controller/harness/cell.py: the simulators in this process with `sim`),
     the build driven, the cell closed; the API object (its `result_json`)."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
@@ -287,12 +298,12 @@ async def _open_and_drive(cfg: CellConfig, job: CellJob, run_dir: Path | None, r
     async with open_cell(cfg, sim=sim, runs_dir=runs, log_dir=log_dir if sim is not None else None,
                          faults=faults, connect=False) as ctl:
         ctl.options = BuildOptions(**{**ctl.options.__dict__, **options})
-        await _drive(ctl, job, run_dir, scen, say, resume)
+        await _drive(ctl, job, run_dir, scen, say, resume, note)
     return ctl
 
 
 async def _drive(ctl: Any, job: CellJob, run_dir: Path | None, scen: list[tuple[str, int, float | None]],
-                 say: Callable[[str], None], resume: bool) -> tuple[Any, Path | None]:
+                 say: Callable[[str], None], resume: bool, note: str | None = None) -> tuple[Any, Path | None]:
     resume_ticket = None
     if resume and run_dir is not None:
         # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
@@ -304,8 +315,11 @@ async def _drive(ctl: Any, job: CellJob, run_dir: Path | None, scen: list[tuple[
     guard.attach(ctl, say)  # SIGINT / SIGTERM / SIGHUP: the fault path from here on
     await ctl.connect(resume_ticket=resume_ticket)
     try:
-        ctl.open_job(job, run_dir)
+        # checked, hashed and journaled off the loop that cycles the devices (docs/testing.md)
+        await asyncio.to_thread(ctl.open_job, job, run_dir)
         ctl.journal.event("mode", json.dumps({"sim": ctl.simulators is not None}))
+        if note:   # the time scale the host can feed, in the record (docs/controller.md)
+            ctl.journal.event("info", f"time scale: {note}")
         ctl.subscribe(Progress(say))
         prompt = PausePrompt(ctl, say)   # a pause says why and how to go on, and takes the answer here
         if resume:

@@ -3,13 +3,19 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from controller.cli import guard
+
+if TYPE_CHECKING:
+    from controller.tui.session import CellSession
+    from core.config import CellConfig
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("tui", help="the operator's terminal UI (Job, Align, Build, Log, Devices)")
-    p.add_argument("--sim", action="store_true", help="start the simulators in this process and connect to them")
+    p.add_argument("--sim", action="store_true",
+                   help="start the simulators (`cell sim up` in a process of its own) and connect to them")
     p.add_argument("--config", type=Path, default=None, help="cell.yaml (default: config/cell.yaml)")
     p.add_argument("--sim-config", type=Path, default=None, help="sim.yaml for --sim (default: config/sim.yaml)")
     p.add_argument("--fault", default="", metavar="SPEC", help="seeded fault spec for the simulators (--sim)")
@@ -20,12 +26,38 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 def _tui(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from core.config import load_cell, load_sim
-    from controller.tui.app import CellApp
     from controller.tui.session import CellSession
 
     cfg = load_cell(args.config)
     sim_cfg = load_sim(args.sim_config) if args.sim else None
-    session = CellSession(cfg, sim=args.sim, sim_cfg=sim_cfg, runs_dir=args.runs, faults=args.fault)
+    sims = None
+    tmp = None
+    if args.sim:
+        # lazy: loaded only with --sim
+        import tempfile
+        from controller.harness.sim_process import SimProcess
+
+        # the simulators in a process of their own, as `cell demo` runs them: in this one they
+        # would share the interpreter lock with the controller's device cycles and the screen
+        # (docs/tui.md: the cycle period's p99 35.7 ms in one process, 19.6 ms beside it)
+        tmp = tempfile.TemporaryDirectory(prefix="cell-tui-sim-")
+        sims = SimProcess(cfg, Path(tmp.name), str(args.sim_config) if args.sim_config else None,
+                          faults=args.fault)
+        cfg = sims.cfg
+    session = CellSession(cfg, sim_cfg=sim_cfg, runs_dir=args.runs, sims_beside=args.sim)
+    try:
+        return _serve(session, cfg, args)
+    finally:
+        if sims is not None:
+            sims.close()
+        if tmp is not None:
+            tmp.cleanup()
+
+
+def _serve(session: "CellSession", cfg: "CellConfig", args: argparse.Namespace) -> int:
+    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
+    from controller.tui.app import CellApp
+
     with guard.guarded(cfg, args.config) as stops:
         app = CellApp(session)
 

@@ -8,6 +8,7 @@ from typing import Any, Callable
 from controller.api.simulated import Simulators
 from controller.harness.cell import open_cell
 from controller.harness.sim import SIM_REPLY_TIMEOUT_MS
+from controller.harness.sim_clock import FedScale
 from controller.job.model import CellJob
 from controller.motion.cnc5 import limit_time_scale
 from controller.repair import repair_cell, repair_run
@@ -16,10 +17,32 @@ from core.config import CellConfig, SimConfig
 
 async def repair_run_devices(job: CellJob, cell: CellConfig, *, job_path: Path | None = None,
                              runs_dir: str | Path = "runs", tolerance_mm: float = 0.1,
-                             finish: bool = True) -> dict[str, Any]:
-    """repair_run on the devices of cell.yaml (hardware, or `cell sim up`)."""
-    async with open_cell(repair_cell(cell), runs_dir=runs_dir, connect=False) as ctl:
-        return await repair_run(ctl, job, job_path=job_path, tolerance_mm=tolerance_mm, finish=finish)
+                             finish: bool = True, say: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """repair_run on the devices of cell.yaml (hardware, or `cell sim up`): where the host cannot
+    feed the build at the cell's time scale, the simulators' clock is lowered for the build and
+    given back for the probing (docs/controller.md, "Simulated time the host can feed"); refused
+    before any device when no clock answers."""
+    cell = repair_cell(cell)
+    probing = cell.cell.time_scale
+    fed = FedScale.lower(cell, job)
+    if fed.note and say is not None:
+        say(fed.note)
+    built_at = fed.cfg.cell.time_scale
+
+    def phase(name: str) -> None:
+        fed.set(built_at if name == "build" else probing)
+
+    try:
+        async with open_cell(fed.cfg, runs_dir=runs_dir, connect=False) as ctl:
+            rep = await repair_run(ctl, job, job_path=job_path, tolerance_mm=tolerance_mm, finish=finish,
+                                   phase=phase, time_scale_of=lambda name: probing)
+    finally:
+        fed.restore()
+    if fed.note:
+        rep["time_scale"] = built_at
+        rep["time_scale_probing"] = probing
+        rep.setdefault("notes", []).append(fed.note)
+    return rep
 
 
 async def repair_run_sim(job: CellJob, cell: CellConfig, sim_cfg: SimConfig, *, job_path: Path | None = None,
@@ -54,3 +77,4 @@ async def repair_run_sim(job: CellJob, cell: CellConfig, sim_cfg: SimConfig, *, 
     if note:
         rep.setdefault("notes", []).append(note)
     return rep
+

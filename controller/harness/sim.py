@@ -13,6 +13,7 @@ from typing import Any
 from controller.runtime.devices import with_urls as with_urls  # re-exported: `cell run --sim` and the TUI take it from here
 from core.config import CellConfig, SimConfig, load_material
 from core.realtime import SIM_RT_PRIORITY, elevate
+from drivers.cyclic import device_thread
 from sims.clock import SimClock
 from sims.faults import parse_fault_spec
 from sims.loop import precise_loop
@@ -44,7 +45,11 @@ class SimHarness:
         # real-time loop waited for it (the robot's heartbeat missed for 3 s under two CPU hogs)
         elevate("in-process simulators", SIM_RT_PRIORITY)
         asyncio.set_event_loop(self.loop)
-        self.loop.run_forever()
+        device_thread(threading.get_ident())   # its CPU time is the devices', not the controller's (docs/testing.md)
+        try:
+            self.loop.run_forever()
+        finally:
+            device_thread(threading.get_ident(), present=False)
 
     def start(self, timeout: float = 20.0) -> dict[str, str]:
         """Start the simulators; returns device -> URL."""

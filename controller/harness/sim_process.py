@@ -44,7 +44,7 @@ class SimProcess:
     in_process = False                # controller/api/simulated.py: no simulator object to reach into
 
     def __init__(self, cfg: CellConfig, log_dir: Path, sim_config: str | None = None,
-                 timeout_s: float = 60.0) -> None:
+                 timeout_s: float = 60.0, faults: str = "") -> None:
         self.sim_cfg: SimConfig = load_sim(sim_config)
         self.log_dir: Path | None = log_dir
         p = _free_ports(4)
@@ -60,6 +60,8 @@ class SimProcess:
                "--log", str(log_dir)]
         if sim_config:
             cmd += ["--config", sim_config]
+        if faults:
+            cmd += ["--fault", faults]
         self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=err, text=True)
         err.close()
         self._wait_ready(timeout_s)

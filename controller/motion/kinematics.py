@@ -17,18 +17,15 @@ Everything here is pure: numpy in, frozen dataclasses / arrays out.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Iterable, Mapping, Sequence
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from controller.job.model import CellJob
-from controller.job.read import JobDoc, edited
+from controller.job.read import edited
 from core.config import Kinematics
 from core.errors import InputError
-
-if TYPE_CHECKING:  # trimesh loads on first use (start-up time)
-    import trimesh
 
 F = NDArray[np.float64]
 _AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
@@ -248,7 +245,7 @@ class Trunnion:
 # --- applying an alignment -------------------------------------------------------------------------
 
 
-def apply_to_job(job: CellJob, matrix: ArrayLike, record: Mapping[str, object] | None = None, *,
+def apply_to_job(job: CellJob, matrix: ArrayLike, record: dict[str, Any] | None = None, *,
                  name: str | None = None) -> CellJob:
     """A copy of a job moved by `matrix` (points, normals, axes), recording the alignment (and
     `name`, when given). The copy is a new job, read as its file would be (its own hash).
@@ -262,7 +259,7 @@ def apply_to_job(job: CellJob, matrix: ArrayLike, record: Mapping[str, object] |
         raise InputError("the job already carries an alignment; a second one is refused: align the original "
                          "(unaligned) job instead")
 
-    def move(out: JobDoc) -> JobDoc:
+    def move(out: dict[str, Any]) -> dict[str, Any]:
         out["alignment"] = dict(record) if record else {"transform": m.tolist()}
         out["alignment"].setdefault("transform", m.tolist())
         if name is not None:
@@ -279,9 +276,9 @@ def apply_to_job(job: CellJob, matrix: ArrayLike, record: Mapping[str, object] |
     return edited(job, move, f"the aligned job {name or job.name}")
 
 
-def apply_to_mesh(mesh: trimesh.Trimesh, matrix: ArrayLike) -> trimesh.Trimesh:
+def apply_to_mesh(mesh: Any, matrix: ArrayLike) -> Any:
     """A transformed copy of a trimesh mesh (the original is left as it is)."""
-    out: trimesh.Trimesh = mesh.copy()
+    out = mesh.copy()
     out.apply_transform(np.asarray(matrix, dtype=float))
     return out
 

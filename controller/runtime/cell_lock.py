@@ -25,12 +25,12 @@ import hashlib
 import json
 import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 from core.errors import CellError
+from core.runtime_dir import runtime_dir
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent.parent / "config" / "cell.yaml"
 
@@ -44,13 +44,7 @@ class CellInUse(CellError):
 
 
 def lock_dir() -> Path:
-    env = os.environ.get("CELL_LOCK_DIR")
-    if env:
-        return Path(env)
-    run = os.environ.get("XDG_RUNTIME_DIR")
-    if run and Path(run).is_dir():
-        return Path(run) / "cell"
-    return Path(tempfile.gettempdir()) / f"cell-{os.getuid()}"
+    return runtime_dir()
 
 
 def lock_path(cell_name: str, config_path: str | Path | None) -> Path:

@@ -37,6 +37,10 @@ class LinkStat:
     bad: int = 0                    # invalid frames (CRC, NAK, garbage)
     max_period_ms: float | None = None  # cyclic devices: the longest time between two cycles
     p99_period_ms: float | None = None  # cyclic devices: the 99th percentile of that time
+    # cyclic devices: the longest period this process is to blame for, and the OS's share of the
+    # longest (run queue, a stopped CPU): docs/testing.md, "A loop that never blocks"
+    max_own_period_ms: float | None = None
+    os_delay_ms: float | None = None
 
 
 @dataclass(frozen=True)

@@ -60,12 +60,16 @@ class CellSession(TraceAsk):
     """A live cell for the TUI: the controller on its own thread and loop, read as `View`s."""
 
     def __init__(self, cfg: Any = None, *, sim: bool = False, sim_cfg: Any = None, runs_dir: str | Path | None = None,
-                 time_scale: float | None = None, faults: str = "", sim_log_dir: str | Path | None = None) -> None:
+                 time_scale: float | None = None, faults: str = "", sim_log_dir: str | Path | None = None,
+                 sims_beside: bool = False) -> None:
         self.cfg = cfg if cfg is not None else load_cell()
         if time_scale is not None:
             self.cfg = with_urls(self.cfg, {}, time_scale=time_scale)
         self.sim = sim
-        self.sim_cfg = sim_cfg if (sim_cfg is not None or not sim) else load_sim()
+        # `cell tui --sim`: the simulators run in `cell sim up` beside this process (cfg points at
+        # them), so they do not share the interpreter lock with the controller and the screen
+        self.sims_beside = sims_beside
+        self.sim_cfg = sim_cfg if (sim_cfg is not None or not (sim or sims_beside)) else load_sim()
         self.runs_dir = runs_dir
         self.faults = faults
         self.sim_log_dir = sim_log_dir
@@ -90,7 +94,7 @@ class CellSession(TraceAsk):
         self._ui_log: list[LogRow] = []
         self._build: concurrent.futures.Future[Any] | None = None
         self._unsub: Callable[[], None] | None = None
-        self._can_probe = self.cfg.cell.platform == "cnc" or sim
+        self._can_probe = self.cfg.cell.platform == "cnc" or sim or sims_beside
         self._probe_plan = probe_plan(self.cfg, self.sim_cfg) if self._can_probe else ()
         self._probed: list[tuple[str, tuple[float, float, float], float]] = []
 
@@ -113,7 +117,7 @@ class CellSession(TraceAsk):
         # Three busy threads share one GIL here (UI, controller, simulators): hand it over
         # every 2 ms rather than 5 so a device reply waits less behind a screen redraw.
         self._switch_interval = sys.getswitchinterval()
-        sys.setswitchinterval(0.002)
+        sys.setswitchinterval(0.0005)
         import planner.job  # noqa: F401  (open_job imports it: not on the controller's loop)
 
         if not self._thread.is_alive():
@@ -216,7 +220,7 @@ class CellSession(TraceAsk):
         return View(snap=s, seq=self._seq, history=tuple(self._hist), plan=self._plan, job=self._job,
                     alignment=self._alignment, alignment_applied=self._alignment_applied, probe_plan=self._probe_plan, probed=tuple(self._probed),
                     can_probe=self._can_probe, platform=self.cfg.cell.platform,
-                    devices=tuple(devices), sim=self.sim, connect_error=self._connect_error, busy=self._busy)
+                    devices=tuple(devices), sim=self.sim or self.sims_beside, connect_error=self._connect_error, busy=self._busy)
 
     def _last_error(self, device: str, s: Snapshot) -> str | None:
         """The device's latest error: kept across reconnects (a new controller starts with no alarms)."""
