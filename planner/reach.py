@@ -33,12 +33,17 @@ def reach_fill(island: Polygon, beads: list[Path2D], wd: Widths, min_coverage: f
     if not beads or island.area <= 0:
         return []
     rest = island.difference(footprint(beads))
+    # near-net, a hole a legal bead fits in is filled even where the island is covered enough: a large
+    # island hides a hole where a thin piece meets the body, and the net part may lie in it (issue 40)
+    smallest = 0.25 * wd.lo * wd.lo
     if rest.area <= (1.0 - min_coverage) * island.area:
-        return []
+        if allowance_mm <= 0.0:
+            return []
+        smallest = wd.lo * wd.lo
     out: list[Path2D] = []
     rooms: dict[float, shapely.Geometry] = {}  # the island eroded for a bead of each width, made once
     for piece in polygons_of(rest):
-        if piece.area < 0.25 * wd.lo * wd.lo:
+        if piece.area < smallest:
             continue
         for axis in centre_lines(piece, wd.lo, depth=1):
             w = float(np.clip(axis.width_mm, wd.lo, wd.hi))
