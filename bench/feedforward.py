@@ -2,6 +2,7 @@
 and the truth: the job poured, bead by bead, into the simulated world's own height map.
 
     python -m bench.feedforward [--part config/parts/square-hole.stl --width 7 --layers N]
+    python -m bench.feedforward --wall 100 --layers 40        # a 40-layer single-bead wall
 
 For the demo part (and a single-bead wall) it plans the job twice, without and with the
 feed-forward, reports the plan time and the summary's predicted spread per layer, then lays every
@@ -75,17 +76,33 @@ def _along(pts: np.ndarray, step: float) -> np.ndarray:
     return np.column_stack([np.interp(s, cum, pts[:, 0]), np.interp(s, cum, pts[:, 1])])
 
 
-def figures(part: Path, width: float, layers: int | None, material: Material) -> dict[str, Any]:
-    res: dict[str, Any] = {"part": part.name, "width_mm": width}
+def wall_mesh(length: float, width: float, layers: int, h: float = 0.77) -> Any:
+    """A single-bead wall: a box one bead wide, `layers` layers of `h` tall."""
+    # lazy: only the wall's path needs it
+    import trimesh
+
+    m = trimesh.creation.box(extents=(length, width, layers * h))
+    m.apply_translation((length / 2 + 10.0, width / 2 + 10.0, layers * h / 2.0))
+    return m
+
+
+def figures(part: Path, width: float, layers: int | None, material: Material, wall: float = 0.0) -> dict[str, Any]:
+    res: dict[str, Any] = {"part": f"wall {wall:g} mm x {layers} layers" if wall else part.name, "width_mm": width}
     for ff in (False, True):
         t0 = time.perf_counter()
-        job = plan_part(str(part), PlanOptions(width_mm=width, perimeters="all", feed_forward=ff), material)
+        c0 = time.process_time()
+        if wall:
+            job = plan_part(wall_mesh(wall, width, layers or 40),
+                            PlanOptions(width_mm=width, perimeters=1, allow_underfill=True, feed_forward=ff), material)
+        else:
+            job = plan_part(str(part), PlanOptions(width_mm=width, perimeters="all", feed_forward=ff), material)
         plan_s = time.perf_counter() - t0
+        plan_cpu_s = time.process_time() - c0
         if layers:
             job = Job(job.source, job.material, job.bead, job.layers[:layers], job.summary, job.schema, job.frame)
         truth = pour(job, material)
         key = "feed_forward" if ff else "plain"
-        res[key] = {"plan_s": round(plan_s, 2),
+        res[key] = {"plan_s": round(plan_s, 2), "plan_cpu_s": round(plan_cpu_s, 2),
                     "true_spread_mm_max": round(max(t["spread_mm"] for t in truth), 3),
                     "true_spread_mm_last": round(truth[-1]["spread_mm"], 3),
                     "true_rms_mm_max": round(max(t["rms_mm"] for t in truth), 3),
@@ -107,8 +124,9 @@ def main() -> None:
     ap.add_argument("--width", type=float, default=7.0)
     ap.add_argument("--layers", type=int, default=None)
     ap.add_argument("--material", default="inconel718-1.0mm")
+    ap.add_argument("--wall", type=float, default=0.0, help="a single-bead wall this long (mm; --layers, default 40)")
     a = ap.parse_args()
-    print(json.dumps(figures(a.part, a.width, a.layers, load_material(a.material)), indent=1))
+    print(json.dumps(figures(a.part, a.width, a.layers, load_material(a.material), a.wall), indent=1))
 
 
 if __name__ == "__main__":

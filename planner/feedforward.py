@@ -214,30 +214,30 @@ class _Grid:
         R, T = np.meshgrid(rr, th)
         wq = (1.0 - (R / r) ** 2) * R
         w_cap = (wq / wq.sum()).ravel()
-        # the box: every point lies within r of a sample or a round end's centre
-        centres = np.concatenate([smp.xy, smp.cap_xy])
-        self.lo = centres.min(axis=0) - r - 2 * cell
-        hi = centres.max(axis=0) + r + 2 * cell
-        self.shape = (int(math.ceil((hi[1] - self.lo[1]) / cell)) + 2, int(math.ceil((hi[0] - self.lo[0]) / cell)) + 2)
-        # each point to its nearest cell (the model's resolution is the bead's, not the cell's)
-        u = (smp.xy - self.lo) / cell
-        v = smp.nrm / cell
-        strip = self._cell(u[:, 0:1] + v[:, 0:1] * d[None, :], u[:, 1:2] + v[:, 1:2] * d[None, :])
+        strip = smp.xy[:, None, :] + smp.nrm[:, None, :] * d[None, :, None]
         cx, cy = smp.cap_dir[:, 0:1], smp.cap_dir[:, 1:2]
         px, py = (R * np.cos(T)).ravel()[None, :], (R * np.sin(T)).ravel()[None, :]
-        cap = self._cell((smp.cap_xy[:, 0:1] - self.lo[0] + cx * px - cy * py) / cell,
-                         (smp.cap_xy[:, 1:2] - self.lo[1] + cy * px + cx * py) / cell)
+        cap = np.stack([smp.cap_xy[:, 0:1] + cx * px - cy * py, smp.cap_xy[:, 1:2] + cy * px + cx * py], axis=-1)
+        # the box of every point (a strip's ends bound it: each strip is a straight line across)
+        ends = [strip[:, 0], strip[:, -1], cap.reshape(-1, 2), smp.xy]
+        self.lo = np.min([e.min(axis=0) for e in ends if len(e)], axis=0) - 2 * cell
+        hi = np.max([e.max(axis=0) for e in ends if len(e)], axis=0) + 2 * cell
+        self.shape = (int(math.ceil((hi[1] - self.lo[1]) / cell)) + 2, int(math.ceil((hi[0] - self.lo[0]) / cell)) + 2)
+        # each point to its nearest cell (the model's resolution is the bead's, not the cell's)
+        strip_cells, cap_cells = self._cell(strip.reshape(-1, 2)), self._cell(cap.reshape(-1, 2))
         n, c = len(smp.xy), len(smp.cap_xy)
         data = np.concatenate([np.tile(w_across, n), np.tile(w_cap, c)]) / (cell * cell)
         indptr = np.concatenate([np.arange(n + 1) * self.ACROSS, n * self.ACROSS + np.arange(1, c + 1) * len(w_cap)])
-        self.splat = csc_array((data, np.concatenate([strip.ravel(), cap.ravel()]), indptr),
+        self.splat = csc_array((data, np.concatenate([strip_cells, cap_cells]), indptr),
                                shape=(self.shape[0] * self.shape[1], n + c))
+        u = (smp.xy - self.lo) / cell
         i0 = np.floor(u).astype(np.int64)
         fx, fy = u[:, 0] - i0[:, 0], u[:, 1] - i0[:, 1]
         self.at = (i0[:, 1], i0[:, 0], fx, fy, 1 - fx, 1 - fy)
 
-    def _cell(self, ux: np.ndarray, uy: np.ndarray) -> np.ndarray:
-        out: np.ndarray = np.rint(uy).astype(np.int64) * self.shape[1] + np.rint(ux).astype(np.int64)
+    def _cell(self, p: np.ndarray) -> np.ndarray:
+        ij = np.rint((p - self.lo) / self.cell).astype(np.int64)
+        out: np.ndarray = ij[:, 1] * self.shape[1] + ij[:, 0]
         return out
 
     def heights(self, volume: np.ndarray) -> np.ndarray:
