@@ -1,5 +1,5 @@
 """Corrupted inputs for every subcommand of `cell` (issue 14): the seeds, the mutations and the
-contract check, shared by tests/test_fuzz_cli.py (hypothesis) and bench/fuzz_cli.py (long run)."""
+contract check, shared by tests/cli/test_fuzz_cli.py (hypothesis) and bench/fuzz_cli.py (long run)."""
 from __future__ import annotations
 
 import contextlib

@@ -25,8 +25,8 @@ from controller.motion.post5 import weld_axes
 from planner.five_axis import FiveAxisOptions
 from planner.job import job_to_dict
 from planner.plan import PlanOptions, plan_part
+from controller.defaults import SIM_REPLY_TIMEOUT_MS
 
-SIM_REPLY_TIMEOUT_MS = 500.0
 
 
 def plan5(mesh, width: float = 3.0, five: bool = True) -> dict:

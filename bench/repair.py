@@ -94,7 +94,7 @@ def deposit_vs_plan(job: dict, log: Path) -> dict:
 async def one(tmp: Path, pose: tuple, scale: float = 60.0, shape: str = "pocket", faults: str = "",
               process_control: str = "open", finish: bool = False) -> dict:
     cad, stock = worn_parts(tmp, shape)
-    # the worn edge's ramp rests on the stock and runs out thinner than a bead (tests/test_repair_run.py)
+    # the worn edge's ramp rests on the stock and runs out thinner than a bead (tests/repair/test_repair_run.py)
     lax = ["--allow-underfill", "--allow-overhang"] if shape == "edge" else []
     assert cell_main(["repair", "plan", str(cad), "--stock", str(stock), "--width", "4", "--allowance", "0.3",
                       "--out", str(tmp / "job.json"), *lax]) == 0

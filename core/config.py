@@ -68,7 +68,7 @@ class CellInfo(_Frozen):
 
 
 # The protocol / transport of each device kind: drivers/registry.py maps each name to its driver
-# class (tests/test_registry.py keeps the two lists equal). A name not listed is an error that
+# class (tests/drivers/test_registry.py keeps the two lists equal). A name not listed is an error that
 # names the file, the key and the known names.
 RobotProtocolName = Literal["rlp1"]
 CncProtocolName = Literal["grbl"]

@@ -10,7 +10,7 @@ name to its bus class for `can.Bus(interface=...)`).
 Each `open_*` builds the driver, it does not connect it: the caller awaits `connect()` (the
 robot's with the journaled resume ticket) and closes it. A name missing from a registry is a
 ConfigError naming the key and the known names; cell.yaml is checked against the same names
-when it is loaded (core/config.py; tests/test_registry.py keeps both lists equal).
+when it is loaded (core/config.py; tests/drivers/test_registry.py keeps both lists equal).
 
 Adding a protocol: a driver class taking its kind's constructor arguments (those the open_*
 below passes; a power source: `from_config`), one line in the registry, and its name in the

@@ -5,7 +5,7 @@ Every layer's islands (and its memo key) are made first; the layers the memo wil
 then planned on worker threads, a few layers ahead of the plan, while the plan orders, welds and
 judges each layer in turn as before. GEOS and numpy release the GIL, so two cores plan about 1.5x
 faster; each layer is planned by the same pure function from the same inputs, so the job is the
-same byte for byte whatever the threads (tests/test_planner_speed.py). On one core, or for a
+same byte for byte whatever the threads (tests/planner/test_planner_speed.py). On one core, or for a
 layer or two, nothing runs on a thread.
 """
 from __future__ import annotations

@@ -21,7 +21,7 @@ one_blas_thread()
 
 # One controller per cell (controller/runtime/cell_lock.py): each test worker process gets a lock
 # directory of its own, so two test files building the demo cell at once on two workers are not
-# refused as a second controller (tests/test_stops.py checks the refusal in a directory of its own).
+# refused as a second controller (tests/runtime/test_stops.py checks the refusal in a directory of its own).
 os.environ["CELL_LOCK_DIR"] = tempfile.mkdtemp(prefix=f"cell-locks-{os.environ.get('PYTEST_XDIST_WORKER', 'main')}-")
 # Validated configuration remembered by `cell plan` (core/config_cache.py): a directory per test
 # worker, never the user's ~/.cache.
@@ -36,7 +36,7 @@ SHARED_PARTS = ROOT.parent / "shared" / "parts"
 # A cell on the wall clock (`pytestmark = pytest.mark.realtime`): its bounds are device cycles and
 # latencies. Under `make test` the other xdist workers run real-time cells of their own on the same
 # two cores, and a test whose bound that starved gets one more run (pytest-rerunfailures; the
-# summary counts the reruns). Run alone (no worker beside it, e.g. `pytest tests/test_stops.py`)
+# summary counts the reruns). Run alone (no worker beside it, e.g. `pytest tests/runtime/test_stops.py`)
 # every real-time test is strict. docs/testing.md says why.
 RERUNS_BESIDE_ANOTHER_WORKER = 1
 

@@ -1,6 +1,8 @@
 """Shared set-up of the power-source tests: a simulator on its own thread, a driver per transport."""
 from __future__ import annotations
 
+from controller.defaults import SIM_REPLY_TIMEOUT_MS
+
 import uuid
 from contextlib import asynccontextmanager
 
@@ -19,7 +21,7 @@ MATERIAL = load_material("inconel718-1.0mm")
 
 @asynccontextmanager
 async def power_rig(transport: str = "modbus_tcp", *, time_scale: float = 1.0, faults=None,
-                    timeout_ms: float = 500.0, connect: bool = True):
+                    timeout_ms: float = SIM_REPLY_TIMEOUT_MS, connect: bool = True):
     """Yield (sim_thread, sim, driver, world); the sim runs on its own loop as a real device would."""
     th = SimThread()
     world = World()

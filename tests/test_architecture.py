@@ -21,6 +21,7 @@ itself and the rooms listed for it, nothing else of ours. From the bottom up:
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import networkx as nx
@@ -333,3 +334,20 @@ def test_the_architecture_page_names_every_controller_module() -> None:
                if f.name != "__init__.py" and str(f.relative_to(ROOT)) not in doc and f"`{f.name}`" not in doc
                and f"{f.parent.name}/{f.name}" not in doc]
     assert not missing, "name these in docs/architecture.md: " + ", ".join(missing)
+
+
+TEST_ROOMS = frozenset({"core", "wire", "planner", "drivers", "sims", "job", "journal", "report", "records", "motion",
+                        "align", "export", "runtime", "opcua", "repair", "tui", "cli"})
+
+
+def test_tests_live_in_folders_by_room() -> None:
+    """tests/<room>/ mirrors the code (docs/testing.md): no test file at the top but this one, and
+    every folder of tests is a room (a layer, or a room of controller/)."""
+    top = sorted(p.name for p in (ROOT / "tests").glob("test_*.py") if p.name != Path(__file__).name)
+    assert not top, "move these into tests/<room>/: " + ", ".join(top)
+    folders = {p.parent.relative_to(ROOT / "tests").parts[0] for p in (ROOT / "tests").rglob("test_*.py")
+               if p.parent != ROOT / "tests"}
+    assert folders <= TEST_ROOMS, f"not a room: {sorted(folders - TEST_ROOMS)}"
+    cross = sorted(str(p.relative_to(ROOT)) for p in (ROOT / "tests").rglob("*.py")
+                   if re.search(r"^\s*from tests\.(\w+\.)*test_\w+ import", p.read_text(encoding="utf-8"), re.M))
+    assert not cross, "a test imports another test module; move the helper beside conftest: " + ", ".join(cross)

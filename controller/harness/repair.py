@@ -7,7 +7,7 @@ from typing import Any, Callable
 
 from controller.api.simulated import Simulators
 from controller.harness.cell import open_cell
-from controller.harness.sim import SIM_REPLY_TIMEOUT_MS
+from controller.defaults import SIM_REPLY_TIMEOUT_MS
 from controller.harness.sim_clock import FedScale
 from controller.job.model import CellJob
 from controller.motion.cnc5 import limit_time_scale

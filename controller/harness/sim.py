@@ -101,9 +101,6 @@ class SimHarness:
             self.world.close()
 
 
-# in-process simulators share the interpreter with the controller: the bus devices get more time
-SIM_REPLY_TIMEOUT_MS = 500.0
-
 
 def check_fault_spec(spec: str) -> None:
     """A ConfigError naming the bad key or value of a seeded fault spec (`--fault`)."""
