@@ -30,7 +30,8 @@ from typing import Any
 
 from controller.align.routine import cad_mesh, plan_for_mesh
 from controller.api import CellController, align_at
-from controller.harness.sim import SIM_REPLY_TIMEOUT_MS, SimHarness, with_urls
+from controller.defaults import SIM_REPLY_TIMEOUT_MS
+from controller.harness.sim import SimHarness, with_urls
 from controller.job.read import job_from_dict
 from controller.motion.watch import StallFault
 from core.config import CellConfig, load_cell, load_sim

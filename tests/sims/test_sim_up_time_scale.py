@@ -16,11 +16,11 @@ import yaml
 from controller.cli.main import main
 from controller.harness.repair_parts import make_parts, posed_sim
 from controller.harness.sim_clock import SimClockLink
-from tests.test_sim_up import free_ports, read_devices
+from tests.sim_processes import free_ports, read_devices
 
 pytestmark = [pytest.mark.realtime, pytest.mark.timeout(180)]
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _cnc_cell(tmp: Path, scale: float = 60.0) -> Path:
