@@ -242,7 +242,7 @@ class ProcessControl(_Frozen):
     path_kp: float = Field(default=0.4, ge=0.0, le=2.0)         # learning on the change of the error since the last layer
     path_ki: float = Field(default=0.2, ge=0.0, le=2.0)        # learning on the error
     path_max_error_mm: float = Field(default=1.0, gt=0.0, le=50.0)  # off the layer's mean by more, at the bound: pause
-    path_wfs_trim_pct: float = Field(default=10.0, ge=0.0, le=40.0)  # wire feed within ± this where the speed is at its bound
+    path_wfs_trim_pct: float = Field(default=0.0, ge=0.0, le=40.0)  # wire feed within ± this where the speed is at its bound (0: off)
 
     @model_validator(mode="after")
     def _window(self) -> "ProcessControl":
