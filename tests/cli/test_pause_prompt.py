@@ -9,10 +9,8 @@ from pathlib import Path
 import pytest
 
 from controller.defaults import SIM_REPLY_TIMEOUT_MS
-
-from controller.api import CellController
 from controller.cli.pause_prompt import PausePrompt
-from controller.harness.sim import SimHarness, with_urls
+from controller.harness.cell import open_cell, with_urls
 from core.config import load_cell, load_sim
 from tests.jobs import PassSpec, line, small_job
 
@@ -22,11 +20,9 @@ pytestmark = pytest.mark.realtime   # a cell on the wall clock (tests/conftest.p
 async def _paused_build(tmp_path: Path, answer: str) -> tuple[str, list[str], list[str]]:
     job = small_job([[PassSpec(line(12.0, n=3))], [PassSpec(line(12.0, n=3))]])
     cfg = with_urls(load_cell(), {}, time_scale=20)
-    harness = SimHarness(cfg, load_sim(), log_dir=tmp_path / "log")
-    ctl = CellController(with_urls(cfg, harness.start()), runs_dir=tmp_path / "runs")
     said: list[str] = []
-    try:
-        await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
+    async with open_cell(cfg, sim=load_sim(), log_dir=tmp_path / "log", runs_dir=tmp_path / "runs",
+                         reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:
         ctl.open_job(job)
         prompt = PausePrompt(ctl, said.append, io.StringIO(answer))
         build = asyncio.ensure_future(ctl.start())
@@ -35,9 +31,6 @@ async def _paused_build(tmp_path: Path, answer: str) -> tuple[str, list[str], li
         ctl.pause()                                   # the operator's pause: at the end of this bead
         res = await asyncio.wait_for(build, 30)
         prompt.close()
-    finally:
-        await ctl.close()
-        harness.stop()
     return res.state, said, prompt.answers
 
 

@@ -165,24 +165,17 @@ def test_a_small_job_spec_sets_the_material_and_layers() -> None:
 
 @pytest.mark.realtime   # a cell on the wall clock (tests/conftest.py)
 async def test_a_robot_build_moves_each_segment_at_its_speed_and_records_the_range(tmp_path: Path) -> None:
-    from controller.api import CellController
-    from controller.harness.sim import SimHarness, with_urls
+    from controller.harness.cell import open_cell, with_urls
     from core.config import load_sim
 
     speeds = [600.0, 300.0, 900.0]
     job = small_job([[PassSpec(line(24.0, n=4), speed=speeds, wfs=[5.5, 5.0, 6.0])]])
     cfg = with_urls(load_cell(), {}, time_scale=10)
-    harness = SimHarness(cfg, load_sim(), log_dir=tmp_path / "log")
-    cfg = with_urls(cfg, harness.start())
-    ctl = CellController(cfg, runs_dir=tmp_path / "runs")
-    try:
-        await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
+    async with open_cell(cfg, sim=load_sim(), log_dir=tmp_path / "log", runs_dir=tmp_path / "runs",
+                         reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:
         ctl.open_job(job)
         res = await ctl.start()
         report = json.loads(ctl.write_report().read_text())
-    finally:
-        await ctl.close()
-        harness.stop()
     assert res.state == "complete" and res.defects == 0
     rows = [json.loads(ln) for ln in (tmp_path / "log" / "robot.jsonl").read_text().splitlines()]
     moves = [r for r in rows if r.get("verb") == "MOVL"]

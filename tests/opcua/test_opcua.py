@@ -14,7 +14,6 @@ from pathlib import Path
 import pytest
 from asyncua import Client, ua
 
-from controller.api import CellController
 from controller.job.read import job_from_dict
 from core.config import OpcUaSettings, load_cell, load_sim
 from controller.opcua.endpoint import Identification
@@ -23,7 +22,7 @@ from controller.runtime.events import EventBus
 from core.errors import ConfigError
 from tests.cells import small_job
 from controller.defaults import SIM_REPLY_TIMEOUT_MS
-from controller.harness.sim import SimHarness, with_urls
+from controller.harness.cell import open_cell, with_urls
 
 pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
 
@@ -41,16 +40,16 @@ class OpcCell:
 
     def __init__(self, tmp: Path, *, allow_control: bool, scale: float = 10.0) -> None:
         cfg = with_urls(load_cell(), {}, time_scale=scale)
-        self.harness = SimHarness(cfg, load_sim(), log_dir=tmp / "log")
-        cfg = with_urls(cfg, self.harness.start())
         self.endpoint = _endpoint()
         cfg = cfg.model_copy(update={"opcua": OpcUaSettings(enabled=True, endpoint=self.endpoint,
                                                             allow_control=allow_control)})
-        self.ctl = CellController(cfg, runs_dir=tmp / "runs")
+        self._open = open_cell(cfg, sim=load_sim(), log_dir=tmp / "log", runs_dir=tmp / "runs",
+                               reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
         self.client = Client(self.endpoint)
 
     async def __aenter__(self) -> "OpcCell":
-        await self.ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
+        self.ctl = await self._open.__aenter__()
+        self.harness = self.ctl.simulators
         await self.client.connect()
         ns = await self.client.get_namespace_index("urn:cell-controller:machines")
         self.machine = await self.client.nodes.objects.get_child([f"{ns}:Machines", f"{ns}:demo-cell"])
@@ -62,8 +61,7 @@ class OpcCell:
 
     async def __aexit__(self, *exc: object) -> None:
         await self.client.disconnect()
-        await self.ctl.close()
-        self.harness.stop()
+        await self._open.__aexit__(*exc)
 
 
 class Recorder:

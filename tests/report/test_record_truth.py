@@ -17,8 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from controller.api import CellController
-from controller.harness.sim import SimHarness, with_urls
+from controller.harness.cell import open_cell, with_urls
 from controller.job.read import job_from_dict
 from controller.report.record import CSV_COLUMNS
 from controller.runtime.bead_measure import Pace
@@ -197,16 +196,10 @@ def on_the_cnc_block(job: dict) -> dict:
 async def _cnc_build(tmp: Path, job: dict, scale: float) -> Path:
     cfg = with_urls(load_cell(), {}, time_scale=scale)
     cfg = cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"platform": "cnc"})})
-    harness = SimHarness(cfg, load_sim(), log_dir=tmp / "log")
-    cfg = with_urls(cfg, harness.start())
-    ctl = CellController(cfg, runs_dir=tmp / "runs")
-    try:
-        await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
+    async with open_cell(cfg, sim=load_sim(), log_dir=tmp / "log", runs_dir=tmp / "runs",
+                         reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:
         run_dir = ctl.open_job(job_from_dict(job))
         res = await ctl.start()
-    finally:
-        await ctl.close()
-        harness.stop()
     assert res.state == "complete", res
     return run_dir
 

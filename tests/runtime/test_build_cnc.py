@@ -6,8 +6,7 @@ from pathlib import Path
 import pytest
 
 from bench._coverage import coverage, read_segments
-from controller.api import CellController
-from controller.harness.sim import SimHarness, with_urls
+from controller.harness.cell import open_cell, with_urls
 from controller.job.read import job_from_dict
 from core.config import load_cell, load_sim
 from tests.cells import planned, small_job
@@ -19,21 +18,15 @@ pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py
 async def test_cnc_build_deposits_every_planned_segment_once(tmp_path: Path) -> None:
     cfg = with_urls(load_cell(), {}, time_scale=20)
     cfg = cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"platform": "cnc"})})
-    harness = SimHarness(cfg, load_sim(), log_dir=tmp_path / "log")
-    cfg = with_urls(cfg, harness.start())
-    ctl = CellController(cfg, runs_dir=tmp_path / "runs")
     job = small_job(n_layers=2)
     for la in job["layers"]:  # above the simulated substrate block (20 mm tall)
         for p in la["passes"]:
             p["points"] = [[x, y, z + 20.0] for x, y, z in p["points"]]
-    try:
-        await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
+    async with open_cell(cfg, sim=load_sim(), log_dir=tmp_path / "log", runs_dir=tmp_path / "runs",
+                         reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:
         ctl.open_job(job_from_dict(job))
         res = await ctl.start()
         progress = ctl.journal.query("SELECT count(*) FROM progress")[0][0]
-    finally:
-        await ctl.close()
-        harness.stop()
     assert res.state == "complete", res
     assert res.passes_done == 4 and res.arc_starts == 4
     segs = [s for s in read_segments(tmp_path / "log" / "deposit.jsonl") if s["device"] == "cnc"]
@@ -44,18 +37,11 @@ async def test_cnc_build_deposits_every_planned_segment_once(tmp_path: Path) -> 
 
 async def test_run_alignment_through_the_api_finds_the_substrate_pose(tmp_path: Path) -> None:
     cfg = with_urls(load_cell(), {}, time_scale=200)
-    harness = SimHarness(cfg, load_sim())
-    cfg = with_urls(cfg, harness.start())
-    ctl = CellController(cfg, runs_dir=tmp_path / "runs")
-    try:
-        await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
+    async with open_cell(cfg, sim=load_sim(), runs_dir=tmp_path / "runs", reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:
         assert "run_alignment" in ctl.allowed_commands() and "start" not in ctl.allowed_commands()
         res = await ctl.run_alignment()
         state = ctl.machine.state.value
         allowed = ctl.allowed_commands()
-    finally:
-        await ctl.close()
-        harness.stop()
     assert state == "aligned" and "open_job" in allowed
     # config/sim.yaml: the block is turned 1.5° about z and tilted 0.8° / -0.5°
     assert abs(abs(res.face_angle_deg) - 1.5) < 0.05

@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 
 from bench._coverage import coverage, read_segments
-from controller.api import CellController
-from controller.harness.sim import SimHarness, with_urls
+from controller.harness.cell import open_cell, with_urls
+from controller.harness.sim import SimHarness
 from controller.job.read import job_from_dict
 from controller.runtime.progress import longest_move_s, progress_timeout_s, wall_bound_s
 from core.config import load_cell, load_sim
@@ -82,16 +82,14 @@ async def test_a_robot_that_stops_executing_trips_within_the_bound_arc_first(tmp
 async def test_a_cnc_that_reports_run_without_moving_trips_within_the_bound_arc_first(tmp_path: Path) -> None:
     cfg = with_urls(load_cell(), {}, time_scale=SCALE)
     cfg = cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"platform": "cnc"})})
-    harness = SimHarness(cfg, load_sim(), log_dir=tmp_path / "log", faults="freeze@move=30")
-    cfg = with_urls(cfg, harness.start())
-    ctl = CellController(cfg, runs_dir=tmp_path / "runs")
     job = small_job(n_layers=1)
     for la in job["layers"]:  # above the simulated substrate block (20 mm tall)
         for p in la["passes"]:
             p["points"] = [[x, y, z + 20.0] for x, y, z in p["points"]]
     bound_process = progress_timeout_s(job_from_dict(job), 2.0, None)
-    try:
-        await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
+    async with open_cell(cfg, sim=load_sim(), log_dir=tmp_path / "log", faults="freeze@move=30",
+                         runs_dir=tmp_path / "runs", reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:
+        harness = ctl.simulators
         ctl.open_job(job_from_dict(job))
         res = await asyncio.wait_for(ctl.start(), 30)
         await asyncio.sleep(0.5)
@@ -99,9 +97,6 @@ async def test_a_cnc_that_reports_run_without_moving_trips_within_the_bound_arc_
         cnc = harness.sim("cnc")
         hold_t = harness.call(lambda: (cnc.machine.hold_t, cnc.machine.spindle_on, cnc.state))
         msg = ctl.interlocks.trips[0].message
-    finally:
-        await ctl.close()
-        harness.stop()
     assert res.state == "fault", res
     assert msg.startswith("cnc made no progress for ") and "status Run" in msg and "layer 0 pass 0" in msg, msg
     drop, _out = _arc_events(log)
