@@ -95,6 +95,7 @@ def tui_build(job: Path, runs: Path, scale: float, max_step: float,
     wall = time.monotonic() - t0
     if proc.returncode != 0:
         raise SystemExit(f"TUI build failed: {proc.stdout.strip()[-400:]} {proc.stderr.strip()[-800:]}")
+    print(f"tui build: {proc.stdout.strip().splitlines()[-1]}", flush=True)
     return wall, links_of(runs)
 
 
@@ -120,7 +121,8 @@ async def _tui(job: Path, runs: Path, scale: float, sim_up: str) -> str:
         await until(lambda: app.view.snap.state == "ready", 60, "the job to open")
         session.command("start").result(30)
         await until(lambda: app.view.snap.state in ("complete", "fault", "estop", "aborted"), 3600, "the build")
-        state = app.view.snap.state
+        snap = app.view.snap
+        state = f"{snap.state}, {snap.passes_done} passes" + "".join(f"; {a.message}" for a in snap.alarms)
         report = Path(app.view.snap.run_dir or ".") / "report.json"
         await until(report.exists, 300, "the record")
     session.close()
