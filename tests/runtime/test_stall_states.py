@@ -16,9 +16,10 @@ from pathlib import Path
 import pytest
 
 from controller.align.routine import cad_mesh, plan_for_mesh
-from controller.api import CellController, align_at
+from controller.api import align_at
 from controller.harness.align_sim import _with_sim
-from controller.harness.sim import SimHarness, with_urls
+from controller.harness.cell import open_cell, with_urls
+from controller.harness.sim import SimHarness
 from controller.job.read import job_from_dict
 from controller.motion.watch import StallFault
 from core.config import load_cell, load_sim
@@ -63,15 +64,13 @@ async def test_a_robot_that_stops_in_travel_is_a_fault_naming_travel(tmp_path: P
 async def test_a_cnc_that_stands_in_run_on_its_travel_is_a_fault_with_the_spindle_off(tmp_path: Path) -> None:
     cfg = with_urls(load_cell(), {}, time_scale=SCALE)
     cfg = cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"platform": "cnc"})})
-    harness = SimHarness(cfg, load_sim(), log_dir=tmp_path / "log", faults="freeze@travel=3")
-    cfg = with_urls(cfg, harness.start())
-    ctl = CellController(cfg, runs_dir=tmp_path / "runs")
     job = small_job(n_layers=1)
     for la in job["layers"]:  # above the simulated substrate block (20 mm tall)
         for p in la["passes"]:
             p["points"] = [[x, y, z + 20.0] for x, y, z in p["points"]]
-    try:
-        await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
+    async with open_cell(cfg, sim=load_sim(), log_dir=tmp_path / "log", faults="freeze@travel=3",
+                         runs_dir=tmp_path / "runs", reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:
+        harness = ctl.simulators
         ctl.open_job(job_from_dict(job))
         res = await asyncio.wait_for(ctl.start(), 30)
         cnc = harness.sim("cnc")
@@ -80,9 +79,6 @@ async def test_a_cnc_that_stands_in_run_on_its_travel_is_a_fault_with_the_spindl
         link = ctl.devices.cnc if ctl.devices else None
         report = await link.status() if link is not None else None
         msg = ctl.interlocks.trips[0].message
-    finally:
-        await ctl.close()
-        harness.stop()
     assert res.state == "fault" and res.passes_done == 1, res
     assert msg.startswith("cnc made no progress for ") and " in travel " in msg and "status Run" in msg, msg
     assert "spindle and laser off" in msg and "layer 0 pass 1" in msg, msg
