@@ -316,6 +316,76 @@ def test_no_attribute_read_by_literal_name_in_the_controller() -> None:
     assert not bad, "read through a typed port instead (docs/architecture.md):\n" + "\n".join(bad)
 
 
+def _is_private(name: str) -> bool:
+    return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+
+def _defined_here(tree: ast.Module) -> set[str]:
+    """The names a module defines: its functions, classes and methods, every name it binds
+    (assignments, parameters, loop and `with` targets) and the attributes it sets on self/cls."""
+    out: set[str] = set()
+    for n in ast.walk(tree):
+        if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            out.add(n.name)
+        elif isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store):
+            out.add(n.id)
+        elif isinstance(n, ast.arg):
+            out.add(n.arg)
+        elif (isinstance(n, ast.Attribute) and isinstance(n.ctx, ast.Store) and isinstance(n.value, ast.Name)
+              and n.value.id in ("self", "cls")):
+            out.add(n.attr)
+    return out
+
+
+def private_reads(sources: dict[str, str] | None = None) -> list[str]:
+    """Every use of another module's private name in product code (docs/architecture.md, "Packages,
+    not friends"): `x._name` where x is not `self`/`cls`, `_name` is defined by another module of
+    the product and not by this one; `getattr`/`hasattr`/`setattr(x, "_name")` alike; and
+    `from m import _name` of a module of ours. Dunders are not private. A library's internals (no
+    module of ours defines the name) are outside the rule."""
+    if sources is None:
+        sources = {str(p.relative_to(ROOT)): p.read_text(encoding="utf-8")
+                   for m, p in MODS.items() if _within(m, PRODUCT)}
+    trees = {where: ast.parse(text) for where, text in sources.items()}
+    defined = {where: _defined_here(tree) for where, tree in trees.items()}
+    bad = []
+    for where, tree in trees.items():
+        own = defined[where]
+        elsewhere = set().union(*(d for w, d in defined.items() if w != where))
+        for n in ast.walk(tree):
+            if isinstance(n, ast.ImportFrom):
+                ours = n.level > 0 or (n.module or "").split(".")[0] in PRODUCT
+                bad += [f"{where}:{n.lineno}: from {n.module} import {a.name}" for a in n.names if ours and _is_private(a.name)]
+                continue
+            if isinstance(n, ast.Attribute):
+                obj, name = n.value, n.attr
+            elif (isinstance(n, ast.Call) and isinstance(n.func, ast.Name) and n.func.id in ("getattr", "hasattr", "setattr")
+                  and len(n.args) >= 2 and isinstance(n.args[1], ast.Constant) and isinstance(n.args[1].value, str)):
+                obj, name = n.args[0], n.args[1].value
+            else:
+                continue
+            if (_is_private(name) and name in elsewhere and name not in own
+                    and not (isinstance(obj, ast.Name) and obj.id in ("self", "cls"))):
+                bad.append(f"{where}:{n.lineno}: {ast.unparse(n)}")
+    return bad
+
+
+def test_no_module_reads_another_modules_private_names() -> None:
+    bad = private_reads()
+    assert not bad, ("another module's private name (make it public, or share an explicit state object: "
+                     "docs/architecture.md):\n" + "\n".join(bad))
+
+
+def test_the_private_read_rule_sees_what_it_forbids() -> None:
+    link = "class Link:\n    def __init__(self):\n        self._pending = []\n        self._port = None\n"
+    src = ("from drivers.grbl.link import _helper\nfrom argparse import _SubParsersAction\nclass A:\n"
+           "    def __init__(self):\n        self._mine = 1\n"
+           "    def f(self, link, other, ser):\n        return (link._pending, other._mine, self._x, link.__dict__,\n"
+           "                getattr(link, '_port'), link.public, ser._socket)\n")
+    assert [b.split(": ", 1)[1] for b in private_reads({"link.py": link, "x.py": src})] == [
+        "from drivers.grbl.link import _helper", "link._pending", "getattr(link, '_port')"]
+
+
 def test_product_and_docs_cite_no_file_outside_the_repository() -> None:
     """The contract the code relies on is docs/contract.md; nothing of the product or its docs points
     at a folder beside the checkout (tests may read shared parts and firmware sources, and skip)."""

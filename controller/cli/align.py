@@ -13,24 +13,16 @@ from controller.motion.kinematics import apply_to_job
 from controller.align.routine import alignment_record, cad_mesh, plan_for_mesh
 from controller.api import align_at
 from controller.cli import guard
+from controller.cli.parsing import NumbersParser, Subcommands
 from controller.harness.align_sim import run_with_sim
 from controller.job.read import read_job
 from core.config import load_cell, load_sim
 from core.errors import InputError
 
-# argparse takes "-1,-1,-5" for an option; let the align parsers read such words as values
-# (so `--pivot -1,-1,-5` and a point `-1,2,3` work as users type them).
-_NEGATIVE = re.compile(r"^-(\d|\.\d)[\d.,eE+\-]*$")
-
-
-def _allow_negative(p: argparse.ArgumentParser) -> None:
-    p._negative_number_matcher = _NEGATIVE  # argparse internals, stable since 3.2
-    p._has_negative_number_optionals = []
-
-
-def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+def register(sub: Subcommands) -> None:
     p = sub.add_parser("align", help="probe, fit, level and align the workpiece on the CNC")
-    s = p.add_subparsers(dest="align_command", metavar="SUBCOMMAND")
+    # the align parsers read words such as "-1,-1,-5" as values (`--pivot -1,-1,-5`, a point `-1,2,3`)
+    s = p.add_subparsers(dest="align_command", metavar="SUBCOMMAND", parser_class=NumbersParser)
     s.required = True
 
     pl = s.add_parser("plane", help="fit a plane to x,y,z points of a CSV file")
@@ -41,7 +33,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     pl.add_argument("--cell-config", default=None, metavar="FILE", help="cell config (default config/cell.yaml)")
     pl.add_argument("--json", action="store_true", help="print one JSON object")
     pl.set_defaults(func=_plane)
-    _allow_negative(pl)
 
     tr = s.add_parser("transform", help="rotate points about a pivot (Padathu's W = T(-P)·R·T(P)·p)")
     tr.add_argument("--rotate", action="append", default=[], metavar="AXIS:DEG",
@@ -50,7 +41,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     tr.add_argument("points", nargs="*", metavar="POINTS", help="x,y,z words (put them after --) and/or CSV files")
     tr.add_argument("--json", action="store_true", help="print one JSON object")
     tr.set_defaults(func=_transform)
-    _allow_negative(tr)
 
     rn = s.add_parser("run", help="probe top and side faces, level with A/B, find the face angle and transform")
     rn.add_argument("--sim", action="store_true", help="start the CNC simulator in-process and align its workpiece")
@@ -65,7 +55,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                     help="a 3-axis CNC: measure the tilt and carry it in the transform, command no A/B move")
     rn.add_argument("--json", action="store_true", help="print one JSON object")
     rn.set_defaults(func=guard.command(_run))
-    _allow_negative(rn)
 
 
 # --- input parsing -------------------------------------------------------------------------------

@@ -4,11 +4,12 @@ from __future__ import annotations
 import argparse
 import sys
 from typing import Any
+from controller.cli.parsing import Subcommands
 
 PROFILE_COLUMNS = ("x_mm", "y_mm")
 
 
-def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+def register(sub: Subcommands) -> None:
     p = sub.add_parser("bead", help="bead profiles and overlap (Ding 2015)", description=__doc__)
     s = p.add_subparsers(dest="bead_command", metavar="SUBCOMMAND")
     s.required = True

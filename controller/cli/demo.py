@@ -14,14 +14,15 @@ from pathlib import Path
 from typing import Any, Callable
 
 from controller.cli import guard, runargs
-from controller.cli.run import _drive, _err, _out, _print_summary, exit_code
+from controller.cli.run import drive, err_line, out_line, print_summary, exit_code
+from controller.cli.parsing import Subcommands
 from controller.job.model import CellJob
 from controller.defaults import DEMO_MAX_STEP_MM, DEMO_PART, DEMO_TIME_SCALE, DEMO_WIDTH_MM
 from core.config import CellConfig, load_cell, load_sim
 from core.errors import CellError
 
 
-def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+def register(sub: Subcommands) -> None:
     d = sub.add_parser("demo", help="the demo: simulators, plan, align, build, report")
     d.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     d.add_argument("--time-scale", type=float, default=DEMO_TIME_SCALE, help=argparse.SUPPRESS)
@@ -53,7 +54,7 @@ def _demo(args: argparse.Namespace) -> int:
         from controller.cli.repair import demo_repair
 
         return demo_repair(args)
-    say = _err if args.json else _out
+    say = err_line if args.json else out_line
     t0 = time.monotonic()
     cfg = runargs.with_trace(load_cell(), args)
     cfg = with_urls(cfg, {}, time_scale=args.time_scale)
@@ -88,7 +89,7 @@ def _demo(args: argparse.Namespace) -> int:
 
         emit_json(out)
     else:
-        _print_summary(out, say)
+        print_summary(out, say)
         say(f"run directory: {out['run_dir']} (journal.sqlite, report.json, layers.png, process.png, "
             f"temperature.png, defects.png); {out['wall_time_s']} s wall")
     return exit_code(out)
@@ -117,7 +118,7 @@ async def _demo_drive(ctl: Any, job: CellJob, say: Callable[[str], None],
     guard.attach(None, say)  # a signal while aligning: cancelled, the CNC safe-stopped (run_on_url)
     if do_align:
         align = await _align(ctl, say)
-    res, report = await _drive(ctl, job, None, [], say, False)
+    res, report = await drive(ctl, job, None, [], say, False)
     if align is not None and report is not None:
         rep = json.loads(report.read_text(encoding="utf-8"))
         rep["alignment"] = align

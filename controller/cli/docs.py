@@ -4,12 +4,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from controller.cli.parsing import Subcommands
 from controller.runtime.machine import state_machine_doc
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 
 
-def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+def register(sub: Subcommands) -> None:
     p = sub.add_parser("docs", help="regenerate docs/state-machine.md from the controller's state machine")
     p.add_argument("--out", default=str(DOCS), metavar="DIR", help="docs directory (default docs/)")
     p.add_argument("--check", action="store_true", help="exit 1 when the file is stale instead of writing it")

@@ -9,10 +9,11 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from controller.cli.parsing import Subcommands
 from core.errors import InputError
 
 
-def register(sub: Any) -> None:
+def register(sub: Subcommands) -> None:
     p = sub.add_parser("export", help="write the job as a G-code, ABB RAPID or KUKA KRL program",
                        description="Export a job file as a program a CNC or robot controller runs itself.")
     p.add_argument("job", metavar="JOB", help="the job file (cell-job/1)")

@@ -15,10 +15,11 @@ from typing import Any
 
 import numpy as np
 
+from controller.cli.parsing import Subcommands
 from core.errors import InputError
 
 
-def register(sub: Any) -> None:
+def register(sub: Subcommands) -> None:
     fp = sub.add_parser("finish", help="finish machining plans (docs/machining.md)")
     fs = fp.add_subparsers(dest="finish_cmd", required=True)
     p = fs.add_parser("plan", help="rough and finish a near-net build's top faces to its CAD")

@@ -9,10 +9,11 @@ import argparse
 import sys
 from pathlib import Path
 
+from controller.cli.parsing import Subcommands
 from core.errors import InputError
 
 
-def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+def register(sub: Subcommands) -> None:
     p = sub.add_parser("journal", help="inspect a build's journal (read-only)")
     jsub = p.add_subparsers(dest="journal_command", metavar="ACTION", parser_class=type(p))
     jsub.required = True

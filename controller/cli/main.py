@@ -8,9 +8,10 @@ import json
 import logging
 import math
 import sys
-from typing import Any, NoReturn, Sequence
+from typing import Any, Sequence
 
 from controller.cli import outcome
+from controller.cli.parsing import Parser
 from core.errors import CellError, Fault
 
 # Subcommand modules, imported lazily so that `cell process` does not pay for Textual or
@@ -48,16 +49,6 @@ one controller per cell: run, resume, demo, tui, align run and repair run hold a
 named after the cell ($CELL_LOCK_DIR, else $XDG_RUNTIME_DIR/cell, else /tmp/cell-UID)."""
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse that reports a usage error as one `error:` line and exit status 2."""
-
-    def error(self, message: str) -> NoReturn:
-        line = f"error: {self.prog}: {message} (see `{self.prog} --help`)"
-        sys.stderr.write(line + "\n")
-        outcome.error(line)
-        raise SystemExit(2)
-
-
 def emit_json(obj: Any) -> None:
     """Print exactly one JSON object on stdout."""
     sys.stdout.write(json.dumps(_finite(obj), sort_keys=False, allow_nan=False) + "\n")
@@ -84,9 +75,9 @@ def _finite(obj: Any) -> Any:
 
 
 def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
-    parser = _Parser(prog="cell", description="Cell controller for metal additive manufacturing.", epilog=EPILOG,
+    parser = Parser(prog="cell", description="Cell controller for metal additive manufacturing.", epilog=EPILOG,
                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     sub.required = True
     wanted = None
     if argv:

@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
+from controller.cli.parsing import Subcommands
 from core.errors import CellError, ConfigError, InputError
 
 if TYPE_CHECKING:  # the planner, the config loader and tqdm are imported when `cell plan` runs (start-up time)
@@ -31,7 +32,7 @@ def _perimeters(value: str) -> int | None:
     return n
 
 
-def _positive(value: str) -> float:
+def positive_arg(value: str) -> float:
     try:
         x = float(value)
     except ValueError:
@@ -51,7 +52,7 @@ def _allowance(value: str) -> float:
     return x
 
 
-def _fraction(value: str) -> float:
+def fraction_arg(value: str) -> float:
     try:
         x = float(value)
     except ValueError:
@@ -61,12 +62,12 @@ def _fraction(value: str) -> float:
     return x
 
 
-def register(sub: Any) -> None:
+def register(sub: Subcommands) -> None:
     p = sub.add_parser("plan", help="slice a mesh into beads: the job file for the cell",
                        description="Plan a part (STL/OBJ/3MF) into layers of beads with their welding parameters.")
     p.add_argument("mesh", metavar="STL", help="the part's mesh (STL, OBJ or 3MF)")
-    p.add_argument("--width", type=_positive, required=True, metavar="W", help="bead width, mm")
-    p.add_argument("--layer-height", type=_positive, metavar="H", help="layer height, mm (default: bead height)")
+    p.add_argument("--width", type=positive_arg, required=True, metavar="W", help="bead width, mm")
+    p.add_argument("--layer-height", type=positive_arg, metavar="H", help="layer height, mm (default: bead height)")
     p.add_argument("--perimeters", type=_perimeters, default=2, metavar="N|all",
                    help="perimeters around every boundary (default 2), or 'all' to offset until they meet")
     p.add_argument("--units", choices=("mm", "cm", "m", "inch"), default="mm", help="unit of the mesh file (default mm)")
@@ -79,7 +80,7 @@ def register(sub: Any) -> None:
                    help="plan features no legal bead fills and layers below --min-coverage, with warnings")
     p.add_argument("--allow-overhang", action="store_true",
                    help="plan layers stepping out beyond the overhang rule, with warnings")
-    p.add_argument("--min-coverage", type=_fraction, default=0.97, metavar="F",
+    p.add_argument("--min-coverage", type=fraction_arg, default=0.97, metavar="F",
                    help="least share of every layer covered by beads (default 0.97)")
     p.add_argument("--machining-allowance", type=_allowance, metavar="MM",
                    help="near-net: grow every layer and the top by MM of stock to machine "
@@ -150,7 +151,7 @@ def _config(material: str | None, five_axis: bool) -> tuple[Material, tuple[floa
     return material_, room, CellLimits(*cell["limits"]), five
 
 
-def _material(name: str | None) -> Material:
+def material_named(name: str | None) -> Material:
     """The validated material by name or path, else cell.yaml's, else Inconel 718 (`cell repair plan`)."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from core.config import load_cell, load_material

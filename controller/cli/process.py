@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
+from controller.cli.parsing import Subcommands
 from core.errors import InputError
 
 if TYPE_CHECKING:  # the config loader is imported when a command needs it (start-up time)
@@ -136,7 +137,7 @@ def _table(rows: Sequence[tuple[str, str]]) -> None:
 # --- commands --------------------------------------------------------------------------------
 
 
-def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+def register(sub: Subcommands) -> None:
     p = sub.add_parser("process", help="welding-parameter model (Ribeiro 1997)", description=__doc__.splitlines()[0])
     s = p.add_subparsers(dest="process_command", metavar="SUBCOMMAND")
     s.required = True

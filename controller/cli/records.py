@@ -12,9 +12,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 from typing import Any
+from controller.cli.parsing import Subcommands
 
 
-def register(sub: Any) -> None:
+def register(sub: Subcommands) -> None:
     p = sub.add_parser("records", help="the shop's record store: send queued records, query builds and beads")
     rs = p.add_subparsers(dest="records_command", metavar="SUBCOMMAND")
     rs.required = True

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from controller.cli import guard
+from controller.cli.parsing import Subcommands
 from core.errors import CellError, InputError
 
 # `cell plan` options the planner's messages may suggest that `cell repair plan` does not have
@@ -25,9 +26,9 @@ def _own_options(msg: str) -> str:
                   else m.group(0), msg)
 
 
-def register(sub: Any) -> None:
+def register(sub: Subcommands) -> None:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.cli.plan import _fraction, _positive
+    from controller.cli.plan import fraction_arg, positive_arg
     from controller.cli.runargs import add_trace_args
 
     p = sub.add_parser("repair", help="hybrid repair: plan the missing volume of a part, and run it",
@@ -38,12 +39,12 @@ def register(sub: Any) -> None:
     pl = rs.add_parser("plan", help="plan the repair volume (CAD − stock + allowance) in the CAD frame")
     pl.add_argument("cad", metavar="CAD", help="nominal part (STL/OBJ/3MF), in its CAD frame")
     pl.add_argument("--stock", required=True, metavar="STOCK", help="the machined part as a mesh, in the CAD frame")
-    pl.add_argument("--width", type=_positive, required=True, metavar="W", help="bead width, mm")
+    pl.add_argument("--width", type=positive_arg, required=True, metavar="W", help="bead width, mm")
     pl.add_argument("--allowance", type=float, default=0.0, metavar="MM",
                     help="finishing allowance added on top of the repaired surfaces, mm (default 0)")
     pl.add_argument("--material", metavar="M", help="material name or YAML file (default: cell.yaml's)")
-    pl.add_argument("--layer-height", type=_positive, metavar="H", help="layer height, mm (default: the bead height)")
-    pl.add_argument("--min-coverage", type=_fraction, default=0.97, metavar="F",
+    pl.add_argument("--layer-height", type=positive_arg, metavar="H", help="layer height, mm (default: the bead height)")
+    pl.add_argument("--min-coverage", type=fraction_arg, default=0.97, metavar="F",
                     help="every layer at least this share covered by beads (default 0.97)")
     pl.add_argument("--allow-overhang", action="store_true",
                     help="plan steps out beyond the overhang rule anyway, with a warning")
@@ -84,7 +85,7 @@ def _load(path: str, what: str) -> Any:
 def run_plan(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
-    from controller.cli.plan import _material
+    from controller.cli.plan import material_named
     from controller.job.repair_volume import repair_volume
     from planner.job import job_to_dict
     from planner.plan import PlanOptions, plan_part
@@ -95,7 +96,7 @@ def run_plan(args: argparse.Namespace) -> int:
                       min_coverage=args.min_coverage, allow_overhang=args.allow_overhang,
                       allow_underfill=args.allow_underfill)
     try:
-        job = plan_part(rv.mesh, opt, _material(args.material))
+        job = plan_part(rv.mesh, opt, material_named(args.material))
     except CellError as exc:  # the planner's advice names `cell plan` options: only ours are named
         try:
             again = type(exc)(_own_options(str(exc)))

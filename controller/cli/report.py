@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from controller.cli.parsing import Subcommands
 
 
-def register(sub: Any) -> None:
+def register(sub: Subcommands) -> None:
     p = sub.add_parser("report", help="write and print a run's build record (report.json, CSV, plots)")
     p.add_argument("run_dir", metavar="RUN_DIR")
     p.add_argument("--csv", metavar="FILE", help="also write one row per bead here (default RUN_DIR/beads.csv)")

@@ -27,6 +27,7 @@ from typing import Any, Callable
 from core.config import CellConfig, SimConfig, load_cell, load_sim
 from controller.cli import guard, outcome, runargs
 from controller.cli.pause_prompt import PausePrompt
+from controller.cli.parsing import Subcommands
 from controller.job.model import CellJob
 from controller.job.read import read_job
 from controller.journal.space import check_free_space
@@ -39,7 +40,7 @@ from controller.defaults import (  # noqa: F401  (the demo's figures live with t
 SCENARIO_FAULTS = ("arc_loss", "wire_stick")  # `name@layer=N` is driven by the controller's sim harness
 
 
-def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+def register(sub: Subcommands) -> None:
     p = sub.add_parser("run", help="build a job on the cell (or on its simulators with --sim)")
     p.add_argument("job", metavar="JOB", help="job file (cell-job/1 JSON, from `cell plan`)")
     _common(p)
@@ -125,13 +126,13 @@ class Progress:
         self.printer(snap)
 
 
-def _err(line: str) -> None:
+def err_line(line: str) -> None:
     sys.stderr.write(line + "\n")
     sys.stderr.flush()
     outcome.error(line)
 
 
-def _out(line: str) -> None:
+def out_line(line: str) -> None:
     sys.stdout.write(line + "\n")
     sys.stdout.flush()
 
@@ -198,7 +199,7 @@ def _already_complete(args: argparse.Namespace, run_dir: Path) -> int:
                    "report": str(report) if report.exists() else None, "run_dir": str(run_dir),
                    "message": msg})
     else:
-        _out(msg)
+        out_line(msg)
     return 0
 
 
@@ -248,8 +249,8 @@ def _build(args: argparse.Namespace, cfg: CellConfig, job: CellJob, run_dir: Pat
         fed = FedScale.lower(cfg, job, args.max_step)
         cfg, note = fed.cfg, fed.note
     if note:
-        _err(note)
-    say = _err if args.json else _out
+        err_line(note)
+    say = err_line if args.json else out_line
     sim = load_sim(args.sim_config) if args.sim else None
     reset = resume or bool(getattr(args, "reset_errors", False))
     try:
@@ -268,7 +269,7 @@ def _build(args: argparse.Namespace, cfg: CellConfig, job: CellJob, run_dir: Pat
 
         emit_json(out)
     else:
-        _print_summary(out, say)
+        print_summary(out, say)
     return exit_code(out)
 
 
@@ -298,11 +299,11 @@ async def _open_and_drive(cfg: CellConfig, job: CellJob, run_dir: Path | None, r
     async with open_cell(cfg, sim=sim, runs_dir=runs, log_dir=log_dir if sim is not None else None,
                          faults=faults, connect=False) as ctl:
         ctl.options = BuildOptions(**{**ctl.options.__dict__, **options})
-        await _drive(ctl, job, run_dir, scen, say, resume, note)
+        await drive(ctl, job, run_dir, scen, say, resume, note)
     return ctl
 
 
-async def _drive(ctl: Any, job: CellJob, run_dir: Path | None, scen: list[tuple[str, int, float | None]],
+async def drive(ctl: Any, job: CellJob, run_dir: Path | None, scen: list[tuple[str, int, float | None]],
                  say: Callable[[str], None], resume: bool, note: str | None = None) -> tuple[Any, Path | None]:
     resume_ticket = None
     if resume and run_dir is not None:
@@ -362,7 +363,7 @@ def _report(ctl: Any) -> Path | None:
         return None
 
 
-def _print_summary(out: dict[str, Any], say: Callable[[str], None]) -> None:
+def print_summary(out: dict[str, Any], say: Callable[[str], None]) -> None:
     defects = out.get("defects") or []
     state = out["state"] + (f" with {len(defects)} defects" if defects and out["state"] == "complete" else "")
     say(f"state {state}: {out['layers_done']} layers, {out['passes_done']} passes done, "

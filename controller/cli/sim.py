@@ -4,11 +4,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from controller.cli.parsing import Subcommands
 from controller.harness.sim_up import serve_until_interrupted
 from core.config import load_cell, load_sim
 
 
-def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+def register(sub: Subcommands) -> None:
     p = sub.add_parser("sim", help="device simulators")
     s = p.add_subparsers(dest="sim_command", metavar="SUBCOMMAND")
     s.required = True

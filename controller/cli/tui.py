@@ -6,13 +6,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from controller.cli import guard
+from controller.cli.parsing import Subcommands
 
 if TYPE_CHECKING:
     from controller.tui.session import CellSession
     from core.config import CellConfig
 
 
-def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+def register(sub: Subcommands) -> None:
     p = sub.add_parser("tui", help="the operator's terminal UI (Job, Align, Build, Log, Devices)")
     p.add_argument("--sim", action="store_true",
                    help="start the simulators (`cell sim up` in a process of its own) and connect to them")
