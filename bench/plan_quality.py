@@ -5,7 +5,8 @@ the error naming what cannot be planned), then the plan made with --allow-underf
 measured against trimesh's own section of the mesh at every layer's mid-plane grown by the
 allowance: coverage, bead area outside that region, metal laid against it per layer and per bead
 class (an independent nearest-bead partition), shortest pass, Ding's stable spacing, and whether
-every layer under 97 % names its unfilled feature.
+every layer under 97 % names its unfilled feature; near-net, the share of the net part's section outside the beads
+(a hole once machined; target <= 0.5 % a layer).
 
 Run: .venv/bin/python -m bench.plan_quality [--quick] [--json] [--widths 4,6,8] [--allowance 1.5] [--only NAME]
 """
@@ -31,6 +32,7 @@ W = 6.0  # nominal bead width (Inconel 718, 1.0 mm wire: legal widths 4.47-6.56 
 WIDTHS = (4.0, 6.0, 8.0)
 ALLOWANCE = 1.5  # mm of stock per face: the parts are built near-net and machined (issue 28)
 OUTSIDE = 0.015  # bead footprint outside the grown region, at most (issue 40)
+NET_OUTSIDE = 0.005  # near-net: share of a layer's net section outside the beads' footprint, at most
 
 
 def _wall(t: float, length: float = 80.0, height: float = 20.0) -> trimesh.Trimesh:
@@ -133,7 +135,7 @@ def _grown(mesh: trimesh.Trimesh, low: float, index: int, h: float, allowance: f
 # STL carries no unit: these are the units their sizes say.
 REAL_UNITS = {"idler_riser": "inch", "adis16480": "m", "octagonal_pocket": "m", "plate_holes": "mm",
               "angle_block": "inch", "torus": "inch", "20mm-xyz-cube": "mm", "box": "inch",
-              "counter.unitsmm": "mm"}
+              "counter.unitsmm": "mm", "1002_tray_bottom": "mm", "cylinder": "inch", "multibody": "inch"}
 SCALE = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "inch": 25.4}
 
 
@@ -199,7 +201,7 @@ def measure(mesh: trimesh.Trimesh, job, material, allowance: float = ALLOWANCE) 
     low = mesh.bounds[0, 2]
     wire = np.pi * material.wire_diameter_mm ** 2 / 4
     min_len = material.min_bead_length_mm or 2 * job.bead.width_mm
-    cov, out, mass, mass_class, close = [], 0.0, [], [], []
+    cov, out, mass, mass_class, close, net_out = [], 0.0, [], [], [], []
     fp_total = 0.0
     shortest = np.inf
     unnamed = []
@@ -214,6 +216,10 @@ def measure(mesh: trimesh.Trimesh, job, material, allowance: float = ALLOWANCE) 
                                 for p in layer.passes])
         c = region.intersection(fp).area / region.area
         cov.append(c)
+        top = int(round((mesh.bounds[1, 2] - low) / layer.height_mm)) - 1
+        net = sections.get(layer.index) if allowance > 0 and layer.index <= top else None
+        if net is not None and net.area > 0:  # the net part outside the deposit: a hole once machined
+            net_out.append(net.difference(fp).area / net.area)
         if c < 0.97 and f"layer {layer.index}:" not in named:
             unnamed.append(layer.index)
         out += fp.difference(region).area
@@ -229,7 +235,9 @@ def measure(mesh: trimesh.Trimesh, job, material, allowance: float = ALLOWANCE) 
         shortest = min(shortest, min(p.length_mm for p in layer.passes))
         if layer.index % 5 == 0:
             close.append(_close_fraction(layer, material.bead.min_step_over_ratio, job.bead.width_mm))
-    return _figures(cov, out, fp_total, mass, mass_class, job, shortest, min_len, close, unnamed)
+    row = _figures(cov, out, fp_total, mass, mass_class, job, shortest, min_len, close, unnamed)
+    row["net_outside_max"] = round(max(net_out, default=0.0), 4)
+    return row
 
 
 def _figures(cov: list, out: float, fp_total: float, mass: list, mass_class: list, job, shortest: float,
@@ -283,6 +291,8 @@ def check(row: dict) -> list[str]:
             bad.append(f"outside {row['outside']}")
         if row["mass_layer_max"] > 0.03 or row["mass_class_max"] > 0.03:
             bad.append(f"mass {row['mass_layer_max']}/{row['mass_class_max']}")
+        if row.get("net_outside_max", 0.0) > NET_OUTSIDE:
+            bad.append(f"net part outside the deposit {row['net_outside_max']}")
     elif "layer" not in row["verdict"]:
         bad.append("error without a layer")
     if row["mass_pass_max"] > 0.03:  # every pass lays what it is planned to fill, refused plans too
@@ -324,7 +334,7 @@ def main(argv: list[str]) -> int:
         v = row["verdict"]
         print(f"{name:24s} {width:3g} mm {row['layers']:4d} layers {row['passes']:5d} passes {row['plan_s']:6.2f} s | "
               f"cov min {100 * row['coverage_min']:5.1f} % (layer {row['worst_layer']}) | out "
-              f"{100 * row['outside']:4.1f} % | mass pass {100 * row['mass_pass_max']:4.2f} % layer "
+              f"{100 * row['outside']:4.1f} % | net out {100 * row['net_outside_max']:4.1f} % | mass pass {100 * row['mass_pass_max']:4.2f} % layer "
               f"{100 * row['mass_layer_max']:4.1f} % class {100 * row['mass_class_max']:4.1f} % | shortest {row['shortest_pass_mm']:6.1f} mm | close<stable "
               f"{100 * row['close_below_stable']:4.1f} % | {'MISSED ' + ', '.join(bad) if bad else 'ok'}")
         print(f"    {v[:240]}")
