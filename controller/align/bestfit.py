@@ -5,7 +5,7 @@ Rigid only: no scale, no reflection. Pure: arrays (and a trimesh mesh) in, froze
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -13,6 +13,9 @@ from scipy.spatial import cKDTree
 
 from controller.motion.kinematics import rotation_matrix
 from core.errors import InputError
+
+if TYPE_CHECKING:  # trimesh loads on first use (start-up time)
+    import trimesh
 
 F = NDArray[np.float64]
 
@@ -67,7 +70,7 @@ class _Surface:
     else exact distance to the k triangles with the nearest centroids (adequate for CAD meshes
     whose triangles are small against the probe spacing)."""
 
-    def __init__(self, mesh: Any, k: int = 24) -> None:
+    def __init__(self, mesh: trimesh.Trimesh, k: int = 24) -> None:
         import trimesh  # heavy import only when a mesh is used
 
         self._tri = np.asarray(mesh.triangles, dtype=float)
@@ -113,7 +116,7 @@ def _point_to_plane_step(p: F, q: F, n: F) -> F:
     return m
 
 
-def icp(points: ArrayLike, mesh: Any, *, initial: ArrayLike | None = None, max_iterations: int = 50,
+def icp(points: ArrayLike, mesh: trimesh.Trimesh, *, initial: ArrayLike | None = None, max_iterations: int = 50,
         tolerance_mm: float = 1e-9) -> RigidFit:
     """Rigid transform that carries the CAD mesh onto the probed points (CAD → machine).
 

@@ -10,11 +10,12 @@ job's points are machine positions (the cycle reads the trip positions).
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Sequence
 
 from controller.align.watched import home
 from controller.align.probe_cycle import ProbeLog, ProbeTarget, probe_point
 from controller.ports import ProbePort
+from core.config import ProbeSettings
 from core.errors import CellError
 from planner.job import Pass
 
@@ -63,7 +64,7 @@ def probe_spots(passes: Sequence[Pass], n: int, middle: float = 0.6) -> list[Poi
     return out
 
 
-async def probe_layer_top(link: ProbePort, settings: Any, spots: Sequence[Point], clearance_mm: float,
+async def probe_layer_top(link: ProbePort, settings: ProbeSettings, spots: Sequence[Point], clearance_mm: float,
                           name: str = "layer", log: ProbeLog | None = None) -> list[float]:
     """The z of the deposit's top under each spot (machine z), by the probe cycle."""
     st = await link.status()

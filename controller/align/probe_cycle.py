@@ -11,7 +11,7 @@ cycle commands G90 positions and reads machine positions.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from wire.grbl_protocol import fmt
 from controller.align.watched import probing
 from controller.ports import ProbePort
+from core.config import ProbeSettings
 from core.errors import Fault
 
 F = NDArray[np.float64]
@@ -94,7 +95,7 @@ async def _probe_once(link: CncLinkLike, t: ProbeTarget, frm: F, d: F, travel: f
     return np.asarray(res.position[:3], dtype=float)
 
 
-async def probe_point(link: CncLinkLike, t: ProbeTarget, s: Any, log: ProbeLog | None = None) -> ProbedPoint:
+async def probe_point(link: CncLinkLike, t: ProbeTarget, s: ProbeSettings, log: ProbeLog | None = None) -> ProbedPoint:
     """Probe one point (fast, back off, `samples` slow touches; retry on spread). Ends retracted."""
     if not link.homed:
         raise ProbeCycleError(f"probe point {t.name}: the CNC is not homed; home it ($H) before probing")
@@ -137,7 +138,7 @@ async def probe_point(link: CncLinkLike, t: ProbeTarget, s: Any, log: ProbeLog |
                        attempts=attempts, table_deg=table, direction=d)
 
 
-async def probe_points(link: CncLinkLike, targets: Sequence[ProbeTarget], s: Any, log: ProbeLog | None = None,
+async def probe_points(link: CncLinkLike, targets: Sequence[ProbeTarget], s: ProbeSettings, log: ProbeLog | None = None,
                        on_point: Callable[[ProbedPoint], None] | None = None) -> list[ProbedPoint]:
     """Probe a list (or grid) of points in order."""
     out = []

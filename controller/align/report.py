@@ -3,14 +3,13 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
-
 import numpy as np
 
+from controller.align.routine import AlignResult
 from core.errors import InputError
 
 
-def write_report(res: Any, out_dir: str | Path, *, stem: str = "align") -> dict[str, Path]:
+def write_report(res: AlignResult, out_dir: str | Path, *, stem: str = "align") -> dict[str, Path]:
     """Write DIR/align.json and DIR/align.png; returns their paths."""
     d = Path(out_dir)
     try:
@@ -23,7 +22,7 @@ def write_report(res: Any, out_dir: str | Path, *, stem: str = "align") -> dict[
     return {"json": jp, "png": pp}
 
 
-def plot(res: Any, path: str | Path) -> None:
+def plot(res: AlignResult, path: str | Path) -> None:
     """Three panels: the touches and fitted planes in 3-D, top residuals on the grid, side residuals."""
     # lazy: matplotlib loads only when this path runs (start-up time)
     import matplotlib

@@ -19,7 +19,7 @@ import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,8 +33,11 @@ from controller.align.probe_cycle import ProbedPoint, ProbeLog, ProbeTarget, pro
 from drivers.registry import open_cnc
 from wire.grbl_protocol import fmt
 from controller.ports import CncLinkPort, ProbePort
-from core.config import CellConfig, ProbeSettings
+from core.config import CellConfig, ProbeSettings, Workpiece
 from core.errors import InputError
+
+if TYPE_CHECKING:  # trimesh loads on first use (start-up time)
+    import trimesh
 
 F = NDArray[np.float64]
 Z = np.array([0.0, 0.0, 1.0])
@@ -54,7 +57,7 @@ class ProbePlan:
     side_z: float                # depth of the side and third-face touches
     tertiary_xy: tuple[float, float]  # the touch on the -Y face: (x, y of the face)
     bounds: F                    # (2, 3) CAD bounding box
-    mesh: Any = None             # trimesh.Trimesh of the CAD, for the ICP check
+    mesh: trimesh.Trimesh | None = None   # the CAD, for the ICP check
 
     @property
     def datums(self) -> tuple[Datum, Datum, Datum]:
@@ -62,7 +65,7 @@ class ProbePlan:
                 Datum((0.0, -1.0, 0.0), (self.tertiary_xy[0], self.tertiary_xy[1], self.side_z)))
 
 
-def plan_for_mesh(mesh: Any, *, grid: tuple[int, int] = (3, 3), top_span_mm: float | None = None,
+def plan_for_mesh(mesh: trimesh.Trimesh, *, grid: tuple[int, int] = (3, 3), top_span_mm: float | None = None,
                   side_touches: int = 5, side_span_mm: float | None = None, margin_mm: float = 10.0,
                   depth_mm: float = 5.0, top_xy: F | None = None, side_y: F | None = None,
                   tertiary_x: float | None = None) -> ProbePlan:
@@ -90,7 +93,8 @@ def plan_for_mesh(mesh: Any, *, grid: tuple[int, int] = (3, 3), top_span_mm: flo
                      bounds=np.array([lo, hi]), mesh=mesh)
 
 
-def cad_mesh(workpiece: Any = None, cad_path: str | Path | None = None, base_dir: Path | None = None) -> Any:
+def cad_mesh(workpiece: Workpiece | None = None, cad_path: str | Path | None = None,
+             base_dir: Path | None = None) -> trimesh.Trimesh:
     """The nominal part: `--cad FILE`, else the sim config's workpiece (mesh, or a block of size_mm, top at z = 0)."""
     # lazy: trimesh loads only when this path runs (start-up time)
     import trimesh
@@ -101,11 +105,12 @@ def cad_mesh(workpiece: Any = None, cad_path: str | Path | None = None, base_dir
         if not p.is_absolute() and base_dir is not None and (base_dir / p).exists():
             p = base_dir / p
         try:
-            return trimesh.load_mesh(str(p), force="mesh")
+            mesh: trimesh.Trimesh = trimesh.load_mesh(str(p), force="mesh")   # force="mesh": one Trimesh
         except Exception as exc:  # trimesh raises many kinds
             raise InputError(f"{p}: cannot load the CAD mesh ({exc}); give an STL/OBJ/3MF file in mm") from None
+        return mesh
     sx, sy, sz = workpiece.size_mm if workpiece is not None else (100.0, 100.0, 20.0)
-    box = trimesh.creation.box(extents=(sx, sy, sz))
+    box: trimesh.Trimesh = trimesh.creation.box(extents=(sx, sy, sz))
     box.apply_translation((0.0, 0.0, -sz / 2.0))
     return box
 

@@ -9,13 +9,12 @@ grid over its inside. `probe_cad_points` touches them through the alignment tran
 """
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from numpy.typing import NDArray
 
 from controller.align.probe_cycle import ProbeTarget, probe_points
 from controller.ports import ProbePort
+from core.config import CellConfig
 from core.errors import InputError
 from planner.finish import cad_top
 
@@ -112,7 +111,7 @@ def stock_spots(cad_tri: F, stock_tri: F, bounds_xy: F, *, ring_step_mm: float =
     return xy[pick + pick_inner], kinds
 
 
-async def probe_cad_points(link: ProbePort, cell: Any, xy: F, top_z: float, transform: F,
+async def probe_cad_points(link: ProbePort, cell: CellConfig, xy: F, top_z: float, transform: F,
                            name: str = "stock") -> F:
     """Touch each CAD-frame spot from above (starting `clearance` over `top_z`); (n, 3) CAD frame."""
     clear = float(cell.probe.clearance_mm)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Required, TypedDict
 
 import numpy as np
 
@@ -72,7 +72,27 @@ def stored_job(job_json: str, stored_hash: str, journal: str | Path) -> CellJob:
     return job_from_dict(obj, f"journal {journal}: the job stored in it")
 
 
-def edited(job: CellJob, edit: Callable[[dict[str, Any]], dict[str, Any]], source: str) -> CellJob:
+class PassDoc(TypedDict, total=False):
+    """A pass of a job file's object, as an edit sees it (the keys edits touch; the others kept as read)."""
+
+    points: Required[list[list[float]]]
+    normals: list[list[float]]
+    axes: list[list[float]]
+
+
+class LayerDoc(TypedDict):
+    passes: list[PassDoc]
+
+
+class JobDoc(TypedDict, total=False):
+    """A job file's object, as an edit sees it (`edited`): what it may change is typed, the rest rides along."""
+
+    layers: Required[list[LayerDoc]]
+    name: str
+    alignment: dict[str, object]
+
+
+def edited(job: CellJob, edit: Callable[[JobDoc], JobDoc], source: str) -> CellJob:
     """A new job from `edit(obj)` on a copy of `job`'s object (it returns the edited object): an
     aligned copy, a renamed one. The copy is read like a file: its own hash and checks."""
     return job_from_dict(edit(json.loads(job.json)), source)

@@ -25,6 +25,7 @@ from controller.job.model import CellJob
 from controller.job.weld_path import move_speed
 from drivers.grbl import SafeStopResult
 from core.errors import CellError
+from wire.grbl_protocol import Pos5
 
 Point = tuple[float, float, float]
 
@@ -287,13 +288,13 @@ class _Along:
     """How far along the planned weld points (mm from the first) a reported position lies, within
     `tol` mm of the path, searching forward from the move the previous report lay on."""
 
-    def __init__(self, pts: list[Point], i0: int, tip: Callable[[Any], Point], tol: float = 0.05) -> None:
+    def __init__(self, pts: list[Point], i0: int, tip: Callable[[Pos5], Point], tol: float = 0.05) -> None:
         self.pts, self.k, self.tip, self.tol = pts, i0, tip, tol
         self.cum = [0.0]
         for a, b in zip(pts, pts[1:]):
             self.cum.append(self.cum[-1] + math.dist(a, b))
 
-    def locate(self, mpos: Any) -> float | None:
+    def locate(self, mpos: Pos5) -> float | None:
         p = self.tip(mpos)
         for j in range(self.k, min(self.k + 200, len(self.pts) - 1)):
             f = _fraction(p, self.pts[j], self.pts[j + 1], self.tol)

@@ -17,15 +17,18 @@ Everything here is pure: numpy in, frozen dataclasses / arrays out.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Iterable, Sequence
+from typing import TYPE_CHECKING, Iterable, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from controller.job.model import CellJob
-from controller.job.read import edited
+from controller.job.read import JobDoc, edited
 from core.config import Kinematics
 from core.errors import InputError
+
+if TYPE_CHECKING:  # trimesh loads on first use (start-up time)
+    import trimesh
 
 F = NDArray[np.float64]
 _AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
@@ -245,7 +248,7 @@ class Trunnion:
 # --- applying an alignment -------------------------------------------------------------------------
 
 
-def apply_to_job(job: CellJob, matrix: ArrayLike, record: dict[str, Any] | None = None, *,
+def apply_to_job(job: CellJob, matrix: ArrayLike, record: Mapping[str, object] | None = None, *,
                  name: str | None = None) -> CellJob:
     """A copy of a job moved by `matrix` (points, normals, axes), recording the alignment (and
     `name`, when given). The copy is a new job, read as its file would be (its own hash).
@@ -259,7 +262,7 @@ def apply_to_job(job: CellJob, matrix: ArrayLike, record: dict[str, Any] | None 
         raise InputError("the job already carries an alignment; a second one is refused: align the original "
                          "(unaligned) job instead")
 
-    def move(out: dict[str, Any]) -> dict[str, Any]:
+    def move(out: JobDoc) -> JobDoc:
         out["alignment"] = dict(record) if record else {"transform": m.tolist()}
         out["alignment"].setdefault("transform", m.tolist())
         if name is not None:
@@ -276,9 +279,9 @@ def apply_to_job(job: CellJob, matrix: ArrayLike, record: dict[str, Any] | None 
     return edited(job, move, f"the aligned job {name or job.name}")
 
 
-def apply_to_mesh(mesh: Any, matrix: ArrayLike) -> Any:
+def apply_to_mesh(mesh: trimesh.Trimesh, matrix: ArrayLike) -> trimesh.Trimesh:
     """A transformed copy of a trimesh mesh (the original is left as it is)."""
-    out = mesh.copy()
+    out: trimesh.Trimesh = mesh.copy()
     out.apply_transform(np.asarray(matrix, dtype=float))
     return out
 

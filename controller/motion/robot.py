@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import time
-from typing import Any, Callable, Sequence
+from typing import Awaitable, Callable, Sequence
 
 from controller.motion.post5 import weld_axes
 from controller.job.weld_path import move_speed, weld_points
@@ -233,7 +233,7 @@ def _xyz(pos: tuple[float, ...]) -> Point:
     return (float(pos[0]), float(pos[1]), float(pos[2]))
 
 
-def _fire(x: Any) -> None:
+def _fire(x: Awaitable[object]) -> None:
     """Run a control coroutine in the background; a failure shows up as a lost link anyway."""
     if asyncio.iscoroutine(x):
         t = asyncio.get_running_loop().create_task(x)
