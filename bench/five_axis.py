@@ -1,7 +1,7 @@
 """5-axis deposition on the CNC simulator: plan a part 5-axis, build it, read the deposit log back.
 
-`python -m bench.five_axis [--part tube|frustum] [--table AB|AC] [--scale S]` prints the figures of
-issue 18: per deposited segment the distance from the plan in the workpiece frame, the tool-axis
+`python -m bench.five_axis [--part tube|frustum] [--table AB|AC] [--scale S] [--host-line-ms MS]` prints
+the figures of issue 18: per deposited segment the distance from the plan in the workpiece frame, the tool-axis
 error, the tool-tip speed error, and the largest rotary step against the planned axis change.
 """
 from __future__ import annotations
@@ -278,7 +278,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--table", choices=("AB", "AC"), default="AB")
     ap.add_argument("--scale", type=float, default=60.0)
     ap.add_argument("--slow", type=float, default=1.0, help="divide the planned travel speeds by this")
+    ap.add_argument("--host-line-ms", type=float, default=None,
+                    help="the wall time a streamed line is taken to cost (controller/motion/cnc5.py "
+                         "HOST_LINE_WALL_S): lower it to build at a scale the feed limit would lower, and "
+                         "read the stand-still in still_s (issue 38)")
     a = ap.parse_args(argv)
+    if a.host_line_ms is not None:
+        # lazy: only this benchmark's path needs it
+        import controller.motion.cnc5 as cnc5
+
+        cnc5.HOST_LINE_WALL_S = a.host_line_ms / 1000.0
     mesh = tilted_tube() if a.part == "tube" else cone_frustum()
     job = plan5(mesh)
     for la in job["layers"]:

@@ -219,8 +219,8 @@ class Five:
 # would not: the time scale is limited to what the host can feed, and the build says so.
 # Measured again for issue 38 (bench/five_axis.py's tube on the A/B table, load average 11-14 on
 # the 2-core host): the driver and the simulator take 0.6-0.8 ms of CPU a line; streamed alone
-# (the CNC simulator only) the tube is fed at time scale 10 and 20 (0.05 s of stand-still in
-# 34 s); in a whole build, beside the power source and cell I/O cycles and the deposit, it stands
+# (the CNC simulator only, bench/stream5.py) the tube is fed at time scale 10 (0.006 s of
+# stand-still); in a whole build, beside the power source and cell I/O cycles and the deposit, it stands
 # still 0.02 s of 20 s at time scale 5 (its lines 2.1 ms of wall time) and 3.2 s at 10 (1.1 ms).
 HOST_LINE_WALL_S = 2.0e-3
 _WINDOW = 8   # moves averaged: the grbl planner (15 blocks) rides over a short burst of shorter ones
