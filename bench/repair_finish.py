@@ -45,14 +45,18 @@ def _grid(bounds: np.ndarray, step: float = 0.5) -> np.ndarray:
     return np.column_stack([gx.ravel(), gy.ravel()])
 
 
-async def one(tmp: Path, shape: str, rng: np.random.Generator) -> dict[str, Any]:
+def draw(rng: np.random.Generator) -> tuple[tuple[Any, ...], float]:
+    """One repair's pose (tilts, rotation °, offset mm) and hidden gain."""
+    pose = (float(rng.uniform(-2, 2)), float(rng.uniform(-2, 2)), float(rng.uniform(-2, 2)),
+            tuple(float(v) for v in rng.uniform(-5, 5, 3) * np.array([1, 1, 0.2])))
+    return pose, float(rng.uniform(0.85, 1.15))
+
+
+async def one(tmp: Path, shape: str, pose: tuple[Any, ...], gain: float) -> dict[str, Any]:
     cad, stock = worn_parts(tmp, shape)
     lax = ["--allow-underfill", "--allow-overhang"] if shape == "edge" else []
     assert cell_main(["repair", "plan", str(cad), "--stock", str(stock), "--width", "4", "--allowance", "0.5",
                       "--out", str(tmp / "job.json"), *lax]) == 0
-    pose = (float(rng.uniform(-2, 2)), float(rng.uniform(-2, 2)), float(rng.uniform(-2, 2)),
-            tuple(float(v) for v in rng.uniform(-5, 5, 3) * np.array([1, 1, 0.2])))
-    gain = float(rng.uniform(0.85, 1.15))
     sim = posed_sim(stock, *pose)
     sim = sim.model_copy(update={"process": sim.process.model_copy(update={"height_gain": gain})})
     cell = with_urls(load_cell(), {}, time_scale=60)
@@ -104,7 +108,8 @@ async def one(tmp: Path, shape: str, rng: np.random.Generator) -> dict[str, Any]
                removal_mm3=round(sum(c["removed_mm3"] for c in cuts), 1),
                removal_mean_mm=round(sum(c["removed_mm3"] for c in cuts) / area, 3),
                deposit_min_over_cad_mm=dmin, shortfall=bool(dmin is not None and dmin < min_stock),
-               shortfall_found=False, time_s=mc["time_s"])
+               shortfall_found=False, time_s=mc["time_s"], redeposits=len(rep["stock"].get("redeposits", [])),
+               stock_touches=rep["stock"]["points"])
     return out
 
 
@@ -113,12 +118,18 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=20)
     ap.add_argument("--seed", type=int, default=36)
     ap.add_argument("--shapes", default=",".join(SHAPES))
+    ap.add_argument("--only", default="", help="run only these run numbers (e.g. 0-9 or 3,7): the same draws")
     a = ap.parse_args()
     rng = np.random.default_rng(a.seed)
     shapes = a.shapes.split(",")
+    only = {int(x) for part in a.only.split(",") if part
+            for x in (range(int(part.split("-")[0]), int(part.split("-")[1]) + 1) if "-" in part else [part])}
     for k in range(a.runs):
+        pose, gain = draw(rng)
+        if only and k not in only:
+            continue
         with tempfile.TemporaryDirectory() as d:
-            print(json.dumps({"run": k, **asyncio.run(one(Path(d), shapes[k % len(shapes)], rng))}), flush=True)
+            print(json.dumps({"run": k, **asyncio.run(one(Path(d), shapes[k % len(shapes)], pose, gain))}), flush=True)
 
 
 if __name__ == "__main__":

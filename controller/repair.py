@@ -14,7 +14,7 @@ from __future__ import annotations
 import asyncio
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Awaitable, Callable
 
 import numpy as np
 
@@ -24,6 +24,7 @@ from controller.motion.mill import change_tool, program_lines, run_program
 from controller.align.routine import alignment_record, plan_for_mesh
 from controller.api import CellController
 from controller.job.model import CellJob
+from controller.job.redeposit import redeposit_job
 from controller.motion.cnc5 import refuse_unfed
 from controller.motion.kinematics import Trunnion, apply_to_job
 from controller.runtime import stops
@@ -253,9 +254,42 @@ def machined_verify(pts: np.ndarray, err: np.ndarray, tolerance_mm: float) -> di
             "defects": defects, "at": np.round(pts, 3).tolist(), "error_mm": np.round(err, 4).tolist()}
 
 
+async def probe_stock(link: CncLinkPort, cell: CellConfig, job: CellJob, cad_tri: np.ndarray, spots: np.ndarray,
+                      transform: np.ndarray, say: Callable[[str], None],
+                      deposit_again: Callable[[CellJob], Awaitable[float]] | None) -> tuple[np.ndarray, np.ndarray, list[dict[str, Any]]]:
+    """The stock probe, and where it finds the deposit short, deposit again there and probe again,
+    at most `machining.redeposit_rounds` times (docs/machining.md "Deposit again"); returns the
+    touches (CAD frame), their heights over CAD and the rounds deposited. Still short: CellError
+    naming the spots."""
+    m = cell.machining
+    top = float(max(L.z_mm for L in job.layers)) + 1.0
+    rounds: list[dict[str, Any]] = []
+    target = max(float(job.repair.allowance_mm or 0.0) if job.repair is not None else 0.0, m.min_stock_mm)
+    while True:
+        say("stock")
+        pts = await probe_cad_points(link, cell, spots, top, transform, "stock")
+        margin = stock_margin(cad_tri, pts)
+        short = ~(margin >= m.min_stock_mm)
+        if not short.any():
+            return pts, margin, rounds
+        if deposit_again is None or len(rounds) >= m.redeposit_rounds:
+            again = f" after {len(rounds)} round(s) of depositing again" if rounds else ""
+            raise CellError(f"repair: the deposit stands less than {m.min_stock_mm} mm above CAD{again} at "
+                            f"{_short_spots(pts, margin, m.min_stock_mm)}; deposit again there (or plan a larger "
+                            "allowance)")
+        extra = redeposit_job(job, pts[short], margin[short], target, round_no=len(rounds) + 1)
+        say("build")
+        passes = await deposit_again(extra)
+        rounds.append({"short_spots": int(short.sum()), "min_mm": _rounded(np.nanmin(margin)),
+                       "layers": len(extra.layers), "passes": int(passes)})
+        top = max(top, float(max(L.z_mm for L in extra.layers)) + 1.0)
+
+
 async def finish_repair(link: CncLinkPort, cell: CellConfig, job: CellJob, cad: Any, stock: Any, transform: np.ndarray,
-                        say: Callable[[str], None]) -> dict[str, Any]:
-    """Probe the deposit, rough and finish it to CAD, verify against CAD (docs/contract.md §4, docs/machining.md)."""
+                        say: Callable[[str], None],
+                        deposit_again: Callable[[CellJob], Awaitable[float]] | None = None) -> dict[str, Any]:
+    """Probe the deposit (depositing again where short, `deposit_again` builds a job on the cell),
+    rough and finish it to CAD, verify against CAD (docs/contract.md §4, docs/machining.md)."""
     m = cell.machining
     name, cutter = cell.tools.cutter(m.cutter)
     cad_tri, stock_tri = np.asarray(cad.triangles, dtype=float), np.asarray(stock.triangles, dtype=float)
@@ -263,16 +297,11 @@ async def finish_repair(link: CncLinkPort, cell: CellConfig, job: CellJob, cad: 
     rb = np.asarray(job.repair.bounds_mm, dtype=float)
     spots, kinds = stock_spots(cad_tri, stock_tri, rb)     # dense where a deposit falls short
     vspots = repaired_spots(cad_tri, stock_tri, rb, m.probe_points)
-    top = float(max(L.z_mm for L in job.layers)) + 1.0
-    say("stock")
-    pts = await probe_cad_points(link, cell, spots, top, transform, "stock")
-    margin = stock_margin(cad_tri, pts)
+    pts, margin, rounds = await probe_stock(link, cell, job, cad_tri, spots, transform, say, deposit_again)
+    top = float(np.nanmax(pts[:, 2])) + 1.0
     stock_rec = {"min_mm": _rounded(np.nanmin(margin)), "max_mm": _rounded(np.nanmax(margin)), "points": len(pts),
-                 "kinds": {k: kinds.count(k) for k in ("corner", "ring", "inside")},
+                 "kinds": {k: kinds.count(k) for k in ("corner", "ring", "inside")}, "redeposits": rounds,
                  "min_stock_mm": m.min_stock_mm, "at": np.round(pts, 3).tolist()}
-    if not np.all(margin >= m.min_stock_mm):
-        raise CellError(f"repair: the deposit stands less than {m.min_stock_mm} mm above CAD at "
-                        f"{_short_spots(pts, margin, m.min_stock_mm)}; deposit again there (or plan a larger allowance)")
     lo, hi = np.asarray(cad.bounds, dtype=float)
     region = (float(max(rb[0, 0] - m.margin_mm, lo[0])), float(max(rb[0, 1] - m.margin_mm, lo[1])),
               float(min(rb[1, 0] + m.margin_mm, hi[0])), float(min(rb[1, 1] + m.margin_mm, hi[1])))
@@ -302,6 +331,19 @@ def repair_cell(cell: CellConfig) -> CellConfig:
     if cell.cell.platform == "cnc":
         return cell
     return cell.model_copy(update={"cell": cell.cell.model_copy(update={"platform": "cnc"})})
+
+
+def _deposit_again(ctl: CellController, res: Any, apply_alignment: bool) -> Callable[[CellJob], Awaitable[float]]:
+    """Build a job (CAD frame) on the controller, on the repair's alignment; returns its passes done."""
+    async def build(extra: CellJob) -> float:
+        ctl.open_job(apply_to_job(extra, res.transform, alignment_record(res)) if apply_alignment else extra)
+        got = await ctl.start()
+        if got.state != "complete":
+            raise Fault(f"repair: depositing again stopped in state {got.state}; see the journal in {ctl.run_dir}",
+                        state=got.state)
+        return float(got.passes_done)
+
+    return build
 
 
 async def repair_run(ctl: CellController, job: CellJob, *, job_path: Path | None = None, apply_alignment: bool = True,
@@ -338,9 +380,10 @@ async def repair_run(ctl: CellController, job: CellJob, *, job_path: Path | None
                         state=result.state)
         if ctl.devices is None:
             raise CellError("repair: the cell's devices closed before the verify probe")
+        run_dir, last_report = Path(str(ctl.run_dir)), ctl.last_report   # the repair's record: its own build's
         if finish:
             fin = await finish_repair(ctl.devices.cnc_link(), cell, job, cad, load_cad(job, job_path, "stock"),
-                                      res.transform, say)
+                                      res.transform, say, _deposit_again(ctl, res, apply_alignment))
             scale = time_scale_of("machine") if time_scale_of is not None else float(cell.cell.time_scale)
             fin["machining"]["time_s"] = round(fin["machining"].pop("wall_s") * scale, 1)
             v = fin["verify"]
@@ -350,22 +393,22 @@ async def repair_run(ctl: CellController, job: CellJob, *, job_path: Path | None
     finally:
         stops.detach()
         await ctl.close()
-    report = str(ctl.last_report) if ctl.last_report else None
+    report = str(last_report) if last_report else None
     if finish:
-        _record(Path(str(ctl.run_dir)), {k: fin[k] for k in ("stock", "machining", "verify")})
+        _record(run_dir, {k: fin[k] for k in ("stock", "machining", "verify")})
         if cell.records.url:   # the store had the record at the build's end: send it again with the machining
             # lazy: the records room loads only for a cell with a store
             from controller.records.queue import resend
 
-            await asyncio.to_thread(resend, Path(str(ctl.run_dir)), cell.records.url, cell=cell.cell.name,
+            await asyncio.to_thread(resend, run_dir, cell.records.url, cell=cell.cell.name,
                                     timeout_s=cell.records.connect_timeout_s)
     return {"state": result.state, "level_a_deg": round(res.level_a_deg, 5), "level_b_deg": round(res.level_b_deg, 5),
             "face_angle_deg": round(res.face_angle_deg, 5),
             "transform": np.round(np.asarray(res.transform, dtype=float), 9).tolist(),
             "passes_done": result.passes_done, "verify": v, "report": report,
             **({k: fin[k] for k in ("stock", "machining")} if finish else {}),
-            "defects": v["defects"], "run_dir": str(ctl.run_dir),
+            "defects": v["defects"], "run_dir": str(run_dir),
             # the shapes of issue 17, kept for scripts that read them
             "alignment": {"level_a_deg": round(res.level_a_deg, 5), "level_b_deg": round(res.level_b_deg, 5),
                           "face_angle_deg": round(res.face_angle_deg, 5)},
-            "build": {"state": result.state, "passes_done": result.passes_done, "run_dir": str(ctl.run_dir)}}
+            "build": {"state": result.state, "passes_done": result.passes_done, "run_dir": str(run_dir)}}

@@ -80,7 +80,7 @@ def _spaced(xy: F, order: np.ndarray, spacing: float, fixed: F | None = None) ->
 
 
 def stock_spots(cad_tri: F, stock_tri: F, bounds_xy: F, *, ring_step_mm: float = 1.5, inner_step_mm: float = 3.0,
-                ring_inset_mm: float = 0.75, step_mm: float = 0.5) -> tuple[F, list[str]]:
+                ring_inset_mm: float = 0.25, step_mm: float = 0.5) -> tuple[F, list[str]]:
     """The stock probe's spots (CAD frame) and their kinds ("corner", "ring", "inside").
 
     A deposit falls short first where its beads end: the repaired region's corners and along its
