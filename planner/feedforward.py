@@ -193,17 +193,15 @@ class _Grid:
     """The layer's prediction grid: each sample's metal across its bead in Ding's parabola, the
     round ends' over half discs with the same profile, onto cells of `cell` mm.
 
-    The splat is linear in the metal, so it is one sparse matrix built once per layer (a column
-    per sample and per round end, its cells and weights per unit of metal: CSC straight from the
-    fixed number of points each column pours into, no sorting); a round is one product."""
+    The splat is linear in the metal, so its entries are built once per layer (per sample and per
+    round end, the cells it pours into and their weights per unit of metal); a round is one
+    weighted `np.bincount` over them (a sparse product in plain numpy: `cell plan` need not import
+    scipy, whose import alone costs more than planning a small part)."""
 
     ACROSS = 15          # points across a bead (half a cell apart at 8 cells a width)
     RINGS, RAYS = 5, 11  # a half disc's polar points
 
     def __init__(self, smp: _Samples, width: float, cell: float) -> None:
-        # lazy: the planning has imported scipy already; `cell plan`'s start-up does not need it
-        from scipy.sparse import csc_array
-
         r = width / 2.0
         self.smp, self.cell = smp, cell
         d = np.linspace(-r, r, self.ACROSS + 2)[1:-1]
@@ -226,10 +224,9 @@ class _Grid:
         # each point to its nearest cell (the model's resolution is the bead's, not the cell's)
         strip_cells, cap_cells = self._cell(strip.reshape(-1, 2)), self._cell(cap.reshape(-1, 2))
         n, c = len(smp.xy), len(smp.cap_xy)
-        data = np.concatenate([np.tile(w_across, n), np.tile(w_cap, c)]) / (cell * cell)
-        indptr = np.concatenate([np.arange(n + 1) * self.ACROSS, n * self.ACROSS + np.arange(1, c + 1) * len(w_cap)])
-        self.splat = csc_array((data, np.concatenate([strip_cells, cap_cells]), indptr),
-                               shape=(self.shape[0] * self.shape[1], n + c))
+        self.data = np.concatenate([np.tile(w_across, n), np.tile(w_cap, c)]) / (cell * cell)
+        self.rows = np.concatenate([strip_cells, cap_cells])
+        self.cols = np.concatenate([np.repeat(np.arange(n), self.ACROSS), n + np.repeat(np.arange(c), len(w_cap))])
         u = (smp.xy - self.lo) / cell
         i0 = np.floor(u).astype(np.int64)
         fx, fy = u[:, 0] - i0[:, 0], u[:, 1] - i0[:, 1]
@@ -246,7 +243,9 @@ class _Grid:
         moved = volume[smp.cap_src] * smp.cap_frac
         strip_v = volume - np.bincount(smp.cap_src, weights=moved, minlength=len(volume))
         cap_v = np.bincount(smp.cap_of, weights=moved, minlength=len(smp.cap_xy))
-        g = np.asarray(self.splat @ np.concatenate([strip_v, cap_v])).reshape(self.shape)
+        metal = np.concatenate([strip_v, cap_v])
+        g = np.bincount(self.rows, weights=self.data * metal[self.cols],
+                        minlength=self.shape[0] * self.shape[1]).reshape(self.shape)
         # a [1 2 1] / 4 filter each way takes out the aliasing of points onto their nearest cells
         g[:, 1:-1] = 0.25 * g[:, :-2] + 0.5 * g[:, 1:-1] + 0.25 * g[:, 2:]
         g[1:-1, :] = 0.25 * g[:-2, :] + 0.5 * g[1:-1, :] + 0.25 * g[2:, :]
