@@ -96,6 +96,11 @@ def _no_late_device_cycle(tmp_path_factory: pytest.TempPathFactory, request: pyt
     if known is not None:
         warnings.warn(f"{msg} (open: {known.args[0] if known.args else 'no reason given'})", stacklevel=1)
         return
+    if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) >= 2:
+        # beside other workers' real-time cells on two cores the controller's share is not told apart
+        # from theirs reliably (docs/testing.md): a warning here, a failure when the test runs alone
+        warnings.warn(msg, stacklevel=1)
+        return
     pytest.fail(msg, pytrace=False)
 
 
