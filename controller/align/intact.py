@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from core.errors import InputError
+from controller.align.surface_probe import spread
 from planner.finish import cad_top
 
 F = NDArray[np.float64]
@@ -42,19 +43,6 @@ class Spots:
     tertiary_x: float              # where the −Y face is touched
     intact_mm2: float              # the intact top area the spots were chosen on
     span_mm: tuple[float, float]   # its extent along its principal directions (wide, narrow)
-
-
-def _spread(cand: F, n: int) -> F:
-    """n candidates by farthest-point sampling, the first the one farthest from their centre."""
-    if len(cand) <= n:
-        return cand
-    pick = [int(np.argmax(np.linalg.norm(cand - cand.mean(axis=0), axis=1)))]
-    d = np.linalg.norm(cand - cand[pick[0]], axis=1)
-    for _ in range(n - 1):
-        k = int(np.argmax(d))
-        pick.append(k)
-        d = np.minimum(d, np.linalg.norm(cand - cand[k], axis=1))
-    return cand[pick]
 
 
 def _extent(pts: F) -> tuple[float, float]:
@@ -139,4 +127,4 @@ def intact_spots(cad_tri: F, region: F, n: int = 9, *, face_z: float | None = No
                              f"{max(b - a, 0.0):.1f} mm free beside the repair region and the corners (each touch "
                              f"{POSE_OFFSET_MM + CLEAR_MM:g} mm + {POSE_ROTATION_DEG:g}° of its radius clear of them); "
                              f"it needs {min_side_mm:g} mm")
-    return Spots(_spread(cand, n), (float(sy[0]), float(sy[1])), float((sx[0] + sx[1]) / 2), area, (wide, narrow))
+    return Spots(spread(cand, n, first_farthest=True), (float(sy[0]), float(sy[1])), float((sx[0] + sx[1]) / 2), area, (wide, narrow))

@@ -21,11 +21,13 @@ from planner.finish import cad_top
 F = NDArray[np.float64]
 
 
-def _spread(cand: F, n: int) -> F:
-    """n of the candidates by farthest-point sampling, the first nearest their centre."""
+def spread(cand: F, n: int, first_farthest: bool = False) -> F:
+    """n of the candidates by farthest-point sampling; the first the one nearest their centre (or,
+    with `first_farthest`, farthest from it)."""
     if len(cand) <= n:
         return cand
-    pick = [int(np.argmin(np.linalg.norm(cand - cand.mean(axis=0), axis=1)))]
+    r = np.linalg.norm(cand - cand.mean(axis=0), axis=1)
+    pick = [int(np.argmax(r) if first_farthest else np.argmin(r))]
     d = np.linalg.norm(cand - cand[pick[0]], axis=1)
     for _ in range(n - 1):
         k = int(np.argmax(d))
@@ -40,13 +42,7 @@ def repaired_spots(cad_tri: F, stock_tri: F, bounds_xy: F, n: int, inset_mm: flo
     # lazy: scipy's ndimage loads only when this path runs (start-up time)
     from scipy.ndimage import binary_erosion
 
-    lo, hi = np.asarray(bounds_xy, dtype=float)[0, :2], np.asarray(bounds_xy, dtype=float)[1, :2]
-    xs = np.arange(lo[0] + step_mm / 2, hi[0], step_mm)
-    ys = np.arange(lo[1] + step_mm / 2, hi[1], step_mm)
-    gx, gy = np.meshgrid(xs, ys)
-    xy = np.column_stack([gx.ravel(), gy.ravel()])
-    missing = cad_top(cad_tri, xy) - np.nan_to_num(cad_top(stock_tri, xy), neginf=-1e9)
-    mask = (np.isfinite(missing) & (missing > 0.05)).reshape(gx.shape)
+    xy, mask, _shape = _repaired_mask(cad_tri, stock_tri, bounds_xy, step_mm)
     r = int(np.ceil(inset_mm / step_mm))
     yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
     core = binary_erosion(mask, structure=(xx * xx + yy * yy) <= r * r, border_value=0)
@@ -54,7 +50,7 @@ def repaired_spots(cad_tri: F, stock_tri: F, bounds_xy: F, n: int, inset_mm: flo
         core = mask
     if not core.any():
         raise InputError("repair: no repaired region to probe (the stock meets the CAD everywhere in the bounds)")
-    return _spread(xy[core.ravel()], n)
+    return spread(xy[core.ravel()], n)
 
 
 def _repaired_mask(cad_tri: F, stock_tri: F, bounds_xy: F, step_mm: float) -> tuple[F, np.ndarray, tuple[int, int]]:
