@@ -14,14 +14,14 @@ from __future__ import annotations
 import asyncio
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Awaitable, Callable
+from typing import TYPE_CHECKING, Any, Awaitable, Callable
 
 import numpy as np
 
 from controller.align.intact import MIN_SIDE_MM, intact_spots
 from controller.align.surface_probe import probe_cad_points, repaired_spots, stock_spots
 from controller.motion.mill import change_tool, program_lines, run_program
-from controller.align.routine import alignment_record, plan_for_mesh
+from controller.align.routine import AlignResult, ProbePlan, alignment_record, plan_for_mesh
 from controller.api import CellController
 from controller.job.model import CellJob
 from controller.job.redeposit import redeposit_job
@@ -34,6 +34,10 @@ from core.errors import CellError, Fault, InputError
 from planner.dropcutter import ToolShape
 from planner.finish import Cut, plan_finish, stock_above_cad, stock_margin, stock_surface
 from planner.job import Layer
+
+if TYPE_CHECKING:   # untyped libraries, loaded lazily at run time (start-up time)
+    import trimesh
+    from shapely.geometry.base import BaseGeometry
 
 
 @dataclass(frozen=True)
@@ -70,7 +74,7 @@ class VerifyResult:
                 "at": np.round(self.points_cad, 3).tolist()}
 
 
-def load_cad(job: CellJob, job_path: Path | None, which: str = "cad") -> Any:
+def load_cad(job: CellJob, job_path: Path | None, which: str = "cad") -> "trimesh.Trimesh":
     """The job's CAD (or, `which="stock"`, its stock) mesh, a relative path looked up next to the job."""
     # lazy: trimesh loads only when this path runs (start-up time)
     import trimesh
@@ -87,7 +91,7 @@ def load_cad(job: CellJob, job_path: Path | None, which: str = "cad") -> Any:
     return trimesh.load_mesh(str(p), force="mesh")
 
 
-def probe_plan(cad: Any, job: CellJob) -> Any:
+def probe_plan(cad: "trimesh.Trimesh", job: CellJob) -> ProbePlan:
     """The alignment's touches on the CAD, on the intact faces off the repair region and its
     keep-out (controller/align/intact.py): refused only when too little intact face is left."""
     lo, hi = np.asarray(cad.bounds, dtype=float)
@@ -103,7 +107,7 @@ def probe_plan(cad: Any, job: CellJob) -> Any:
                          tertiary_x=spots.tertiary_x)
 
 
-def _layer_footprint(L: Layer, job: CellJob) -> Any:
+def _layer_footprint(L: Layer, job: CellJob) -> "BaseGeometry | None":
     """One layer's planned deposit: the union of its passes' centre lines widened by their width
     (None: the layer has no pass with a point)."""
     # lazy: shapely loads only when this path runs (start-up time)
@@ -121,7 +125,7 @@ def _layer_footprint(L: Layer, job: CellJob) -> Any:
     return unary_union(shapes) if shapes else None
 
 
-def _core_candidates(core: Any, z: float) -> list[tuple[float, float, float, str]]:
+def _core_candidates(core: "BaseGeometry", z: float) -> list[tuple[float, float, float, str]]:
     """Touch candidates on one layer's inset exposed top at height z: a grid inside it, and points
     spread along its edges."""
     # lazy: shapely loads only when this path runs (start-up time)
@@ -140,16 +144,17 @@ def _core_candidates(core: Any, z: float) -> list[tuple[float, float, float, str
     return cand
 
 
-def _layer_candidates(foot: list[Any], i: int, z: float, inset: float) -> list[tuple[float, float, float, str]]:
+def _layer_candidates(foot: "list[BaseGeometry | None]", i: int, z: float, inset: float) -> list[tuple[float, float, float, str]]:
     """Touch candidates on layer i's exposed top (its footprint minus the layers above), `inset` in
     from its boundary; none when nothing of it is exposed that wide."""
     # lazy: shapely loads only when this path runs (start-up time)
     from shapely.ops import unary_union
 
-    if foot[i] is None or foot[i].is_empty:
+    mine = foot[i]
+    if mine is None or mine.is_empty:
         return []
     above = [f for f in foot[i + 1:] if f is not None]
-    top = foot[i].difference(unary_union(above)) if above else foot[i]
+    top = mine.difference(unary_union(above)) if above else mine
     core = top.buffer(-inset)
     if core.is_empty:
         return []
@@ -285,7 +290,7 @@ async def probe_stock(link: CncLinkPort, cell: CellConfig, job: CellJob, cad_tri
         top = max(top, float(max(L.z_mm for L in extra.layers)) + 1.0)
 
 
-async def finish_repair(link: CncLinkPort, cell: CellConfig, job: CellJob, cad: Any, stock: Any, transform: np.ndarray,
+async def finish_repair(link: CncLinkPort, cell: CellConfig, job: CellJob, cad: "trimesh.Trimesh", stock: "trimesh.Trimesh", transform: np.ndarray,
                         say: Callable[[str], None],
                         deposit_again: Callable[[CellJob], Awaitable[float]] | None = None) -> dict[str, Any]:
     """Probe the deposit (depositing again where short, `deposit_again` builds a job on the cell),
@@ -333,7 +338,7 @@ def repair_cell(cell: CellConfig) -> CellConfig:
     return cell.model_copy(update={"cell": cell.cell.model_copy(update={"platform": "cnc"})})
 
 
-def _deposit_again(ctl: CellController, res: Any, apply_alignment: bool) -> Callable[[CellJob], Awaitable[float]]:
+def _deposit_again(ctl: CellController, res: AlignResult, apply_alignment: bool) -> Callable[[CellJob], Awaitable[float]]:
     """Build a job (CAD frame) on the controller, on the repair's alignment; returns its passes done."""
     async def build(extra: CellJob) -> float:
         ctl.open_job(apply_to_job(extra, res.transform, alignment_record(res)) if apply_alignment else extra)

@@ -316,6 +316,60 @@ def test_no_attribute_read_by_literal_name_in_the_controller() -> None:
     assert not bad, "read through a typed port instead (docs/architecture.md):\n" + "\n".join(bad)
 
 
+# Where the runtime meets a device, a link or a result, every parameter and return has a type.
+TYPED_SEAMS = ("controller.runtime", "controller.align", "controller.motion", "controller.repair", "controller.api")
+
+
+def _any_in(ann: ast.expr) -> bool:
+    """Does an annotation hide a value behind `Any`? A JSON object (`dict[str, Any]`: a record
+    written to the journal or report.json) is a value with a shape, not a seam."""
+    if isinstance(ann, ast.Constant) and isinstance(ann.value, str):   # a quoted annotation
+        return _any_in(ast.parse(ann.value, mode="eval").body)
+    if isinstance(ann, (ast.Name, ast.Attribute)):
+        return (ann.id if isinstance(ann, ast.Name) else ann.attr) == "Any"
+    if isinstance(ann, ast.Subscript):
+        return ast.unparse(ann) != "dict[str, Any]" and (_any_in(ann.value) or _any_in(ann.slice))
+    if isinstance(ann, (ast.Tuple, ast.List)):
+        return any(_any_in(e) for e in ann.elts)
+    if isinstance(ann, ast.BinOp):   # X | Y
+        return _any_in(ann.left) or _any_in(ann.right)
+    return False
+
+
+def any_typed_seams(sources: dict[str, str] | None = None) -> list[str]:
+    """Every parameter or return annotated `Any` (or a container, callable or future of `Any`) in
+    the rooms of TYPED_SEAMS."""
+    if sources is None:
+        sources = {str(p.relative_to(ROOT)): p.read_text(encoding="utf-8")
+                   for m, p in MODS.items() if _within(m, TYPED_SEAMS)}
+    bad = []
+    for where, text in sources.items():
+        for fn in ast.walk(ast.parse(text)):
+            if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            a = fn.args
+            for arg in [*a.posonlyargs, *a.args, *a.kwonlyargs, a.vararg, a.kwarg]:
+                if arg is not None and arg.annotation is not None and _any_in(arg.annotation):
+                    bad.append(f"{where}:{fn.lineno}: {fn.name}({arg.arg}: {ast.unparse(arg.annotation)})")
+            if fn.returns is not None and _any_in(fn.returns):
+                bad.append(f"{where}:{fn.lineno}: {fn.name}() -> {ast.unparse(fn.returns)}")
+    return bad
+
+
+def test_no_parameter_typed_any_where_the_runtime_meets_a_device() -> None:
+    bad = any_typed_seams()
+    assert not bad, "name the type (a port of controller/ports.py, a record, a library's class):\n" + "\n".join(bad)
+
+
+def test_the_any_rule_sees_what_it_forbids() -> None:
+    src = ("from typing import Any\nimport typing\n"
+           "def a(x: Any, y: int) -> None: ...\n"
+           "async def b(rec: dict[str, Any], f: 'list[Any]') -> typing.Any: ...\n"
+           "def c(*args: object, cb: Callable[[int], Any], **kw: Any) -> dict[str, Any]: ...\n")
+    assert [b.split(": ", 1)[1] for b in any_typed_seams({"m.py": src})] == [
+        "a(x: Any)", "b(f: 'list[Any]')", "b() -> typing.Any", "c(cb: Callable[[int], Any])", "c(kw: Any)"]
+
+
 def _is_private(name: str) -> bool:
     return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
 

@@ -23,7 +23,7 @@ import dataclasses
 import json
 import os
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from core.realtime import elevate, is_realtime, quiet_gc, relax
 from controller.report.worker import record_build_end, records_target
@@ -51,6 +51,9 @@ from core.config import load_sim
 from controller.runtime.arc_handshake import ArcHandshake
 from controller.api.offline import align_at
 from controller.api.simulated import Simulators
+
+if TYPE_CHECKING:   # the alignment routine loads lazily (ICP, trimesh): its types only
+    from controller.align.routine import AlignResult, ProbePlan
 
 COMMANDS = ("open_job", "run_alignment", "start", "pause", "resume", "abort", "reset", "estop")
 
@@ -97,7 +100,7 @@ class CellController:
         self.job: CellJob | None = None
         self.run_dir: Path | None = None
         self.runner: BuildRunner | None = None
-        self.alignment: Any = None
+        self.alignment: AlignResult | None = None
         self.arc: Any = None
         self.last_result: BuildResult | None = None
         self.last_report: Path | None = None
@@ -316,7 +319,7 @@ class CellController:
                         layers_total=len(job.layers), passes_total=job.passes_total, passes_done=done)
         return self.run_dir
 
-    async def run_alignment(self, plan: Any = None) -> Any:
+    async def run_alignment(self, plan: ProbePlan | None = None) -> AlignResult:
         """Probe and align the substrate on the CNC (its touch probe); Probing → Aligned.
 
         `plan`: the probe plan (default: from the workpiece of config/sim.yaml). On a robot
@@ -334,19 +337,20 @@ class CellController:
         try:
             cnc = self.devices.cnc if self.devices is not None else None
             if cnc is not None:
-                self.alignment = await align(cnc, self.cfg, plan)
+                res = await align(cnc, self.cfg, plan)
             else:
-                self.alignment = await align_at(self.cfg.devices.cnc.url, self.cfg, plan)
+                res = await align_at(self.cfg.devices.cnc.url, self.cfg, plan)
+            self.alignment = res
         except BaseException as exc:
             if self.machine.can("fault"):
                 self.machine.send("fault", cause=f"alignment: {exc}")
             raise
         self.machine.send("aligned")
         if self.journal is not None:
-            a = self.alignment
+            a = res
             self.journal.event("info", f"aligned: A {a.level_a_deg:.5f}°, B {a.level_b_deg:.5f}°, "
                                        f"face angle {a.face_angle_deg:.5f}°")
-        return self.alignment
+        return res
 
     async def start(self) -> BuildResult:
         """Run (or continue, from the journal) the build until it completes or stops."""

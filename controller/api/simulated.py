@@ -7,11 +7,13 @@ door, inject an arc loss, read the simulated world); the controller itself never
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Callable, Protocol
+from typing import Awaitable, Callable, Protocol, TypeVar
 
 from core.config import SimConfig
 
 __all__ = ["Simulators"]
+
+T = TypeVar("T")
 
 
 class Simulators(Protocol):
@@ -37,12 +39,17 @@ class Simulators(Protocol):
         """The process the simulators run in (this one, or `cell sim up`'s)."""
         ...
 
-    def sim(self, device: str) -> Any:
-        """The simulator object of a device (in this process only)."""
+    def sim(self, device: str) -> object:
+        """The simulator object of a device (in this process only): tests and benches read its state;
+        the product reaches a simulator only through `inject` and `set_time_scale`."""
         ...
 
-    def call(self, fn: Callable[..., object], *args: object, **kwargs: object) -> Any:
+    def call(self, fn: Callable[..., T | Awaitable[T]], *args: object, **kwargs: object) -> T:
         """`fn(*args, **kwargs)` on the simulators' loop, its result (thread-safe; in this process only)."""
+        ...
+
+    def inject(self, device: str, fault: str, *, duration_s: float | None = None) -> None:
+        """A seeded fault now, by the device's simulator (`cell run --fault`; docs/simulators.md)."""
         ...
 
     def set_time_scale(self, scale: float) -> None:

@@ -107,9 +107,7 @@ async def _scenario(ctl: Any, harness: Any, scen: list[tuple[str, int, float | N
                 return
             await asyncio.sleep(0.005)
         await asyncio.sleep(0.05)
-        sim = harness.sim("power_source")
-        kw = {"duration_s": 0.5 if dur is None else dur} if name == "arc_loss" else {}
-        harness.call(sim.inject, name, **kw)
+        harness.inject("power_source", name, duration_s=(0.5 if dur is None else dur) if name == "arc_loss" else None)
 
 
 class Progress:

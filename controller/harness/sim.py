@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import asyncio
 import gc
+import inspect
 import os
 import sys
 import threading
 from pathlib import Path
-from typing import Any
+from typing import Any, Awaitable, Callable, TypeVar
 
 from controller.runtime.devices import with_urls as with_urls  # re-exported: `cell run --sim` and the TUI take it from here
 from core.config import CellConfig, SimConfig, load_material
@@ -18,7 +19,11 @@ from sims.clock import SimClock
 from sims.faults import parse_fault_spec
 from sims.loop import precise_loop
 from sims.up import SimContext, close_all, serve_all
+from sims.power_sim import PowerSourceSim
 from sims.world import World
+from core.errors import CellError
+
+T = TypeVar("T")
 
 
 class SimHarness:
@@ -68,18 +73,25 @@ class SimHarness:
         gc.freeze()  # full collections of the heap would stall the simulated devices (~100 ms)
         return {s.device: s.url for s in served}
 
-    def sim(self, device: str) -> Any:
+    def sim(self, device: str) -> object:
         """The simulator object of a device (tests open the door, inject faults...)."""
         return self.served[device].sim
 
-    def call(self, fn: Any, *args: Any, **kwargs: Any) -> Any:
+    def call(self, fn: Callable[..., T | Awaitable[T]], *args: object, **kwargs: object) -> T:
         """Run `fn(*args, **kwargs)` on the simulators' loop and return its result (thread-safe)."""
-        async def _do() -> Any:
+        async def _do() -> T:
             res = fn(*args, **kwargs)
-            if asyncio.iscoroutine(res):
-                res = await res
+            if inspect.isawaitable(res):
+                return await res
             return res
         return asyncio.run_coroutine_threadsafe(_do(), self.loop).result(10)
+
+    def inject(self, device: str, fault: str, *, duration_s: float | None = None) -> None:
+        """A seeded fault now, by the device's simulator (only the power source takes them)."""
+        target = self.served[device].sim
+        if not isinstance(target, PowerSourceSim):
+            raise CellError(f"the simulated {device} takes no seeded fault; faults go to the power source")
+        self.call(target.inject, fault, duration_s=duration_s)
 
     @property
     def process_id(self) -> int:

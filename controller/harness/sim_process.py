@@ -16,13 +16,15 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Awaitable, Callable, TypeVar
 
 import yaml
 
 from controller.runtime.devices import with_urls
 from core.config import CellConfig, SimConfig, load_sim
 from core.errors import CellError
+
+T = TypeVar("T")
 
 ROOT = Path(__file__).resolve().parent.parent.parent
 
@@ -93,11 +95,15 @@ class SimProcess:
     def process_id(self) -> int:
         return self.proc.pid
 
-    def sim(self, device: str) -> Any:
+    def sim(self, device: str) -> object:
         raise CellError(f"the simulated {device} runs in `cell sim up` (pid {self.proc.pid}), not in this process")
 
-    def call(self, fn: Callable[..., object], *args: object, **kwargs: object) -> Any:
+    def call(self, fn: Callable[..., T | Awaitable[T]], *args: object, **kwargs: object) -> T:
         raise CellError(f"the simulators run in `cell sim up` (pid {self.proc.pid}), not in this process")
+
+    def inject(self, device: str, fault: str, *, duration_s: float | None = None) -> None:
+        raise CellError(f"the simulated {device} runs in `cell sim up` (pid {self.proc.pid}): seed its faults "
+                        "in config/sim.yaml (faults:) or with `cell sim up --fault`")
 
     def set_time_scale(self, scale: float) -> None:
         raise CellError(f"`cell sim up` (pid {self.proc.pid}) keeps the time scale it was started with")

@@ -16,7 +16,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-from typing import Any, Callable, Sequence
+from typing import Callable, Sequence
 
 from controller.ports import CncLinkPort, PowerSourcePort
 from controller.motion.kinematics import Trunnion
@@ -25,7 +25,7 @@ from controller.job.model import CellJob
 from controller.job.weld_path import move_speed
 from drivers.grbl import SafeStopResult
 from core.errors import CellError
-from wire.grbl_protocol import Pos5
+from wire.grbl_protocol import GrblStatus, Pos5
 
 Point = tuple[float, float, float]
 
@@ -141,7 +141,7 @@ class CncExecutor:
         power on feed hold and between motions; checked by reading it back."""
         await self.link.laser_mode(True)
 
-    async def process_off(self) -> Any:
+    async def process_off(self) -> GrblStatus:
         """Process off and motion held: feed hold (laser mode drops S), then confirm `FS:f,0`
         in a status report; a soft reset (which stops the spindle) if power still shows."""
         await self.link.feed_hold()

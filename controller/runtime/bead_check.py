@@ -7,10 +7,12 @@ defect: journaled with its position and reported, never silently "done".
 """
 from __future__ import annotations
 
-from typing import Any
+import math
+
+from core.material import ProcessTolerance
 
 
-def judge(stats: dict[str, float | None], planned_i: float, planned_wfs: float | tuple[float, float], tol: Any,
+def judge(stats: dict[str, float | None], planned_i: float, planned_wfs: float | tuple[float, float], tol: ProcessTolerance,
           arc_faltered: bool, planned_speed: float | None = None) -> str | None:
     """None for a good bead, else the reason it is a defect (one line).
 
@@ -41,14 +43,24 @@ def judge(stats: dict[str, float | None], planned_i: float, planned_wfs: float |
     w_ref = 0.5 * (wl + wh)
     i_set = f"{planned_i:.1f} A" if wl == wh else f"{planned_i * wl / w_ref:.1f}-{planned_i * wh / w_ref:.1f} A"
     i_lo, i_hi = planned_i * wl / w_ref * (1 - tol.current_pct / 100), planned_i * wh / w_ref * (1 + tol.current_pct / 100)
-    if stats["i_min"] < i_lo or stats["i_max"] > i_hi:
-        out.append(f"current {stats['i_min']:.1f}-{stats['i_max']:.1f} A outside {i_set} ±{tol.current_pct:g} %")
+    i_min, i_max = _span(stats, "i", "i_mean")
+    if i_min < i_lo or i_max > i_hi:
+        out.append(f"current {i_min:.1f}-{i_max:.1f} A outside {i_set} ±{tol.current_pct:g} %")
     w_lo, w_hi = wl * (1 - tol.wfs_pct / 100), wh * (1 + tol.wfs_pct / 100)
-    w_min, w_max = stats.get("wfs_min", stats["wfs_mean"]), stats.get("wfs_max", stats["wfs_mean"])
+    w_min, w_max = _span(stats, "wfs", "wfs_mean")
     w_set = f"{wl:.2f} m/min" if wl == wh else f"{wl:.2f}-{wh:.2f} m/min"
     if w_min < w_lo or w_max > w_hi:
         out.append(f"wire feed {w_min:.2f}-{w_max:.2f} m/min outside {w_set} ±{tol.wfs_pct:g} %")
-    if stats["u_min"] < tol.voltage_min_v or stats["u_max"] > tol.voltage_max_v:
-        out.append(f"voltage {stats['u_min']:.1f}-{stats['u_max']:.1f} V outside "
+    u_min, u_max = _span(stats, "u", "u_mean")
+    if u_min < tol.voltage_min_v or u_max > tol.voltage_max_v:
+        out.append(f"voltage {u_min:.1f}-{u_max:.1f} V outside "
                    f"[{tol.voltage_min_v:g}, {tol.voltage_max_v:g}] V")
     return "; ".join(out) or None
+
+
+def _span(stats: dict[str, float | None], name: str, mean_key: str) -> tuple[float, float]:
+    """A signal's measured (min, max), its mean where the extremes were not reported. A signal never
+    measured is ±inf, outside every bound: a bead is good only on what the devices measured."""
+    mean = stats.get(mean_key)
+    lo, hi = stats.get(f"{name}_min", mean), stats.get(f"{name}_max", mean)
+    return (-math.inf if lo is None else lo), (math.inf if hi is None else hi)

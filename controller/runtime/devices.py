@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import asyncio
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Awaitable, TypeVar
 
 from core.config import CellConfig, load_material
 from drivers.errors import DeviceError
 from drivers.registry import open_cellio, open_cnc, open_power_source, open_robot
 from controller.ports import CellIOPort, CncLinkPort, PowerSourcePort, RobotLinkPort
 from core.material import Material
+
+T = TypeVar("T")
 
 
 class DeviceUnreachable(DeviceError):
@@ -110,7 +112,7 @@ class Devices:
         self.opened.clear()
 
 
-async def _connect(device: str, url: str, coro: Any, timeout: float = 10.0) -> Any:
+async def _connect(device: str, url: str, coro: Awaitable[T], timeout: float = 10.0) -> T:
     try:
         return await asyncio.wait_for(coro, timeout)
     except (asyncio.TimeoutError, OSError, ConnectionError) as exc:

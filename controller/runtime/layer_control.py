@@ -39,7 +39,7 @@ from controller.runtime.layer_plan import (
     adjusted_layer, build_layers, decide, layer_height, layer_z, rise_factor, fit_gain,
 )
 from controller.runtime.path_control import PathControl
-from controller.runtime.stickout import StickOutEstimator
+from controller.runtime.stickout import StickOut, StickOutEstimator
 from core.config import CellConfig, ProcessControl
 from core.material import Material
 from planner.job import Layer, Pass
@@ -95,7 +95,7 @@ class LayerControl:
         self.top = layer_z(first) - layer_height(first)        # the substrate under the plan
         self.expected_cum = 0.0                                 # the model's rise so far (Σ h·f(k))
         self.hist: list[tuple[float, float]] = [(0.0, self.top)]  # (model rise, measured top)
-        self.beads: dict[int, list[Any]] = {}
+        self.beads: dict[int, list[StickOut]] = {}
         self.records: list[dict[str, Any]] = []
         width = min((p.width_mm for la in self.job_layers for p in la.passes), default=7.0)
         self._probed: dict[int, tuple[list[Spot], list[float]]] = {}
