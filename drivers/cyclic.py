@@ -15,34 +15,12 @@ from dataclasses import dataclass, field
 from typing import Awaitable, Callable, Generic, TypeVar
 
 from drivers.errors import LinkLost
+from drivers.loop_times import LoopClock, LoopSample, blame
+from drivers.loop_times import device_thread as device_thread  # re-exported: the in-process simulators mark their thread
 from core.errors import CellError
 
 S = TypeVar("S")
 T = TypeVar("T")
-
-# Threads of this process that stand for devices (the in-process simulators of `--sim` and the
-# tests): the CPU time they take is the devices', not the controller's (`controller_cpu_s`).
-_DEVICE_THREADS: set[int] = set()
-
-
-def device_thread(ident: int, present: bool = True) -> None:
-    """Count thread `ident` (threading.get_ident()) as a device's while `present`."""
-    if present:
-        _DEVICE_THREADS.add(ident)
-    else:
-        _DEVICE_THREADS.discard(ident)
-
-
-def controller_cpu_s() -> float:
-    """CPU seconds this process has run, less what its device threads ran."""
-    total = time.process_time()
-    for ident in list(_DEVICE_THREADS):
-        try:
-            total -= time.clock_gettime(time.pthread_getcpuclockid(ident))
-        except (OSError, ValueError):
-            _DEVICE_THREADS.discard(ident)   # that thread has ended
-    return total
-
 
 @dataclass
 class CycleStats:
@@ -56,14 +34,14 @@ class CycleStats:
     periods: list[float] = field(default_factory=list)   # wall seconds between cycle starts
     max_period_s: float = 0.0   # the longest wall time between two cycle starts
     host_stalls: int = 0        # reply timeouts that fired late: this process stalled, not the device
-    # The longest period this process is to blame for (docs/testing.md, "A loop that never
-    # blocks"): one cycle plus the time the loop came late to the cycle (a timer that fired late,
-    # subscribers' work), at most the CPU time the controller's threads ran meanwhile (late while
-    # none ran: the OS ran something else, e.g. while a time-shared thread held the interpreter
-    # lock, or an in-process simulator did: `device_thread`), less a CPU of the host witnessed stopped. A device that answers late does not count
-    # here: the loop ran its timers on time while it waited.
+    # The longest period the controller is to blame for (docs/testing.md, "A loop that never
+    # blocks"): one cycle plus the part of the loop's lateness that was its own work or the GIL held
+    # by another thread of the controller (drivers/loop_times.py), never the OS's nor an
+    # in-process simulator's. A device that answers late does not count here: the loop ran its
+    # timers on time while it waited.
     max_own_period_s: float = 0.0
-    os_delay_at_max_s: float = 0.0   # the OS's share (no thread of ours ran, a stopped CPU) of the longest period
+    os_delay_at_max_s: float = 0.0       # the OS's share of that period's lateness (run queue, a stopped CPU)
+    device_delay_at_max_s: float = 0.0   # the in-process simulators' share (they held the GIL)
     keep: bool = False          # record periods (benchmark)
     # every cycle period in 0.1 ms bins up to 1 s (the last bin: longer): percentiles, bounded memory
     hist: list[int] = field(default_factory=lambda: [0] * 10_001)
@@ -71,7 +49,7 @@ class CycleStats:
     def restart_periods(self) -> None:
         """Count the periods from now on (a build's record: its own cycles, not the idle time
         before it, when a job was opened or planned)."""
-        self.max_period_s = self.max_own_period_s = self.os_delay_at_max_s = 0.0
+        self.max_period_s = self.max_own_period_s = self.os_delay_at_max_s = self.device_delay_at_max_s = 0.0
         self.hist = [0] * len(self.hist)
         self.periods = []
 
@@ -209,15 +187,15 @@ class CyclicDevice(ABC, Generic[S]):
     async def _run(self) -> None:
         period = self.cycle_s
         deadline = time.monotonic()
-        last_start: float | None = None
-        last_cpu = 0.0
+        last: LoopSample | None = None
+        clock = LoopClock()   # this thread's clocks: whose fault a late cycle is (drivers/loop_times.py)
         try:
             while not self._closing:
-                now = time.monotonic()
-                cpu = controller_cpu_s()   # did a thread of the controller run while the loop was late?
-                if last_start is not None:
-                    self._note_period(now - last_start, last_start, now, cpu - last_cpu)
-                last_start, last_cpu = now, cpu
+                sample = clock.sample()
+                now = sample.t
+                if last is not None:
+                    self._note_period(last, sample)
+                last = sample
                 self._late_s = 0.0
                 try:
                     st = await self._one_cycle()
@@ -247,24 +225,26 @@ class CyclicDevice(ABC, Generic[S]):
             raise
         except Exception as exc:  # an unexpected transport error is still a lost link
             self._fail(LinkLost(f"{self.where()}: cycle stopped ({exc!r})"))
+        finally:
+            clock.close()
 
-    def _note_period(self, gap: float, t0: float, t1: float, cpu_s: float) -> None:
-        """Count one period (wall seconds between two cycle starts; `cpu_s` the CPU time this
-        process ran meanwhile) and the share this process is to blame for (`max_own_period_s`)."""
+    def _note_period(self, a: LoopSample, b: LoopSample) -> None:
+        """Count one period (from one cycle start's clocks to the next's) and the share of it the
+        controller is to blame for (`max_own_period_s`; drivers/loop_times.py)."""
         st = self.stats
+        gap = b.t - a.t
         st.max_period_s = max(st.max_period_s, gap)
         st.add_period(gap)
         if st.keep:
             st.periods.append(gap)
         if gap <= 1.5 * self.cycle_s:
-            own, os_s = gap, 0.0
+            own, os_s, dev_s = gap, 0.0, 0.0
         else:
-            stalled = self.host_stalled_s(t0, t1) if self.host_stalled_s is not None else 0.0
-            late = max(0.0, min(self._late_s, cpu_s) - stalled)
-            own = min(gap, self.cycle_s + late)
-            os_s = max(0.0, self._late_s - late)
+            stalled = self.host_stalled_s(a.t, b.t) if self.host_stalled_s is not None else 0.0
+            share = blame(self._late_s, a, b, stalled)
+            own, os_s, dev_s = min(gap, self.cycle_s + share.own), share.os, share.devices
         if own > st.max_own_period_s:
-            st.max_own_period_s, st.os_delay_at_max_s = own, os_s
+            st.max_own_period_s, st.os_delay_at_max_s, st.device_delay_at_max_s = own, os_s, dev_s
 
     def _deliver(self, st: S) -> None:
         """One cycle's reading to the subscribers and to the tasks waiting for it."""

@@ -5,8 +5,10 @@ Every build's journal holds the links' statistics at its end (an `events` row of
 same rows the record's `links` carries). After each test, every journal under the worker's
 temporary directory that holds rows not yet seen is read (read-only: never a new run), and each
 cyclic device (power source, cell I/O) must have `max_own_period_ms` at most `OWN_PERIOD_LIMIT_MS`:
-the longest cycle period less what the OS is to blame for (the cycling thread waiting on a run
-queue, a stopped CPU; drivers/cyclic.py). A late device reply does not count: the loop ran on time.
+the longest cycle period less what the controller is not to blame for (drivers/loop_times.py: the
+cycling thread waiting on a run queue, a stopped CPU, an in-process simulator holding the GIL).
+A late device reply does not count: the loop ran on time. The rule holds for every build, run
+alone or beside other test workers.
 """
 from __future__ import annotations
 
@@ -45,8 +47,8 @@ def late_cycles(journal: Path, rows: list[tuple[int, list[dict[str, object]]]]) 
             own = ln.get("max_own_period_ms")
             if ln.get("device") in CYCLIC and isinstance(own, (int, float)) and own > OWN_PERIOD_LIMIT_MS:
                 out.append(f"{journal.parent.name} run {run}: {ln['device']} max_period_ms {ln.get('max_period_ms')}, "
-                           f"{own} ms of it the controller's (the OS's share {ln.get('os_delay_ms')} ms; "
-                           f"limit {OWN_PERIOD_LIMIT_MS:g} ms)")
+                           f"{own} ms of it the controller's (the OS's share {ln.get('os_delay_ms')} ms, the in-process "
+                           f"simulators' {ln.get('device_delay_ms')} ms; limit {OWN_PERIOD_LIMIT_MS:g} ms)")
     return out
 
 

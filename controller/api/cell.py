@@ -230,7 +230,8 @@ class CellController:
                                 max_period_ms=round(ps.max_period_s * 1000, 1),
                                 p99_period_ms=ps.period_percentile_ms(99),
                                 max_own_period_ms=round(ps.max_own_period_s * 1000, 1),
-                                os_delay_ms=round(ps.os_delay_at_max_s * 1000, 1)))
+                                os_delay_ms=round(ps.os_delay_at_max_s * 1000, 1),
+                                device_delay_ms=round(ps.device_delay_at_max_s * 1000, 1)))
         if d.cellio is not None:
             cs = d.cellio.stats
             out.append(LinkStat("cellio", d.cellio.url, d.cellio.error is None, cs.cycles, cs.cycles,
@@ -238,7 +239,8 @@ class CellController:
                                 max_period_ms=round(cs.max_period_s * 1000, 1),
                                 p99_period_ms=cs.period_percentile_ms(99),
                                 max_own_period_ms=round(cs.max_own_period_s * 1000, 1),
-                                os_delay_ms=round(cs.os_delay_at_max_s * 1000, 1)))
+                                os_delay_ms=round(cs.os_delay_at_max_s * 1000, 1),
+                                device_delay_ms=round(cs.device_delay_at_max_s * 1000, 1)))
         return tuple(out)
 
     async def _stats_loop(self) -> None:

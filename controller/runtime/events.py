@@ -37,10 +37,12 @@ class LinkStat:
     bad: int = 0                    # invalid frames (CRC, NAK, garbage)
     max_period_ms: float | None = None  # cyclic devices: the longest time between two cycles
     p99_period_ms: float | None = None  # cyclic devices: the 99th percentile of that time
-    # cyclic devices: the longest period this process is to blame for, and the OS's share of the
-    # longest (run queue, a stopped CPU): docs/testing.md, "A loop that never blocks"
+    # cyclic devices: the longest period the controller is to blame for, and the OS's share (run
+    # queue, a stopped CPU) and the in-process simulators' share (they held the GIL) of that
+    # period's lateness: docs/testing.md, "A loop that never blocks"
     max_own_period_ms: float | None = None
     os_delay_ms: float | None = None
+    device_delay_ms: float | None = None
 
 
 @dataclass(frozen=True)
