@@ -31,6 +31,8 @@ class PassSpec:
     current: float = 120.0
     width: float = 5.0
     role: str = "perimeter"
+    normals: Sequence[Sequence[float]] | None = None   # one facet normal per point (perimeters)
+    axes: Sequence[Sequence[float]] | None = None      # one tool axis per point (5-axis)
 
 
 @dataclass(frozen=True)
@@ -42,6 +44,9 @@ class JobSpec:
     dwell_s: float | None = None
     name: str = "small"
     extra: dict[str, Any] = field(default_factory=dict)
+    frame: str = "substrate"          # "cad": the points are the CAD's (a repair job)
+    first_z: float | None = None      # layer 0's top (else one layer height); layer k's is k heights above
+    model: str = "tangent"
 
 
 def square(side: float, x0: float = 0.0, y0: float = 0.0, gap: float = 0.5) -> list[list[float]]:
@@ -59,7 +64,9 @@ def _pass(spec: PassSpec, z: float) -> Pass:
     one_speed = isinstance(spec.speed, (int, float))
     one_wfs = isinstance(spec.wfs, (int, float))
     p = Pass(spec.role, spec.width, spec.current, float(spec.speed) if one_speed else 1.0,
-             float(spec.wfs) if one_wfs else 1.0, pts)
+             float(spec.wfs) if one_wfs else 1.0, pts,
+             None if spec.normals is None else np.asarray(spec.normals, dtype=float),
+             None if spec.axes is None else np.asarray(spec.axes, dtype=float))
     return p.with_process(None if one_speed else np.asarray(spec.speed, dtype=float),
                           None if one_wfs else np.asarray(spec.wfs, dtype=float))
 
@@ -68,11 +75,12 @@ def planner_job(layers: Sequence[Sequence[PassSpec]], spec: JobSpec = JobSpec())
     """The planner's typed job of `layers` (layer k's top at (k + 1) × layer height)."""
     out = []
     for li, passes in enumerate(layers):
-        z = spec.layer_height * (li + 1)
+        z = (spec.layer_height if spec.first_z is None else spec.first_z) + spec.layer_height * li
         ip = Interpass(200.0, spec.dwell_s) if spec.dwell_s is not None else None
         out.append(Layer(li, z, spec.layer_height, tuple(_pass(p, z) for p in passes), ip))
     return Job(Source(f"{spec.name}.stl", "0" * 64, "mm"), {"name": spec.material},
-               BeadInfo(spec.width, spec.layer_height, spec.step_over, "tangent"), tuple(out), dict(spec.extra))
+               BeadInfo(spec.width, spec.layer_height, spec.step_over, spec.model), tuple(out), dict(spec.extra),
+               frame=spec.frame)
 
 
 def job_object(layers: Sequence[Sequence[PassSpec]], spec: JobSpec = JobSpec()) -> dict[str, Any]:

@@ -8,8 +8,9 @@ import trimesh
 from controller.motion.kinematics import (Trunnion, apply_to_job, apply_to_mesh, apply_transform, paper_matrices,
                                          paper_transform, rotation_about_pivot, rotation_matrix, unit)
 from controller.align.leveling import face_angle, leveling_angles
-from controller.job.read import job_from_dict
 from core.errors import InputError
+from controller.job.read import job_from_dict
+from tests.jobs import PassSpec, job_object
 
 TABLE1_PRE = np.array([[0, 0, 0], [0, 1, 0], [1, 1, 0], [1, 0, 0]], dtype=float)
 TABLE1_POST = np.array([[2.53553, 0.41421, -1.46447], [2.03553, 1.12132, -0.96447],
@@ -122,11 +123,7 @@ def test_face_angle_eq1_and_cad_rotation():
 
 
 def test_apply_to_job_moves_points_and_rotates_normals():
-    src = {"schema": "cell-job/1", "source": {"file": "t.stl", "sha256": "0" * 64, "units": "mm"}, "material": {},
-           "bead": {"width_mm": 5, "height_mm": 1, "step_over_mm": 3.7, "model": "tangent"},
-           "layers": [{"index": 0, "z_mm": 1.0, "height_mm": 1.0, "passes": [
-               {"role": "perimeter", "width_mm": 5, "current_a": 120, "speed_mm_min": 600, "wfs_m_min": 5.5,
-                "points": [[0, 0, 0], [1, 0, 0]], "normals": [[1, 0, 0], [0, 1, 0]]}]}]}
+    src = job_object([[PassSpec([[0, 0, 0], [1, 0, 0]], normals=[[1, 0, 0], [0, 1, 0]])]])
     job = job_from_dict(src)
     m = rotation_about_pivot([("z", 90)], (0, 0, 0))
     m[:3, 3] = [10, 0, 0]

@@ -16,6 +16,7 @@ from controller.cli.main import main
 from core.config import load_cell, load_sim
 from drivers.grbl import CncLink
 from sims.workpiece import rot, trans
+from tests.jobs import PassSpec, job_object
 
 pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
 
@@ -70,13 +71,8 @@ def test_cli_run_sim_json_and_report(capsys, tmp_path):
                                                          "tilt_b_deg": -0.5, "rotation_c_deg": 1.5,
                                                          "offset_mm": [0, 0, 0]}, "probe_noise_mm": 0.002}}))
     job = tmp_path / "job.json"
-    job.write_text(json.dumps({"schema": "cell-job/1", "source": {"file": "p.stl", "sha256": "0" * 64, "units": "mm"},
-                               "material": {}, "bead": {"width_mm": 5, "height_mm": 1, "step_over_mm": 3.7,
-                                                        "model": "tangent"},
-                               "layers": [{"index": 0, "z_mm": 1.0, "height_mm": 1.0, "passes": [
-                                   {"role": "infill", "width_mm": 5, "current_a": 120, "speed_mm_min": 600,
-                                    "wfs_m_min": 5.5, "points": [[10.0, -20.0, 1.0], [30.0, -20.0, 1.0]],
-                                    "normals": [[0, 0, 1], [0, 0, 1]]}]}]}))
+    job.write_text(json.dumps(job_object([[PassSpec([[10.0, -20.0, 1.0], [30.0, -20.0, 1.0]], role="infill",
+                                                    normals=[[0, 0, 1], [0, 0, 1]])]])))
     rc = main(["align", "run", "--sim", "--sim-config", str(cfg), "--json", "--report", str(tmp_path / "rep"),
                "--job", str(job)])
     out, err = capsys.readouterr()

@@ -13,9 +13,9 @@ from controller.motion.kinematics import apply_to_job
 from controller.cli.main import main
 from controller.motion.cnc5 import Five
 from controller.job.model import CellJob
-from controller.job.read import job_from_dict
 from controller.job.repair_volume import to_manifold, to_trimesh
 from core.errors import InputError
+from tests.jobs import JobSpec, PassSpec, small_job
 
 
 def block_with_pocket(tmp: Path) -> tuple[Path, Path]:
@@ -68,12 +68,8 @@ def test_plan_frame_cad_keeps_the_cad_coordinates(tmp_path, capsys):
 
 
 def _job(frame: str = "cad") -> CellJob:
-    return job_from_dict({
-        "schema": "cell-job/1", "frame": frame, "source": {"file": "t.stl", "sha256": "0" * 64, "units": "mm"},
-        "material": {}, "bead": {"width_mm": 4, "height_mm": 1, "step_over_mm": 3, "model": "tangent"},
-        "layers": [{"index": 0, "z_mm": 1, "height_mm": 1, "passes": [
-            {"role": "perimeter", "width_mm": 4, "current_a": 120, "speed_mm_min": 600, "wfs_m_min": 5.5,
-             "points": [[0, 0, 1], [10, 0, 1]], "normals": [[0, -1, 0], [0, -1, 0]]}]}]})
+    return small_job([[PassSpec([[0, 0, 1], [10, 0, 1]], width=4.0, normals=[[0, -1, 0], [0, -1, 0]])]],
+                     JobSpec(width=4.0, step_over=3.0, frame=frame))
 
 
 def test_a_job_holds_at_most_one_alignment():

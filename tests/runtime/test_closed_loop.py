@@ -16,7 +16,6 @@ from pydantic import ValidationError
 from bench.closed_loop import build, wall_job
 from controller.align.layer_probe import probe_spots
 from controller.job.model import CellJob
-from controller.job.read import job_from_dict
 from controller.journal.store import Journal
 from controller.runtime.work import WorkItem
 from controller.runtime.layer_control import LayerControl
@@ -35,6 +34,7 @@ from sims.process_world import ProcessPhysics
 from sims.thread import SimThread
 from sims.world import World
 from planner.job import Layer, Pass
+from tests.jobs import JobSpec, PassSpec, small_job
 
 pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
 
@@ -43,14 +43,10 @@ MAT = load_material("inconel718-1.0mm")
 
 def _job(n: int = 4, h: float = 0.77) -> CellJob:
     """A single-bead wall of `n` layers, alternating direction."""
-    layers = [{"index": i, "z_mm": h * (i + 1), "height_mm": h, "passes": [
-        {"role": "perimeter", "width_mm": 7.0,
-         "points": [[0.0, 0.0, h * (i + 1)], [30.0, 0.0, h * (i + 1)]] if i % 2 == 0 else
-         [[30.0, 0.0, h * (i + 1)], [0.0, 0.0, h * (i + 1)]],
-         "speed_mm_min": 1500.0, "wfs_m_min": 6.9, "current_a": 151.0}]} for i in range(n)]
-    return job_from_dict({"schema": "cell-job/1", "source": {"file": "wall.stl", "sha256": "0" * 64, "units": "mm"},
-                          "material": {"name": MAT.name}, "layers": layers,
-                          "bead": {"width_mm": 7.0, "height_mm": h, "step_over_mm": 5.0, "model": "tangent"}})
+    ends = [[0.0, 0.0], [30.0, 0.0]]
+    layers = [[PassSpec(ends if i % 2 == 0 else ends[::-1], speed=1500.0, wfs=6.9, current=151.0, width=7.0)]
+              for i in range(n)]
+    return small_job(layers, JobSpec(material=MAT.name, layer_height=h, width=7.0, step_over=5.0, name="wall"))
 
 
 def _layers(n: int = 4, h: float = 0.77) -> list[Layer]:

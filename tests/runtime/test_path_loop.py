@@ -20,19 +20,17 @@ from controller.runtime.layer_control import LayerControl
 from core.config import ProcessControl, load_material
 from core.melting import current_at, relation_for
 from controller.job.model import CellJob
-from controller.job.read import job_from_dict
+from tests.jobs import JobSpec, PassSpec, small_job
 
 MAT = load_material("inconel718-1.0mm")
 
 
 def _job(n: int, h: float = 0.77) -> CellJob:
     """A single-bead wall 30 mm long, `n` layers, alternating direction."""
-    layers = [{"index": i, "z_mm": h * (i + 1), "height_mm": h, "passes": [
-        {"role": "perimeter", "width_mm": 7.0, "speed_mm_min": 1500.0, "wfs_m_min": 6.9, "current_a": 151.0,
-         "points": [[0.0, 0.0, h * (i + 1)], [30.0, 0.0, h * (i + 1)]][::1 if i % 2 == 0 else -1]}]} for i in range(n)]
-    return job_from_dict({"schema": "cell-job/1", "source": {"file": "wall.stl", "sha256": "0" * 64, "units": "mm"},
-                          "material": {"name": MAT.name}, "layers": layers,
-                          "bead": {"width_mm": 7.0, "height_mm": h, "step_over_mm": 5.0, "model": "tangent"}})
+    ends = [[0.0, 0.0], [30.0, 0.0]]
+    layers = [[PassSpec(ends if i % 2 == 0 else ends[::-1], speed=1500.0, wfs=6.9, current=151.0, width=7.0)]
+              for i in range(n)]
+    return small_job(layers, JobSpec(material=MAT.name, layer_height=h, width=7.0, step_over=5.0, name="wall"))
 
 
 async def _lay(lc: LayerControl, la: int, top_at: Callable[[float], float]) -> str | None:
