@@ -10,7 +10,7 @@ from controller.api import CellController
 from controller.defaults import SIM_REPLY_TIMEOUT_MS
 from controller.harness.cell import open_cell
 from controller.harness.sim import with_urls
-from core.config import load_cell, load_sim
+from core.config import CellConfig, load_cell, load_sim
 from tests.jobs import JobSpec, PassSpec, job_object, square
 
 
@@ -27,6 +27,20 @@ def shorten(job: dict, layers: range) -> dict:
         for p in job["layers"][li]["passes"]:
             x, y, z = p["points"][0]
             p["points"] = [[x, y, z], [x + 10.0, y, z]]
+    return job
+
+
+def cnc_cell(time_scale: float) -> CellConfig:
+    """The shipped cell on its CNC (platform cnc), wired to simulators at `time_scale`."""
+    cfg = with_urls(load_cell(), {}, time_scale=time_scale)
+    return cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"platform": "cnc"})})
+
+
+def on_the_cnc_block(job: dict) -> dict:
+    """The job lifted onto the CNC simulator's substrate block (20 mm tall)."""
+    for la in job["layers"]:
+        for p in la["passes"]:
+            p["points"] = [[x, y, z + 20.0] for x, y, z in p["points"]]
     return job
 
 

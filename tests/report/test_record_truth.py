@@ -17,13 +17,13 @@ from pathlib import Path
 
 import pytest
 
-from controller.harness.cell import open_cell, with_urls
+from controller.harness.cell import open_cell
 from controller.job.read import job_from_dict
 from controller.report.record import CSV_COLUMNS
 from controller.runtime.bead_measure import Pace
 from controller.tui.session import CellSession
-from core.config import load_cell, load_sim
-from tests.cells import small_job
+from core.config import load_sim
+from tests.cells import cnc_cell, on_the_cnc_block, small_job
 from controller.defaults import SIM_REPLY_TIMEOUT_MS
 
 pytestmark = [pytest.mark.timeout(240), pytest.mark.realtime]
@@ -185,17 +185,8 @@ async def test_a_tui_build_leaves_its_record_complete_and_estopped(tmp_path: Pat
         session.close()
 
 
-def on_the_cnc_block(job: dict) -> dict:
-    """The job lifted onto the CNC simulator's substrate block (20 mm tall)."""
-    for la in job["layers"]:
-        for p in la["passes"]:
-            p["points"] = [[x, y, z + 20.0] for x, y, z in p["points"]]
-    return job
-
-
 async def _cnc_build(tmp: Path, job: dict, scale: float) -> Path:
-    cfg = with_urls(load_cell(), {}, time_scale=scale)
-    cfg = cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"platform": "cnc"})})
+    cfg = cnc_cell(scale)
     async with open_cell(cfg, sim=load_sim(), log_dir=tmp / "log", runs_dir=tmp / "runs",
                          reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:
         run_dir = ctl.open_job(job_from_dict(job))

@@ -9,19 +9,15 @@ from bench._coverage import coverage, read_segments
 from controller.harness.cell import open_cell, with_urls
 from controller.job.read import job_from_dict
 from core.config import load_cell, load_sim
-from tests.cells import planned, small_job
+from tests.cells import cnc_cell, on_the_cnc_block, planned, small_job
 from controller.defaults import SIM_REPLY_TIMEOUT_MS
 
 pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
 
 
 async def test_cnc_build_deposits_every_planned_segment_once(tmp_path: Path) -> None:
-    cfg = with_urls(load_cell(), {}, time_scale=20)
-    cfg = cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"platform": "cnc"})})
-    job = small_job(n_layers=2)
-    for la in job["layers"]:  # above the simulated substrate block (20 mm tall)
-        for p in la["passes"]:
-            p["points"] = [[x, y, z + 20.0] for x, y, z in p["points"]]
+    cfg = cnc_cell(20)
+    job = on_the_cnc_block(small_job(n_layers=2))
     async with open_cell(cfg, sim=load_sim(), log_dir=tmp_path / "log", runs_dir=tmp_path / "runs",
                          reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:
         ctl.open_job(job_from_dict(job))

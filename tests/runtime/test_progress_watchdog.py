@@ -13,12 +13,12 @@ from pathlib import Path
 import pytest
 
 from bench._coverage import coverage, read_segments
-from controller.harness.cell import open_cell, with_urls
+from controller.harness.cell import open_cell
 from controller.harness.sim import SimHarness
 from controller.job.read import job_from_dict
 from controller.runtime.progress import longest_move_s, progress_timeout_s, wall_bound_s
-from core.config import load_cell, load_sim
-from tests.cells import Cell, planned, small_job
+from core.config import load_sim
+from tests.cells import Cell, cnc_cell, on_the_cnc_block, planned, small_job
 from controller.defaults import SIM_REPLY_TIMEOUT_MS
 
 pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
@@ -80,12 +80,8 @@ async def test_a_robot_that_stops_executing_trips_within_the_bound_arc_first(tmp
 
 
 async def test_a_cnc_that_reports_run_without_moving_trips_within_the_bound_arc_first(tmp_path: Path) -> None:
-    cfg = with_urls(load_cell(), {}, time_scale=SCALE)
-    cfg = cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"platform": "cnc"})})
-    job = small_job(n_layers=1)
-    for la in job["layers"]:  # above the simulated substrate block (20 mm tall)
-        for p in la["passes"]:
-            p["points"] = [[x, y, z + 20.0] for x, y, z in p["points"]]
+    cfg = cnc_cell(SCALE)
+    job = on_the_cnc_block(small_job(n_layers=1))
     bound_process = progress_timeout_s(job_from_dict(job), 2.0, None)
     async with open_cell(cfg, sim=load_sim(), log_dir=tmp_path / "log", faults="freeze@move=30",
                          runs_dir=tmp_path / "runs", reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:

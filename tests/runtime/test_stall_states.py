@@ -18,12 +18,12 @@ import pytest
 from controller.align.routine import cad_mesh, plan_for_mesh
 from controller.api import align_at
 from controller.harness.align_sim import _with_sim
-from controller.harness.cell import open_cell, with_urls
+from controller.harness.cell import open_cell
 from controller.harness.sim import SimHarness
 from controller.job.read import job_from_dict
 from controller.motion.watch import StallFault
 from core.config import load_cell, load_sim
-from tests.cells import Cell, small_job
+from tests.cells import Cell, cnc_cell, on_the_cnc_block, small_job
 from controller.defaults import SIM_REPLY_TIMEOUT_MS
 
 pytestmark = pytest.mark.realtime  # a cell on the wall clock (tests/conftest.py)
@@ -62,12 +62,8 @@ async def test_a_robot_that_stops_in_travel_is_a_fault_naming_travel(tmp_path: P
 
 
 async def test_a_cnc_that_stands_in_run_on_its_travel_is_a_fault_with_the_spindle_off(tmp_path: Path) -> None:
-    cfg = with_urls(load_cell(), {}, time_scale=SCALE)
-    cfg = cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"platform": "cnc"})})
-    job = small_job(n_layers=1)
-    for la in job["layers"]:  # above the simulated substrate block (20 mm tall)
-        for p in la["passes"]:
-            p["points"] = [[x, y, z + 20.0] for x, y, z in p["points"]]
+    cfg = cnc_cell(SCALE)
+    job = on_the_cnc_block(small_job(n_layers=1))
     async with open_cell(cfg, sim=load_sim(), log_dir=tmp_path / "log", faults="freeze@travel=3",
                          runs_dir=tmp_path / "runs", reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:
         harness = ctl.simulators
