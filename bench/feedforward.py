@@ -3,6 +3,7 @@ and the truth: the job poured, bead by bead, into the simulated world's own heig
 
     python -m bench.feedforward [--part config/parts/square-hole.stl --width 7 --layers N]
     python -m bench.feedforward --wall 100 --layers 40        # a 40-layer single-bead wall
+    python -m bench.feedforward --pour ...                     # the poured feed-forward (opt-in)
 
 For the demo part (and a single-bead wall) it plans the job twice, without and with the
 feed-forward, reports the plan time and the summary's predicted spread per layer, then lays every
@@ -40,6 +41,8 @@ def pour(job: Job, material: Material, step_mm: float = STEP_MM) -> list[dict[st
     """Lay the job into the simulated world (nominal); per layer the truth figures."""
     phys = ProcessPhysics(material, load_sim().process)
     hm = phys.height_map("robot")
+    r = material.ribeiro
+    slope = (r.i_max_a - r.i_min_a) / (r.wfs_max_m_min - r.wfs_min_m_min)
     out = []
     for la in job.layers:
         ctwd, bad, n = [], 0, 0
@@ -54,7 +57,7 @@ def pour(job: Job, material: Material, step_mm: float = STEP_MM) -> list[dict[st
                 c = phys.ctwd_mm() or phys.cfg.stick_out_mm
                 i = phys.current_a(w[k], c)
                 ctwd.append(c)
-                i_set = p.current_a * w[k] / p.wfs_m_min     # the synergic set-point at this wire feed
+                i_set = p.current_a + slope * (w[k] - p.wfs_m_min)   # the synergic line's set-point at this feed
                 bad += abs(i / i_set - 1.0) > 0.10
                 n += 1
                 phys.lay("robot", a, b, math.dist(a, b) / v[k] * 60.0, i, w[k])
@@ -86,16 +89,20 @@ def wall_mesh(length: float, width: float, layers: int, h: float = 0.77) -> Any:
     return m
 
 
-def figures(part: Path, width: float, layers: int | None, material: Material, wall: float = 0.0) -> dict[str, Any]:
-    res: dict[str, Any] = {"part": f"wall {wall:g} mm x {layers} layers" if wall else part.name, "width_mm": width}
+def figures(part: Path, width: float, layers: int | None, material: Material, wall: float = 0.0,
+            pour_ff: bool = False) -> dict[str, Any]:
+    res: dict[str, Any] = {"part": f"wall {wall:g} mm x {layers} layers" if wall else part.name, "width_mm": width,
+                           "model": "pour" if pour_ff else "splat"}
     for ff in (False, True):
         t0 = time.perf_counter()
         c0 = time.process_time()
         if wall:
             job = plan_part(wall_mesh(wall, width, layers or 40),
-                            PlanOptions(width_mm=width, perimeters=1, allow_underfill=True, feed_forward=ff), material)
+                            PlanOptions(width_mm=width, perimeters=1, allow_underfill=True, feed_forward=ff,
+                                        feed_forward_pour=pour_ff), material)
         else:
-            job = plan_part(str(part), PlanOptions(width_mm=width, perimeters="all", feed_forward=ff), material)
+            job = plan_part(str(part), PlanOptions(width_mm=width, perimeters="all", feed_forward=ff,
+                                                   feed_forward_pour=pour_ff), material)
         plan_s = time.perf_counter() - t0
         plan_cpu_s = time.process_time() - c0
         if layers:
@@ -125,8 +132,9 @@ def main() -> None:
     ap.add_argument("--layers", type=int, default=None)
     ap.add_argument("--material", default="inconel718-1.0mm")
     ap.add_argument("--wall", type=float, default=0.0, help="a single-bead wall this long (mm; --layers, default 40)")
+    ap.add_argument("--pour", action="store_true", help="the poured feed-forward (planner/level_pour.py)")
     a = ap.parse_args()
-    print(json.dumps(figures(a.part, a.width, a.layers, load_material(a.material), a.wall), indent=1))
+    print(json.dumps(figures(a.part, a.width, a.layers, load_material(a.material), a.wall, a.pour), indent=1))
 
 
 if __name__ == "__main__":

@@ -30,6 +30,7 @@ class PlanOptions:
     cell_limits: CellLimits = CellLimits()  # speeds and source range of the cell (cell.yaml limits)
     machining_allowance_mm: float | None = None  # near-net stock per face; None: the material's, else 0
     feed_forward: bool = True  # per-segment speeds that level each layer's predicted top (planner/feedforward.py)
+    feed_forward_pour: bool = False  # ...predicted as the world pours, on the stack (planner/level_pour.py; opt-in)
 
     def __post_init__(self) -> None:
         if isinstance(self.perimeters, str):  # "all" or "3", as on the command line

@@ -15,6 +15,7 @@ from planner.balance import laid_area_mm2
 from planner.bead import area_factor, step_over
 from planner.ding import close_share
 from planner.feedforward import Envelope, LayerLevel, level_layer, level_summary
+from planner import level_pour
 from planner.job import BeadInfo, Interpass, Job, Layer, Source
 from planner.ahead import Ahead, Later
 from planner.layer import LayerCtx, LayerPlan, placed, reseamed
@@ -126,6 +127,8 @@ class _Run:
         self.envelope = Envelope(lim.min_speed_mm_min, lim.max_speed_mm_min,
                                  *((0.05, lim.source_wfs_max_m_min) if options.allow_outside else (r.wfs_min_m_min, r.wfs_max_m_min)))
         self.levels: list[LayerLevel] = []   # the feed-forward's predicted top spread per layer
+        self.law = level_pour.BeadLaw(r.k1, r.k2, r.k3, r.i_min_a, r.i_max_a, r.wfs_min_m_min, r.wfs_max_m_min)
+        self.stack: level_pour.Stack | None = None   # the poured feed-forward's predicted stack
 
     def start(self, sl: LayerSlice, top: bool, ahead: Ahead) -> _Started:
         """The layer's beads ordered from where the torch is (the memo's when a layer below had the
@@ -171,7 +174,13 @@ class _Run:
         # each bead's metal kept, its spread along the path levelled; not on a 5-axis plan (its beads
         # lean: the tool axes come after, from the passes as the walls give them, planner/five_axis.py)
         if self.options.feed_forward and self.options.five_axis is None:
-            levelled, lvl = level_layer(tuple(passes), self.material.wire_diameter_mm, self.envelope)
+            if self.options.feed_forward_pour:
+                if self.stack is None:
+                    self.stack = level_pour.Stack(level_pour.CELL_MM, z - h)
+                levelled, lvl = level_pour.level_layer(tuple(passes), self.material.wire_diameter_mm, self.envelope,
+                                                       self.law, self.stack)
+            else:
+                levelled, lvl = level_layer(tuple(passes), self.material.wire_diameter_mm, self.envelope)
             passes = list(levelled)
             self.levels.append(lvl)
         self.n_passes += len(passes)

@@ -1,0 +1,91 @@
+"""The poured feed-forward (docs/along-the-path.md "The poured prediction"): each layer laid on the
+predicted stack as the world pours it, its segments' speeds and wire feeds set so its top is level."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+
+from core.config import load_material
+from planner import level_pour
+from planner.feedforward import Envelope
+from planner.job import Pass, job_to_json
+from planner.options import PlanOptions
+from planner.plan import plan_part
+from planner.pour import Stack, footprint
+
+MAT = load_material("inconel718-1.0mm")
+R = MAT.ribeiro
+LAW = level_pour.BeadLaw(R.k1, R.k2, R.k3, R.i_min_a, R.i_max_a, R.wfs_min_m_min, R.wfs_max_m_min)
+ENV = Envelope(speed_min=30.0, speed_max=6000.0, wfs_min=R.wfs_min_m_min, wfs_max=R.wfs_max_m_min)
+
+
+def _bead(points: np.ndarray, z: float, speed: float = 940.0, wfs: float = 6.94) -> Pass:
+    return Pass("perimeter", 7.0, 151.2, speed, wfs, np.column_stack([points, np.full(len(points), z)]))
+
+
+def _wall_layers(n: int) -> list[tuple[Pass, ...]]:
+    """A 60 mm single-bead wall, back and forth."""
+    line = np.column_stack([np.linspace(10.0, 70.0, 2), np.full(2, 13.5)])
+    return [(_bead(line if i % 2 == 0 else line[::-1], 0.77 * (i + 1)),) for i in range(n)]
+
+
+def test_a_single_bead_wall_is_level_layer_after_layer_and_its_ends_run_slower_at_a_lower_wire_feed() -> None:
+    stack = Stack(0.5, 0.0)
+    levels, out = [], []
+    for layer in _wall_layers(6):
+        passes, lvl = level_pour.level_layer(layer, MAT.wire_diameter_mm, ENV, LAW, stack)
+        levels.append(lvl)
+        out.append(passes[0])
+    assert all(lv.passes_levelled == 1 for lv in levels)
+    # as planned, the round ends run low, more every layer; levelled, the stack stays level
+    assert levels[-1].spread_before_mm > 0.2
+    assert max(lv.spread_after_mm for lv in levels) < 0.08
+    p = out[-1]
+    v, f = p.speeds(), p.wire_feeds()
+    mid = len(v) // 2
+    assert v[0] < 0.8 * v[mid] and v[-1] < 0.8 * v[mid]
+    assert f[0] < f[mid] and f[-1] < f[mid]
+    # no segment laid wider than planned (a wider bead on a wall pours down its sides)
+    planned = LAW.width(np.array([6.94]), np.array([940.0]))[0]
+    assert np.all(LAW.width(f, v) <= planned * 1.0001)
+    assert ENV.speed_min <= v.min() and f.min() >= ENV.wfs_min - 1e-9
+
+
+def test_a_pour_lays_its_metal_inside_its_parabola() -> None:
+    stack = Stack(0.5, 0.0)
+    pts = np.array([[10.0, 10.0], [40.0, 10.0], [40.0, 30.0]])
+    width = np.full(2, 7.0)
+    fp = footprint(stack, pts, width, 7.0)
+    area = np.array([4.0, 4.0])
+    before = stack.top.copy()
+    fp.commit(stack, fp.pour(stack, area, width))
+    laid = float(np.sum(stack.top - before)) * 0.25
+    # on a flat base each chunk fills its parabola (on 0.5 mm cells it holds ~3 % less: that spills)
+    assert 0.96 < laid / float(np.sum(area * fp.path_of(2))) <= 1.0
+    assert float(stack.top.max()) <= 1.5 * 4.0 / 7.0 + 1e-9
+
+
+def test_a_plan_with_the_poured_feed_forward_is_the_same_job_twice_and_reports_its_spread() -> None:
+    wall = trimesh.creation.box(extents=(60.0, 7.0, 3.1))
+    opts = PlanOptions(width_mm=7.0, perimeters=1, allow_underfill=True, feed_forward_pour=True)
+    a = plan_part(wall, opts, MAT)
+    b = plan_part(wall, opts, MAT)
+    assert job_to_json(a) == job_to_json(b)
+    ff = a.summary["feed_forward"]
+    assert len(ff["spread_after_mm"]) == len(a.layers) == 4
+    assert ff["worst_after_mm"] < 0.1 < ff["worst_before_mm"]
+    assert b'"schema":"cell-job/2"' in job_to_json(a)
+
+
+def test_a_turn_gets_short_segments_of_its_own() -> None:
+    sq = _bead(np.array([[0.0, 0.0], [20.0, 0.0], [20.0, 20.0]]), 0.77)
+    cut = level_pour._at_turns(level_pour.subdivide(sq, 3.5), 1.0)
+    seg = np.diff(cut.points[:, :2], axis=0)
+    lens = np.hypot(seg[:, 0], seg[:, 1])
+    corner = int(np.argmin(np.hypot(cut.points[:, 0] - 20.0, cut.points[:, 1])))
+    assert lens[corner - 1] == pytest.approx(1.0) and lens[corner] == pytest.approx(1.0)
+    assert float(lens.sum()) == pytest.approx(40.0)
+    assert math.isclose(float(cut.points[-1, 1]), 20.0)
