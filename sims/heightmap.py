@@ -19,6 +19,11 @@ the metal first fills the valley (the tangent-overlap idea), so overlapped beads
 layer whose thickness is the metal over the step-over, and a stacked wall rises area/w a layer.
 Cells touched by the bead being laid keep their surface from before it (`surface_before`), so
 the torch sees the ground it rests on, not its own bead.
+
+Over a free edge (a cell with nothing under it and nothing laid yet) the pool hangs on the side
+face, held by surface tension, down to its own height H below the bead's base: the metal fills
+from there, so a first bead laid half over an edge slumps (the hanging half takes its share
+first) and the beads laid on it stand as on any surface (docs/process-physics.md "Free edges").
 """
 from __future__ import annotations
 
@@ -36,6 +41,7 @@ Scale = Callable[[float, float, float], float]    # (x, y, mm along the segment)
 CHUNK_MM = 1.0
 _GROW = 64          # cells of margin added on every side when the grid grows
 TAIL_MM = 40.0      # the bead's last centre cells kept for its end (sag)
+_OFF_PART = -1e8    # a substrate top below this: nothing under the cell (off the part's edge)
 
 
 def flat_substrate(xs: FloatArray, ys: FloatArray) -> FloatArray:
@@ -154,7 +160,7 @@ class HeightMap:
             xs = (ii[todo] + 0.5) * self.cell
             ys = (jj[todo] + 0.5) * self.cell
             got = np.asarray(self.substrate(xs.astype(float), ys.astype(float)), dtype=float)
-            got = np.where(np.isfinite(got), got, -1e9)  # nothing under it: metal falls off the part
+            got = np.where(np.isfinite(got), got, -1e9)  # nothing under it: off the part (_pour: metal hangs)
             self._base[r[todo], c[todo]] = got
             b = self._base[r, c]
         return b
@@ -323,7 +329,7 @@ class HeightMap:
             return None
         _, i, j = self._trail[0]
         r, c = j - self._j0, i - self._i0
-        if self._stamp[r, c] != self.bead:
+        if self._stamp[r, c] != self.bead or self._before[r, c] < _OFF_PART:   # none over a free edge
             return None
         return float(self._surface_idx(np.array([i]), np.array([j]))[0] - self._before[r, c])
 
@@ -380,15 +386,20 @@ class HeightMap:
             base = float(self._before[cr, cc])
         else:
             base = float(self._surface_idx(np.array([centre[0]]), np.array([centre[1]]))[0])
+        if base < _OFF_PART and np.any(old >= _OFF_PART):   # its centre over an edge: it rests on the edge's top
+            base = float(np.max(old[old >= _OFF_PART]))
         env = base + peak * (1.0 - (2.0 * s / width_mm) ** 2)
-        level = pour_level(old, env, need)
-        new = np.maximum(old, np.minimum(level, env))
+        # over a free edge (nothing under the cell, nothing laid there yet) the pool hangs on the
+        # side face down to its own height below the bead's base: held there, not lost down the side
+        floor = np.where(old < _OFF_PART, base - peak, old)
+        level = pour_level(floor, env, need)
+        new = np.maximum(floor, np.minimum(level, env))
         fresh = self._stamp[r, c] != self.bead
         self._before[r[fresh], c[fresh]] = old[fresh]
         self._stamp[r, c] = self.bead
-        raised = new > old
+        raised = new > floor
         self.top[r[raised], c[raised]] = new[raised]
-        return max(need - float(np.sum(new - old)), 0.0)
+        return max(need - float(np.sum(new - floor)), 0.0)
 
     # -- machining -----------------------------------------------------------------------------
     @staticmethod

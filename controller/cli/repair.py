@@ -42,6 +42,9 @@ def register(sub: Subcommands) -> None:
     pl.add_argument("--width", type=positive_arg, required=True, metavar="W", help="bead width, mm")
     pl.add_argument("--allowance", type=float, default=0.0, metavar="MM",
                     help="finishing allowance added on top of the repaired surfaces, mm (default 0)")
+    pl.add_argument("--overhang", type=float, default=None, metavar="MM",
+                    help="carry the repair this far beyond the part's free edges, to machine back "
+                         "(default: half the bead width; 0: stop at the outline; docs/repair.md)")
     pl.add_argument("--material", metavar="M", help="material name or YAML file (default: cell.yaml's)")
     pl.add_argument("--layer-height", type=positive_arg, metavar="H", help="layer height, mm (default: the bead height)")
     pl.add_argument("--min-coverage", type=fraction_arg, default=0.97, metavar="F",
@@ -91,7 +94,8 @@ def run_plan(args: argparse.Namespace) -> int:
     from planner.plan import PlanOptions, plan_part
 
     cad, stock = _load(args.cad, "CAD"), _load(args.stock, "--stock")
-    rv = repair_volume(cad, stock, args.allowance, cad_name=args.cad, stock_name=args.stock)
+    overhang = args.width / 2 if args.overhang is None else args.overhang
+    rv = repair_volume(cad, stock, args.allowance, cad_name=args.cad, stock_name=args.stock, overhang_mm=overhang)
     opt = PlanOptions(width_mm=args.width, frame="cad", layer_height_mm=args.layer_height,
                       min_coverage=args.min_coverage, allow_overhang=args.allow_overhang,
                       allow_underfill=args.allow_underfill)
@@ -107,7 +111,8 @@ def run_plan(args: argparse.Namespace) -> int:
     d["source"]["file"] = Path(args.cad).name
     # stored resolved: `cell repair run` finds them from any directory (load_cad also tries the job's)
     d["repair"] = {"cad": str(Path(args.cad).resolve()), "stock": str(Path(args.stock).resolve()),
-                   "allowance_mm": args.allowance,
+                   "allowance_mm": args.allowance, "overhang_mm": overhang,
+                   "overhang_mm3": round(rv.overhang_mm3, 3),
                    "volume_mm3": round(rv.volume_mm3, 3), "bounds_mm": rv.bounds.round(4).tolist()}
     out = Path(args.out) if args.out else Path(Path(args.cad).stem + ".repair.job.json")
     try:
@@ -120,7 +125,7 @@ def run_plan(args: argparse.Namespace) -> int:
                "arc_starts": int(js.get("arc_starts", sum(len(L.passes) for L in job.layers))),
                "coverage": js.get("coverage"), "frame": "cad", "job": str(out),
                "repair_volume_mm3": round(rv.volume_mm3, 3), "bounds_mm": rv.bounds.round(3).tolist(),
-               "warnings": list(js.get("warnings", []))}
+               "overhang_mm3": round(rv.overhang_mm3, 3), "warnings": list(js.get("warnings", []))}
     if args.json:
         emit_json(summary)
     else:

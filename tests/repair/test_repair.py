@@ -34,7 +34,7 @@ def test_repair_plan_fills_only_the_pocket_in_the_cad_frame(tmp_path, capsys):
     cad, stock = block_with_pocket(tmp_path)
     out = tmp_path / "r.json"
     rc = main(["repair", "plan", str(cad), "--stock", str(stock), "--width", "4", "--allowance", "0.5",
-               "--out", str(out), "--json"])
+               "--overhang", "0", "--out", str(out), "--json"])
     summary = json.loads(capsys.readouterr().out)
     assert rc == 0 and summary["frame"] == "cad"
     assert abs(summary["repair_volume_mm3"] - 20 * 15 * 6.5) < 1.0  # the pocket plus the allowance above it
@@ -43,6 +43,26 @@ def test_repair_plan_fills_only_the_pocket_in_the_cad_frame(tmp_path, capsys):
     assert job["frame"] == "cad" and job["repair"]["allowance_mm"] == 0.5
     assert pts[:, 0].min() >= 10 and pts[:, 0].max() <= 30 and pts[:, 1].min() >= 5 and pts[:, 1].max() <= 20
     assert -6.0 < pts[:, 2].min() < -5.0 and 0.0 < pts[:, 2].max() <= 0.5 + 0.7  # from the pocket floor up
+
+
+def test_a_repair_reaching_free_edges_is_planned_half_a_bead_beyond_them(tmp_path, capsys):
+    """The corner pocket reaches the block's +X and +Y side faces: the repair hangs 2 mm (half the
+    4 mm bead) beyond both and their corner, with the pocket's cross-section; never over the intact
+    top, never beyond the pocket's own ends along the edge (docs/repair.md "Free edges")."""
+    cad, stock = block_with_pocket(tmp_path)
+    out = tmp_path / "r.json"
+    rc = main(["repair", "plan", str(cad), "--stock", str(stock), "--width", "4", "--allowance", "0.5",
+               "--out", str(out), "--json"])
+    summary = json.loads(capsys.readouterr().out)
+    hang = 2 * (15 * 6.5) + 2 * (20 * 6.5) + 2 * 2 * 6.5       # beyond +X, beyond +Y, their corner
+    assert rc == 0 and abs(summary["overhang_mm3"] - hang) < 1.0
+    assert abs(summary["repair_volume_mm3"] - (20 * 15 * 6.5 + hang)) < 1.0
+    assert summary["bounds_mm"][0][:2] == [10.0, 5.0] and summary["bounds_mm"][1][:2] == [32.0, 22.0]
+    job = json.loads(out.read_text())
+    assert job["repair"]["overhang_mm"] == 2.0
+    pts = np.vstack([p["points"] for L in job["layers"] for p in L["passes"]])
+    assert pts[:, 0].max() > 29.5 and pts[:, 1].max() > 19.5      # the outer beads ride on the edges
+    assert pts[:, 0].min() >= 10 and pts[:, 1].min() >= 5
 
 
 def test_repair_plan_says_when_there_is_nothing_to_repair_or_the_stock_sticks_out(tmp_path, capsys):
