@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any, Awaitable, Callable
 import numpy as np
 
 from controller.align.intact import MIN_SIDE_MM, intact_spots
-from controller.align.surface_probe import probe_cad_points, repaired_spots, stock_spots
+from controller.align.surface_probe import probe_cad_points, refine_spots, repaired_spots, stock_spots
 from controller.motion.mill import change_tool, program_lines, run_program
 from controller.align.routine import AlignResult, ProbePlan, alignment_record, plan_for_mesh
 from controller.api import CellController
@@ -259,21 +259,47 @@ def machined_verify(pts: np.ndarray, err: np.ndarray, tolerance_mm: float) -> di
             "defects": defects, "at": np.round(pts, 3).tolist(), "error_mm": np.round(err, 4).tolist()}
 
 
-async def probe_stock(link: CncLinkPort, cell: CellConfig, job: CellJob, cad_tri: np.ndarray, spots: np.ndarray,
-                      transform: np.ndarray, say: Callable[[str], None],
+REFINE_MM = (1.0, 0.5)   # the stock probe's spacing around low touches, then around the short among those
+REFINE_BAND_MM = 0.1     # a touch this close to short is refined around at 1 mm as a short one is
+REFINE_MAX = 160         # touches a refinement adds at most (nearest the low touches first)
+
+
+async def _touch_refined(link: CncLinkPort, cell: CellConfig, cad_tri: np.ndarray, stock_tri: np.ndarray, rb: np.ndarray,
+                         spots: np.ndarray, top: float, transform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Touch the spots, then around every touch standing less than `min_stock_mm` + `REFINE_BAND_MM`
+    over CAD at 1 mm, then around the short ones of those at 0.5 mm (`refine_spots`, at most
+    `REFINE_MAX` each); all touches (CAD frame) and their heights over CAD."""
+    m = cell.machining
+    pts = await probe_cad_points(link, cell, spots, top, transform, "stock")
+    margin = stock_margin(cad_tri, pts)
+    fresh = np.ones(len(pts), dtype=bool)
+    for k, spacing in enumerate(REFINE_MM):
+        low = fresh & ~(margin >= m.min_stock_mm + (REFINE_BAND_MM if k == 0 else 0.0))
+        more = refine_spots(cad_tri, stock_tri, rb, pts[:, :2], low, spacing)[:REFINE_MAX]
+        if not len(more):
+            break
+        got = await probe_cad_points(link, cell, more, top, transform, "stock")
+        pts, margin = np.vstack([pts, got]), np.concatenate([margin, stock_margin(cad_tri, got)])
+        fresh = np.r_[np.zeros(len(fresh), dtype=bool), np.ones(len(got), dtype=bool)]
+    return pts, margin
+
+
+async def probe_stock(link: CncLinkPort, cell: CellConfig, job: CellJob, cad_tri: np.ndarray, stock_tri: np.ndarray,
+                      spots: np.ndarray, transform: np.ndarray, say: Callable[[str], None],
                       deposit_again: Callable[[CellJob], Awaitable[float]] | None) -> tuple[np.ndarray, np.ndarray, list[dict[str, Any]]]:
-    """The stock probe, and where it finds the deposit short, deposit again there and probe again,
-    at most `machining.redeposit_rounds` times (docs/machining.md "Deposit again"); returns the
-    touches (CAD frame), their heights over CAD and the rounds deposited. Still short: CellError
-    naming the spots."""
+    """The stock probe (refined around low touches, `_touch_refined`), and where it finds the
+    deposit short, deposit again there and probe again, at most `machining.redeposit_rounds` times
+    (docs/machining.md "Deposit again"); returns the touches (CAD frame), their heights over CAD and
+    the rounds deposited. Still short: CellError naming the spots."""
     m = cell.machining
     top = float(max(L.z_mm for L in job.layers)) + 1.0
     rounds: list[dict[str, Any]] = []
     target = max(float(job.repair.allowance_mm or 0.0) if job.repair is not None else 0.0, m.min_stock_mm)
+    assert job.repair is not None and job.repair.bounds_mm is not None
+    rb = np.asarray(job.repair.bounds_mm, dtype=float)
     while True:
         say("stock")
-        pts = await probe_cad_points(link, cell, spots, top, transform, "stock")
-        margin = stock_margin(cad_tri, pts)
+        pts, margin = await _touch_refined(link, cell, cad_tri, stock_tri, rb, spots, top, transform)
         short = ~(margin >= m.min_stock_mm)
         if not short.any():
             return pts, margin, rounds
@@ -302,10 +328,11 @@ async def finish_repair(link: CncLinkPort, cell: CellConfig, job: CellJob, cad: 
     rb = np.asarray(job.repair.bounds_mm, dtype=float)
     spots, kinds = stock_spots(cad_tri, stock_tri, rb)     # dense where a deposit falls short
     vspots = repaired_spots(cad_tri, stock_tri, rb, m.probe_points)
-    pts, margin, rounds = await probe_stock(link, cell, job, cad_tri, spots, transform, say, deposit_again)
+    pts, margin, rounds = await probe_stock(link, cell, job, cad_tri, stock_tri, spots, transform, say, deposit_again)
     top = float(np.nanmax(pts[:, 2])) + 1.0
     stock_rec = {"min_mm": _rounded(np.nanmin(margin)), "max_mm": _rounded(np.nanmax(margin)), "points": len(pts),
-                 "kinds": {k: kinds.count(k) for k in ("corner", "ring", "inside")}, "redeposits": rounds,
+                 "kinds": {**{k: kinds.count(k) for k in ("corner", "ring", "inside")}, "refined": len(pts) - len(spots)},
+                 "redeposits": rounds,
                  "min_stock_mm": m.min_stock_mm, "at": np.round(pts, 3).tolist()}
     lo, hi = np.asarray(cad.bounds, dtype=float)
     region = (float(max(rb[0, 0] - m.margin_mm, lo[0])), float(max(rb[0, 1] - m.margin_mm, lo[1])),

@@ -75,7 +75,7 @@ def _spaced(xy: F, order: np.ndarray, spacing: float, fixed: F | None = None) ->
     return taken
 
 
-def stock_spots(cad_tri: F, stock_tri: F, bounds_xy: F, *, ring_step_mm: float = 1.5, inner_step_mm: float = 3.0,
+def stock_spots(cad_tri: F, stock_tri: F, bounds_xy: F, *, ring_step_mm: float = 1.5, inner_step_mm: float = 2.0,
                 ring_inset_mm: float = 0.25, step_mm: float = 0.5) -> tuple[F, list[str]]:
     """The stock probe's spots (CAD frame) and their kinds ("corner", "ring", "inside").
 
@@ -105,6 +105,28 @@ def stock_spots(cad_tri: F, stock_tri: F, bounds_xy: F, *, ring_step_mm: float =
         pick_inner = [int(np.flatnonzero(mask.ravel())[np.argmax(d[mask.ravel()])])]
     kinds = ["corner" if o[i] >= corner else "ring" for i in pick] + ["inside"] * len(pick_inner)
     return xy[pick + pick_inner], kinds
+
+
+def refine_spots(cad_tri: F, stock_tri: F, bounds_xy: F, touched: F, low: np.ndarray, spacing_mm: float,
+                 step_mm: float = 0.5) -> F:
+    """More spots around the `low` touches (docs/machining.md "The stock probe"): cells of the
+    repaired region within twice `spacing_mm` of a low touch, nearest first, each `spacing_mm` from
+    every touch and from each other. A deposit short at a touch is short around it (a corner the
+    beads turned short of, a valley between beads), and a depositing again there fills only where
+    it lands: its neighbours are touched too, before the spots are judged."""
+    from scipy.spatial import cKDTree   # lazy: scipy loads only when this path runs (start-up time)
+
+    t = np.asarray(touched, dtype=float).reshape(-1, 2)
+    lows = t[np.asarray(low, dtype=bool)]
+    if not len(lows):
+        return np.empty((0, 2))
+    xy, mask, _shape = _repaired_mask(cad_tri, stock_tri, bounds_xy, step_mm)
+    cells = xy[mask.ravel()]
+    d = cKDTree(lows).query(cells)[0]
+    near = np.flatnonzero(d <= 2 * spacing_mm + 1e-9)
+    order = near[np.argsort(d[near], kind="stable")]
+    out: F = cells[_spaced(cells, order, spacing_mm, t)]
+    return out
 
 
 async def probe_cad_points(link: ProbePort, cell: CellConfig, xy: F, top_z: float, transform: F,
