@@ -289,12 +289,13 @@ async def probe_stock(link: CncLinkPort, cell: CellConfig, job: CellJob, cad_tri
                       deposit_again: Callable[[CellJob], Awaitable[float]] | None) -> tuple[np.ndarray, np.ndarray, list[dict[str, Any]]]:
     """The stock probe (refined around low touches, `_touch_refined`), and where it finds the
     deposit short, deposit again there and probe again, at most `machining.redeposit_rounds` times
-    (docs/machining.md "Deposit again"); returns the touches (CAD frame), their heights over CAD and
-    the rounds deposited. Still short: CellError naming the spots."""
+    (docs/machining.md "Deposit again"), every spot of the round before touched again (the refined
+    ones too); returns the touches (CAD frame), their heights over CAD and the rounds deposited.
+    Still short: CellError naming the spots."""
     m = cell.machining
     top = float(max(L.z_mm for L in job.layers)) + 1.0
     rounds: list[dict[str, Any]] = []
-    target = max(float(job.repair.allowance_mm or 0.0) if job.repair is not None else 0.0, m.min_stock_mm)
+    target = m.min_stock_mm + REFINE_BAND_MM   # not the allowance: a bead laid again overshoots it anyway
     assert job.repair is not None and job.repair.bounds_mm is not None
     rb = np.asarray(job.repair.bounds_mm, dtype=float)
     while True:
@@ -313,6 +314,7 @@ async def probe_stock(link: CncLinkPort, cell: CellConfig, job: CellJob, cad_tri
         passes = await deposit_again(extra)
         rounds.append({"short_spots": int(short.sum()), "min_mm": _rounded(np.nanmin(margin)),
                        "layers": len(extra.layers), "passes": int(passes)})
+        spots = pts[:, :2]   # every spot touched, the refined ones too: probed again after the deposit
         top = max(top, float(max(L.z_mm for L in extra.layers)) + 1.0)
 
 
