@@ -83,6 +83,18 @@ class CellIOSim:
     def set_fume_extraction(self, running: bool, at: float | None = None) -> None:
         self._set("fume_ok", running, at)
 
+    def inject(self, fault: str, *, duration_s: float | None = None) -> None:
+        """An operator's action now (the seeded-fault names of sims/faults.py): `door_open` or
+        `estop`, for `duration_s` wall seconds (None: until `door_close` / `estop_release`)."""
+        acts = {"door_open": ("door_closed", False), "door_close": ("door_closed", True),
+                "estop": ("estop_released", False), "estop_release": ("estop_released", True)}
+        if fault not in acts:
+            raise ValueError(f"the cell I/O takes {', '.join(acts)}, not {fault!r}")
+        key, value = acts[fault]
+        self._set(key, value, None)
+        if duration_s is not None and not value:
+            self._set(key, True, self.clock.now() + duration_s * self.clock.time_scale)
+
     def silence(self, duration_s: float | None = None) -> None:
         """Stop answering for `duration_s` wall seconds (None: for ever)."""
         self._silent_until = float("inf") if duration_s is None else time.monotonic() + duration_s

@@ -1,4 +1,5 @@
-"""`cell sim up`'s clock line (wire/sim_clock.py): a command lowers the simulated time scale to what it can feed.
+"""`cell sim up`'s clock line (wire/sim_clock.py): a command lowers the simulated time scale to what it can feed,
+and a test or `cell run --fault` injects a seeded fault now (sims/inject.py).
 
 Served on an ephemeral loopback port; its address goes into the runtime directory under the CNC's
 URL (`clock_file`), so the command that talks to these simulators finds it, and two `cell sim up`
@@ -11,15 +12,20 @@ import json
 import os
 from pathlib import Path
 
+from typing import Callable
+
 from sims.clock import SimClock
-from wire.sim_clock import answer, clock_file, error, parse_request
+from wire.sim_clock import OK, Inject, answer, clock_file, error, parse_request
+
+Injector = Callable[[Inject], None]   # raises ValueError naming what the device takes
 
 
 class ClockServer:
-    """Answers SCALE? / SCALE k for one SimClock (on the simulators' loop)."""
+    """Answers SCALE? / SCALE k for one SimClock, and INJECT through `inject` (on the simulators' loop)."""
 
-    def __init__(self, clock: SimClock, cnc_url: str, directory: Path) -> None:
+    def __init__(self, clock: SimClock, cnc_url: str, directory: Path, inject: Injector | None = None) -> None:
         self.clock = clock
+        self.inject = inject
         self.cnc_url = cnc_url
         self.path = clock_file(directory, cnc_url)
         self.url = ""
@@ -41,6 +47,8 @@ class ClockServer:
                 req = parse_request(line)
                 if isinstance(req, str):
                     writer.write(error(req))
+                elif isinstance(req, Inject):
+                    writer.write(self._inject(req))
                 else:
                     if req is not None:
                         self.clock.set_scale(req)
@@ -50,6 +58,15 @@ class ClockServer:
             pass
         finally:
             writer.close()
+
+    def _inject(self, req: Inject) -> bytes:
+        if self.inject is None:
+            return error("these simulators take no injected fault")
+        try:
+            self.inject(req)
+        except ValueError as exc:
+            return error(str(exc))
+        return OK
 
     async def close(self) -> None:
         if self._server is not None:

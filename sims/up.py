@@ -16,6 +16,7 @@ from typing import Callable
 from core.realtime import SIM_RT_PRIORITY, elevate, quiet_gc
 from core.runtime_dir import runtime_dir
 from sims.clock_server import ClockServer
+from sims.inject import inject
 from sims.context import Served, SimContext
 
 __all__ = ["SIM_MODULES", "SimContext", "Served", "serve_all", "close_all", "run_forever"]
@@ -53,7 +54,8 @@ async def run_forever(ctx: SimContext, on_ready: Callable[[list[Served]], None])
         except (NotImplementedError, RuntimeError):  # not the main thread: Ctrl-C still cancels
             pass
     served: list[Served] = []
-    clock = ClockServer(ctx.clock, ctx.cell.devices.cnc.url, runtime_dir())
+    clock = ClockServer(ctx.clock, ctx.cell.devices.cnc.url, runtime_dir(),
+                        lambda req: inject({x.device: x.sim for x in served}, req.device, req.fault, req.duration_s))
     # Before the servers start; every simulator runs on this thread's loop.
     rt = elevate("simulators", SIM_RT_PRIORITY)
     if "cannot" in rt:  # the clear line the operator needs; nothing when it worked

@@ -19,7 +19,7 @@ from sims.clock import SimClock
 from sims.faults import parse_fault_spec
 from sims.loop import precise_loop
 from sims.up import SimContext, close_all, serve_all
-from sims.power_sim import PowerSourceSim
+from sims.inject import inject
 from sims.world import World
 from core.errors import CellError
 
@@ -87,11 +87,12 @@ class SimHarness:
         return asyncio.run_coroutine_threadsafe(_do(), self.loop).result(10)
 
     def inject(self, device: str, fault: str, *, duration_s: float | None = None) -> None:
-        """A seeded fault now, by the device's simulator (only the power source takes them)."""
-        target = self.served[device].sim
-        if not isinstance(target, PowerSourceSim):
-            raise CellError(f"the simulated {device} takes no seeded fault; faults go to the power source")
-        self.call(target.inject, fault, duration_s=duration_s)
+        """A seeded fault now, by the device's simulator (sims/inject.py: the power source's faults, the
+        cell I/O's door and E-stop)."""
+        try:
+            self.call(inject, {x.device: x.sim for x in self.served.values()}, device, fault, duration_s)
+        except ValueError as exc:
+            raise CellError(str(exc)) from None
 
     @property
     def process_id(self) -> int:

@@ -16,7 +16,7 @@ from controller.motion.cnc5 import limit_time_scale
 from core.config import CellConfig
 from core.errors import CellError, InputError
 from core.runtime_dir import runtime_dir
-from wire.sim_clock import ask, clock_file, parse_answer
+from wire.sim_clock import Inject, ask, clock_file, parse_answer, parse_ok
 from wire.urls import parse_tcp_url
 
 TIMEOUT_S = 2.0
@@ -44,18 +44,28 @@ class SimClockLink:
             return None   # a stale file: those simulators are gone
         return link
 
-    def _ask(self, scale: float | None) -> float:
+    def _line(self, request: bytes) -> bytes:
         host, port = parse_tcp_url(self.url)
         try:
             with socket.create_connection((host, port), timeout=TIMEOUT_S) as s:
-                s.sendall(ask(scale))
-                line = s.makefile("rb").readline()
+                s.sendall(request)
+                return s.makefile("rb").readline()
         except OSError as exc:
             raise CellError(f"the simulators' clock at {self.url} (CNC {self.cnc_url}) did not answer ({exc})") from None
+
+    def _ask(self, scale: float | None) -> float:
+        line = self._line(ask(scale))
         try:
             return parse_answer(line)
         except ValueError as exc:
             raise CellError(f"the simulators' clock at {self.url} refused: {exc}") from None
+
+    def inject(self, device: str, fault: str, duration_s: float | None = None) -> None:
+        """A seeded fault now, by `device`'s simulator in that `cell sim up` (sims/inject.py)."""
+        try:
+            parse_ok(self._line(Inject(device, fault, duration_s).line()))
+        except ValueError as exc:
+            raise CellError(f"the simulators at {self.url} refused {fault} on the {device}: {exc}") from None
 
     def scale(self) -> float:
         return self._ask(None)

@@ -102,8 +102,14 @@ class SimProcess:
         raise CellError(f"the simulators run in `cell sim up` (pid {self.proc.pid}), not in this process")
 
     def inject(self, device: str, fault: str, *, duration_s: float | None = None) -> None:
-        raise CellError(f"the simulated {device} runs in `cell sim up` (pid {self.proc.pid}): seed its faults "
-                        "in config/sim.yaml (faults:) or with `cell sim up --fault`")
+        """A seeded fault now, over `cell sim up`'s clock line (wire/sim_clock.py, INJECT)."""
+        # lazy: the clock link loads the CNC's motion module (time-scale limits)
+        from controller.harness.sim_clock import SimClockLink
+
+        clock = SimClockLink.find(self.cfg.devices.cnc.url)
+        if clock is None:
+            raise CellError(f"`cell sim up` (pid {self.proc.pid}) names no clock line to inject {fault} through")
+        clock.inject(device, fault, duration_s)
 
     def set_time_scale(self, scale: float) -> None:
         raise CellError(f"`cell sim up` (pid {self.proc.pid}) keeps the time scale it was started with")

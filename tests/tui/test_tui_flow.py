@@ -16,9 +16,12 @@ import pytest
 from textual.events import Key
 from textual.widgets import Button, Input
 
+from controller.harness.cell import with_urls
+from controller.harness.sim_process import SimProcess
 from controller.tui.app import CellApp, ConfirmQuit, OpenDialog
 from controller.tui.start_dialog import StartDialog
 from controller.tui.session import CellSession
+from core.config import load_cell, load_sim
 
 pytestmark = [pytest.mark.timeout(180), pytest.mark.realtime]
 SIZE = (120, 36)
@@ -73,10 +76,12 @@ def state(app: CellApp) -> str:
     return app.view.snap.state
 
 
-@pytest.mark.late_loop_open("issue 38 item 2, open: the TUI with its simulators in-process measures 30-41 ms "
-                             "of controller share on a quiet host (docs/testing.md); `cell tui --sim` runs them beside it")
 async def test_main_flow_against_the_simulators(tmp_path: Path) -> None:
-    session = CellSession(sim=True, runs_dir=tmp_path / "runs", time_scale=TIME_SCALE)
+    # The simulators in `cell sim up` beside this process, as `cell tui --sim` runs them: in this
+    # interpreter they would take the interpreter lock from the controller's device cycles
+    # (docs/testing.md, "A loop that never blocks"); the door opens over their clock line.
+    sims = SimProcess(with_urls(load_cell(), {}, time_scale=TIME_SCALE), tmp_path / "sim")
+    session = CellSession(sims.cfg, sim_cfg=load_sim(), runs_dir=tmp_path / "runs", sims_beside=True)
     app = CellApp(session)
     try:
         async with app.run_test(size=SIZE) as pilot:
@@ -148,14 +153,13 @@ async def test_main_flow_against_the_simulators(tmp_path: Path) -> None:
             await until(pilot, lambda: app.view.snap.passes_done > done_at_pause, 30, "a bead after the resume")
 
             # The door opens mid-build: the interlock latches a fault, the alarm is on screen.
-            cellio = session.harness.sim("cellio")
-            session.harness.call(cellio.open_door)
+            sims.inject("cellio", "door_open")
             await until(pilot, lambda: state(app) == "fault", 10, "the door interlock")
             await pilot.pause(0.3)
             alarms = str(app.query_one("#build-alarms").render())
             assert "door" in alarms
             assert footer_keys(app)["x"] is True and footer_keys(app)["s"] is False
-            session.harness.call(cellio.close_door)
+            sims.inject("cellio", "door_close")
             await press(pilot, "x")
             await until(pilot, lambda: state(app) == "idle", 15, "the reset")
             assert app.view.snap.passes_done >= done_at_pause + 1
@@ -172,6 +176,7 @@ async def test_main_flow_against_the_simulators(tmp_path: Path) -> None:
             assert all(str(table.get_row_at(i)[1]).find("alarm") >= 0 for i in range(table.row_count))
     finally:
         session.close()
+        sims.close()
 
 
 async def test_quit_during_a_build_asks_and_stops_the_arc(tmp_path: Path) -> None:
