@@ -1,6 +1,6 @@
 """The planner's array shortcuts (issue 28 item 7) give what the slower ways they replace give:
-the mass balance's cell areas against GEOS overlays, its sample points against GEOS's
-interpolation bit for bit, the STL weld against a plain sort of the coordinates."""
+the mass balance's cell areas against GEOS overlays, its graded sample points on their beads at
+the spacing they promise, the STL weld against a plain sort of the coordinates."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,7 +8,7 @@ import pytest
 import shapely
 from shapely.geometry import Point, box
 
-from planner.balance import _along, _first_of_each
+from planner.balance import _first_of_each, graded_points
 from planner.cellclip import cell_areas_inside
 from planner.mesh import _stable_order, _weld, _weld_exact
 
@@ -66,17 +66,37 @@ def test_cells_outside_inside_and_degenerate():
     assert {3, 4} <= set(rest.tolist())
 
 
-def test_samples_along_a_bead_are_geos_interpolation_bit_for_bit():
+def test_graded_samples_lie_on_their_bead_hold_every_vertex_and_keep_their_spacing():
+    """Every vertex is a sample; samples run along each bead in order, no two further apart than
+    the coarse spacing, and no further than the fine one within `near` of a vertex."""
     rng = np.random.default_rng(7)
-    for trial in range(60):
-        n = int(rng.integers(2, 120))
-        xy = np.cumsum(rng.normal(size=(n, 2)) * rng.uniform(0.01, 5), axis=0) + rng.uniform(-100, 100, 2)
-        if trial % 5 == 0:
-            xy[int(rng.integers(1, n))] = xy[int(rng.integers(0, n))]  # a repeated corner
-        frac = np.linspace(0.0, 1.0, int(rng.integers(2, 200)))
-        line = shapely.linestrings(xy)
-        geos = shapely.get_coordinates(shapely.line_interpolate_point(np.full(len(frac), line), frac, normalized=True))
-        assert np.array_equal(_along(xy, frac), geos)
+    fine, coarse, near = 0.5, 1.5, 1.5
+    for trial in range(40):
+        xys = []
+        for _ in range(int(rng.integers(1, 4))):
+            n = int(rng.integers(2, 30))
+            step = np.column_stack([np.abs(rng.normal(size=n)), rng.normal(size=n)]) * rng.uniform(0.05, 8.0)
+            xy = np.cumsum(step, axis=0) + rng.uniform(-100, 100, 2)  # x grows: the bead never crosses itself
+            if trial % 5 == 0:
+                k = int(rng.integers(1, n))
+                xy[k] = xy[k - 1]  # a repeated corner: a segment of length 0
+            xys.append(xy)
+        pts, owner = graded_points(xys, fine, coarse, near)
+        for i, xy in enumerate(xys):
+            mine = pts[owner == i]
+            line = shapely.linestrings(xy)
+            assert np.all(shapely.distance(shapely.points(mine), line) < 1e-9)
+            for v in xy:  # every vertex, exactly
+                assert np.any(np.all(mine == v, axis=1))
+            along = shapely.line_locate_point(line, shapely.points(mine))
+            assert np.all(np.diff(along) >= -1e-9)  # in order along the bead
+            gaps = np.diff(along)
+            assert gaps.max(initial=0.0) <= coarse + 1e-9
+            # near a vertex (by arc length) the gaps are the fine ones
+            corner = np.r_[0.0, np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]
+            mid = 0.5 * (along[1:] + along[:-1])
+            close = np.min(np.abs(mid[:, None] - corner[None, :]), axis=1) < near - fine
+            assert np.all(gaps[close] <= fine + 1e-9)
 
 
 def test_junction_points_kept_once_as_numpy_unique_keeps_them():
