@@ -46,9 +46,11 @@ class PourOptions:
     rounds: int = 6                   # metal-width rounds per pass
     gain: float = 1.0                 # each round moves this share (in log) to the metal asked (the width follows)
     min_gain_mm: float = 0.02         # a layer whose predicted spread would shrink by less keeps its speeds
-    max_trim: float = 1.5             # the metal per segment within [max(1 - t, 0.3), 1 + t] of the pass's own
+    max_trim: float = 1.5             # the metal per segment within [max(1 - t, 0.1), 1 + t] of the pass's own
     min_change: float = 0.01          # a pass whose metal varies less than this keeps its one speed
     turn_mm: float = 1.0              # a turn's own segments (its outside's round end takes their metal)
+    round_mm: float = 0.25            # a sharp turn rounded with this radius, in bead widths (0: not rounded)
+    layer_rounds: int = 2             # the layer laid again with what the later passes add taken off
 
 
 CELL_MM = 0.5     # the predicted stack's cells
@@ -65,7 +67,7 @@ def _at_turns(p: Pass, length: float) -> Pass:
     u = d / np.maximum(lens, 1e-12)[:, None]
     cos = np.sum(u[:-1] * u[1:], axis=1)
     turn = np.flatnonzero((cos < math.cos(math.radians(TURN_DEG))) & (lens[:-1] > 1e-9) & (lens[1:] > 1e-9)) + 1
-    if len(turn) == 0 or p.normals is not None:
+    if len(turn) == 0 or p.axes is not None:
         return p
     cuts: list[tuple[int, float]] = []    # (segment, fraction along it)
     for k in turn.tolist():
@@ -77,14 +79,71 @@ def _at_turns(p: Pass, length: float) -> Pass:
         return p
     seg = np.array([c[0] for c in cuts])
     frac = np.array([c[1] for c in cuts])
-    new_pts = pts[seg] + (pts[seg + 1] - pts[seg]) * frac[:, None]
     order = np.argsort(np.r_[np.arange(len(pts)), seg + frac], kind="stable")
-    allp = np.vstack([pts, new_pts])[order]
+
+    def blend(a: np.ndarray) -> np.ndarray:
+        out: np.ndarray = np.vstack([a, a[seg] + (a[seg + 1] - a[seg]) * frac[:, None]])[order]
+        return out
+
     src = np.r_[np.arange(len(pts)), seg][order][:-1]     # each new segment's old one
-    sp = None if p.seg_speed_mm_min is None else p.seg_speed_mm_min[np.minimum(src, len(lens) - 1)]
-    wf = None if p.seg_wfs_m_min is None else p.seg_wfs_m_min[np.minimum(src, len(lens) - 1)]
-    return Pass(p.role, p.width_mm, p.current_a, p.speed_mm_min, p.wfs_m_min, allp, None, None, p.inside_envelope,
-                sp, wf)
+    src = np.minimum(src, len(lens) - 1)
+    normals = None
+    if p.normals is not None:
+        normals = blend(p.normals)
+        normals = normals / np.maximum(np.linalg.norm(normals, axis=1), 1e-12)[:, None]
+    sp = None if p.seg_speed_mm_min is None else p.seg_speed_mm_min[src]
+    wf = None if p.seg_wfs_m_min is None else p.seg_wfs_m_min[src]
+    return Pass(p.role, p.width_mm, p.current_a, p.speed_mm_min, p.wfs_m_min, blend(pts), normals, None,
+                p.inside_envelope, sp, wf)
+
+
+ROUND_DEG = 25.0     # a turn sharper than this is rounded (planner/level_pour.py _rounded)
+ARC_DEG = 22.5       # the largest turn between two points of a rounded corner
+
+
+def _rounded(p: Pass, radius: float) -> Pass:
+    """The pass with every turn sharper than ROUND_DEG rounded by an arc of `radius` (its centre
+    line cut by radius·(1/cos(θ/2) − 1) at the corner: 0.41·radius at 90°), in steps of at most
+    ARC_DEG. The outside of a turn takes the round end of the pool that reaches it, which only the
+    metal laid right there fills: one turn of 90° needs about 2.5 × a chunk's metal there (more
+    than a bead of the same width can lay), four of 22.5° about 1.4 × each."""
+    pts = p.points
+    if p.axes is not None or len(pts) < 3:
+        return p
+    d = np.diff(pts[:, :2], axis=0)
+    lens = np.hypot(d[:, 0], d[:, 1])
+    u = d / np.maximum(lens, 1e-12)[:, None]
+    out_pts: list[np.ndarray] = [pts[:1]]
+    out_nrm: list[np.ndarray] = [] if p.normals is None else [p.normals[:1]]
+    for k in range(1, len(pts) - 1):
+        cos = float(np.clip(np.dot(u[k - 1], u[k]), -1.0, 1.0))
+        turn = math.acos(cos)
+        tan_len = radius * math.tan(turn / 2.0)
+        if (math.degrees(turn) <= ROUND_DEG or lens[k - 1] < 1e-9 or lens[k] < 1e-9
+                or tan_len > 0.45 * min(lens[k - 1], lens[k])):
+            out_pts.append(pts[k:k + 1])
+            if p.normals is not None:
+                out_nrm.append(p.normals[k:k + 1])
+            continue
+        n = int(math.ceil(math.degrees(turn) / ARC_DEG))
+        a = pts[k, :2] - u[k - 1] * tan_len            # where the arc leaves the leg before
+        side = math.copysign(1.0, float(u[k - 1, 0] * u[k, 1] - u[k - 1, 1] * u[k, 0]))
+        centre = a + side * radius * np.array([-u[k - 1, 1], u[k - 1, 0]])
+        start = math.atan2(a[1] - centre[1], a[0] - centre[0])
+        ang = start + side * turn * np.arange(n + 1) / n
+        arc = np.column_stack([centre[0] + radius * np.cos(ang), centre[1] + radius * np.sin(ang),
+                               np.full(n + 1, pts[k, 2])])
+        out_pts.append(arc)
+        if p.normals is not None:
+            out_nrm.append(np.repeat(p.normals[k:k + 1], n + 1, axis=0))
+    out_pts.append(pts[-1:])
+    if p.normals is not None:
+        out_nrm.append(p.normals[-1:])
+    if sum(len(q) for q in out_pts) == len(pts):
+        return p
+    normals = np.vstack(out_nrm) if p.normals is not None else None
+    return Pass(p.role, p.width_mm, p.current_a, p.speed_mm_min, p.wfs_m_min, np.vstack(out_pts), normals, None,
+                p.inside_envelope)
 
 
 def _process(v0: np.ndarray, f0: np.ndarray, m: np.ndarray, env: Envelope, law: BeadLaw) -> tuple[np.ndarray, np.ndarray]:
@@ -118,15 +177,15 @@ _Laid = tuple[np.ndarray, np.ndarray, np.ndarray, Footprint]
 
 
 def _lay(p: Pass, fp: Footprint, stack: Stack, wire: float, law: BeadLaw, env: Envelope, opts: PourOptions,
-         target: float | None) -> _Laid:
-    """Lay one pass on the stack (levelled to `target`, or as planned: None): its metal multipliers,
-    speeds and wire feeds per segment, its footprint."""
+         target: np.ndarray | None) -> _Laid:
+    """Lay one pass on the stack (levelled to `target` per chunk, or as planned: None): its metal
+    multipliers, speeds and wire feeds per segment, its footprint."""
     v0, f0 = p.speeds(), p.wire_feeds()
     a0 = wire * f0 / v0
     m = np.ones(len(v0))
     if target is not None:
         lengths = fp.path_of(len(v0))
-        lo, hi = max(1.0 - opts.max_trim, 0.3), 1.0 + opts.max_trim
+        lo, hi = max(1.0 - opts.max_trim, 0.1), 1.0 + opts.max_trim
         for _ in range(opts.rounds):
             v, f = _process(v0, f0, m, env, law)
             width = law.width(f, v)
@@ -134,20 +193,30 @@ def _lay(p: Pass, fp: Footprint, stack: Stack, wire: float, law: BeadLaw, env: E
                               fp.reach(stack, target, width))
             m = np.where(lengths > 1e-9, np.clip(m ** (1.0 - opts.gain) * (want / a0) ** opts.gain, lo, hi), 1.0)
     v, f = _process(v0, f0, m, env, law) if target is not None else (v0, f0)
-    fp.commit(stack, fp.pour(stack, wire * f / v, law.width(f, v), target))
+    fp.commit(stack, fp.pour(stack, wire * f / v, law.width(f, v), None if target is None else float(target.mean())))
     return m, v, f, fp
 
 
-def _run(cut: tuple[Pass, ...], fps: list[Footprint], stack: Stack, wire: float, law: BeadLaw, env: Envelope,
-         opts: PourOptions, target: float | None) -> tuple[list[_Laid], float, float]:
-    """Lay a layer's passes in turn; what each laid, the predicted top's spread after all and its
-    mean (by path)."""
-    laid = [_lay(p, fp, stack, wire, law, env, opts, target) for p, fp in zip(cut, fps)]
-    if not laid:
-        return [], 0.0, 0.0
-    tops = np.concatenate([fp.tops(stack) for fp in fps])
-    lens = np.concatenate([fp.chunk_len for fp in fps])
-    return laid, float(np.ptp(tops)), float(np.sum(tops * lens) / max(float(np.sum(lens)), 1e-12))
+class _Layer:
+    """A layer laid on a stack: what each pass laid, each pass's top right after it and after all."""
+
+    def __init__(self, cut: tuple[Pass, ...], fps: list[Footprint], stack: Stack, wire: float, law: BeadLaw,
+                 env: Envelope, opts: PourOptions, targets: list[np.ndarray] | None) -> None:
+        self.laid: list[_Laid] = []
+        self.own: list[np.ndarray] = []
+        for k, (p, fp) in enumerate(zip(cut, fps)):
+            self.laid.append(_lay(p, fp, stack, wire, law, env, opts, None if targets is None else targets[k]))
+            self.own.append(fp.tops(stack))
+        self.final = [fp.tops(stack) for fp in fps]
+        tops = np.concatenate(self.final) if fps else np.zeros(1)
+        lens = np.concatenate([fp.chunk_len for fp in fps]) if fps else np.ones(1)
+        self.spread = float(np.ptp(tops))
+        self.mean = float(np.sum(tops * lens) / max(float(np.sum(lens)), 1e-12))
+
+    def targets(self, level: float) -> list[np.ndarray]:
+        """Each pass's level per chunk so that the layer stands at `level` once the later passes
+        have added what they add on it (a ring laid beside another where the region narrows)."""
+        return [level - np.maximum(f - o, 0.0) for f, o in zip(self.final, self.own)]
 
 
 def level_layer(passes: tuple[Pass, ...], wire_diameter_mm: float, env: Envelope, law: BeadLaw, stack: Stack,
@@ -157,7 +226,8 @@ def level_layer(passes: tuple[Pass, ...], wire_diameter_mm: float, env: Envelope
     if not passes or any(p.axes is not None for p in passes):
         return passes, LayerLevel(0.0, 0.0, 0)   # 5-axis passes: not levelled (their beads lean)
     width = max(p.width_mm for p in passes)
-    cut = tuple(_at_turns(subdivide(p, opts.step_mm or width / 2.0), opts.turn_mm) for p in passes)
+    step = opts.step_mm or width / 2.0
+    cut = tuple(_at_turns(subdivide(_rounded(p, opts.round_mm * width), step), opts.turn_mm) for p in passes)
     wire = _wire(wire_diameter_mm)
     widths = [law.width(p.wire_feeds(), p.speeds()) for p in cut]   # none laid wider (_process)
     reach = max(float(w.max()) for w in widths) / 2.0
@@ -167,13 +237,24 @@ def level_layer(passes: tuple[Pass, ...], wire_diameter_mm: float, env: Envelope
     stack.ensure(int(lo[0]), int(hi[0]), int(lo[1]), int(hi[1]))     # the grid the footprints index
     fps = [footprint(stack, p.points[:, :2], w, p.width_mm) for p, w in zip(cut, widths)]
     plain = stack.copy()
-    _, before, mean = _run(cut, fps, plain, wire, law, env, opts, None)
-    laid, after, _ = _run(cut, fps, stack, wire, law, env, opts, mean)
-    out, n = _apply(cut, passes, laid, opts.min_change)
-    if n == 0 or after > before - opts.min_gain_mm:
+    as_planned = _Layer(cut, fps, plain, wire, law, env, opts, None)
+    before, level = as_planned.spread, as_planned.mean
+    best, best_stack = as_planned, plain
+    targets = [np.full(len(fp.centre), level) for fp in fps]
+    for _ in range(opts.layer_rounds if len(cut) > 1 else 1):   # a lone pass: nothing laid after it
+        trial = stack.copy()
+        lay = _Layer(cut, fps, trial, wire, law, env, opts, targets)
+        if best is as_planned or lay.spread < best.spread:
+            best, best_stack = lay, trial
+        targets = lay.targets(level)
+    stack.take(best_stack)
+    if best is as_planned:
+        return passes, LayerLevel(before, before, 0)
+    out, n = _apply(cut, passes, best.laid, opts.min_change)
+    if n == 0 or best.spread > before - opts.min_gain_mm:
         stack.take(plain)
         return passes, LayerLevel(before, before, 0)
-    return out, LayerLevel(before, after, n)
+    return out, LayerLevel(before, best.spread, n)
 
 
 def predicted_tops(passes: tuple[Pass, ...], wire_diameter_mm: float, law: BeadLaw, base_z: float,

@@ -110,12 +110,16 @@ class Stack:
 @dataclass(frozen=True)
 class Footprint:
     """One pass's cells on a stack's grid, the chunk and segment each belongs to, the pools (the
-    geometry alone: the same for every stack of that grid, `Stack.copy` included)."""
+    geometry alone: the same for every stack of that grid, `Stack.copy` included).
+
+    A cell under two pools of the bead (inside a turn, a ring closing over its start) is poured by
+    both, the later one (`late`) on what the earlier one left, as the world pours a bead in order."""
 
     cells: np.ndarray      # (K,) flat cell index
     seg: np.ndarray        # (K,) segment of each cell
     chunk: np.ndarray      # (K,) chunk of each cell
     d: np.ndarray          # (K,) distance to the centre line
+    late: np.ndarray       # (K,) the cell's pool is poured after the others (it meets their cells)
     pool: np.ndarray       # (C,) pool of each chunk
     chunk_seg: np.ndarray  # (C,) segment of each chunk
     chunk_len: np.ndarray  # (C,) mm of path of each chunk
@@ -124,30 +128,38 @@ class Footprint:
     n_pool: int
     cell: float
 
-    def _env(self, stack: Stack, area: np.ndarray, width: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The surface under each cell and its parabola's top (-inf outside its segment's width)."""
-        flat = stack.top.ravel()
+    def _env(self, stack: Stack, area: np.ndarray, width: np.ndarray) -> np.ndarray:
+        """Each cell's parabola top (-inf outside its segment's width), on the stack before the bead."""
         w = width[self.seg]
-        env = flat[self.centre][self.chunk] + 1.5 * area[self.seg] / w * (1.0 - (2.0 * self.d / w) ** 2)
-        return flat[self.cells], np.where(self.d <= w / 2.0, env, -np.inf)
+        env = stack.top.ravel()[self.centre][self.chunk] + 1.5 * area[self.seg] / w * (1.0 - (2.0 * self.d / w) ** 2)
+        out: np.ndarray = np.where(self.d <= w / 2.0, env, -np.inf)
+        return out
 
     def path_of(self, n_seg: int) -> np.ndarray:
         """mm of path each segment's metal stands for (its strip's cells)."""
         out: np.ndarray = np.bincount(self.chunk_seg, weights=self.chunk_metal, minlength=n_seg)
         return out
 
-    def need(self, stack: Stack, level: float, area: np.ndarray, width: np.ndarray) -> np.ndarray:
-        """mm³ of metal each segment needs for its pools to stand at `level` (a pool's need
-        shared by its chunks as their metal)."""
-        old, env = self._env(stack, area, width)
-        fill = np.clip(np.minimum(level, env) - old, 0.0, None)
+    def need(self, stack: Stack, level: np.ndarray, area: np.ndarray, width: np.ndarray) -> np.ndarray:
+        """mm³ of metal each segment needs for its pools to stand at `level` (per chunk; a pool's
+        need shared by its chunks as their metal); the late pools on the others standing there."""
+        env = self._env(stack, area, width)
+        flat = stack.top.ravel()
+        at = level[self.chunk]
+        fill = np.clip(np.minimum(at, env) - flat[self.cells], 0.0, None)
+        if self.late.any():
+            surf = flat.copy()
+            first = ~self.late
+            surf[self.cells[first]] += fill[first]
+            late = self.late
+            fill[late] = np.clip(np.minimum(at[late], env[late]) - surf[self.cells[late]], 0.0, None)
         per_pool = np.bincount(self.pool[self.chunk], weights=fill, minlength=self.n_pool) * self.cell ** 2
         pool_metal = np.bincount(self.pool, weights=self.chunk_metal, minlength=self.n_pool)
         per_chunk = per_pool[self.pool] * self.chunk_metal / np.maximum(pool_metal[self.pool], 1e-12)
         out: np.ndarray = np.bincount(self.chunk_seg, weights=per_chunk, minlength=len(area))
         return out
 
-    def reach(self, stack: Stack, level: float, width: np.ndarray) -> np.ndarray:
+    def reach(self, stack: Stack, level: np.ndarray, width: np.ndarray) -> np.ndarray:
         """mm² per mm each segment needs for its parabola's peak to reach `level` over every chunk's
         centre (a pool over a dip: the metal a level fill needs may not lift a parabola that high)."""
         base = stack.top.ravel()[self.centre]
@@ -156,47 +168,57 @@ class Footprint:
         return out
 
     def pour(self, stack: Stack, area: np.ndarray, width: np.ndarray, guess: float | None = None) -> np.ndarray:
-        """The surface under every cell after the pass lays `area` mm² per mm on each segment: each
-        pool's level found by Newton's method on its filled volume, kept inside a bracket."""
-        old, env = self._env(stack, area, width)
-        need = np.bincount(self.pool, weights=area[self.chunk_seg] * self.chunk_metal,
-                           minlength=self.n_pool) / self.cell ** 2
+        """The stack's top (flat) after the pass lays `area` mm² per mm on each segment."""
+        env = self._env(stack, area, width)
+        metal = np.bincount(self.pool, weights=area[self.chunk_seg] * self.chunk_metal,
+                            minlength=self.n_pool) / self.cell ** 2
+        surf = stack.top.ravel().copy()
         p = self.pool[self.chunk]
-        room = env > old
-        lo = np.full(self.n_pool, np.inf)
-        np.minimum.at(lo, p[room], old[room])
-        hi = np.full(self.n_pool, -np.inf)
-        np.maximum.at(hi, p[room], env[room])
-        full = np.bincount(p, weights=np.where(room, env - old, 0.0), minlength=self.n_pool)
-        some = np.isfinite(lo)
-        lo, hi = np.where(some, lo, 0.0), np.where(some, hi, 0.0)
-        c = np.clip(np.full(self.n_pool, 0.5 if guess is None else guess), lo, hi)
-        if guess is None:
-            c = 0.5 * (lo + hi)
-        for _ in range(NEWTON):
-            top = np.minimum(c[p], env)
-            got = np.bincount(p, weights=np.clip(top - old, 0.0, None), minlength=self.n_pool)
-            wet = np.bincount(p, weights=((old < c[p]) & (c[p] < env)).astype(float), minlength=self.n_pool)
-            low = got < need
-            lo, hi = np.where(low, c, lo), np.where(low, hi, c)
-            if float(np.max(np.abs(got - need), initial=0.0)) < 1e-6 * max(float(need.max(initial=0.0)), 1.0):
-                break
-            step = c + (need - got) / np.maximum(wet, 1e-9)
-            inside = (wet > 0) & (step > lo) & (step < hi)
-            c = np.where(inside, step, 0.5 * (lo + hi))
-        level = np.where(need >= full, np.inf, c)
-        out: np.ndarray = np.maximum(old, np.minimum(level[p], env))
-        return out
+        for part in (~self.late, self.late):
+            if part.any():
+                cells = self.cells[part]
+                new = _fill(p[part], surf[cells], env[part], metal, self.n_pool, guess)
+                np.maximum.at(surf, cells, new)
+        return surf
 
-    def commit(self, stack: Stack, new: np.ndarray) -> None:
-        """Write a pour into the stack."""
-        flat = stack.top.ravel()
-        flat[self.cells] = np.maximum(flat[self.cells], new)
+    def commit(self, stack: Stack, surf: np.ndarray) -> None:
+        """Make a pour the stack's top."""
+        stack.top = surf.reshape(stack.top.shape)
 
     def tops(self, stack: Stack) -> np.ndarray:
         """The stack's top at every chunk's centre."""
         out: np.ndarray = stack.top.ravel()[self.centre]
         return out
+
+
+def _fill(p: np.ndarray, old: np.ndarray, env: np.ndarray, need: np.ndarray, n_pool: int,
+          guess: float | None) -> np.ndarray:
+    """Every pool's metal (`need`, cell-heights) into its cells (`p` the pool of each): the lowest
+    first up to a level, each cell held by its parabola `env`; the level by Newton's method on the
+    filled volume, kept inside a bracket (all pools at once). A pool with more than its room is
+    full (the rest spills, as in the world)."""
+    room = env > old
+    lo = np.full(n_pool, np.inf)
+    np.minimum.at(lo, p[room], old[room])
+    hi = np.full(n_pool, -np.inf)
+    np.maximum.at(hi, p[room], env[room])
+    full = np.bincount(p, weights=np.where(room, env - old, 0.0), minlength=n_pool)
+    some = np.isfinite(lo)
+    lo, hi = np.where(some, lo, 0.0), np.where(some, hi, 0.0)
+    c = 0.5 * (lo + hi) if guess is None else np.clip(np.full(n_pool, guess), lo, hi)
+    for _ in range(NEWTON):
+        got = np.bincount(p, weights=np.clip(np.minimum(c[p], env) - old, 0.0, None), minlength=n_pool)
+        short = need - got
+        if float(np.max(np.abs(np.where(need < full, short, 0.0)), initial=0.0)) < 1e-6 * max(float(need.max(initial=0.0)), 1.0):
+            break
+        wet = np.bincount(p, weights=((old < c[p]) & (c[p] < env)).astype(float), minlength=n_pool)
+        low = short > 0
+        lo, hi = np.where(low, c, lo), np.where(low, hi, c)
+        step = c + short / np.maximum(wet, 1e-9)
+        c = np.where((wet > 0) & (step > lo) & (step < hi), step, 0.5 * (lo + hi))
+    level = np.where(need >= full, np.inf, c)
+    out: np.ndarray = np.maximum(old, np.minimum(level[p], env))
+    return out
 
 
 NEWTON = 12   # iterations of a pour's level (Newton's, bisection where it leaves the bracket)
@@ -264,11 +286,6 @@ def _footprint(stack: Stack, pts: np.ndarray, width: np.ndarray, pool_mm: float,
     tc = np.clip(t, 0.0, L[seg])
     beside = (t >= 0.0) & (t <= L[seg])
     cells = (lo[seg, 1] - stack.j0 + row[idx]) * stack.top.shape[1] + (lo[seg, 0] - stack.i0 + col[idx])
-    # a cell in two segments' strips (inside a turn, a ring closing on its start): to the nearer
-    best = np.full(stack.top.size, np.inf)
-    np.minimum.at(best, cells, d)
-    sel = d <= best[cells]
-    seg, cells, tc, d, beside = seg[sel], cells[sel], tc[sel], d[sel], beside[sel]
     # the chunks: each segment cut into ~1 mm pieces
     n = np.where(L > 1e-9, np.maximum(1, np.ceil(L / CHUNK_MM - 1e-9)), 0).astype(np.int64)
     c0 = np.cumsum(n) - n
@@ -282,11 +299,24 @@ def _footprint(stack: Stack, pts: np.ndarray, width: np.ndarray, pool_mm: float,
     mid = a[chunk_seg] + u[chunk_seg] * ((kk + 0.5) * chunk_len)[:, None]
     centre = stack.flat(np.floor(mid[:, 0] / cell).astype(np.int64), np.floor(mid[:, 1] / cell).astype(np.int64))
     pool, n_pool = _pools(s_mid, float(L.sum()), pool_mm)
+    # a cell in two segments' strips of one pool: once, to the nearer; of two pools: in both, the
+    # later pool poured after the others (inside a turn, a ring closing over its start)
+    entry_pool = pool[chunk]
+    order = np.lexsort((d, cells, entry_pool))
+    ep, ec = entry_pool[order], cells[order]
+    first = np.r_[True, (ep[1:] != ep[:-1]) | (ec[1:] != ec[:-1])]
+    sel = np.sort(order[first])
+    seg, cells, tc, d, beside, chunk = seg[sel], cells[sel], tc[sel], d[sel], beside[sel], chunk[sel]
+    owner = np.full(stack.top.size, n_pool)
+    np.minimum.at(owner, cells, pool[chunk])
+    late_pool = np.zeros(n_pool, dtype=bool)
+    late_pool[pool[chunk][owner[cells] < pool[chunk]]] = True
+    late = late_pool[pool[chunk]]
     # each cell beside the path holds the same metal (a chunk covering one row of cells or two
     # lays in proportion): the pass's path over its strip's cells
     strip = np.bincount(chunk[beside], minlength=len(chunk_seg)).astype(float)
     chunk_metal = strip * float(L.sum()) / max(float(strip.sum()), 1.0)
-    return Footprint(cells, seg, chunk, d, pool, chunk_seg, chunk_len, chunk_metal, centre, n_pool, cell)
+    return Footprint(cells, seg, chunk, d, late, pool, chunk_seg, chunk_len, chunk_metal, centre, n_pool, cell)
 
 
 def _pools(s_mid: np.ndarray, total: float, pool_mm: float) -> tuple[np.ndarray, int]:

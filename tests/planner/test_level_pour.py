@@ -89,3 +89,16 @@ def test_a_turn_gets_short_segments_of_its_own() -> None:
     assert lens[corner - 1] == pytest.approx(1.0) and lens[corner] == pytest.approx(1.0)
     assert float(lens.sum()) == pytest.approx(40.0)
     assert math.isclose(float(cut.points[-1, 1]), 20.0)
+
+
+def test_a_sharp_corner_is_rounded_in_small_turns_and_cut_by_little() -> None:
+    sq = _bead(np.array([[0.0, 0.0], [20.0, 0.0], [20.0, 20.0]]), 0.77)
+    r = level_pour._rounded(sq, 1.75)
+    d = np.diff(r.points[:, :2], axis=0)
+    u = d / np.linalg.norm(d, axis=1)[:, None]
+    turns = np.degrees(np.arccos(np.clip(np.sum(u[:-1] * u[1:], axis=1), -1.0, 1.0)))
+    assert turns.max() <= level_pour.ARC_DEG + 1e-6 and len(r.points) > 3
+    # the centre line passes the corner at radius·(√2 − 1) from it, and keeps its ends
+    gap = np.min(np.hypot(r.points[:, 0] - 20.0, r.points[:, 1]))
+    assert gap == pytest.approx(1.75 * (math.sqrt(2.0) - 1.0), abs=0.02)
+    np.testing.assert_allclose(r.points[[0, -1]], sq.points[[0, -1]])
