@@ -7,6 +7,7 @@ import uuid
 from contextlib import asynccontextmanager
 
 from core.config import load_material
+from core.realtime import elevate, is_realtime, relax
 from drivers.power import PowerSource
 from drivers.power_can import CanPowerSource
 from drivers.power_modbus import ModbusPowerSource
@@ -22,7 +23,16 @@ MATERIAL = load_material("inconel718-1.0mm")
 @asynccontextmanager
 async def power_rig(transport: str = "modbus_tcp", *, time_scale: float = 1.0, faults=None,
                     timeout_ms: float = SIM_REPLY_TIMEOUT_MS, connect: bool = True):
-    """Yield (sim_thread, sim, driver, world); the sim runs on its own loop as a real device would."""
+    """Yield (sim_thread, sim, driver, world); the sim runs on its own loop as a real device would.
+
+    The driver's cycle runs on this test's loop at the controller's real-time priority, as
+    `CellController.start` runs it (core/realtime.py): time-shared, beside another test worker's
+    real-time cell it went unscheduled for over the simulator's 100 ms watchdog now and then, and
+    the source dropped the start (error 50) in the middle of a 1.5 s ignition timeout.
+    """
+    rt = is_realtime()
+    if not rt:
+        elevate("power rig device cycles")
     th = SimThread()
     world = World()
     sim = PowerSourceSim(MATERIAL, clock=SimClock(time_scale), world=world, faults=faults, seed=1)
@@ -45,6 +55,8 @@ async def power_rig(transport: str = "modbus_tcp", *, time_scale: float = 1.0, f
         await ps.close()
         th.run(close())
         th.stop()
+        if not rt:
+            relax()
 
 
 async def wait_for(ps: PowerSource, pred, timeout_s: float = 3.0):
