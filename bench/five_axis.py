@@ -52,7 +52,8 @@ def level_sim():
     return sim.model_copy(update={"cnc": sim.cnc.model_copy(update={"workpiece": wp})})
 
 
-async def build(job: dict, tmp: Path, table: str = "AB", scale: float = 60.0) -> tuple[object, Path]:
+async def build(job: dict, tmp: Path, table: str = "AB", scale: float = 60.0,
+                beside: bool = False) -> tuple[object, Path]:
     """Build `job` on the simulated CNC at `scale`, lowered to what the link can feed (issue 29)."""
     # lazy: only this benchmark's path needs it
     from controller.motion.cnc5 import limit_time_scale
@@ -60,6 +61,23 @@ async def build(job: dict, tmp: Path, table: str = "AB", scale: float = 60.0) ->
     typed = job_from_dict(job)   # the job file's object, read as `cell run` reads it
     cfg, _note = limit_time_scale(with_urls(kin_cfg(table), {}, time_scale=scale), typed)
     log = tmp / "log"
+    if beside:
+        # `cell sim up` in a process of its own (the demo's topology): the simulators' deposit
+        # computation and Modbus answers no longer share this interpreter's lock
+        # lazy: only this benchmark's path needs it
+        import yaml
+        from controller.harness.sim_process import SimProcess
+
+        sim_yaml = tmp / "level-sim.yaml"
+        sim_yaml.write_text(yaml.safe_dump(level_sim().model_dump(mode="json")))
+        proc = SimProcess(cfg, log, str(sim_yaml))
+        try:
+            async with open_cell(proc.cfg, simulators=proc, runs_dir=tmp / "runs") as ctl:
+                ctl.open_job(typed)
+                res = await ctl.start()
+        finally:
+            proc.close()
+        return res, log
     async with open_cell(cfg, sim=level_sim(), log_dir=log, runs_dir=tmp / "runs",
                          reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:
         ctl.open_job(typed)
@@ -282,6 +300,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="the wall time a streamed line is taken to cost (controller/motion/cnc5.py "
                          "HOST_LINE_WALL_S): lower it to build at a scale the feed limit would lower, and "
                          "read the stand-still in still_s (issue 38)")
+    ap.add_argument("--beside", action="store_true",
+                    help="run the simulators in `cell sim up` beside this process (the demo's topology)")
     a = ap.parse_args(argv)
     if a.host_line_ms is not None:
         # lazy: only this benchmark's path needs it
@@ -294,11 +314,11 @@ def main(argv: list[str] | None = None) -> int:
         for p in la["passes"]:
             p["speed_mm_min"] = np.divide(p["speed_mm_min"], a.slow).tolist()
     with tempfile.TemporaryDirectory() as tmp:
-        res, log = asyncio.run(build(job, Path(tmp), a.table, a.scale))
+        res, log = asyncio.run(build(job, Path(tmp), a.table, a.scale, a.beside))
         fig = figures(job, log)
         fig.update(executed_mid_dev(job, log, a.table))
         fig.update(bead_gaps(log))
-    fig.update({"part": a.part, "table": a.table, "state": getattr(res, "state", None),
+    fig.update({"part": a.part, "table": a.table, "state": getattr(res, "state", None), "beside": a.beside,
                 "time_scale": feed_scale(job, a.table, a.scale),
                 "passes_done": getattr(res, "passes_done", None)})
     print(json.dumps(fig))

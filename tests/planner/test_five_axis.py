@@ -111,9 +111,11 @@ async def test_five_axis_build_on_the_cnc_simulator_lands_on_the_plan(part, tabl
     for la in job["layers"]:   # slower beads: the link can feed them at a time scale a test affords
         for p in la["passes"]:
             p["speed_mm_min"] = np.divide(p["speed_mm_min"], 4.0).tolist()   # one, or one per segment (cell-job/2)
-    # time scale 30: at 60 the in-process controller beside the other test worker's cell left the
-    # CNC's planner empty for 0.1-0.4 s now and then (the same on the commit before this one)
-    res, log = await build(job, tmp_path, table, scale=30.0)
+    # time scale 30 (lowered to what the link can feed); the simulators in `cell sim up` beside this
+    # process, the demo's topology: in this interpreter their deposit computation and answers took
+    # the interpreter lock from the streaming, and under load the CNC's planner ran empty (the tube
+    # at time scale 10: 12.4 s standing still in 20 s in one process, 2.2 s beside it; bench/five_axis.py)
+    res, log = await build(job, tmp_path, table, scale=30.0, beside=True)
     assert res.state == "complete", res
     mid = executed_mid_dev(job, log, table)
     assert mid["max_mid_dev_mm"] <= 0.02 and mid["max_quarter_dev_mm"] <= 0.02, mid  # chord tolerance (issue 29)
