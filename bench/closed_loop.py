@@ -161,15 +161,18 @@ def _bead_segments(segs: list[dict], built: list[Layer]) -> dict[tuple[int, int]
 
 
 def bead_ctwd(segs: list[dict], built: list[Layer], middle: float = 0.8) -> list[float]:
-    """Each bead's CTWD truth over its middle `middle` share (the bead's ends, where a wall slumps,
-    left out): the values of every bead, flattened."""
+    """Each bead's CTWD truth over its middle `middle` share and at least a bead width in from each
+    end (the pools at a bead's start and end, where a wall's ends slump: the layer loop levels a
+    layer's mean, the path loop its ends), the values of every bead, flattened."""
     vals: list[float] = []
-    for mine in _bead_segments(segs, built).values():
-        n = len(mine)
-        if not n:
+    for (la, pa), mine in _bead_segments(segs, built).items():
+        if not mine:
             continue
-        cut = int(n * (1.0 - middle) / 2.0)
-        vals += [s["ctwd_mm"] for s in (mine[cut:n - cut] or mine)]
+        lens = np.array([math.dist(s["from"][:2], s["to"][:2]) for s in mine])
+        at = np.cumsum(lens) - lens / 2
+        cut = max((1.0 - middle) / 2.0 * float(lens.sum()), built[la].passes[pa].width_mm)
+        keep = [s["ctwd_mm"] for s, x in zip(mine, at) if cut <= x <= float(lens.sum()) - cut]
+        vals += keep or [s["ctwd_mm"] for s in mine]
     return vals
 
 

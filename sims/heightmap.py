@@ -4,9 +4,12 @@ A dense grid of square cells (`cell_mm`, at most 0.5 mm) that grows as metal lan
 Each cell holds the top z of the deposit (NaN where nothing was deposited); under it lies the
 substrate, whose top comes from a callback (the robot's plane z = 0, the CNC's workpiece mesh).
 
-A bead is laid along a segment in chunks of about 1 mm. Each chunk pours its metal (area × chunk
-length; nothing is lost or counted twice) into the cells of its footprint (distance to the
-segment ≤ w/2, the chunk by the cell's projection on the segment).
+A bead is laid along a segment in chunks of about 1 mm. Each chunk pours its metal (area × the
+bead length its cells stand for; nothing is lost or counted twice) into the cells of its footprint
+(distance to the segment ≤ w/2, the chunk by the cell's projection on the segment). A bead is one
+pool from its arc start to its arc end, continuous across the segments (robot moves) it is laid
+in: it has a round start and a round end at those two places only; at a joint between two of its
+segments only the outside of a turn gets the round end's cells (`lay_steps`).
 The liquid fills the lowest cells first up to a level `c` and is held by Ding's parabola of the
 bead's width (its distance d to the segment: round ends; where the footprints of consecutive
 segments overlap, the max keeps the metal from counting twice), resting on the surface at the
@@ -29,77 +32,26 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
-from typing import Callable, Generator, TypeVar
+from typing import Callable, Generator
 
 import numpy as np
 from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from sims.pour import Chunk, FloatArray, Laid, finish, frame, pour_level
+
 Substrate = Callable[[FloatArray, FloatArray], FloatArray]
 Scale = Callable[[float, float, float], float]    # (x, y, mm along the segment) -> metal factor
 CHUNK_MM = 1.0
 _GROW = 64          # cells of margin added on every side when the grid grows
 TAIL_MM = 40.0      # the bead's last centre cells kept for its end (sag)
 _OFF_PART = -1e8    # a substrate top below this: nothing under the cell (off the part's edge)
+JOINT_MM = 1e-3     # a segment starting this near the bead's last end goes on from it
+POOL_WIDTHS = 2.0   # a pool's length behind the arc, in bead widths: its metal levels out in it
 
 
 def flat_substrate(xs: FloatArray, ys: FloatArray) -> FloatArray:
     """The robot's substrate: the plane z = 0 of its frame."""
     return np.zeros(np.shape(xs))
-
-
-@dataclass
-class Laid:
-    """What one segment's bead did: its rise on the centre line where the pool has passed
-    (w/2 behind the segment's end; None that close to the bead's start), metal not placed."""
-
-    rise_mm: float | None
-    lost_mm3: float
-
-
-T = TypeVar("T")
-
-
-def finish(steps: Generator[None, None, T]) -> T:
-    """Run a resumable pour (`HeightMap.lay_steps`) to its end; its value."""
-    while True:
-        try:
-            next(steps)
-        except StopIteration as done:
-            value: T = done.value
-            return value
-
-
-def pour_level(old: FloatArray, env: FloatArray, need: float) -> float:
-    """The level c at which Σ clip(c − old, 0, env − old) = need (cells' height sum); inf when full."""
-    m = env > old
-    o, e = old[m], env[m]
-    if o.size == 0 or need >= float(np.sum(e - o)):
-        return math.inf
-    bp = np.concatenate([o, e])
-    ds = np.concatenate([np.ones(o.size), -np.ones(e.size)])
-    idx = np.argsort(bp, kind="stable")
-    bp, ds = bp[idx], ds[idx]
-    slope = np.cumsum(ds)
-    val = np.concatenate([[0.0], np.cumsum(slope[:-1] * np.diff(bp))])
-    k = int(np.searchsorted(val, need, side="right")) - 1
-    k = min(max(k, 0), bp.size - 1)
-    while k < bp.size - 1 and slope[k] <= 0:
-        k += 1
-    return float(bp[k] + (need - val[k]) / slope[k])
-
-
-def _chunk_share(chunk: NDArray[np.int64], n_chunks: int) -> FloatArray:
-    """Each chunk's share of the segment's metal, in proportion to the cells beside the segment it
-    pours into (mean 1: the segment's metal is kept). A chunk 0.875 mm long covers one or two rows
-    of 0.5 mm cells as the rows fall; the same metal on one row stood twice as high, and as a
-    ridge across the bead that grew layer after layer where the plan's points repeat."""
-    counts = np.bincount(chunk, minlength=n_chunks).astype(float)
-    if counts.sum() <= 0.0 or np.any(counts == 0.0):
-        return np.ones(n_chunks)
-    out: FloatArray = counts / counts.mean()
-    return out
 
 
 class HeightMap:
@@ -121,6 +73,10 @@ class HeightMap:
         self._trail: deque[tuple[float, int, int]] = deque()   # (path mm, centre cell) of this bead
         self._tail: deque[tuple[float, int, int]] = deque()    # the same, its last TAIL_MM (end sag)
         self._path = 0.0
+        self._pool: deque[Chunk] = deque()    # chunks of the bead not poured yet
+        self._start_open = False                # the bead's first pool not poured yet
+        self._lost = 0.0                          # mm³ of this map's beads that did not fit
+        self._spill = 0.0                         # cell-heights that did not fit, running on in the pool
 
     # -- grid ----------------------------------------------------------------------------------
     def _ensure(self, i_lo: int, i_hi: int, j_lo: int, j_hi: int) -> None:
@@ -171,6 +127,7 @@ class HeightMap:
     # -- queries -------------------------------------------------------------------------------
     def deposit_top(self, x: float, y: float) -> float | None:
         """Top of the deposit at (x, y), or None where nothing was deposited."""
+        self.end_bead()
         i, j = self.index(x, y)
         ny, nx = self.top.shape
         if not (0 <= i - self._i0 < nx and 0 <= j - self._j0 < ny):
@@ -179,7 +136,10 @@ class HeightMap:
         return None if math.isnan(v) else v
 
     def surface(self, x: float, y: float, *, before_bead: bool = False) -> float:
-        """The surface at (x, y): deposit or substrate; `before_bead`: as it was before the current bead."""
+        """The surface at (x, y): deposit or substrate; `before_bead`: as it was before the current
+        bead (else the current bead is read as ended here: `end_bead`)."""
+        if not before_bead:
+            self.end_bead()
         i, j = self.index(x, y)
         self._ensure(i, i, j, j)
         r, c = j - self._j0, i - self._i0
@@ -190,6 +150,7 @@ class HeightMap:
 
     def deposit_tops(self, xs: FloatArray, ys: FloatArray) -> FloatArray:
         """Vectorised `deposit_top` (NaN where nothing was deposited or outside the grid)."""
+        self.end_bead()
         ii = np.floor(np.asarray(xs) / self.cell).astype(np.int64) - self._i0
         jj = np.floor(np.asarray(ys) / self.cell).astype(np.int64) - self._j0
         ny, nx = self.top.shape
@@ -201,6 +162,7 @@ class HeightMap:
     def solid_tops(self, xs: FloatArray, ys: FloatArray) -> FloatArray:
         """The top the map knows at each point: the deposit's, or a cut substrate's (NaN: the
         untouched substrate, which the workpiece mesh answers)."""
+        self.end_bead()
         ii = np.floor(np.asarray(xs) / self.cell).astype(np.int64) - self._i0
         jj = np.floor(np.asarray(ys) / self.cell).astype(np.int64) - self._j0
         ny, nx = self.top.shape
@@ -226,6 +188,7 @@ class HeightMap:
 
     def ray_hit(self, q0: FloatArray, q1: FloatArray) -> float | None:
         """Distance along q0→q1 to the first point inside deposited metal, or None."""
+        self.end_bead()
         d = np.asarray(q1, dtype=float) - np.asarray(q0, dtype=float)
         length = float(np.linalg.norm(d))
         if length < 1e-12 or not self.top.size or (np.all(np.isnan(self.top)) and not self.carved.any()):
@@ -250,6 +213,8 @@ class HeightMap:
 
     # -- deposition ----------------------------------------------------------------------------
     def new_bead(self) -> int:
+        self.end_bead()
+        self._start_open = True
         self.bead += 1
         self._trail.clear()
         self._tail.clear()
@@ -265,7 +230,14 @@ class HeightMap:
         """`lay`, resumable: a yield after every `chunks_per_step` chunks (1 mm each), the same
         cells poured in the same order as in one call; the Laid is the generator's value.
         `scale(x, y, s)`: the metal of the chunk centred at (x, y), s mm along the segment, is
-        `area_mm2` times it (its parabola as high in proportion)."""
+        `area_mm2` times it (its parabola as high in proportion).
+
+        One bead is one pool from its arc start to its arc end, continuous across its segments:
+        a segment that starts where the bead's previous one ended has no round start, and its
+        predecessor's round end keeps only the cells behind it (the outside of a turn). Each chunk
+        waits in the pool (`Chunk`) until the bead has gone a bead width (POOL_WIDTHS) past it;
+        a bead's first bead width is poured as one pool with its round start, its last with its
+        round end when the bead ends (`end_bead`, a new bead, or a read of the map)."""
         a, b = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
         d = b - a
         length = float(np.hypot(d[0], d[1]))
@@ -274,51 +246,137 @@ class HeightMap:
         u = d / length
         nrm = np.array([-u[1], u[0]])
         half = width_mm / 2.0
+        last = self._pool[-1] if self._pool else None
+        cont = last is not None and last.at is not None and float(np.hypot(*(a - last.at))) < JOINT_MM
+        if last is not None and cont:
+            tn, _ = frame(last.ii, last.jj, self.cell, a, u, nrm)
+            keep = ~(last.round_end & (tn >= 0.0))     # the bead goes on over the rest of its round end
+            last.ii, last.jj, last.s, last.round_end = last.ii[keep], last.jj[keep], last.s[keep], last.round_end[keep]
+            last.at = None
+        elif self._pool:
+            self._pour_pool(list(self._pool))    # a jump: the pool so far ends here
+            self._pool.clear()
         lo, hi = np.minimum(a, b) - half, np.maximum(a, b) + half
         i_lo, j_lo = self.index(float(lo[0]), float(lo[1]))
         i_hi, j_hi = self.index(float(hi[0]), float(hi[1]))
         self._ensure(i_lo, i_hi, j_lo, j_hi)
         gi, gj = np.meshgrid(np.arange(i_lo, i_hi + 1, dtype=np.int64), np.arange(j_lo, j_hi + 1, dtype=np.int64))
         ii, jj = gi.ravel(), gj.ravel()
-        cx, cy = (ii + 0.5) * self.cell - a[0], (jj + 0.5) * self.cell - a[1]
-        t = cx * u[0] + cy * u[1]
-        s = cx * nrm[0] + cy * nrm[1]
+        t, s = frame(ii, jj, self.cell, a, u, nrm)
         tc = np.clip(t, 0.0, length)
-        s = np.hypot(t - tc, s)       # distance to the segment: round ends, as a pool is
-        m = s <= half
+        dist = np.hypot(t - tc, s)       # distance to the segment: round ends, as a pool is
+        m = (dist <= half) & ~((t < 0.0) & cont)     # a bead going on has no round start
         beside = (t[m] >= 0.0) & (t[m] <= length)   # the strip beside the segment, not its round ends
-        ii, jj, t, s = ii[m], jj[m], tc[m], s[m]
+        ii, jj, t, s = ii[m], jj[m], tc[m], dist[m]
         n_chunks = max(1, math.ceil(length / CHUNK_MM))
         step = length / n_chunks
         chunk = np.minimum((t / step).astype(np.int64), n_chunks - 1)
-        share = _chunk_share(chunk[beside], n_chunks)
+        per_cell = self._metal_per_cell(a, u, nrm, length, half)
+        counts = np.bincount(chunk[beside], minlength=n_chunks)
         peak = 1.5 * area_mm2 / width_mm
         cell2 = self.cell * self.cell
-        carry, lost, poured = 0.0, 0.0, 0.0
-        centres: list[tuple[int, int]] = []
+        carry, poured = 0.0, 0.0
+        lost0 = self._lost
         for k in range(n_chunks):
             if k and k % chunks_per_step == 0:
                 yield
             sel = chunk == k
             mid = a + u * (k + 0.5) * step
             f = 1.0 if scale is None else float(scale(float(mid[0]), float(mid[1]), (k + 0.5) * step))
-            poured += area_mm2 * f * step * share[k]
-            need = area_mm2 * f * step * share[k] / cell2 + carry
+            metal = area_mm2 * f * (counts[k] * per_cell if per_cell > 0.0 else step)
+            poured += metal
             if not np.any(sel):
-                carry = need
+                carry += metal / cell2
                 continue
+            end = ~beside[sel] & (t[sel] >= length - 1e-12)
+            self._pool.append(Chunk(ii[sel], jj[sel], s[sel], end, self.index(float(mid[0]), float(mid[1])),
+                                    width_mm, peak * f, metal / cell2 + carry,
+                                    b if k == n_chunks - 1 else None, self._path + (k + 0.5) * step))
             carry = 0.0
-            centres.append(self.index(float(mid[0]), float(mid[1])))
-            lost += self._pour(ii[sel], jj[sel], s[sel], centres[-1], width_mm, peak * f, need) * cell2
-        lost += carry * cell2
-        self.volume_mm3 += poured - lost
-        for k, cell in enumerate(centres):
-            self._trail.append((self._path + (k + 0.5) * step, cell[0], cell[1]))
-            self._tail.append(self._trail[-1])
+            self._drain(self._path + (k + 1) * step, width_mm * POOL_WIDTHS)
+        self.volume_mm3 += poured
+        self._lost += carry * cell2
         self._path += length
         while self._tail and self._tail[0][0] < self._path - TAIL_MM:
             self._tail.popleft()
-        return Laid(self._settled_rise(half + self.cell), lost)
+        return Laid(self._settled_rise(half + self.cell), self._lost - lost0)
+
+    def _drain(self, path_mm: float, pool_mm: float) -> None:
+        """Pour the chunks the bead (now `path_mm` long) has left `pool_mm` behind, one by one; its
+        first `pool_mm` (the start's pool, round start included) together once it is that long."""
+        if self._start_open:
+            first = [c for c in self._pool if c.path_mm < pool_mm]
+            if path_mm < pool_mm or (first and first[-1].at is not None):
+                return         # (a segment's last chunk waits to know whether the bead goes on)
+            for _ in first:
+                self._pool.popleft()
+            self._pour_pool(first)
+            self._start_open = False
+        while self._pool and self._pool[0].path_mm < path_mm - pool_mm and self._pool[0].at is None:
+            self._pour_pool([self._pool.popleft()])
+
+    def _pour_pool(self, chunks: list[Chunk]) -> None:
+        """Pour chunks as one pool: their metal together into all their cells, each cell held by the
+        highest of its chunks' parabolas (what does not fit, at a turn's inside, runs on into the
+        pool's next chunk; at the bead's end it is lost to the 2.5-D map)."""
+        if not chunks:
+            return
+        iis, jjs, envs, hangs = [], [], [], []
+        for c in chunks:
+            iis.append(c.ii)
+            jjs.append(c.jj)
+            base = self._rest_on(c.centre)
+            old = self._surface_idx(c.ii, c.jj)
+            if base < _OFF_PART and np.any(old >= _OFF_PART):   # its centre over an edge: it rests on the edge's top
+                base = float(np.max(old[old >= _OFF_PART]))
+            envs.append(base + c.peak * (1.0 - (2.0 * c.s / c.width) ** 2))
+            hangs.append(np.full(c.ii.size, base - c.peak))
+            self._trail.append((c.path_mm, c.centre[0], c.centre[1]))
+            self._tail.append(self._trail[-1])
+        ii, jj, env, hang = np.concatenate(iis), np.concatenate(jjs), np.concatenate(envs), np.concatenate(hangs)
+        if len(chunks) > 1:
+            key = (jj - self._j0) * self.top.shape[1] + (ii - self._i0)
+            uniq, inv = np.unique(key, return_inverse=True)
+            top, low = np.full(uniq.size, -np.inf), np.full(uniq.size, -np.inf)
+            np.maximum.at(top, inv, env)
+            np.maximum.at(low, inv, hang)
+            first = np.zeros(uniq.size, dtype=np.int64)
+            first[inv[::-1]] = np.arange(inv.size)[::-1]
+            ii, jj, env, hang = ii[first], jj[first], top, low
+        left = self._pour(ii, jj, env, hang, sum(c.need for c in chunks) + self._spill)
+        self._spill = 0.0
+        if self._pool:             # the pool goes on: what did not fit here runs on in it
+            self._spill = left
+            return
+        self._lost += left * self.cell * self.cell
+        self.volume_mm3 -= left * self.cell * self.cell
+
+    def _metal_per_cell(self, a: FloatArray, u: FloatArray, nrm: FloatArray, length: float, half: float) -> float:
+        """mm of bead one cell of a segment's strip stands for: counted over the strip extended by a
+        bead width beyond both ends, to whole cells (0 when the strip holds no cell). Counted over the segment alone,
+        a 3.44 mm move covering 6 or 7 rows of 0.5 mm cells poured its metal 1/6 higher on 6: a step
+        at every joint, the same every layer where the plan's points repeat."""
+        ext = self.cell * math.ceil((length + 4.0 * half) / self.cell)   # whole cells: along a grid
+        a0 = a - u * 2 * half                                           # line it counts exactly
+        lo = np.minimum(a0, a0 + u * ext) - half
+        hi = np.maximum(a0, a0 + u * ext) + half
+        i_lo, j_lo = self.index(float(lo[0]), float(lo[1]))
+        i_hi, j_hi = self.index(float(hi[0]), float(hi[1]))
+        gi, gj = np.meshgrid(np.arange(i_lo, i_hi + 1, dtype=np.int64), np.arange(j_lo, j_hi + 1, dtype=np.int64))
+        t, s = frame(gi.ravel(), gj.ravel(), self.cell, a0, u, nrm)
+        n = int(np.count_nonzero((t >= 0.0) & (t < ext) & (np.abs(s) <= half)))
+        if n == 0 or not np.any((t >= 2 * half) & (t <= 2 * half + length) & (np.abs(s) <= half)):
+            return 0.0
+        return ext / n
+
+    def end_bead(self) -> None:
+        """The bead ended (the arc went out): what waits in its pool poured together, its last
+        segment's whole round end included."""
+        if self._pool:
+            chunks = list(self._pool)
+            self._pool.clear()
+            self._start_open = False
+            self._pour_pool(chunks)
 
     def _settled_rise(self, behind_mm: float) -> float | None:
         """The bead's rise on its centre line where the pool has passed (`behind_mm` back along
@@ -337,6 +395,7 @@ class HeightMap:
         """The bead just ended: when its end is open (the surface one bead half-width and two cells
         beyond it lies lower than the bead's base there plus half its rise), `share` of the metal
         this bead added over its last width runs off (lost to the 2.5-D map). Returns the mm³ lost."""
+        self.end_bead()
         if share <= 0.0 or not self._tail or self.bead == 0:
             return 0.0
         _, ie, je = self._tail[-1]
@@ -375,23 +434,22 @@ class HeightMap:
         self.volume_mm3 -= lost
         return lost
 
-    def _pour(self, ii: NDArray[np.int64], jj: NDArray[np.int64], s: FloatArray, centre: tuple[int, int],
-              width_mm: float, peak: float, need: float) -> float:
-        """One chunk: pour `need` (cell-heights) into its cells, held by the parabola on the surface
-        at its centre-line cell (as it was before this bead); returns what did not fit."""
-        r, c = jj - self._j0, ii - self._i0
-        old = self._surface_idx(ii, jj)
+    def _rest_on(self, centre: tuple[int, int]) -> float:
+        """The surface at a centre-line cell as it was before this bead: what a pool rests on."""
         cr, cc = centre[1] - self._j0, centre[0] - self._i0
         if self._stamp[cr, cc] == self.bead and self.bead:
-            base = float(self._before[cr, cc])
-        else:
-            base = float(self._surface_idx(np.array([centre[0]]), np.array([centre[1]]))[0])
-        if base < _OFF_PART and np.any(old >= _OFF_PART):   # its centre over an edge: it rests on the edge's top
-            base = float(np.max(old[old >= _OFF_PART]))
-        env = base + peak * (1.0 - (2.0 * s / width_mm) ** 2)
-        # over a free edge (nothing under the cell, nothing laid there yet) the pool hangs on the
-        # side face down to its own height below the bead's base: held there, not lost down the side
-        floor = np.where(old < _OFF_PART, base - peak, old)
+            return float(self._before[cr, cc])
+        return float(self._surface_idx(np.array([centre[0]]), np.array([centre[1]]))[0])
+
+    def _pour(self, ii: NDArray[np.int64], jj: NDArray[np.int64], env: FloatArray, hang: FloatArray,
+              need: float) -> float:
+        """Pour `need` (cell-heights) into cells, each held by its parabola `env`; returns what
+        did not fit. Over a free edge (nothing under the cell, nothing laid there yet) the pool
+        hangs on the side face down to `hang` (its own height below the bead's base): held there,
+        not lost down the side."""
+        r, c = jj - self._j0, ii - self._i0
+        old = self._surface_idx(ii, jj)
+        floor = np.where(old < _OFF_PART, hang, old)
         level = pour_level(floor, env, need)
         new = np.maximum(floor, np.minimum(level, env))
         fresh = self._stamp[r, c] != self.bead
@@ -423,12 +481,14 @@ class HeightMap:
 
     def highest(self) -> float:
         """The highest deposit top (-inf before any)."""
+        self.end_bead()
         return float(np.max(self.top, initial=-np.inf, where=~np.isnan(self.top)))
 
     def carve(self, q0: FloatArray, q1: FloatArray, radius_mm: float, ball: bool) -> tuple[float, float]:
         """Sweep a cutter's tip from q0 to q1 (part frame, tool along +z): every cell's top (deposit
         and substrate alike) comes down to the tool's lower envelope. Returns (volume removed mm³,
         deepest cut mm below the surface it met)."""
+        self.end_bead()
         a, b = np.asarray(q0, dtype=float), np.asarray(q1, dtype=float)
         R = float(radius_mm)
         lo, hi = np.minimum(a[:2], b[:2]) - R, np.maximum(a[:2], b[:2]) + R

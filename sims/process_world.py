@@ -29,7 +29,8 @@ from core.bead_model import ribeiro_forward, wire_area_mm2
 from core.config import ProcessSim
 from core.material import Material
 from core.melting import MeltingRelation, current_at, relation_for, stick_out_factor
-from sims.heightmap import HeightMap, Laid, Substrate, finish
+from sims.heightmap import HeightMap, Substrate
+from sims.pour import Laid, finish
 
 Vec3 = tuple[float, float, float]
 REF_TEMP_C = 100.0
@@ -136,8 +137,11 @@ class ProcessPhysics:
         return RUN_IN_START + (1.0 - RUN_IN_START) * max(s_mm, 0.0) / n
 
     def end_bead(self) -> float:
-        """The arc went out: an open end sags (`end_sag`); the mm³ that ran off."""
+        """The arc went out: the bead's end poured (its round end), an open end sags (`end_sag`);
+        the mm³ that ran off."""
         last, self._last_lay = self._last_lay, None
+        for hm in self.maps.values():
+            hm.end_bead()
         if last is None or self.cfg.end_sag <= 0.0:
             return 0.0
         device, direction, width = last

@@ -23,7 +23,8 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from sims.heightmap import FloatArray, HeightMap
+from sims.heightmap import HeightMap
+from sims.pour import FloatArray
 from sims.table_kin import TableKin, rot, trans
 
 if TYPE_CHECKING:

@@ -1,0 +1,78 @@
+"""The pour of one chunk of bead and its bookkeeping (sims/heightmap.py pours with these)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Generator, TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class Laid:
+    """What one segment's bead did: its rise on the centre line where the pool has passed
+    (w/2 behind the segment's end; None that close to the bead's start), metal not placed."""
+
+    rise_mm: float | None
+    lost_mm3: float
+
+
+T = TypeVar("T")
+
+
+def finish(steps: Generator[None, None, T]) -> T:
+    """Run a resumable pour (`HeightMap.lay_steps`) to its end; its value."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            value: T = done.value
+            return value
+
+
+def pour_level(old: FloatArray, env: FloatArray, need: float) -> float:
+    """The level c at which Σ clip(c − old, 0, env − old) = need (cells' height sum); inf when full."""
+    m = env > old
+    o, e = old[m], env[m]
+    if o.size == 0 or need >= float(np.sum(e - o)):
+        return math.inf
+    bp = np.concatenate([o, e])
+    ds = np.concatenate([np.ones(o.size), -np.ones(e.size)])
+    idx = np.argsort(bp, kind="stable")
+    bp, ds = bp[idx], ds[idx]
+    slope = np.cumsum(ds)
+    val = np.concatenate([[0.0], np.cumsum(slope[:-1] * np.diff(bp))])
+    k = int(np.searchsorted(val, need, side="right")) - 1
+    k = min(max(k, 0), bp.size - 1)
+    while k < bp.size - 1 and slope[k] <= 0:
+        k += 1
+    return float(bp[k] + (need - val[k]) / slope[k])
+
+
+def frame(ii: NDArray[np.int64], jj: NDArray[np.int64], cell: float, a: FloatArray, u: FloatArray,
+           nrm: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Cell centres in a segment's frame: along it from its start a, and across it."""
+    cx, cy = (ii + 0.5) * cell - a[0], (jj + 0.5) * cell - a[1]
+    return cx * u[0] + cy * u[1], cx * nrm[0] + cy * nrm[1]
+
+
+@dataclass
+class Chunk:
+    """About 1 mm of a bead waiting in its pool: its cells (`round_end`: those of its segment's
+    round end, beyond the segment's end), their distances to the segment, its centre cell, the
+    pour's width, peak and metal (cell-heights), its segment's end point (None but for the
+    bead's last chunk so far) and its place along the bead."""
+
+    ii: NDArray[np.int64]
+    jj: NDArray[np.int64]
+    s: FloatArray
+    round_end: NDArray[np.bool_]
+    centre: tuple[int, int]
+    width: float
+    peak: float
+    need: float
+    at: FloatArray | None
+    path_mm: float
