@@ -37,7 +37,7 @@ from typing import Callable, Generator
 import numpy as np
 from numpy.typing import NDArray
 
-from sims.pour import Chunk, FloatArray, Laid, finish, frame, pour_level
+from sims.pour import Chunk, FloatArray, Laid, finish, frame, metal_per_cell, pour_level
 
 Substrate = Callable[[FloatArray, FloatArray], FloatArray]
 Scale = Callable[[float, float, float], float]    # (x, y, mm along the segment) -> metal factor
@@ -271,7 +271,7 @@ class HeightMap:
         n_chunks = max(1, math.ceil(length / CHUNK_MM))
         step = length / n_chunks
         chunk = np.minimum((t / step).astype(np.int64), n_chunks - 1)
-        per_cell = self._metal_per_cell(a, u, nrm, length, half)
+        per_cell = metal_per_cell(self.cell, a, u, nrm, length, half)
         counts = np.bincount(chunk[beside], minlength=n_chunks)
         peak = 1.5 * area_mm2 / width_mm
         cell2 = self.cell * self.cell
@@ -350,24 +350,6 @@ class HeightMap:
             return
         self._lost += left * self.cell * self.cell
         self.volume_mm3 -= left * self.cell * self.cell
-
-    def _metal_per_cell(self, a: FloatArray, u: FloatArray, nrm: FloatArray, length: float, half: float) -> float:
-        """mm of bead one cell of a segment's strip stands for: counted over the strip extended by a
-        bead width beyond both ends, to whole cells (0 when the strip holds no cell). Counted over the segment alone,
-        a 3.44 mm move covering 6 or 7 rows of 0.5 mm cells poured its metal 1/6 higher on 6: a step
-        at every joint, the same every layer where the plan's points repeat."""
-        ext = self.cell * math.ceil((length + 4.0 * half) / self.cell)   # whole cells: along a grid
-        a0 = a - u * 2 * half                                           # line it counts exactly
-        lo = np.minimum(a0, a0 + u * ext) - half
-        hi = np.maximum(a0, a0 + u * ext) + half
-        i_lo, j_lo = self.index(float(lo[0]), float(lo[1]))
-        i_hi, j_hi = self.index(float(hi[0]), float(hi[1]))
-        gi, gj = np.meshgrid(np.arange(i_lo, i_hi + 1, dtype=np.int64), np.arange(j_lo, j_hi + 1, dtype=np.int64))
-        t, s = frame(gi.ravel(), gj.ravel(), self.cell, a0, u, nrm)
-        n = int(np.count_nonzero((t >= 0.0) & (t < ext) & (np.abs(s) <= half)))
-        if n == 0 or not np.any((t >= 2 * half) & (t <= 2 * half + length) & (np.abs(s) <= half)):
-            return 0.0
-        return ext / n
 
     def end_bead(self) -> None:
         """The bead ended (the arc went out): what waits in its pool poured together, its last

@@ -76,3 +76,22 @@ class Chunk:
     need: float
     at: FloatArray | None
     path_mm: float
+
+
+def metal_per_cell(cell: float, a: FloatArray, u: FloatArray, nrm: FloatArray, length: float, half: float) -> float:
+    """mm of bead one cell of a segment's strip stands for (segment from a, direction u, normal
+    nrm, half width `half`): counted over the strip extended by a bead width beyond both ends, to
+    whole cells (0 when the strip holds no cell). Counted over the segment alone, a 3.44 mm move
+    covering 6 or 7 rows of 0.5 mm cells poured its metal 1/6 higher on 6: a step at every joint,
+    the same every layer where the plan's points repeat."""
+    ext = cell * math.ceil((length + 4.0 * half) / cell)   # whole cells: along a grid line it counts exactly
+    a0 = a - u * 2 * half
+    lo = np.minimum(a0, a0 + u * ext) - half
+    hi = np.maximum(a0, a0 + u * ext) + half
+    gi, gj = np.meshgrid(np.arange(math.floor(lo[0] / cell), math.floor(hi[0] / cell) + 1, dtype=np.int64),
+                         np.arange(math.floor(lo[1] / cell), math.floor(hi[1] / cell) + 1, dtype=np.int64))
+    t, s = frame(gi.ravel(), gj.ravel(), cell, a0, u, nrm)
+    n = int(np.count_nonzero((t >= 0.0) & (t < ext) & (np.abs(s) <= half)))
+    if n == 0 or not np.any((t >= 2 * half) & (t <= 2 * half + length) & (np.abs(s) <= half)):
+        return 0.0
+    return ext / n
