@@ -425,10 +425,9 @@ class HeightMap:
 
     def _pour(self, ii: NDArray[np.int64], jj: NDArray[np.int64], env: FloatArray, hang: FloatArray,
               need: float) -> float:
-        """Pour `need` (cell-heights) into cells, each held by its parabola `env`; returns what
-        did not fit. Over a free edge (nothing under the cell, nothing laid there yet) the pool
-        hangs on the side face down to `hang` (its own height below the bead's base): held there,
-        not lost down the side."""
+        """Pour `need` (cell-heights) into cells, each held by its parabola `env`; what did not fit.
+        Over a free edge (nothing under the cell, nothing laid there yet) the pool hangs on the side
+        face down to `hang` (its own height below the bead's base), not lost down the side."""
         r, c = jj - self._j0, ii - self._i0
         old = self._surface_idx(ii, jj)
         floor = np.where(old < _OFF_PART, hang, old)
