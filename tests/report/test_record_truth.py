@@ -17,12 +17,13 @@ from pathlib import Path
 
 import pytest
 
-from controller.harness.cell import open_cell
+from controller.harness.cell import open_cell, with_urls
+from controller.harness.sim_process import SimProcess
 from controller.job.read import job_from_dict
 from controller.report.record import CSV_COLUMNS
 from controller.runtime.bead_measure import Pace
 from controller.tui.session import CellSession
-from core.config import load_sim
+from core.config import load_cell, load_sim
 from tests.cells import cnc_cell, on_the_cnc_block, small_job
 from controller.defaults import SIM_REPLY_TIMEOUT_MS
 
@@ -139,7 +140,12 @@ async def test_a_tui_build_leaves_its_record_complete_and_estopped(tmp_path: Pat
     job = small_job(n_layers=2)
     job_file = tmp_path / "square.json"
     job_file.write_text(json.dumps(job))
-    session = CellSession(sim=True, runs_dir=tmp_path / "runs", time_scale=20.0)
+    # the simulators in `cell sim up` beside this process, as `cell tui --sim` runs them: in this
+    # interpreter they took the interpreter lock from the controller's device cycles and its
+    # streaming, and under load a bead of the first build was flagged (docs/testing.md, "A loop
+    # that never blocks"); the E-stop is pressed over their clock line
+    sims = SimProcess(with_urls(load_cell(), {}, time_scale=20.0), tmp_path / "sim")
+    session = CellSession(sims.cfg, sim_cfg=load_sim(), runs_dir=tmp_path / "runs", sims_beside=True)
     app = CellApp(session)
     try:
         async with app.run_test(size=(120, 36)) as pilot:
@@ -173,16 +179,16 @@ async def test_a_tui_build_leaves_its_record_complete_and_estopped(tmp_path: Pat
             await _until(pilot, lambda: isinstance(app.screen, StartDialog), 15, "the start dialog")
             app.screen.query_one("#start-ok", Button).press()   # prefilled with this session's lot
             await _until(pilot, lambda: app.view.snap.state == "running_depositing", 30, "an arc")
-            cellio = session.harness.sim("cellio")
-            session.harness.call(cellio.press_estop)
+            sims.inject("cellio", "estop")
             await _until(pilot, lambda: app.view.snap.state == "estop", 10, "the E-stop")
             run2 = Path(app.view.snap.run_dir or "")
             await _until(pilot, lambda: app.last_message.startswith("estop: record in"), 150, "the E-stop's record")
             rep2 = _assert_record(run2, job2)
             assert rep2["state"] == "estop" and "not built" in {b["status"] for b in rep2["beads"]}
-            session.harness.call(cellio.release_estop)
+            sims.inject("cellio", "estop_release")
     finally:
         session.close()
+        sims.close()
 
 
 async def _cnc_build(tmp: Path, job: dict, scale: float) -> Path:
