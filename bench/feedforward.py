@@ -12,7 +12,7 @@ world of config/sim.yaml, the plan's z: `process_control: open`): the torch at t
 stick-out from the deposit under it, the current from the melting-rate relation at the segment's
 wire feed, the bead's width from the model at that current and speed. Per layer: the true top's
 spread along the pass centre lines (max − min, mm), its RMS error against the planned top, the
-stick-out range and the share of segments whose current is outside ±10 % of the pass's set-point
+stick-out range and the share of segments whose current is outside ±10 % of the synergic line's at the segment's wire feed
 (what the bead judge would call a defect).
 """
 from __future__ import annotations
@@ -57,7 +57,7 @@ def pour(job: Job, material: Material, step_mm: float = STEP_MM) -> list[dict[st
                 c = phys.ctwd_mm() or phys.cfg.stick_out_mm
                 i = phys.current_a(w[k], c)
                 ctwd.append(c)
-                i_set = p.current_a + slope * (w[k] - p.wfs_m_min)   # the synergic line's set-point at this feed
+                i_set = r.i_min_a + slope * (w[k] - r.wfs_min_m_min)   # the synergic line's current at this feed
                 bad += abs(i / i_set - 1.0) > 0.10
                 n += 1
                 phys.lay("robot", a, b, math.dist(a, b) / v[k] * 60.0, i, w[k])

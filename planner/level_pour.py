@@ -50,7 +50,7 @@ class PourOptions:
     min_change: float = 0.01          # a pass whose metal varies less than this keeps its one speed
     turn_mm: float = 1.0              # a turn's own segments (its outside's round end takes their metal)
     round_mm: float = 0.25            # a sharp turn rounded with this radius, in bead widths (0: not rounded)
-    layer_rounds: int = 2             # the layer laid again with what the later passes add taken off
+    layer_rounds: int = 1             # the layer laid again with what the later passes add taken off
 
 
 CELL_MM = 0.5     # the predicted stack's cells
@@ -113,35 +113,30 @@ def _rounded(p: Pass, radius: float) -> Pass:
     d = np.diff(pts[:, :2], axis=0)
     lens = np.hypot(d[:, 0], d[:, 1])
     u = d / np.maximum(lens, 1e-12)[:, None]
-    out_pts: list[np.ndarray] = [pts[:1]]
-    out_nrm: list[np.ndarray] = [] if p.normals is None else [p.normals[:1]]
-    for k in range(1, len(pts) - 1):
-        cos = float(np.clip(np.dot(u[k - 1], u[k]), -1.0, 1.0))
-        turn = math.acos(cos)
-        tan_len = radius * math.tan(turn / 2.0)
-        if (math.degrees(turn) <= ROUND_DEG or lens[k - 1] < 1e-9 or lens[k] < 1e-9
-                or tan_len > 0.45 * min(lens[k - 1], lens[k])):
-            out_pts.append(pts[k:k + 1])
-            if p.normals is not None:
-                out_nrm.append(p.normals[k:k + 1])
-            continue
-        n = int(math.ceil(math.degrees(turn) / ARC_DEG))
-        a = pts[k, :2] - u[k - 1] * tan_len            # where the arc leaves the leg before
+    turn = np.arccos(np.clip(np.sum(u[:-1] * u[1:], axis=1), -1.0, 1.0))
+    tan_len = radius * np.tan(turn / 2.0)
+    sharp = np.flatnonzero((np.degrees(turn) > ROUND_DEG) & (lens[:-1] > 1e-9) & (lens[1:] > 1e-9)
+                           & (tan_len <= 0.45 * np.minimum(lens[:-1], lens[1:]))) + 1
+    if len(sharp) == 0:
+        return p
+    out_pts: list[np.ndarray] = []
+    out_nrm: list[np.ndarray] = []
+    last = 0
+    for k in sharp.tolist():
+        out_pts.append(pts[last:k])
+        th, tl = float(turn[k - 1]), float(tan_len[k - 1])
+        n = int(math.ceil(math.degrees(th) / ARC_DEG))
+        a = pts[k, :2] - u[k - 1] * tl            # where the arc leaves the leg before
         side = math.copysign(1.0, float(u[k - 1, 0] * u[k, 1] - u[k - 1, 1] * u[k, 0]))
         centre = a + side * radius * np.array([-u[k - 1, 1], u[k - 1, 0]])
-        start = math.atan2(a[1] - centre[1], a[0] - centre[0])
-        ang = start + side * turn * np.arange(n + 1) / n
-        arc = np.column_stack([centre[0] + radius * np.cos(ang), centre[1] + radius * np.sin(ang),
-                               np.full(n + 1, pts[k, 2])])
-        out_pts.append(arc)
+        ang = math.atan2(a[1] - centre[1], a[0] - centre[0]) + side * th * np.arange(n + 1) / n
+        out_pts.append(np.column_stack([centre[0] + radius * np.cos(ang), centre[1] + radius * np.sin(ang),
+                                        np.full(n + 1, pts[k, 2])]))
         if p.normals is not None:
-            out_nrm.append(np.repeat(p.normals[k:k + 1], n + 1, axis=0))
-    out_pts.append(pts[-1:])
-    if p.normals is not None:
-        out_nrm.append(p.normals[-1:])
-    if sum(len(q) for q in out_pts) == len(pts):
-        return p
-    normals = np.vstack(out_nrm) if p.normals is not None else None
+            out_nrm += [p.normals[last:k], np.repeat(p.normals[k:k + 1], n + 1, axis=0)]
+        last = k + 1
+    out_pts.append(pts[last:])
+    normals = None if p.normals is None else np.vstack(out_nrm + [p.normals[last:]])
     return Pass(p.role, p.width_mm, p.current_a, p.speed_mm_min, p.wfs_m_min, np.vstack(out_pts), normals, None,
                 p.inside_envelope)
 
