@@ -328,6 +328,37 @@ async def test_a_milling_program_streams_in_spindle_mode_with_its_tool_change(ta
     assert _settings(await link.command("$$"))[32] == "0"          # still spindle mode, read back
 
 
+async def test_a_safe_stop_mid_milling_program_leaves_the_spindle_off_and_nothing_queued(target: Target) -> None:
+    """Issue 36: the stop of a machining program (the CNC stop point, the machining watch's fault:
+    both end in `safe_stop`) in spindle mode (`$32=0`, where a rapid does not stop the spindle) with
+    the cutter turning mid-raster: then `?` shows the spindle at 0 and the planner and serial
+    buffers empty, `$G` shows M5, and the machine stands where it stopped."""
+    link = target.link
+    await link.laser_mode(False)
+    box = trimesh.creation.box(extents=(20, 20, 10))
+    box.apply_translation((0, 0, -5))
+    cutter = load_cell().tools.cutters["ball6"]
+    stock = Surface(np.full((13, 13), 0.6), (-3.0, -3.0), 0.5)
+    plan = plan_finish(np.asarray(box.triangles), stock, (-2.0, -2.0, 2.0, 2.0),
+                       Cut("ball6", ToolShape("ball", 3.0), 1.0, 2.0, 150.0), finish_stock_mm=0.2, clearance_mm=0.5)
+    lines = ["G21 G90 G94"] + program_lines(plan, np.eye(4), cutter.model_copy(update={"feed_mm_min": 150.0}),
+                                            spindle_up_s=0.1)
+    stream: asyncio.Future[object] = asyncio.ensure_future(link.stream(lines))
+    for _ in range(200):
+        st = await link.status()
+        if st.state == "Run" and st.spindle > 0:
+            break
+        assert not stream.done(), stream.exception() if stream.done() else None
+    else:
+        raise AssertionError(f"never cutting: {st}")
+    res = await link.safe_stop("test: machining stopped")
+    with pytest.raises(GrblStopped):
+        await stream
+    assert res.planner_queued == 0 and res.rx_queued == 0 and res.spindle == 0 and res.spindle_off and res.modal_m5
+    await _assert_stopped_clean(link, res)
+    assert _settings(await link.command("$$"))[32] == "0"
+
+
 async def test_m4_laser_power_follows_the_actual_speed(target: Target) -> None:
     """Issue 35 item 5 (docs/laser-power.md): in laser mode `M4 S1000` puts out S × the actual
     speed / the programmed feed in a feed move (through the corner's slow-down and the stop at the
