@@ -8,7 +8,8 @@ hidden process gain (sim.yaml `process.height_gain`) drawn in 0.85–1.15. Each 
 - machined_below_cad_mm: the simulator's height map after machining (its own truth, not the probe)
   over the repaired region, the deepest cell below CAD (target ≤ 0.02 mm);
 - shortfall: the deposit's true top before machining below CAD + min_stock anywhere on the
-  repaired region (cells 1.5 mm in from its boundary), and whether the stock probe stopped the run;
+  repaired region (every 0.5 mm cell, its boundary's too; `deposit_min_inner_mm`: cells 1.5 mm in),
+  and whether the stock probe stopped the run;
 - removal_mean_mm: cut.jsonl's volume over the machined region's area (target ≤ 1 mm).
 """
 from __future__ import annotations
@@ -63,7 +64,7 @@ async def one(tmp: Path, shape: str, pose: tuple[Any, ...], gain: float) -> dict
     job = read_job(tmp / "job.json")
     cad_m, stock_m = trimesh.load_mesh(str(cad)), trimesh.load_mesh(str(stock))
     rb = np.asarray(job.repair.bounds_mm if job.repair and job.repair.bounds_mm is not None else [[0, 0, 0]] * 2)
-    xy = _grid(rb)
+    xy = _grid(rb + np.array([[-2.0, -2.0, 0.0], [2.0, 2.0, 0.0]]))   # the intact surroundings in: the boundary is seen
     ctop = cad_top(np.asarray(cad_m.triangles), xy)
     repaired = (ctop - np.nan_to_num(cad_top(np.asarray(stock_m.triangles), xy), neginf=-1e9)) > 0.05
     outside = xy[~repaired]
@@ -77,8 +78,12 @@ async def one(tmp: Path, shape: str, pose: tuple[Any, ...], gain: float) -> dict
             hm = harness.world.physics.maps["cnc"]
             top = hm.solid_tops(xy[:, 0], xy[:, 1])
             top = np.where(np.isfinite(top), top, ctop)
-            m = inner & np.isfinite(ctop)
-            truth["deposit_min_over_cad_mm"] = round(float(np.min(top[m] - ctop[m])), 4) if m.any() else None
+            m = repaired & np.isfinite(ctop)       # every cell of the repaired region, its boundary's too
+            k = int(np.argmin(np.where(m, top - ctop, np.inf)))
+            truth["deposit_min_over_cad_mm"] = round(float(top[k] - ctop[k]), 4) if m.any() else None
+            truth["deposit_min_at"] = [round(float(v), 2) for v in xy[k]]
+            mi = inner & np.isfinite(ctop)
+            truth["deposit_min_inner_mm"] = round(float(np.min(top[mi] - ctop[mi])), 4) if mi.any() else None
 
     out: dict[str, Any] = {"shape": shape, "pose": [round(v, 3) if isinstance(v, float) else [round(x, 3) for x in v]
                                                     for v in pose], "gain": round(gain, 3)}
@@ -104,10 +109,12 @@ async def one(tmp: Path, shape: str, pose: tuple[Any, ...], gain: float) -> dict
     out.update(state=rep["state"], wall_s=round(time.time() - t0, 1), stock=rep["stock"]["min_mm"],
                verify_max_mm=v["height_error_max_mm"], verify_below_cad_mm=v["below_cad_max_mm"],
                verify_touches=v["points"], machined_below_cad_mm=round(float(max(0.0, np.max(ctop[m] - top[m]))), 4),
+               machined_below_cad_at=[round(float(c), 2) for c in xy[m][int(np.argmax(ctop[m] - top[m]))]],
                machined_above_cad_mm=round(float(np.max(top[m] - ctop[m])), 4),
                removal_mm3=round(sum(c["removed_mm3"] for c in cuts), 1),
                removal_mean_mm=round(sum(c["removed_mm3"] for c in cuts) / area, 3),
-               deposit_min_over_cad_mm=dmin, shortfall=bool(dmin is not None and dmin < min_stock),
+               deposit_min_over_cad_mm=dmin, deposit_min_at=truth.get("deposit_min_at"),
+               deposit_min_inner_mm=truth.get("deposit_min_inner_mm"), shortfall=bool(dmin is not None and dmin < min_stock),
                shortfall_found=False, time_s=mc["time_s"], redeposits=len(rep["stock"].get("redeposits", [])),
                stock_touches=rep["stock"]["points"])
     return out

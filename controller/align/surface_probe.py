@@ -75,7 +75,7 @@ def _spaced(xy: F, order: np.ndarray, spacing: float, fixed: F | None = None) ->
     return taken
 
 
-def stock_spots(cad_tri: F, stock_tri: F, bounds_xy: F, *, ring_step_mm: float = 1.5, inner_step_mm: float = 2.0,
+def stock_spots(cad_tri: F, stock_tri: F, bounds_xy: F, *, ring_step_mm: float = 0.5, inner_step_mm: float = 2.0,
                 ring_inset_mm: float = 0.25, step_mm: float = 0.5) -> tuple[F, list[str]]:
     """The stock probe's spots (CAD frame) and their kinds ("corner", "ring", "inside").
 

@@ -27,14 +27,14 @@ def test_a_pocket_is_probed_at_its_corners_first_along_its_walls_and_inside():
     corners = {(30.25, 30.25), (49.75, 30.25), (30.25, 49.75), (49.75, 49.75)}
     assert {tuple(p) for p in xy[:4].round(2).tolist()} == corners and kinds[:4] == ["corner"] * 4
     assert set(kinds) == {"corner", "ring", "inside"}
-    # no cell of the region farther than the inside spacing (2 mm) from a spot; within 1.2 mm of every cell along the walls
+    # no cell of the region farther than the inside spacing (2 mm) from a spot; within 0.6 mm of every cell along the walls
     g = np.arange(30.25, 50.0, 0.5)
     cells = np.array([(x, y) for x in g for y in g])
     d = cKDTree(xy).query(cells)[0]
     assert d.max() <= 2.0, d.max()
     wall = cells[np.min(np.column_stack([cells - 30, 50 - cells]), axis=1) <= 1.0]
-    assert cKDTree(xy).query(wall)[0].max() <= 1.2
-    assert 80 <= len(xy) <= 130                      # a few per cm of boundary, 2 mm inside, not every cell
+    assert cKDTree(xy).query(wall)[0].max() <= 0.6
+    assert 180 <= len(xy) <= 240                     # every boundary cell, 2 mm inside, not every cell
 
 
 def test_an_l_gets_its_inner_corner_and_leg_ends():
