@@ -25,6 +25,7 @@ from controller.align.routine import AlignResult, ProbePlan, alignment_record, p
 from controller.api import CellController
 from controller.job.model import CellJob
 from controller.job.redeposit import redeposit_job
+from controller.job.repair_volume import load_cad
 from controller.motion.cnc5 import refuse_unfed
 from controller.motion.kinematics import Trunnion, apply_to_job
 from controller.runtime import stops
@@ -72,23 +73,6 @@ class VerifyResult:
                 "flatness_mm": round(flat, 4), "tolerance_mm": self.tolerance_mm, "defects": defects,
                 "edge_points": sum(1 for k in self.kinds if k == "edge"),
                 "at": np.round(self.points_cad, 3).tolist()}
-
-
-def load_cad(job: CellJob, job_path: Path | None, which: str = "cad") -> "trimesh.Trimesh":
-    """The job's CAD (or, `which="stock"`, its stock) mesh, a relative path looked up next to the job."""
-    # lazy: trimesh loads only when this path runs (start-up time)
-    import trimesh
-
-    cad = (job.repair.cad if which == "cad" else job.repair.stock) if job.repair is not None else None
-    if not cad:
-        raise InputError(f"job: not a repair job (no repair.{which}); plan it with `cell repair plan`")
-    p = Path(cad)
-    if not p.is_absolute() and job_path is not None and (job_path.parent / p).is_file():
-        p = job_path.parent / p   # a relative CAD is relative to the job file's directory
-    if not p.is_file():
-        where = f" (looked in {job_path.parent.resolve()})" if job_path is not None and not Path(cad).is_absolute() else ""
-        raise InputError(f"job repair.{which} {cad}: no such file{where}; plan the repair again or put the mesh there")
-    return trimesh.load_mesh(str(p), force="mesh")
 
 
 def probe_plan(cad: "trimesh.Trimesh", job: CellJob) -> ProbePlan:

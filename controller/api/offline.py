@@ -5,7 +5,7 @@ the TUI's Log and Align screens)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 from core.config import CellConfig, ProbeSettings
 
@@ -64,10 +64,28 @@ def workpiece_probe_plan(sim_cfg: SimConfig) -> ProbePlan:
     return plan_for_mesh(cad_mesh(sim_cfg.cnc.workpiece))
 
 
-def aligned_job(job: CellJob, transform: ArrayLike, record: dict[str, Any], *, name: str) -> CellJob:
+def aligned_job(job: CellJob, transform: ArrayLike, record: Mapping[str, object], *, name: str | None = None) -> CellJob:
     """`job` moved by an alignment's transform (the CAD model moves, not the part), the alignment
-    recorded in it; a job that already carries one is refused (one alignment per job)."""
+    recorded in it (renamed `name`, when given); a job that already carries one is refused (one
+    alignment per job)."""
     # lazy: the kinematics load only when a job is aligned
     from controller.motion.kinematics import apply_to_job
 
     return apply_to_job(job, transform, record, name=name)
+
+
+def state_machine_doc() -> str:
+    """docs/state-machine.md, generated from the controller's state machine (`cell docs`)."""
+    # lazy: the state machine loads only when the page is written
+    from controller.runtime.machine import state_machine_doc as doc
+
+    return doc()
+
+
+def feedable_time_scale(cfg: CellConfig, job: CellJob, max_step_mm: float = 2.0) -> tuple[CellConfig, str | None]:
+    """`cfg` with cell.time_scale lowered to what the CNC link can feed for `job` (simulated time
+    only, CNC cells: controller/motion/cnc5.py) and the message saying so; (cfg, None) when not lowered."""
+    # lazy: the 5-axis post loads only for a simulated build
+    from controller.motion.cnc5 import limit_time_scale
+
+    return limit_time_scale(cfg, job, max_step_mm)

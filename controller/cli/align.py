@@ -9,13 +9,13 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.motion.kinematics import apply_to_job
-from controller.align.routine import alignment_record, cad_mesh, plan_for_mesh
-from controller.api import align_at
+from controller.api import align_at, aligned_job
+from controller.api.geometry import (alignment_record, fit_and_level, probe_plan_on, read_rotations,
+                                     rotate_points, write_align_report)
+from controller.api.jobs import read_job
 from controller.cli import guard
 from controller.cli.parsing import NumbersParser, Subcommands
-from controller.harness.align_sim import run_with_sim
-from controller.job.read import read_job
+from controller.harness import run_with_sim
 from core.config import load_cell, load_sim
 from core.errors import InputError
 
@@ -136,9 +136,6 @@ def _fmt(v: np.ndarray, nd: int = 6) -> str:
 
 def _plane(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.align.fit import fit_plane
-    from controller.motion.kinematics import Trunnion
-    from controller.align.leveling import leveling_angles
     from controller.cli.main import emit_json
     from core.config import load_cell
 
@@ -152,8 +149,7 @@ def _plane(args: argparse.Namespace) -> int:
     spread = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
     if spread[1] <= 1e-9 * max(spread[0], 1e-300):
         raise InputError(f"{args.csv}: the points are collinear; a plane needs points spread over an area")
-    fit = fit_plane(pts, noise_mm=noise or None, reject=not args.no_reject)
-    lev = leveling_angles(fit.normal, Trunnion.from_config(cell.kinematics))
+    fit, lev = fit_and_level(pts, cell, noise_mm=noise or None, reject=not args.no_reject)
     out = {
         "normal": fit.normal.tolist(), "point": fit.point.tolist(),
         "rms_mm": fit.rms_mm, "max_residual_mm": fit.max_residual_mm,
@@ -178,10 +174,9 @@ def _plane(args: argparse.Namespace) -> int:
 
 def _transform(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.motion.kinematics import apply_transform, parse_rotations, rotation_about_pivot
     from controller.cli.main import emit_json
 
-    rots = parse_rotations(args.rotate)
+    rots = read_rotations(args.rotate)
     pivot = parse_triple(args.pivot, "--pivot")
     pts: list[np.ndarray] = []
     for word in args.points:
@@ -191,8 +186,7 @@ def _transform(args: argparse.Namespace) -> int:
             pts.append(parse_triple(word, "point"))
     if not pts:
         raise InputError("no points given: put x,y,z words after -- (e.g. -- 0,0,0 1,0,0) or give a CSV file")
-    m = rotation_about_pivot(rots, pivot)
-    out_pts = apply_transform(m, np.array(pts))
+    m, out_pts = rotate_points(rots, pivot, np.array(pts))
     if args.json:
         emit_json({"points": out_pts.tolist(), "matrix": m.tolist(), "pivot": pivot.tolist(),
                    "rotations": [{"axis": a, "deg": d} for a, d in rots]})
@@ -219,8 +213,7 @@ def run_cli(args: argparse.Namespace) -> int:
     sim_path = Path(args.sim_config) if args.sim_config else None
     sim_cfg = load_sim(sim_path)
     base = sim_path.parent if sim_path else None
-    mesh = cad_mesh(sim_cfg.cnc.workpiece, getattr(args, "cad", None), base)
-    plan = plan_for_mesh(mesh)
+    plan = probe_plan_on(sim_cfg.cnc.workpiece, getattr(args, "cad", None), base)
     no_level = bool(getattr(args, "no_level", False))
     if args.sim:
         res = asyncio.run(guard.run_attached(run_with_sim(cell, sim_cfg, plan, config_dir=base, no_level=no_level)))
@@ -228,14 +221,11 @@ def run_cli(args: argparse.Namespace) -> int:
         res = asyncio.run(guard.run_attached(align_at(cell.devices.cnc.url, cell, plan, no_level=no_level)))
     out = res.to_json()
     if args.report:
-        # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-        from controller.align.report import write_report
-
-        paths = write_report(res, args.report)
+        paths = write_align_report(res, args.report)
         out["report"] = {k: str(v) for k, v in paths.items()}
     if job is not None:
         dest = Path(args.job_out) if args.job_out else Path(args.job).with_suffix(".aligned.json")
-        moved = apply_to_job(job, res.transform, alignment_record(res))
+        moved = aligned_job(job, res.transform, alignment_record(res))
         try:
             dest.write_text(moved.json + "\n", encoding="utf-8")
         except OSError as exc:

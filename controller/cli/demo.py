@@ -16,7 +16,7 @@ from typing import Any, Callable
 from controller.cli import guard, runargs
 from controller.cli.run import drive, err_line, out_line, print_summary, exit_code
 from controller.cli.parsing import Subcommands
-from controller.job.model import CellJob
+from controller.api.jobs import CellJob
 from controller.defaults import DEMO_MAX_STEP_MM, DEMO_PART, DEMO_TIME_SCALE, DEMO_WIDTH_MM
 from core.config import CellConfig, load_cell, load_sim
 from core.errors import CellError
@@ -42,9 +42,8 @@ def register(sub: Subcommands) -> None:
 
 def _demo(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.job.identity import run_dir_for
-    from controller.job.read import job_from_dict
-    from controller.runtime.devices import with_urls
+    from controller.api.jobs import check_job_for_cell, job_from_dict, run_dir_for
+    from controller.harness import with_urls
     from core.config import load_material
     from planner.job import job_to_dict
     from planner.plan import PlanOptions, plan_part
@@ -68,7 +67,7 @@ def _demo(args: argparse.Namespace) -> int:
     if args.layers:   # the job file's own layers cut (its hash is of what is built)
         planned["layers"] = planned["layers"][: args.layers]
     job = job_from_dict(planned, f"demo job ({DEMO_PART.name})")
-    runargs.check_job_for_cell(job, cfg, f"demo job ({DEMO_PART.name})")
+    check_job_for_cell(job, cfg, f"demo job ({DEMO_PART.name})")
     s = job.job.summary
     say(f"  {len(job.layers)} layers, {job.passes_total} beads, "
         f"{s.get('deposit_length_mm', 0) / 1000:.1f} m of bead, {s.get('arc_time_s', 0) / 60:.1f} min of arc, "
@@ -100,8 +99,8 @@ async def _demo_cell(cfg: CellConfig, job: CellJob, run_dir: Path, runs: Path, s
     """The demo's cell: the simulators in a process of their own, as real devices are (`cell sim
     up`, controller/harness/cell.py); aligned, built; the API object and the alignment."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.harness.cell import open_cell
-    from controller.runtime.build import BuildOptions
+    from controller.api.types import BuildOptions
+    from controller.harness import open_cell
 
     async with open_cell(cfg, sim=True, process=True, log_dir=run_dir / "sim", runs_dir=runs, connect=False) as ctl:
         assert ctl.simulators is not None
@@ -125,9 +124,9 @@ async def _demo_drive(ctl: Any, job: CellJob, say: Callable[[str], None],
         report.write_text(json.dumps(rep, indent=2) + "\n", encoding="utf-8")
         if ctl.cfg.records.url:   # the store's copy is the run directory's (docs/records.md)
             # lazy: the records room loads only for a cell with a store
-            from controller.records.queue import resend
+            from controller.api.records import resend_record
 
-            await asyncio.to_thread(resend, report.parent, ctl.cfg.records.url, cell=ctl.cfg.cell.name,
+            await asyncio.to_thread(resend_record, report.parent, ctl.cfg.records.url, cell=ctl.cfg.cell.name,
                                     timeout_s=ctl.cfg.records.connect_timeout_s)
     return res, report, align
 
@@ -135,14 +134,14 @@ async def _demo_drive(ctl: Any, job: CellJob, say: Callable[[str], None],
 async def _align(ctl: Any, say: Callable[[str], None]) -> dict[str, Any] | None:
     """Probe and align the substrate over the CNC link."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.align.routine import cad_mesh, plan_for_mesh
     from controller.api import align_at
+    from controller.api.geometry import probe_plan_on
 
     cfg = ctl.cfg
     sim_cfg = ctl.simulators.sim_cfg if ctl.simulators is not None else load_sim()
     say("probing and aligning the substrate on the CNC (touch probe, G38.2)...")
     try:
-        plan = plan_for_mesh(cad_mesh(sim_cfg.cnc.workpiece))
+        plan = probe_plan_on(sim_cfg.cnc.workpiece)
         res = await asyncio.wait_for(align_at(cfg.devices.cnc.url, cfg, plan), 60.0)
     except (CellError, asyncio.TimeoutError) as exc:
         say(f"alignment failed: {exc or 'timed out'}; building without it")

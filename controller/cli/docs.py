@@ -5,7 +5,7 @@ import argparse
 from pathlib import Path
 
 from controller.cli.parsing import Subcommands
-from controller.runtime.machine import state_machine_doc
+from controller.api.offline import state_machine_doc
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 

@@ -33,8 +33,8 @@ def run(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from core.config import load_cell
-    from controller.export import SUFFIX, export_job
-    from controller.job.read import read_job
+    from controller.api.jobs import read_job
+    from controller.api.programs import SUFFIX, export_program
 
     if args.finish and args.format != "gcode":
         raise InputError(f"--finish: a milling program is G-code; give --format gcode (not {args.format})")
@@ -42,12 +42,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_cell(args.cell_config) if args.cell_config else load_cell()
     stem = Path(args.job).name.removesuffix(".json").removesuffix(".job")
     out = Path(args.out) if args.out else Path(stem + SUFFIX[args.format])
-    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.motion.kinematics import Trunnion
-
-    res = export_job(job, args.format, name=stem, out=out, clearance_mm=cfg.limits.clearance_mm,
-                     travel_mm_min=cfg.limits.travel_speed_mm_min, trunnion=Trunnion.from_config(cfg.kinematics),
-                     baud=cfg.devices.cnc.baud)
+    res = export_program(job, args.format, name=stem, out=out, cfg=cfg)
     files = dict(res.files)
     finish = _finish(args, job, cfg, out) if args.finish else None
     if finish is not None:
@@ -73,8 +68,7 @@ def _finish(args: argparse.Namespace, job: Any, cfg: Any, out: Path) -> dict[str
     """The milling program of the job's top faces, in the deposition program's frame."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.finish import job_cad
-    from controller.export.milling import finish_top, milling_program
-    from controller.export.program import alignment_matrix, points_in_machine_frame
+    from controller.api.programs import alignment_matrix, finish_top, milling_program, points_in_machine_frame
 
     if points_in_machine_frame(job):
         raise InputError(f"{args.job}: --finish: the job's points were moved to the machine frame (an older "

@@ -49,11 +49,11 @@ def _job_path(source: str) -> Path:
 def job_cad(job: Any, path: Path) -> np.ndarray:
     """The job's CAD triangles in the job's frame: a repair job's `repair.cad`, else `source.file`."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.repair import load_cad
+    from controller.api.jobs import repair_mesh
     from planner.mesh import read_mesh
 
     if job.repair is not None and job.repair.cad:
-        cad: np.ndarray = np.asarray(load_cad(job, path).triangles, dtype=float)
+        cad: np.ndarray = np.asarray(repair_mesh(job, path).triangles, dtype=float)
         return cad
     src = Path(job.job.source.file)
     if not src.is_absolute():
@@ -70,8 +70,8 @@ def job_cad(job: Any, path: Path) -> np.ndarray:
 def run_finish_plan(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
-    from controller.export.milling import finish_top, milling_program
-    from controller.job.read import read_job
+    from controller.api.jobs import read_job
+    from controller.api.programs import finish_top, milling_program
     from core.config import load_cell
 
     path = _job_path(args.source)

@@ -18,9 +18,9 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from controller.cli import outcome
-from controller.runtime.cell_lock import acquire
-from controller.runtime import stops as stops_mod
-from controller.runtime.stops import SignalStop, StopSignals
+from controller.api import signals as stops_mod
+from controller.api.lock import acquire
+from controller.api.signals import SignalStop, StopSignals
 from core.config import load_cell
 from core.errors import CellError
 

@@ -43,9 +43,9 @@ def _journal_path(arg: str) -> Path:
 def _check(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
-    from controller.journal.check import inspect
+    from controller.api.runs import check_journal
 
-    h = inspect(_journal_path(args.run_dir))
+    h = check_journal(_journal_path(args.run_dir))
     out = {
         "journal": str(h.path), "state": "healthy" if h.damage is None else "damaged", "damage": h.damage,
         "bytes": h.path.stat().st_size if h.path.exists() else None, "wal_bytes": h.wal_bytes,
@@ -77,14 +77,14 @@ def _check(args: argparse.Namespace) -> int:
 def _recover(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
-    from controller.job.read import read_job
-    from controller.journal.recover import recover
+    from controller.api.jobs import read_job
+    from controller.api.runs import recover_journal
 
     src = _journal_path(args.run_dir)
     run_dir = src.parent
     out = Path(args.out) if args.out else run_dir.with_name(run_dir.name + "-recovered")
     job = read_job(args.job) if args.job else None
-    res = recover(run_dir, out, job)
+    res = recover_journal(run_dir, out, job)
     d = {"run_dir": str(res.run_dir), "rows": res.rows, "lost_chunks": res.lost_chunks,
          "passes_done": res.passes_done, "next": f"cell resume {res.run_dir}"}
     if args.json:

@@ -159,7 +159,7 @@ def _early_lock(argv: list[str]) -> contextlib.AbstractContextManager[object]:
     if next((a for a in argv if not a.startswith("-")), None) == "plan":
         return contextlib.nullcontext()
     # every other command: cell_lock.early decides which ones lock (plan's start-up skips its imports)
-    from controller.runtime.cell_lock import early
+    from controller.api.lock import early
 
     return early(argv)
 

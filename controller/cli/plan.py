@@ -216,7 +216,7 @@ def run(args: argparse.Namespace) -> int:
     previews: list[str] = []
     if args.preview:
         # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-        from controller.job.preview import write_previews
+        from controller.api.jobs import write_previews
 
         try:
             previews = [str(p) for p in write_previews(job, args.preview)]

@@ -64,18 +64,12 @@ def _url(args: argparse.Namespace, need_config: bool = True) -> tuple[str, Any]:
 
 def _sync(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.api import write_run_report
+    from controller.api.records import redact, sync_records
     from controller.cli.main import emit_json
-    from controller.records.db import redact
-    from controller.records.queue import pending_dirs, sync
 
     url, cfg = _url(args)
     runs = Path(args.runs or cfg.cell.runs_dir)
-    dirs = pending_dirs([runs])
-    for d in dirs:   # a record the build's end could not write: from the journal now
-        if not (d / "report.json").is_file() and (d / "journal.sqlite").is_file():
-            write_run_report(d, plots=False)
-    res = sync(dirs, url, cell=cfg.cell.name, timeout_s=cfg.records.connect_timeout_s)
+    res = sync_records(runs, url, cell=cfg.cell.name, timeout_s=cfg.records.connect_timeout_s)
     out = {"url": redact(url), "runs_dir": str(runs), **res.as_dict()}
     if args.json:
         emit_json(out)
@@ -92,8 +86,7 @@ def _query(args: argparse.Namespace) -> int:
     import csv
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
-    from controller.records.db import connect, redact
-    from controller.records.query import Filters, builds, defective_beads, since_arg
+    from controller.api.records import Filters, query_records, redact, since_arg
     from core.errors import InputError
 
     url, cfg = _url(args, need_config=False)
@@ -101,11 +94,8 @@ def _query(args: argparse.Namespace) -> int:
         raise InputError(f"--limit {args.limit}: give a positive number of rows")
     f = Filters(material=args.material, wire_lot=args.wire_lot, cell=args.cell,
                 since=since_arg(args.since) if args.since else None, limit=args.limit)
-    store = connect(url, cfg.records.connect_timeout_s if cfg is not None else 5.0)
-    try:
-        rows = defective_beads(store, f) if args.defects else builds(store, f)
-    finally:
-        store.close()
+    rows = query_records(url, f, defects=args.defects,
+                         timeout_s=cfg.records.connect_timeout_s if cfg is not None else 5.0)
     kind = "beads" if args.defects else "builds"
     if args.csv:
         cols = list(rows[0]) if rows else []

@@ -88,8 +88,8 @@ def _load(path: str, what: str) -> Any:
 def run_plan(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
+    from controller.api.jobs import repair_volume
     from controller.cli.plan import material_named
-    from controller.job.repair_volume import repair_volume
     from planner.job import job_to_dict
     from planner.plan import PlanOptions, plan_part
 
@@ -142,8 +142,8 @@ def run_repair(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
     from controller.cli.main import emit_json
     from controller.cli.runargs import with_trace
-    from controller.harness.repair import repair_run_devices, repair_run_sim
-    from controller.job.read import read_job
+    from controller.api.jobs import read_job
+    from controller.harness import repair_run_devices, repair_run_sim
     from core.config import load_cell, load_sim
 
     path = Path(args.job)
@@ -190,13 +190,10 @@ def demo_repair(args: argparse.Namespace) -> int:
     import time
 
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.harness.repair import repair_run_sim
-    from controller.harness.repair_parts import make_parts, posed_sim
-    from controller.runtime.devices import with_urls
+    from controller.api.jobs import read_job, repair_volume
+    from controller.harness import make_parts, posed_sim, repair_run_sim, with_urls
     from controller.cli.main import emit_json
     from controller.cli.runargs import with_trace
-    from controller.job.read import read_job
-    from controller.job.repair_volume import repair_volume
     from core.config import load_cell, load_material
     from planner.job import job_to_dict
     from planner.plan import PlanOptions, plan_part

@@ -22,20 +22,22 @@ import re
 import sys
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from core.config import CellConfig, SimConfig, load_cell, load_sim
 from controller.cli import guard, outcome, runargs
 from controller.cli.pause_prompt import PausePrompt
 from controller.cli.parsing import Subcommands
-from controller.job.model import CellJob
-from controller.job.read import read_job
-from controller.journal.space import check_free_space
+from controller.api.jobs import CellJob, check_job_for_cell, complete_in, read_job
+from controller.api.runs import check_free_space
 from core.errors import CellError, InputError
 
 from controller.defaults import (  # noqa: F401  (the demo's figures live with the controller)
     DEMO_MAX_STEP_MM, DEMO_PART, DEMO_TIME_SCALE, DEMO_WIDTH_MM, SIM_REPLY_TIMEOUT_MS, sim_reply_timeout_ms,
 )
+
+if TYPE_CHECKING:
+    from controller.harness import FedScale
 
 SCENARIO_FAULTS = ("arc_loss", "wire_stick")  # `name@layer=N` is driven by the controller's sim harness
 
@@ -89,7 +91,7 @@ def split_faults(spec: str | None) -> tuple[str, list[tuple[str, int, float | No
         elif part:
             keep.append(part)
     # lazy: the simulators' modules load only for a build that asks for faults
-    from controller.harness.sim import check_fault_spec
+    from controller.harness import check_fault_spec
 
     check_fault_spec(",".join(keep))  # a bad key or value: ConfigError naming it
     return ",".join(keep), scen
@@ -115,7 +117,7 @@ class Progress:
 
     def __init__(self, out: Callable[[str], None]) -> None:
         # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-        from controller.runtime.events import ProgressPrinter
+        from controller.api.types import ProgressPrinter
 
         self.t0 = time.monotonic()
         self.printer = ProgressPrinter(lambda line: out(f"[{time.monotonic() - self.t0:6.1f} s] {line}"))
@@ -161,7 +163,7 @@ def _result_json(ctl: Any, res: Any, report: Path | None) -> dict[str, Any]:
 
 def _run(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.job.identity import run_dir_for
+    from controller.api.jobs import run_dir_for
 
     cfg = runargs.with_trace(load_cell(args.cell_config), args)
     job = read_job(args.job)
@@ -172,9 +174,9 @@ def _run(args: argparse.Namespace) -> int:
     if args.sim_log:
         runargs.dir_arg(args.sim_log, "--sim-log")
     # the whole job against the cell, before any simulator starts or device is touched
-    runargs.check_job_for_cell(job, cfg, str(args.job))
+    check_job_for_cell(job, cfg, str(args.job))
     run_dir = run_dir_for(job, runs)
-    if runargs.complete_in(run_dir, job) and not args.new:
+    if complete_in(run_dir, job) and not args.new:
         return _already_complete(args, run_dir)
     if args.new and (run_dir / "journal.sqlite").exists():
         run_dir = runargs.new_run_dir(run_dir)
@@ -203,8 +205,8 @@ def _already_complete(args: argparse.Namespace, run_dir: Path) -> int:
 
 def _resume(args: argparse.Namespace) -> int:
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.journal.store import Journal
-    from controller.runtime.resume import latest_run_dir
+    from controller.api.jobs import stored_job
+    from controller.api.runs import journal_head, latest_run_dir
 
     cfg = runargs.with_trace(load_cell(args.cell_config), args)
     runs = runargs.dir_arg(args.runs or cfg.cell.runs_dir, "--runs", must_exist=not args.run_dir)
@@ -214,18 +216,16 @@ def _resume(args: argparse.Namespace) -> int:
     jpath = run_dir / "journal.sqlite"
     if not jpath.exists() and not jpath.with_name(jpath.name + "-wal").exists():
         raise CellError(f"{run_dir}: no journal.sqlite here; nothing to resume")
-    j = Journal(jpath)  # refuses a damaged journal, untouched
-    meta = j.job()
-    mode = j.latest_mode()
-    j.close()
-    if mode and json.loads(mode).get("sim") and not args.sim:
+    head = journal_head(jpath)  # refuses a damaged journal, untouched
+    meta = head.job
+    if head.mode.get("sim") and not args.sim:
         # the interrupted build ran on in-process simulators: so does its resume
         args.sim = True
     if meta is None:
         raise CellError(f"journal {jpath} holds no job, so it cannot be resumed (left untouched; "
                         f"`cell journal check {run_dir}` says what is readable)")
-    job = runargs.stored_job(meta, jpath)
-    runargs.check_job_for_cell(job, cfg, str(jpath))
+    job = stored_job(meta, jpath)
+    check_job_for_cell(job, cfg, str(jpath))
     log_dir = Path(args.sim_log) if args.sim_log else run_dir / "sim"
     check_free_space(run_dir, job, args.max_step, cfg.cell.time_scale)  # before any device (exit 2)
     return _build(args, cfg, job, run_dir, "", [], log_dir, runs, resume=True)
@@ -233,16 +233,17 @@ def _resume(args: argparse.Namespace) -> int:
 
 def _build(args: argparse.Namespace, cfg: CellConfig, job: CellJob, run_dir: Path | None, faults: str,
            scen: list[tuple[str, int, float | None]], log_dir: Path, runs: Path, resume: bool = False) -> int:
-    fed: Any = None
+    fed: FedScale | None = None
     note = None
     if args.sim:  # issue 29: the time scale the CNC link can feed (controller/motion/cnc5.py), said on stderr
-        from controller.motion.cnc5 import limit_time_scale
+        # lazy: the 5-axis post loads only for a simulated build
+        from controller.api import feedable_time_scale
 
-        cfg, note = limit_time_scale(cfg, job)
+        cfg, note = feedable_time_scale(cfg, job)
     elif cfg.cell.platform == "cnc":
         # `cell sim up`: its clock lowered to what the host can feed, before any device, or refused
         # (docs/controller.md, "Simulated time the host can feed")
-        from controller.harness.sim_clock import FedScale
+        from controller.harness import FedScale
 
         fed = FedScale.lower(cfg, job, args.max_step)
         cfg, note = fed.cfg, fed.note
@@ -291,8 +292,8 @@ async def _open_and_drive(cfg: CellConfig, job: CellJob, run_dir: Path | None, r
     """The cell opened (controller/harness/cell.py: the simulators in this process with `sim`),
     the build driven, the cell closed; the API object (its `result_json`)."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.harness.cell import open_cell
-    from controller.runtime.build import BuildOptions
+    from controller.api.types import BuildOptions
+    from controller.harness import open_cell
 
     async with open_cell(cfg, sim=sim, runs_dir=runs, log_dir=log_dir if sim is not None else None,
                          faults=faults, connect=False) as ctl:
@@ -306,11 +307,9 @@ async def drive(ctl: Any, job: CellJob, run_dir: Path | None, scen: list[tuple[s
     resume_ticket = None
     if resume and run_dir is not None:
         # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-        from controller.journal.store import Journal
+        from controller.api.runs import journal_head
 
-        j = Journal(run_dir / "journal.sqlite")
-        resume_ticket = j.max_progress_ticket() or None
-        j.close()
+        resume_ticket = journal_head(run_dir / "journal.sqlite").resume_ticket
     guard.attach(ctl, say)  # SIGINT / SIGTERM / SIGHUP: the fault path from here on
     await ctl.connect(resume_ticket=resume_ticket)
     try:

@@ -4,12 +4,11 @@ from __future__ import annotations
 import argparse
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from core.errors import InputError
 
 if TYPE_CHECKING:  # annotations only: the argument checks load before the job and the config do
-    from controller.job.model import CellJob
     from core.config import CellConfig
 
 MIN_STEP_MM = 0.1      # weld-move subdivision floor: 1 m of bead is at most 10 000 moves
@@ -42,32 +41,6 @@ def dir_arg(path: str | Path, what: str, *, must_exist: bool = False) -> Path:
     return p
 
 
-def check_job_for_cell(job: CellJob, cfg: CellConfig, source: str) -> None:
-    """The job checked against the cell (controller/job/check.py); JobCheckError if it does not fit.
-    The API's open_job finds it checked and does not walk it again."""
-    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.job.check import check_job, job_material
-
-    check_job(job, cfg, job_material(job, cfg), source)
-
-
-def stored_job(meta: dict[str, Any], jpath: Path) -> CellJob:
-    """The job a journal holds, refused when it no longer matches the checksum stored beside it."""
-    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.job.read import stored_job as read_stored
-
-    return read_stored(meta["job_json"], meta["hash"], jpath)
-
-
-def complete_in(run_dir: Path, job: CellJob) -> bool:
-    """Whether the journal of `run_dir` says every pass of the job is done (read-only look)."""
-    # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.journal.store import count_done_readonly
-
-    total = job.passes_total
-    return total > 0 and count_done_readonly(run_dir / "journal.sqlite") >= total
-
-
 def new_run_dir(run_dir: Path) -> Path:
     """The first `<run_dir>-N` (N = 2, 3, ...) that does not exist yet: `cell run --new`."""
     n = 2
@@ -91,11 +64,11 @@ def with_trace(cfg: CellConfig, args: argparse.Namespace) -> CellConfig:
     """cell.yaml with the command's --wire-lot / --gas / --operator in its `records:` section, the
     build refused when cell.yaml requires a lot and none is given (before any device: exit 2)."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
-    from controller.journal.trace import Trace, require_lot
+    from controller.api.runs import require_lot
 
     given = {k: v.strip() for k in ("wire_lot", "gas", "operator")
              if isinstance(v := getattr(args, k, None), str) and v.strip()}
     if given:
         cfg = cfg.model_copy(update={"records": cfg.records.model_copy(update=given)})
-    require_lot(cfg, Trace.from_config(cfg))
+    require_lot(cfg)
     return cfg

@@ -5,7 +5,7 @@ import argparse
 from pathlib import Path
 
 from controller.cli.parsing import Subcommands
-from controller.harness.sim_up import serve_until_interrupted
+from controller.harness import serve_until_interrupted
 from core.config import load_cell, load_sim
 
 

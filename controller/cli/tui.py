@@ -36,7 +36,7 @@ def _tui(args: argparse.Namespace) -> int:
     if args.sim:
         # lazy: loaded only with --sim
         import tempfile
-        from controller.harness.sim_process import SimProcess
+        from controller.harness import SimProcess
 
         # the simulators in a process of their own, as `cell demo` runs them: in this one they
         # would share the interpreter lock with the controller's device cycles and the screen

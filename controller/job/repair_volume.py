@@ -13,10 +13,12 @@ there, so the deposit is planned to hang over the edge by half a bead and machin
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from controller.job.model import CellJob
 from core.errors import InputError, MeshError
 
 if TYPE_CHECKING:  # both are imported on first use: loading them costs the CLI's start-up
@@ -135,3 +137,21 @@ def repair_volume(cad: trimesh.Trimesh, stock: trimesh.Trimesh, allowance_mm: fl
             rep = rep + over
             vol = float(rep.volume())
     return RepairVolume(to_trimesh(rep), vol, np.asarray(rep.bounding_box()).reshape(2, 3), sticking, hang)
+
+
+def load_cad(job: CellJob, job_path: Path | None, which: str = "cad") -> trimesh.Trimesh:
+    """A repair job's CAD (or, `which="stock"`, its stock) mesh, a relative path looked up next to the job
+    (controller/repair.py, `cell finish`)."""
+    # lazy: trimesh loads only when this path runs (start-up time)
+    import trimesh
+
+    cad = (job.repair.cad if which == "cad" else job.repair.stock) if job.repair is not None else None
+    if not cad:
+        raise InputError(f"job: not a repair job (no repair.{which}); plan it with `cell repair plan`")
+    p = Path(cad)
+    if not p.is_absolute() and job_path is not None and (job_path.parent / p).is_file():
+        p = job_path.parent / p   # a relative CAD is relative to the job file's directory
+    if not p.is_file():
+        where = f" (looked in {job_path.parent.resolve()})" if job_path is not None and not Path(cad).is_absolute() else ""
+        raise InputError(f"job repair.{which} {cad}: no such file{where}; plan the repair again or put the mesh there")
+    return trimesh.load_mesh(str(p), force="mesh")

@@ -41,7 +41,7 @@ from controller.tui.view import (DEVICE_WORDS, HISTORY_LEN, PROBE_STATES, SAMPLE
                                  DeviceInfo, JobInfo, LogRow, PlanStatus, Sample, View,
                                  alignment_dict, job_info)
 from core.config import load_cell, load_sim
-from controller.harness.cell import with_urls
+from controller.harness import with_urls
 
 
 def freeze_heap() -> None:
@@ -135,7 +135,7 @@ class CellSession(TraceAsk):
         async def _do() -> None:
             # lazy: the controller API (drivers, the build runner) loads when the session first needs it,
             # so `cell tui` paints before it; the TUI never imports a driver itself
-            from controller.harness.cell import open_cell, start_simulators
+            from controller.harness import open_cell, start_simulators
 
             try:
                 if self._cell is not None:   # a reconnect: the previous controller closed, the simulators kept
