@@ -15,34 +15,23 @@ import json
 import sys
 from pathlib import Path
 
-from controller.api import CellController
-from controller.defaults import sim_reply_timeout_ms
-from controller.harness.sim import SimHarness, with_urls
+from controller.harness.cell import open_cell
 from controller.job.read import read_job
 from core.config import load_cell, load_sim
 
 
 async def build_all(cfg_path: Path, runs: Path, jobs: list[Path]) -> None:
-    cell = load_cell(cfg_path)
-    harness = SimHarness(cell, load_sim(), log_dir=runs / "sim")
-    try:
-        # ten cells' simulators coming up beside each other on a loaded host: minutes, not 20 s
-        cfg = with_urls(cell, harness.start(timeout=300.0))
-        ctl = CellController(cfg, runs_dir=runs)
-        await ctl.connect(reply_timeout_ms=sim_reply_timeout_ms())
-        try:
-            for j in jobs:
-                if ctl.machine.can("reset"):   # a fault latched by the previous build: the operator's reset
-                    await ctl.reset()
-                ctl.open_job(read_job(j))
-                res = await ctl.start()
-                print(json.dumps({"job": str(j), "state": res.state, "run_dir": str(ctl.run_dir),
-                                  "record": str(ctl.last_report) if ctl.last_report else None,
-                                  "message": ctl.snapshot().message}), flush=True)
-        finally:
-            await ctl.close()
-    finally:
-        harness.stop()
+    # ten cells' simulators coming up beside each other on a loaded host: minutes, not 20 s
+    async with open_cell(load_cell(cfg_path), sim=load_sim(), log_dir=runs / "sim", runs_dir=runs,
+                         start_timeout_s=300.0) as ctl:
+        for j in jobs:
+            if ctl.machine.can("reset"):   # a fault latched by the previous build: the operator's reset
+                await ctl.reset()
+            ctl.open_job(read_job(j))
+            res = await ctl.start()
+            print(json.dumps({"job": str(j), "state": res.state, "run_dir": str(ctl.run_dir),
+                              "record": str(ctl.last_report) if ctl.last_report else None,
+                              "message": ctl.snapshot().message}), flush=True)
 
 
 def main(argv: list[str]) -> int:

@@ -14,16 +14,10 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import os
-import signal
-import socket
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
-
-import yaml
 
 ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
@@ -49,12 +43,6 @@ def zigzag_job(length_mm: float) -> dict:
                  "points": pts}]}], "summary": {}}
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def robot_starvation(log: Path) -> tuple[int, int, float]:
     """From the robot's own execution log: (weld moves, times the queue ran dry inside the bead,
     worst gap in ms of process time beyond the move's own duration)."""
@@ -72,28 +60,29 @@ def robot_starvation(log: Path) -> tuple[int, int, float]:
     return len(movl), dry, worst * 1000
 
 
-async def one(cfgp: Path, scale: float, length: float, runs: Path) -> dict:
+async def one(scale: float, length: float, runs: Path, log: Path) -> dict:
+    """One bead on a cell whose simulators run in `cell sim up`, a process of their own
+    (controller/harness/cell.py `open_cell(process=True)`), logs in `log`."""
     # lazy: only this benchmark's path needs it
-    from controller.api import CellController
+    from controller.api import BuildOptions
+    from controller.harness.cell import open_cell
     from controller.job.read import job_from_dict
-    from controller.runtime.build import BuildOptions
     from core.config import load_cell
 
-    cfg = load_cell(cfgp)
+    cfg = load_cell()
     cfg = cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"time_scale": scale})})
-    ctl = CellController(cfg, runs_dir=runs)
-    ctl.options = BuildOptions(**{**ctl.options.__dict__, "max_step_mm": STEP})
-    await ctl.connect()
-    job = zigzag_job(length)
-    job["source"]["file"] = f"zigzag-x{scale:g}.stl"
-    ctl.open_job(job_from_dict(job))
-    cpu0, t0 = time.process_time(), time.monotonic()
-    res = await ctl.start()
-    cpu, wall = time.process_time() - cpu0, time.monotonic() - t0
-    ex = ctl.executor
-    moves = ex.exec_count
-    stats = ctl.devices.robot.stats
-    await ctl.close()
+    async with open_cell(cfg, sim=True, process=True, log_dir=log, runs_dir=runs, connect=False) as ctl:
+        ctl.options = BuildOptions(**{**ctl.options.__dict__, "max_step_mm": STEP})
+        await ctl.connect()
+        job = zigzag_job(length)
+        job["source"]["file"] = f"zigzag-x{scale:g}.stl"
+        ctl.open_job(job_from_dict(job))
+        cpu0, t0 = time.process_time(), time.monotonic()
+        res = await ctl.start()
+        cpu, wall = time.process_time() - cpu0, time.monotonic() - t0
+        ex = ctl.executor
+        moves = ex.exec_count
+        stats = ctl.devices.robot.stats
     return {"time_scale": scale, "state": res.state, "moves": moves,
             "move_wall_ms": round(STEP / (SPEED / 60.0) / scale * 1000, 2),
             "host_saw_queue_empty": ex.starved, "min_moves_ahead_host": ex.min_ahead,
@@ -107,28 +96,12 @@ def main(argv: list[str]) -> int:
     a = ap.parse_args(argv)
     scales = [1.0, 4.0] if a.quick else [1.0, 2.0, 4.0, 8.0, 16.0]
     work = Path(tempfile.mkdtemp(prefix="overhead-"))
-    cfg = yaml.safe_load((ROOT / "config" / "cell.yaml").read_text())
-    for dev, scheme in (("robot", "socket"), ("cnc", "socket"), ("power_source", "tcp"), ("cellio", "tcp")):
-        cfg["devices"][dev]["url"] = f"{scheme}://127.0.0.1:{_free_port()}"
     ok = True
     for scale in scales:
-        cfg["cell"]["time_scale"] = scale
-        cfgp = work / f"cell-{scale:g}.yaml"
-        cfgp.write_text(yaml.safe_dump(cfg))
         log = work / f"log-{scale:g}"
-        sim = subprocess.Popen([sys.executable, "-m", "controller.cli.main", "sim", "up", "--cell-config", str(cfgp),
-                                "--log", str(log)],
-                               cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=subprocess.PIPE,
-                               stderr=subprocess.DEVNULL, text=True, start_new_session=True)
-        try:
-            for _ in range(4):
-                sim.stdout.readline()
-            # ~12 s of bead at every scale (longer in wall time at low scales is not needed)
-            length = (150.0 if a.quick else 300.0) * min(scale, 4.0)
-            fig = asyncio.run(one(cfgp, scale, length, work / "runs"))
-        finally:
-            os.killpg(sim.pid, signal.SIGINT)
-            sim.wait(10)
+        # ~12 s of bead at every scale (longer in wall time at low scales is not needed)
+        length = (150.0 if a.quick else 300.0) * min(scale, 4.0)
+        fig = asyncio.run(one(scale, length, work / "runs", log))
         n, dry, worst = robot_starvation(log / "robot.jsonl")
         fig.update({"robot_weld_moves": n, "robot_queue_dry_in_bead": dry, "worst_late_ms_process": round(worst, 2)})
         print(json.dumps(fig), flush=True)

@@ -29,9 +29,10 @@ from pathlib import Path
 from typing import Any
 
 from controller.align.routine import cad_mesh, plan_for_mesh
-from controller.api import CellController, align_at
+from controller.api import align_at
+from controller.api.simulated import Simulators
 from controller.defaults import SIM_REPLY_TIMEOUT_MS
-from controller.harness.sim import SimHarness, with_urls
+from controller.harness.cell import open_cell, with_urls
 from controller.job.read import job_from_dict
 from controller.motion.watch import StallFault
 from core.config import CellConfig, load_cell, load_sim
@@ -60,7 +61,7 @@ def _stood(msg: str) -> tuple[float | None, float | None]:
     return (float(stood.group(1)) if stood else None, float(bound.group(1)) if bound else None)
 
 
-def _power(harness: SimHarness) -> tuple[bool, str]:
+def _power(harness: Simulators) -> tuple[bool, str]:
     sim = harness.sim("power_source")
     return harness.call(lambda: (bool(sim.cmd.bits.get("weld_start")), str(sim.phase)))
 
@@ -68,13 +69,12 @@ def _power(harness: SimHarness) -> tuple[bool, str]:
 async def build_stall(platform: str, faults: str, tmp: Path) -> dict[str, Any]:
     cfg = with_urls(load_cell(), {}, time_scale=SCALE)
     cfg = cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"platform": platform})})
-    harness = SimHarness(cfg, load_sim(), log_dir=tmp / "log", faults=faults)
-    cfg = with_urls(cfg, harness.start())
-    ctl = CellController(cfg, runs_dir=tmp / "runs")
     job = small_job(20.0 if platform == "cnc" else 0.0)   # the CNC's substrate block is 20 mm tall
     out: dict[str, Any] = {}
-    try:
-        await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
+    async with open_cell(cfg, sim=load_sim(), log_dir=tmp / "log", faults=faults, runs_dir=tmp / "runs",
+                         reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:
+        harness = ctl.simulators
+        assert harness is not None
         await asyncio.to_thread(ctl.open_job, job_from_dict(job))
         t0 = time.monotonic()
         res = await asyncio.wait_for(ctl.start(), 60)
@@ -89,9 +89,6 @@ async def build_stall(platform: str, faults: str, tmp: Path) -> dict[str, Any]:
         elif ctl.devices is not None and ctl.devices.cnc is not None:
             rep = await ctl.devices.cnc.status()
             out["cnc_report"] = {"state": rep.state, "spindle": rep.spindle}
-    finally:
-        await ctl.close()
-        harness.stop()
     return out
 
 
@@ -99,14 +96,15 @@ async def probe_stall(tmp: Path) -> dict[str, Any]:
     cell: CellConfig = load_cell()
     cell = cell.model_copy(update={"cell": cell.cell.model_copy(update={"time_scale": 10.0})})
     sim_cfg = load_sim()
-    harness = SimHarness(cell, sim_cfg, log_dir=tmp / "log", faults="freeze@probe=1", modules=["sims.cnc"])
-    urls = harness.start()
     plan = plan_for_mesh(cad_mesh(sim_cfg.cnc.workpiece))
     out: dict[str, Any] = {}
-    try:
+    async with open_cell(cell, sim=sim_cfg, log_dir=tmp / "log", faults="freeze@probe=1", modules=["sims.cnc"],
+                         connect=False) as ctl:
+        harness = ctl.simulators
+        assert harness is not None
         t0 = time.monotonic()
         try:
-            await asyncio.wait_for(align_at(urls["cnc"], cell, plan), 60)
+            await asyncio.wait_for(align_at(ctl.cfg.devices.cnc.url, cell, plan), 60)
             out["state"] = "no fault"
         except StallFault as exc:
             out["state"] = "fault"
@@ -115,8 +113,6 @@ async def probe_stall(tmp: Path) -> dict[str, Any]:
         cnc = harness.sim("cnc")
         spindle, state, report = harness.call(lambda: (cnc.machine.spindle_on, cnc.state, cnc.status_line()))
         out["cnc_report"] = {"state": state, "spindle_on": spindle, "status_line": report}
-    finally:
-        harness.stop()
     return out
 
 

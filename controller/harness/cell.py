@@ -35,8 +35,9 @@ __all__ = ["open_cell", "start_simulators", "with_urls"]
 async def start_simulators(cfg: CellConfig, sim: SimConfig | bool | None, *, log_dir: str | Path | None = None,
                            faults: str = "", process: bool = False,
                            modules: list[str] | None = None, config_dir: Path | None = None,
-                           ) -> tuple[CellConfig, SimHarness | SimProcess | None]:
-    """The simulators `sim` asks for, started (None: none), and `cfg` pointing at them."""
+                           start_timeout_s: float = 20.0) -> tuple[CellConfig, SimHarness | SimProcess | None]:
+    """The simulators `sim` asks for, started within `start_timeout_s` (None: none), and `cfg`
+    pointing at them."""
     if sim is None or sim is False:
         return cfg, None
     if process:   # `cell sim up` reads config/sim.yaml itself
@@ -47,7 +48,7 @@ async def start_simulators(cfg: CellConfig, sim: SimConfig | bool | None, *, log
     sim_cfg = load_sim() if sim is True else sim
     harness = SimHarness(cfg, sim_cfg, log_dir=log_dir, faults=faults, modules=modules, config_dir=config_dir)
     try:
-        urls = await asyncio.to_thread(harness.start)
+        urls = await asyncio.to_thread(harness.start, start_timeout_s)
     except BaseException:
         harness.stop()
         raise
@@ -59,7 +60,8 @@ async def open_cell(cfg: CellConfig, *, sim: SimConfig | bool | None = None, run
                     options: BuildOptions | None = None, log_dir: str | Path | None = None, faults: str = "",
                     process: bool = False, connect: bool = True, resume_ticket: int | None = None,
                     reply_timeout_ms: float | None = None, simulators: SimHarness | SimProcess | None = None,
-                    modules: list[str] | None = None, config_dir: Path | None = None) -> AsyncIterator[CellController]:
+                    modules: list[str] | None = None, config_dir: Path | None = None,
+                    start_timeout_s: float = 20.0) -> AsyncIterator[CellController]:
     """The cell of `cfg` (on the simulators `sim`, in this process or with `process` in a child),
     its API object yielded connected (unless `connect=False`), closed and the simulators stopped
     after the body. `reply_timeout_ms`: the bus devices' reply timeout (default: the devices' own;
@@ -67,11 +69,13 @@ async def open_cell(cfg: CellConfig, *, sim: SimConfig | bool | None = None, run
     `simulators`: ones already running (`start_simulators`, `cfg` pointing at them): the cell opens
     on them and leaves them running (a second controller on the same simulated cell, a reconnect).
     `modules`: only these simulators (sims/up.py SIM_MODULES names; `cell align run --sim`: the
-    CNC's); `config_dir`: where the sim config's relative paths start."""
+    CNC's); `config_dir`: where the sim config's relative paths start; `start_timeout_s`: how long
+    the in-process simulators may take to come up (a host running many cells at once)."""
     own = simulators is None
     if own:
         cfg, simulators = await start_simulators(cfg, sim, log_dir=log_dir, faults=faults, process=process,
-                                                 modules=modules, config_dir=config_dir)
+                                                 modules=modules, config_dir=config_dir,
+                                                 start_timeout_s=start_timeout_s)
     sims = simulators
     try:
         if reply_timeout_ms is None and isinstance(sims, SimHarness):

@@ -11,7 +11,8 @@ from controller.motion.kinematics import Trunnion
 from controller.align.leveling import face_angle, leveling_angles
 from controller.align.probe_cycle import ProbeCycleError, ProbeTarget, probe_point
 from controller.align.routine import cad_mesh, plan_for_mesh
-from controller.harness.align_sim import _with_sim, run_with_sim
+from controller.harness.align_sim import CNC_MODULE, run_with_sim
+from controller.harness.cell import open_cell
 from controller.cli.main import main
 from core.config import load_cell, load_sim
 from drivers.grbl import CncLink
@@ -113,7 +114,7 @@ async def test_not_homed_and_already_tripped():
     cell = _cell()
     sim = _sim()
 
-    async def body(url, _sim):
+    async def body(url):
         link = CncLink(url)
         await link.connect()
         try:
@@ -131,7 +132,9 @@ async def test_not_homed_and_already_tripped():
         finally:
             await link.close()
 
-    await _with_sim(cell, sim, None, body)
+    # the CNC's simulator alone, in this process (controller/harness/cell.py), its link driven here
+    async with open_cell(cell, sim=sim, faults=sim.faults or "", modules=[CNC_MODULE], connect=False) as ctl:
+        await body(ctl.cfg.devices.cnc.url)
 
 
 async def test_a_loaded_host_does_not_leave_the_probe_tripped_at_the_next_touch(tmp_path):

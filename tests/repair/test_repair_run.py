@@ -57,8 +57,7 @@ def test_repair_run_cli_reports_and_refuses_an_aligned_job(tmp_path: Path, capsy
 
 
 async def test_the_repair_job_built_without_its_alignment_is_refused_before_motion(tmp_path: Path):
-    from controller.api import CellController
-    from controller.harness.sim import SimHarness, with_urls
+    from controller.harness.cell import open_cell, with_urls
     from core.config import load_cell
 
     cad, stock = make_parts(tmp_path)
@@ -66,17 +65,11 @@ async def test_the_repair_job_built_without_its_alignment_is_refused_before_moti
     assert main(["repair", "plan", str(cad), "--stock", str(stock), "--width", "4", "--out", str(job)]) == 0
     cfg = with_urls(load_cell(), {}, time_scale=60)
     cfg = cfg.model_copy(update={"cell": cfg.cell.model_copy(update={"platform": "cnc"})})
-    harness = SimHarness(cfg, posed_sim(stock, 1.0, 0.5, 2.0, (1.0, 1.0, 0.0)), log_dir=tmp_path / "log")
-    cfg = with_urls(cfg, harness.start())
-    ctl = CellController(cfg, runs_dir=tmp_path / "runs")
-    try:
-        await ctl.connect(reply_timeout_ms=SIM_REPLY_TIMEOUT_MS)
+    async with open_cell(cfg, sim=posed_sim(stock, 1.0, 0.5, 2.0, (1.0, 1.0, 0.0)), log_dir=tmp_path / "log",
+                         runs_dir=tmp_path / "runs", reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:
         ctl.open_job(job)
         res = await ctl.start()
         events = ctl.journal.query("SELECT message FROM events WHERE kind = 'alarm'")
-    finally:
-        await ctl.close()
-        harness.stop()
     assert res.state == "fault" and res.passes_done == 0
     assert any("CAD frame and carries no alignment" in e[0] for e in events), events
     deposit = tmp_path / "log" / "deposit.jsonl"

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from controller.harness.align_sim import _with_sim
+from controller.harness.align_sim import CNC_MODULE
+from controller.harness.cell import open_cell
 from controller.motion.mill import program_bound_s, program_lines, run_program
 from controller.motion.watch import StallFault
 from core.config import load_cell, load_sim
@@ -39,17 +40,24 @@ async def _on_sim(faults: str | None, body):
     cell = cell.model_copy(update={"cell": cell.cell.model_copy(update={"time_scale": SCALE})})
     sim_cfg = load_sim().model_copy(update={"faults": faults})
 
-    async def run(url: str, sim):
-        link = CncLink(url, line_scale=SCALE)
+    # the CNC's simulator alone, in this process (controller/harness/cell.py), its link driven here
+    async with open_cell(cell, sim=sim_cfg, faults=faults or "", modules=[CNC_MODULE], connect=False) as ctl:
+        sims = ctl.simulators
+        assert sims is not None
+        link = CncLink(ctl.cfg.devices.cnc.url, line_scale=SCALE)
         await link.connect()
         try:
             if not link.homed:
                 await link.home()
-            return await body(link, sim)
+            return await body(link, sims)
         finally:
             await link.close()
 
-    return await _with_sim(cell, sim_cfg, None, run)
+
+def _spindle_on(sims) -> bool:
+    """The CNC simulator's own spindle/laser state, read on its loop."""
+    cnc = sims.sim("cnc")
+    return bool(sims.call(lambda: cnc.machine.spindle_on))
 
 
 async def test_a_cnc_that_stops_moving_mid_program_is_a_fault_naming_machining() -> None:
@@ -57,12 +65,12 @@ async def test_a_cnc_that_stops_moving_mid_program_is_a_fault_naming_machining()
     bound = program_bound_s(lines)
     assert bound == pytest.approx(2.0)        # twice the spindle's 0.5 s dwell + 1 s
 
-    async def body(link, sim):
+    async def body(link, sims):
         t0 = time.monotonic()
         with pytest.raises(StallFault) as err:
             await asyncio.wait_for(run_program(link, lines), 30)
         st = await link.status()
-        return str(err.value), time.monotonic() - t0, sim.machine.spindle_on, st
+        return str(err.value), time.monotonic() - t0, _spindle_on(sims), st
 
     # the simulator reports Run with lines queued and stops moving once 12 blocks ran (mid-raster)
     msg, took, spindle, st = await _on_sim("freeze@move=12", body)
@@ -77,9 +85,9 @@ async def test_a_cnc_that_stops_moving_mid_program_is_a_fault_naming_machining()
 async def test_a_milling_program_that_runs_is_not_tripped_and_ends_with_the_spindle_off() -> None:
     lines = _program()
 
-    async def body(link, sim):
+    async def body(link, sims):
         wall = await run_program(link, lines)
-        return wall, sim.machine.spindle_on, await link.status()
+        return wall, _spindle_on(sims), await link.status()
 
     wall, spindle, st = await _on_sim(None, body)
     assert wall > 0 and spindle is False and st.state == "Idle" and st.spindle == 0, st

@@ -17,7 +17,7 @@ import pytest
 
 from controller.align.routine import cad_mesh, plan_for_mesh
 from controller.api import align_at
-from controller.harness.align_sim import _with_sim
+from controller.harness.align_sim import CNC_MODULE
 from controller.harness.cell import open_cell
 from controller.harness.sim import SimHarness
 from controller.job.read import job_from_dict
@@ -95,13 +95,17 @@ async def _align_until_stall(faults: str, time_scale: float = 10.0) -> tuple[str
     sim_cfg = load_sim().model_copy(update={"faults": faults})
     plan = plan_for_mesh(cad_mesh(sim_cfg.cnc.workpiece))
 
-    async def body(url: str, sim) -> tuple[str, float, tuple]:
+    # the CNC's simulator alone, in this process (controller/harness/cell.py), the routine on its link
+    async with open_cell(cell, sim=sim_cfg, faults=faults, modules=[CNC_MODULE], connect=False) as ctl:
+        sims = ctl.simulators
+        assert sims is not None
         t0 = time.monotonic()
         with pytest.raises(StallFault) as err:
-            await asyncio.wait_for(align_at(url, cell, plan), 30)
-        return str(err.value), time.monotonic() - t0, (sim.machine.spindle_on, sim.state, sim.machine.homing, sim.status_line())
-
-    return await _with_sim(cell, sim_cfg, None, body)
+            await asyncio.wait_for(align_at(ctl.cfg.devices.cnc.url, cell, plan), 30)
+        took = time.monotonic() - t0
+        sim = sims.sim("cnc")
+        state = sims.call(lambda: (sim.machine.spindle_on, sim.state, sim.machine.homing, sim.status_line()))
+    return str(err.value), took, state
 
 
 async def test_a_probe_move_that_never_ends_is_a_fault_naming_probing() -> None:
