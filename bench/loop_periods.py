@@ -164,16 +164,16 @@ def main(argv: list[str] | None = None) -> int:
             sims = None
             if a.sims == "process":
                 # lazy: only this topology starts `cell sim up`
-                from controller.harness.sim_process import SimProcess
-                from controller.runtime.devices import with_urls
+                from controller.harness.cell import start_simulators
                 from core.config import load_cell
 
-                sims = SimProcess(with_urls(load_cell(_cell_yaml(d, a.time_scale)), {}), d / "sim")
+                _cfg, sims = asyncio.run(start_simulators(load_cell(_cell_yaml(d, a.time_scale)), True, process=True,
+                                                          log_dir=d / "sim"))
             try:
                 wall, links = fn(job, d / "runs", a.time_scale, a.max_step, d / "sim" / "cell.yaml" if sims else None)
             finally:
                 if sims is not None:
-                    sims.close()
+                    sims.stop()
             out[name] = {"wall_s": round(wall, 1), "links": links}
             print(_row(name, wall, links), flush=True)
         print(json.dumps({"layers": a.layers, "time_scale": a.time_scale, "sims": a.sims, **out}))

@@ -28,7 +28,7 @@ import numpy as np  # noqa: E402
 
 from bench.five_axis import kin_cfg, level_sim, plan5  # noqa: E402
 from bench.parts5 import cone_frustum, tilted_tube  # noqa: E402
-from controller.harness.sim import SimHarness, with_urls  # noqa: E402
+from controller.harness.cell import start_simulators, with_urls  # noqa: E402
 from controller.job.read import job_from_dict  # noqa: E402
 from controller.motion.cnc5 import Five  # noqa: E402
 from controller.motion.kinematics import Trunnion  # noqa: E402
@@ -104,11 +104,12 @@ def main(argv: list[str]) -> int:
     progs = asyncio.run(programs(a.part, a.passes))
     with tempfile.TemporaryDirectory() as d:
         log = Path(d)
-        h = SimHarness(with_urls(kin_cfg("AB"), {}, time_scale=a.scale), level_sim(), log_dir=log,
-                       modules=["sims.cnc.sim"])
-        urls = h.start()
+        # the CNC's simulator alone, in this process (controller/harness/cell.py)
+        cfg, h = asyncio.run(start_simulators(with_urls(kin_cfg("AB"), {}, time_scale=a.scale), level_sim(),
+                                              log_dir=log, modules=["sims.cnc.sim"]))
+        assert h is not None
         try:
-            fig = asyncio.run(stream(urls["cnc"], a.scale, progs))
+            fig = asyncio.run(stream(cfg.devices.cnc.url, a.scale, progs))
         finally:
             h.stop()
         fig.update(stand_still(log))

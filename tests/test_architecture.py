@@ -210,6 +210,41 @@ def test_the_front_ends_reach_the_controller_only_through_the_api() -> None:
         "controller.cli.x:8: controller.cli.x -> controller.job.read"]
 
 
+# One wiring (docs/architecture.md "Opening a cell"): simulators are wired to a controller in one
+# place. Outside controller/harness/, no file of the product, bench/ or tests/ constructs the
+# controller or a set of simulators (WIRED_HERE); outside the simulators themselves, the harness and
+# the driver-against-simulator tests, nobody serves simulators by hand (a SimContext).
+WIRED_HERE = {"CellController": ("controller/harness/",), "SimHarness": ("controller/harness/",),
+              "SimProcess": ("controller/harness/",),
+              "SimContext": ("sims/", "controller/harness/", "tests/sims/", "tests/drivers/")}
+
+
+def hand_wirings(files: dict[str, str] | None = None) -> list[str]:
+    """Every call constructing a WIRED_HERE class outside its places, as 'file:line: Name('."""
+    if files is None:
+        paths = [p for pkg in (*PACKAGES, "tests") for p in sorted((ROOT / pkg).rglob("*.py"))]
+        files = {str(p.relative_to(ROOT)): p.read_text(encoding="utf-8") for p in paths}
+    bad = []
+    for rel, text in files.items():
+        for node in ast.walk(ast.parse(text)):
+            if not isinstance(node, ast.Call):
+                continue
+            name = node.func.id if isinstance(node.func, ast.Name) else (
+                node.func.attr if isinstance(node.func, ast.Attribute) else None)
+            if name in WIRED_HERE and not rel.startswith(WIRED_HERE[name]):
+                bad.append(f"{rel}:{node.lineno}: {name}(")
+    return bad
+
+
+def test_simulators_are_wired_to_a_controller_only_by_the_harness() -> None:
+    bad = hand_wirings()
+    assert not bad, "open the cell with controller.harness.open_cell (docs/architecture.md):\n" + "\n".join(bad)
+    assert hand_wirings({"bench/x.py": "h = SimHarness(cfg, sim)\nctl = api.CellController(cfg)\n",
+                         "tests/sims/y.py": "ctx = SimContext(cell=c)\n",
+                         "controller/harness/cell.py": "ctl = CellController(cfg)\n"}) == [
+        "bench/x.py:1: SimHarness(", "bench/x.py:2: CellController("]
+
+
 def test_no_import_cycles() -> None:
     cycles = import_cycles()
     assert not cycles, "import cycles: " + "; ".join(" -> ".join(c) for c in cycles)

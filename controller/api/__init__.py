@@ -16,19 +16,19 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:   # the names as mypy sees them; at run time `__getattr__` below loads them
     from controller.api.cell import COMMANDS, CellController, preload_build_modules
-    from controller.api.offline import (aligned_job, align_at, events_after, feedable_time_scale, run_rows,
+    from controller.api.offline import (align_off_session, aligned_job, align_at, events_after, feedable_time_scale, run_rows,
                                         state_machine_doc, workpiece_probe_plan, write_run_report)
     from controller.api.simulated import Simulators
     from controller.api.types import BuildOptions, BuildResult, CellJob, ProgressPrinter, Snapshot, Trace
     from controller.api.jobs import read_job
 
 __all__ = ["COMMANDS", "BuildOptions", "BuildResult", "CellController", "CellJob", "ProgressPrinter", "Simulators",
-           "Snapshot", "Trace", "align_at", "aligned_job", "events_after", "feedable_time_scale",
+           "Snapshot", "Trace", "align_at", "align_off_session", "aligned_job", "events_after", "feedable_time_scale",
            "preload_build_modules", "read_job", "run_rows", "state_machine_doc", "workpiece_probe_plan",
            "write_run_report"]
 
 _WHERE = {"COMMANDS": "cell", "CellController": "cell", "preload_build_modules": "cell",
-          "aligned_job": "offline", "align_at": "offline", "events_after": "offline", "run_rows": "offline",
+          "aligned_job": "offline", "align_off_session": "offline", "align_at": "offline", "events_after": "offline", "run_rows": "offline",
           "workpiece_probe_plan": "offline", "write_run_report": "offline", "state_machine_doc": "offline",
           "feedable_time_scale": "offline", "Simulators": "simulated", "ProgressPrinter": "types",
           "BuildOptions": "types", "BuildResult": "types", "CellJob": "types", "Snapshot": "types", "Trace": "types",

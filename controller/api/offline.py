@@ -4,10 +4,12 @@ plan, a job moved by an alignment (`cell report`, `cell runs`, `cell align run`,
 the TUI's Log and Align screens)."""
 from __future__ import annotations
 
+import asyncio
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Mapping
 
-from core.config import CellConfig, ProbeSettings
+from core.config import CellConfig, ProbeSettings, load_sim
+from core.errors import CellError
 
 if TYPE_CHECKING:
     from controller.align.probe_cycle import ProbedPoint
@@ -54,6 +56,22 @@ def events_after(run_dir: str | Path, after_id: int = 0, limit: int = 2000) -> l
     from controller.journal.store import read_events_after
 
     return read_events_after(Path(run_dir) / "journal.sqlite", after_id, limit)
+
+
+def align_off_session(cell: CellConfig, sim_cfg: SimConfig | None = None, *,
+                      on_point: Callable[[ProbedPoint], None] | None = None, timeout_s: float = 120.0) -> AlignResult:
+    """Probe and align on the CNC of `cell` from a worker thread, on an event loop of its own (the
+    routine's fitting, ICP, must not hold up the controller's loop): the touches planned on the
+    workpiece of `sim_cfg` (default config/sim.yaml); a CellError when it takes over `timeout_s`
+    (the TUI's Align screen on a robot cell, whose state machine has no probing state)."""
+    plan = workpiece_probe_plan(sim_cfg or load_sim())   # the routine loads here (ICP, trimesh)
+
+    async def run() -> AlignResult:
+        return await asyncio.wait_for(align_at(cell.devices.cnc.url, cell, plan, on_point=on_point), timeout_s)
+    try:
+        return asyncio.run(run())
+    except asyncio.TimeoutError:
+        raise CellError(f"alignment: the probe cycle did not finish within {timeout_s:g} s; check the CNC link") from None
 
 
 def workpiece_probe_plan(sim_cfg: SimConfig) -> ProbePlan:

@@ -35,22 +35,22 @@ def _tui(args: argparse.Namespace) -> int:
     tmp = None
     if args.sim:
         # lazy: loaded only with --sim
+        import asyncio
         import tempfile
-        from controller.harness import SimProcess
+        from controller.harness import start_simulators
 
         # the simulators in a process of their own, as `cell demo` runs them: in this one they
         # would share the interpreter lock with the controller's device cycles and the screen
         # (docs/tui.md: the cycle period's p99 35.7 ms in one process, 19.6 ms beside it)
         tmp = tempfile.TemporaryDirectory(prefix="cell-tui-sim-")
-        sims = SimProcess(cfg, Path(tmp.name), str(args.sim_config) if args.sim_config else None,
-                          faults=args.fault)
-        cfg = sims.cfg
+        cfg, sims = asyncio.run(start_simulators(cfg, True, process=True, log_dir=Path(tmp.name),
+                                                 faults=args.fault, sim_config=args.sim_config))
     session = CellSession(cfg, sim_cfg=sim_cfg, runs_dir=args.runs, sims_beside=args.sim)
     try:
         return _serve(session, cfg, args)
     finally:
         if sims is not None:
-            sims.close()
+            sims.stop()
         if tmp is not None:
             tmp.cleanup()
 

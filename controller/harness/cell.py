@@ -35,15 +35,18 @@ __all__ = ["open_cell", "start_simulators", "with_urls"]
 async def start_simulators(cfg: CellConfig, sim: SimConfig | bool | None, *, log_dir: str | Path | None = None,
                            faults: str = "", process: bool = False,
                            modules: list[str] | None = None, config_dir: Path | None = None,
-                           start_timeout_s: float = 20.0) -> tuple[CellConfig, SimHarness | SimProcess | None]:
+                           start_timeout_s: float = 20.0, sim_config: str | Path | None = None,
+                           ) -> tuple[CellConfig, SimHarness | SimProcess | None]:
     """The simulators `sim` asks for, started within `start_timeout_s` (None: none), and `cfg`
-    pointing at them."""
+    pointing at them. With `process`, `cell sim up` on `sim_config` (default config/sim.yaml)."""
     if sim is None or sim is False:
         return cfg, None
-    if process:   # `cell sim up` reads config/sim.yaml itself
+    if process:   # `cell sim up` reads its sim.yaml itself
         if sim is not True:
-            raise ValueError("open_cell(process=True) runs `cell sim up` on config/sim.yaml: give sim=True")
-        proc = await asyncio.to_thread(SimProcess, cfg, Path(log_dir or "sim"))
+            raise ValueError("open_cell(process=True) runs `cell sim up` on a sim.yaml file: give sim=True "
+                             "(and sim_config=FILE)")
+        proc = await asyncio.to_thread(SimProcess, cfg, Path(log_dir or "sim"),
+                                       str(sim_config) if sim_config is not None else None, faults=faults)
         return proc.cfg, proc
     sim_cfg = load_sim() if sim is True else sim
     harness = SimHarness(cfg, sim_cfg, log_dir=log_dir, faults=faults, modules=modules, config_dir=config_dir)

@@ -1,19 +1,23 @@
-"""What the operator's terminal UI needs from the controller, and nothing more.
+"""What the operator's terminal UI needs from the controller, and nothing more: a thread-and-view
+adapter over the API (controller/api/).
 
 The TUI (controller/tui/) is a view: it reads immutable `View`s and sends commands. It never
 touches the controller's objects, the drivers or the simulators. Two sources of views:
 
 - `CellSession`: a live cell. The `CellController` runs on a loop of its own in a background
   thread, because the power source's 10 ms cycle and the interlocks must never wait for the
-  screen to redraw. `--sim` starts the in-process simulators through the controller's own
-  `SimHarness`. Snapshots arrive on the bus up to 100 Hz: the subscriber only keeps the latest
-  one (and samples the live values into a bounded history at 10 Hz), so the UI, which reads at
-  its own rate, can never fall behind.
+  screen to redraw. The cell is opened as every cell is (`controller.harness.open_cell`; `--sim`:
+  the simulators through `start_simulators`). Snapshots arrive on the bus up to 100 Hz: the
+  subscriber only keeps the latest one (and samples the live values into a bounded history at
+  10 Hz), so the UI, which reads at its own rate, can never fall behind.
 - `ReplaySession`: a fixed, recorded view (snapshot tests, documentation screenshots).
 
-Additions over the facade (controller/api/): planning an STL with progress, the job summary
-and per-role parameters, the probe plan / alignment result as plain values, the device list
-with last errors, journal events for the Log screen, and a safe stop for quitting mid-build.
+What the controller does, the API does: planning a part (`controller.api.planning.plan_in_child`,
+a child process with progress), probing and aligning (`CellController.run_alignment`, or
+`align_off_session` on a robot cell), moving a job by an alignment (`aligned_job`), a run's
+journal events (`events_after`). The session adds only what a view needs: which thread and loop
+each call runs on, the job summary and per-role parameters, the probe plan and alignment as plain
+values, the device list with last errors, and a safe stop for quitting mid-build.
 """
 from __future__ import annotations
 
@@ -30,11 +34,11 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
-from controller.api import CellJob, Snapshot, aligned_job, events_after, read_job, workpiece_probe_plan
+from controller.api import CellJob, Snapshot, aligned_job, events_after, read_job
 from controller.tui.trace_ask import TraceAsk
 from core.errors import CellError, InputError
 
-from controller.tui.planning import plan_main, probe_plan  # noqa: F401  (re-exported)
+from controller.tui.planning import probe_plan
 from controller.tui.replay import ReplaySession  # noqa: F401  (re-exported)
 from controller.tui.view import *  # noqa: F401,F403  (the view types, re-exported for the screens)
 from controller.tui.view import (DEVICE_WORDS, HISTORY_LEN, PROBE_STATES, SAMPLE_PERIOD_S,
@@ -294,37 +298,17 @@ class CellSession(TraceAsk):
         self._busy = "planning"
 
         material = self.cfg.cell.material
+        part = st.file
+
+        def progress(done: int, total: int) -> None:
+            self._plan = replace(self._plan, done=done, total=total)
 
         def work() -> tuple[CellJob, JobInfo]:
-            # Planning is CPU-bound: in a thread it would hold the GIL long enough to starve
-            # the power source's 10 ms cycle and the cell I/O poll (a link timeout, a fault).
-            # It runs in a child process; progress comes back line by line on its stdout.
-            import subprocess
-            import sys
-            import tempfile
+            # the API plans in a child process (controller/api/planning.py): the controller's device
+            # cycles keep the interpreter lock; this worker thread only waits for its lines
+            from controller.api.planning import plan_in_child
 
-            with tempfile.TemporaryDirectory(prefix="cell-plan-") as tmp:
-                out = Path(tmp) / "job.json"
-                proc = subprocess.Popen([sys.executable, "-m", "controller.tui.planning", "plan", str(st.file),
-                                         str(width), material, str(out)],
-                                        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-                error = None
-                assert proc.stdout is not None
-                for line in proc.stdout:
-                    word, _, rest = line.strip().partition(" ")
-                    if word == "progress":
-                        i, n = rest.split()
-                        self._plan = replace(self._plan, done=int(i), total=int(n))
-                    elif word == "error":
-                        error = rest
-                err_text = proc.stderr.read() if proc.stderr else ""
-                proc.wait()
-                if error is not None:
-                    raise CellError(error)
-                if proc.returncode != 0 or not out.exists():
-                    last = err_text.strip().splitlines()[-1:] or ["no output"]
-                    raise CellError(f"planning {st.file}: the planner stopped ({last[0]})")
-                job = read_job(out)
+            job = plan_in_child(part, width, material, progress)
             return job, job_info(job.job)
 
         async def _do() -> None:
@@ -417,21 +401,13 @@ class CellSession(TraceAsk):
     def _align_on_cnc_link(self) -> Any:
         # lazy: the controller API (drivers, the build runner) loads when the session first needs it,
         # so `cell tui` paints before it; the TUI never imports a driver itself
-        from controller.api import align_at
-
-        plan = workpiece_probe_plan(self.sim_cfg or load_sim())  # the routine loads here (ICP, trimesh)
-        dev = self.cfg.devices.cnc
+        from controller.api import align_off_session
 
         def on_point(pp: Any) -> None:
             pos = tuple(float(c) for c in pp.position)
             self._probed = self._probed + [(str(pp.name), pos, float(pp.spread_mm))]  # type: ignore[list-item]
 
-        async def run() -> Any:
-            return await asyncio.wait_for(align_at(dev.url, self.cfg, plan, on_point=on_point), 120.0)
-        try:
-            return asyncio.run(run())
-        except asyncio.TimeoutError:
-            raise CellError("alignment: the probe cycle did not finish within 120 s; check the CNC link") from None
+        return align_off_session(self.cfg, self.sim_cfg, on_point=on_point, timeout_s=120.0)
 
     def apply_alignment(self) -> concurrent.futures.Future[Any]:
         """Re-open the job moved by the alignment transform (the CAD model moves, not the part)."""
