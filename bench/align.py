@@ -20,7 +20,8 @@ import numpy as np
 
 from controller.align.fit import fit_line, fit_plane
 from controller.align.probe_cycle import ProbeTarget, probe_points
-from controller.harness.align_sim import _with_sim
+from controller.harness.align_sim import CNC_MODULE
+from controller.harness.cell import open_cell
 from core.config import load_cell, load_sim
 from sims.workpiece import rot
 
@@ -55,7 +56,7 @@ async def _monte_carlo(runs: int, sigma: float, seed: int) -> dict:
     slope_true = (-n_true[0] / n_true[2], -n_true[1] / n_true[2])
     sx, sy, dz, ang = [], [], [], []
 
-    async def body(url, _sim):
+    async def body(url):
         link = CncLink(url)
         await link.connect()
         try:
@@ -77,7 +78,9 @@ async def _monte_carlo(runs: int, sigma: float, seed: int) -> dict:
             await link.close()
 
     t0 = time.perf_counter()
-    await _with_sim(cell, sim, None, body)
+    # the CNC's simulator alone, in this process (controller/harness/cell.py), its link driven here
+    async with open_cell(cell, sim=sim, faults=sim.faults or "", modules=[CNC_MODULE], connect=False) as ctl:
+        await body(ctl.cfg.devices.cnc.url)
     return {"sx": np.array(sx), "sy": np.array(sy), "dz": np.array(dz), "ang": np.array(ang),
             "elapsed": time.perf_counter() - t0}
 

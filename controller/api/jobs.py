@@ -56,12 +56,13 @@ def complete_in(run_dir: Path, job: CellJob) -> bool:
 
 
 def repair_volume(cad: trimesh.Trimesh, stock: trimesh.Trimesh, allowance_mm: float = 0.0, *,
-                  cad_name: str = "CAD", stock_name: str = "stock") -> RepairVolume:
-    """CAD (swept up by the allowance) minus the stock (manifold3d): the volume a repair fills."""
+                  cad_name: str = "CAD", stock_name: str = "stock", overhang_mm: float = 0.0) -> RepairVolume:
+    """CAD (swept up by the allowance) minus the stock (manifold3d): the volume a repair fills,
+    carried `overhang_mm` beyond the CAD's free edges."""
     # lazy: manifold3d loads only when a repair is planned
     from controller.job.repair_volume import repair_volume as volume
 
-    return volume(cad, stock, allowance_mm, cad_name=cad_name, stock_name=stock_name)
+    return volume(cad, stock, allowance_mm, cad_name=cad_name, stock_name=stock_name, overhang_mm=overhang_mm)
 
 
 def repair_mesh(job: CellJob, job_path: Path | None, which: str = "cad") -> trimesh.Trimesh:

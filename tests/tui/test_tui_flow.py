@@ -16,8 +16,7 @@ import pytest
 from textual.events import Key
 from textual.widgets import Button, Input
 
-from controller.harness.cell import with_urls
-from controller.harness.sim_process import SimProcess
+from controller.harness.cell import start_simulators, with_urls
 from controller.tui.app import CellApp, ConfirmQuit, OpenDialog
 from controller.tui.start_dialog import StartDialog
 from controller.tui.session import CellSession
@@ -80,8 +79,10 @@ async def test_main_flow_against_the_simulators(tmp_path: Path) -> None:
     # The simulators in `cell sim up` beside this process, as `cell tui --sim` runs them: in this
     # interpreter they would take the interpreter lock from the controller's device cycles
     # (docs/testing.md, "A loop that never blocks"); the door opens over their clock line.
-    sims = SimProcess(with_urls(load_cell(), {}, time_scale=TIME_SCALE), tmp_path / "sim")
-    session = CellSession(sims.cfg, sim_cfg=load_sim(), runs_dir=tmp_path / "runs", sims_beside=True)
+    cfg, sims = await start_simulators(with_urls(load_cell(), {}, time_scale=TIME_SCALE), True, process=True,
+                                       log_dir=tmp_path / "sim")
+    assert sims is not None
+    session = CellSession(cfg, sim_cfg=load_sim(), runs_dir=tmp_path / "runs", sims_beside=True)
     app = CellApp(session)
     try:
         async with app.run_test(size=SIZE) as pilot:
@@ -176,7 +177,7 @@ async def test_main_flow_against_the_simulators(tmp_path: Path) -> None:
             assert all(str(table.get_row_at(i)[1]).find("alarm") >= 0 for i in range(table.row_count))
     finally:
         session.close()
-        sims.close()
+        sims.stop()
 
 
 async def test_quit_during_a_build_asks_and_stops_the_arc(tmp_path: Path) -> None:
