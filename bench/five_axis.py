@@ -66,17 +66,13 @@ async def build(job: dict, tmp: Path, table: str = "AB", scale: float = 60.0,
         # computation and Modbus answers no longer share this interpreter's lock
         # lazy: only this benchmark's path needs it
         import yaml
-        from controller.harness.sim_process import SimProcess
 
         sim_yaml = tmp / "level-sim.yaml"
         sim_yaml.write_text(yaml.safe_dump(level_sim().model_dump(mode="json")))
-        proc = SimProcess(cfg, log, str(sim_yaml))
-        try:
-            async with open_cell(proc.cfg, simulators=proc, runs_dir=tmp / "runs") as ctl:
-                ctl.open_job(typed)
-                res = await ctl.start()
-        finally:
-            proc.close()
+        async with open_cell(cfg, sim=True, process=True, sim_config=sim_yaml, log_dir=log,
+                             runs_dir=tmp / "runs") as ctl:
+            ctl.open_job(typed)
+            res = await ctl.start()
         return res, log
     async with open_cell(cfg, sim=level_sim(), log_dir=log, runs_dir=tmp / "runs",
                          reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:

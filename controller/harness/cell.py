@@ -64,7 +64,7 @@ async def open_cell(cfg: CellConfig, *, sim: SimConfig | bool | None = None, run
                     process: bool = False, connect: bool = True, resume_ticket: int | None = None,
                     reply_timeout_ms: float | None = None, simulators: SimHarness | SimProcess | None = None,
                     modules: list[str] | None = None, config_dir: Path | None = None,
-                    start_timeout_s: float = 20.0) -> AsyncIterator[CellController]:
+                    start_timeout_s: float = 20.0, sim_config: str | Path | None = None) -> AsyncIterator[CellController]:
     """The cell of `cfg` (on the simulators `sim`, in this process or with `process` in a child),
     its API object yielded connected (unless `connect=False`), closed and the simulators stopped
     after the body. `reply_timeout_ms`: the bus devices' reply timeout (default: the devices' own;
@@ -73,12 +73,13 @@ async def open_cell(cfg: CellConfig, *, sim: SimConfig | bool | None = None, run
     on them and leaves them running (a second controller on the same simulated cell, a reconnect).
     `modules`: only these simulators (sims/up.py SIM_MODULES names; `cell align run --sim`: the
     CNC's); `config_dir`: where the sim config's relative paths start; `start_timeout_s`: how long
-    the in-process simulators may take to come up (a host running many cells at once)."""
+    the in-process simulators may take to come up (a host running many cells at once); `sim_config`:
+    the sim.yaml `cell sim up` reads with `process` (default config/sim.yaml)."""
     own = simulators is None
     if own:
         cfg, simulators = await start_simulators(cfg, sim, log_dir=log_dir, faults=faults, process=process,
                                                  modules=modules, config_dir=config_dir,
-                                                 start_timeout_s=start_timeout_s)
+                                                 start_timeout_s=start_timeout_s, sim_config=sim_config)
     sims = simulators
     try:
         if reply_timeout_ms is None and isinstance(sims, SimHarness):
