@@ -17,8 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from controller.harness.cell import open_cell, with_urls
-from controller.harness.sim_process import SimProcess
+from controller.harness.cell import open_cell, start_simulators, with_urls
 from controller.job.read import job_from_dict
 from controller.report.record import CSV_COLUMNS
 from controller.runtime.bead_measure import Pace
@@ -144,8 +143,10 @@ async def test_a_tui_build_leaves_its_record_complete_and_estopped(tmp_path: Pat
     # interpreter they took the interpreter lock from the controller's device cycles and its
     # streaming, and under load a bead of the first build was flagged (docs/testing.md, "A loop
     # that never blocks"); the E-stop is pressed over their clock line
-    sims = SimProcess(with_urls(load_cell(), {}, time_scale=20.0), tmp_path / "sim")
-    session = CellSession(sims.cfg, sim_cfg=load_sim(), runs_dir=tmp_path / "runs", sims_beside=True)
+    cfg, sims = await start_simulators(with_urls(load_cell(), {}, time_scale=20.0), True, process=True,
+                                       log_dir=tmp_path / "sim")
+    assert sims is not None
+    session = CellSession(cfg, sim_cfg=load_sim(), runs_dir=tmp_path / "runs", sims_beside=True)
     app = CellApp(session)
     try:
         async with app.run_test(size=(120, 36)) as pilot:
@@ -188,7 +189,7 @@ async def test_a_tui_build_leaves_its_record_complete_and_estopped(tmp_path: Pat
             sims.inject("cellio", "estop_release")
     finally:
         session.close()
-        sims.close()
+        sims.stop()
 
 
 async def _cnc_build(tmp: Path, job: dict, scale: float) -> Path:
