@@ -12,7 +12,7 @@ Also (issue 40): `--real DIR` adds the real parts bench.plan_quality knows (trim
 8 mm beads) and `--torus` a 2.2M-face torus (the 1.3M-face target's second part).
 
 Run: .venv/bin/python -m bench.plan_vs_prusaslicer [--quick] [--no-install] [--set-only] [--repeat N]
-     [--real DIR] [--torus] [--only-extra]
+     [--real DIR] [--torus] [--only-extra] [--only NAME,NAME] [--no-ff-too]
 """
 from __future__ import annotations
 
@@ -80,11 +80,11 @@ def _timed(cmd: list[str], cwd: Path) -> tuple[float, int, int, str, float]:
         return wall, kb, proc.returncode, proc.stdout.decode(errors="replace"), cpu
 
 
-def _ours_cmd(stl: Path, work: Path, width: float, layer: float) -> list[str]:
+def _ours_cmd(stl: Path, work: Path, width: float, layer: float, feed_forward: bool = True) -> list[str]:
     return [sys.executable, "-m", "controller.cli.main", "plan", str(stl), "--width", str(width),
             "--layer-height", str(layer), "--perimeters", "2", "--material", "inconel718-1.0mm",
             "--allow-outside", "--allow-underfill", "--allow-overhang",
-            "--out", str(work / (stl.stem + ".job.json")), "--json"]
+            "--out", str(work / (stl.stem + ".job.json")), "--json", *([] if feed_forward else ["--no-feed-forward"])]
 
 
 def _prusa_cmd(exe: str, stl: Path, work: Path, width: float, layer: float) -> list[str]:
@@ -99,9 +99,9 @@ class Figures:
     """Median wall time and peak memory of each side over alternating runs."""
 
     def __init__(self) -> None:
-        self.wall: dict[str, list[float]] = {"ours": [], "prusa": []}
-        self.rss: dict[str, list[int]] = {"ours": [], "prusa": []}
-        self.cpu_s: dict[str, list[float]] = {"ours": [], "prusa": []}
+        self.wall: dict[str, list[float]] = {"ours": [], "prusa": [], "noff": []}
+        self.rss: dict[str, list[int]] = {"ours": [], "prusa": [], "noff": []}
+        self.cpu_s: dict[str, list[float]] = {"ours": [], "prusa": [], "noff": []}
         self.summary = ""
         self.prusa_error = ""
 
@@ -115,10 +115,18 @@ class Figures:
         return statistics.median(self.rss[side]) / 1024.0
 
 
-def compare(stl: Path, work: Path, exe: str | None, repeat: int, width: float = WIDTH, layer: float = LAYER) -> Figures:
-    """`repeat` runs of `cell plan` and of PrusaSlicer on `stl`, alternating."""
+def compare(stl: Path, work: Path, exe: str | None, repeat: int, width: float = WIDTH, layer: float = LAYER,
+            no_ff: bool = False) -> Figures:
+    """`repeat` runs of `cell plan` and of PrusaSlicer on `stl`, alternating (`no_ff`: and of `cell plan
+    --no-feed-forward`, the planner without issue 35's feed-forward)."""
     fig = Figures()
     for _ in range(repeat):
+        if no_ff:
+            wall, rss, code, out, cpu = _timed(_ours_cmd(stl, work, width, layer, feed_forward=False), ROOT)
+            if code == 0:
+                fig.wall["noff"].append(wall)
+                fig.rss["noff"].append(rss)
+                fig.cpu_s["noff"].append(cpu)
         wall, rss, code, out, cpu = _timed(_ours_cmd(stl, work, width, layer), ROOT)
         if code != 0:
             raise RuntimeError(f"cell plan failed: {out.strip()[-300:]}")
@@ -181,7 +189,8 @@ def _verdict(fig: Figures, faces: int) -> tuple[str, bool]:
     return line, True
 
 
-def extra(exe: str | None, work: Path, repeat: int, dirs: list[str], torus: bool) -> bool:
+def extra(exe: str | None, work: Path, repeat: int, dirs: list[str], torus: bool, no_ff: bool = False,
+          only: str = "") -> bool:
     """The real parts at 4 and 8 mm beads and the 2.2M-face torus at 6 mm, against PrusaSlicer."""
     # lazy: only this benchmark's path needs them
     from bench.plan_quality import real_parts
@@ -189,7 +198,8 @@ def extra(exe: str | None, work: Path, repeat: int, dirs: list[str], torus: bool
     from planner.process import inverse
 
     mat = load_material("inconel718-1.0mm")
-    runs: list[tuple[str, trimesh.Trimesh, float]] = [(n, m, w) for n, m in real_parts(dirs) for w in (4.0, 8.0)]
+    runs: list[tuple[str, trimesh.Trimesh, float]] = [(n, m, w) for n, m in real_parts(dirs) for w in (4.0, 8.0)
+                                                      if any(o in n for o in only.split(","))]
     if torus:
         R, r, a, b = TORUS
         runs.append(("torus", trimesh.creation.torus(major_radius=R, minor_radius=r, major_sections=a, minor_sections=b),
@@ -199,11 +209,16 @@ def extra(exe: str | None, work: Path, repeat: int, dirs: list[str], torus: bool
         layer = round(inverse(mat, width).height_mm, 4)
         stl = work / ("x-" + "".join(c if c.isalnum() else "_" for c in name) + f"-{width:g}.stl")
         stl.write_bytes(mesh.export(file_type="stl"))
-        fig = compare(stl, work, exe, repeat, width, layer)
+        fig = compare(stl, work, exe, repeat, width, layer, no_ff)
         verdict, good = _verdict(fig, len(mesh.faces))
         ok = ok and good
         print(f"{name:28s} {width:3g} mm {len(mesh.faces):>9,} faces: cell plan {fig.t('ours'):6.2f} s (cpu "
               f"{fig.cpu('ours'):6.2f}) {fig.mb('ours'):5.0f} MB{verdict}" + (f" | {fig.prusa_error}" if fig.prusa_error else ""), flush=True)
+        if fig.wall["noff"]:
+            base = f" | ratio {fig.t('noff') / fig.t('prusa'):4.2f} (cpu {fig.cpu('noff') / max(fig.cpu('prusa'), 1e-3):4.2f})" \
+                if fig.wall["prusa"] else ""
+            print(f"{'':28s} without the feed-forward: {fig.t('noff'):6.2f} s (cpu {fig.cpu('noff'):6.2f}) "
+                  f"{fig.mb('noff'):5.0f} MB{base}", flush=True)
         del mesh
     return ok
 
@@ -218,6 +233,9 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--real", action="append", default=[], help="a directory of real parts (bench.plan_quality)")
     ap.add_argument("--torus", action="store_true", help="a 2.2M-face torus too")
     ap.add_argument("--only-extra", action="store_true", help="the real parts and the torus only")
+    ap.add_argument("--only", default="", help="real parts whose name holds one of these (comma separated)")
+    ap.add_argument("--no-ff-too", action="store_true",
+                    help="also time the real parts with --no-feed-forward (issue 35's feed-forward left out)")
     args = ap.parse_args(argv)
     repeat = args.repeat or (1 if args.quick else 3)
     for pkg in ("core", "planner", "controller"):  # as installed: no module compiled during a timed run
@@ -231,7 +249,7 @@ def main(argv: list[str]) -> int:
     theirs: dict[int, float] = {}
     with tempfile.TemporaryDirectory(prefix="bench-plan-") as tmp:
         work = Path(tmp)
-        extra_ok = extra(exe, work, repeat, args.real, args.torus)
+        extra_ok = extra(exe, work, repeat, args.real, args.torus, args.no_ff_too, args.only)
         if args.only_extra:
             return 0 if extra_ok else 1
         set_ok = part_set(exe, work, repeat, args.quick) and extra_ok
