@@ -299,7 +299,24 @@ class HeightMap:
         self._path += length
         while self._tail and self._tail[0][0] < self._path - TAIL_MM:
             self._tail.popleft()
-        return Laid(self._settled_rise(half + self.cell), self._lost - lost0)
+        return Laid(self._rise_behind(half + self.cell), self._lost - lost0)
+
+    def _rise_behind(self, behind_mm: float) -> float | None:
+        """The bead's rise on its centre line `behind_mm` back along the path: the chunk there
+        poured alone as it stands (it waits in the pool), else the latest poured one's."""
+        ready = [c for c in self._pool if c.path_mm <= self._path - behind_mm]
+        if not ready:
+            return self._settled_rise(behind_mm)
+        c = ready[-1]
+        base = self._rest_on(c.centre)
+        old = self._surface_idx(c.ii, c.jj)
+        if base < _OFF_PART:
+            return self._settled_rise(behind_mm)
+        env = base + c.peak * (1.0 - (2.0 * c.s / c.width) ** 2)
+        floor = np.where(old < _OFF_PART, base - c.peak, old)
+        level = pour_level(floor, env, c.need)
+        k = int(np.argmin(c.s))
+        return float(max(floor[k], min(level, env[k])) - base)
 
     def _drain(self, path_mm: float, pool_mm: float) -> None:
         """Pour the chunks the bead (now `path_mm` long) has left `pool_mm` behind, one by one; its

@@ -61,9 +61,9 @@ def test_a_region_lays_with_its_own_gain_and_the_deposit_log_shows_it(tmp_path: 
     assert inside / outside == pytest.approx(1.25, rel=0.03)      # the region's hidden gain, not the global one
     rows = [json.loads(s) for s in (tmp_path / "deposit.jsonl").read_text().splitlines()]
     h = {round(r["from"][0]): r["bead_height_mm"] for r in rows}
-    # (a row's bead height is the rise where the pool has passed, two bead widths and a cell behind
-    # the row's end, past the bead's first pool: rows 24 -> 26 mm and 36 -> 38 mm read 13.6 and 25.6 mm)
-    assert h[36] / h[24] == pytest.approx(1.25, rel=0.05)
+    # (a row's bead height is the rise half a bead width and a cell behind the row's end: rows
+    # 16 -> 18 mm and 36 -> 38 mm read it at 14.5 and 34.5 mm)
+    assert h[36] / h[16] == pytest.approx(1.25, rel=0.05)
     # a segment straddling the box's edge is cut there: the step lies at x = 20, not at a move's end
     w2 = _world(regions=(SimRegion(box_mm=(21.0, -10.0, 80.0, 10.0), height_gain=1.25),))
     _bead(w2, [(0.0, 0.0), (60.0, 0.0)], PP.height_mm, 0.0)
