@@ -37,7 +37,7 @@ from typing import Callable, Generator
 import numpy as np
 from numpy.typing import NDArray
 
-from sims.pour import Chunk, FloatArray, Laid, finish, frame, metal_per_cell, pour_level
+from sims.pour import Chunk, FloatArray, Laid, alone_rise, finish, frame, merge_cells, metal_per_cell, pour_level
 
 Substrate = Callable[[FloatArray, FloatArray], FloatArray]
 Scale = Callable[[float, float, float], float]    # (x, y, mm along the segment) -> metal factor
@@ -232,12 +232,10 @@ class HeightMap:
         `scale(x, y, s)`: the metal of the chunk centred at (x, y), s mm along the segment, is
         `area_mm2` times it (its parabola as high in proportion).
 
-        One bead is one pool from its arc start to its arc end, continuous across its segments:
-        a segment that starts where the bead's previous one ended has no round start, and its
-        predecessor's round end keeps only the cells behind it (the outside of a turn). Each chunk
-        waits in the pool (`Chunk`) until the bead has gone a bead width (POOL_WIDTHS) past it;
-        a bead's first bead width is poured as one pool with its round start, its last with its
-        round end when the bead ends (`end_bead`, a new bead, or a read of the map)."""
+        A bead is one pool from arc start to arc end (docs/process-physics.md "one pool per bead"):
+        a segment going on from the last has no round start, the last's round end keeps only the
+        cells behind it (a turn's outside); chunks wait (`Chunk`) until POOL_WIDTHS bead widths
+        behind; the first and last pools pour with the round start / end (`end_bead`)."""
         a, b = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
         d = b - a
         length = float(np.hypot(d[0], d[1]))
@@ -305,18 +303,10 @@ class HeightMap:
         """The bead's rise on its centre line `behind_mm` back along the path: the chunk there
         poured alone as it stands (it waits in the pool), else the latest poured one's."""
         ready = [c for c in self._pool if c.path_mm <= self._path - behind_mm]
-        if not ready:
+        base = self._rest_on(ready[-1].centre) if ready else _OFF_PART
+        if base <= _OFF_PART:
             return self._settled_rise(behind_mm)
-        c = ready[-1]
-        base = self._rest_on(c.centre)
-        old = self._surface_idx(c.ii, c.jj)
-        if base < _OFF_PART:
-            return self._settled_rise(behind_mm)
-        env = base + c.peak * (1.0 - (2.0 * c.s / c.width) ** 2)
-        floor = np.where(old < _OFF_PART, base - c.peak, old)
-        level = pour_level(floor, env, c.need)
-        k = int(np.argmin(c.s))
-        return float(max(floor[k], min(level, env[k])) - base)
+        return alone_rise(ready[-1], self._surface_idx(ready[-1].ii, ready[-1].jj), base, _OFF_PART)
 
     def _drain(self, path_mm: float, pool_mm: float) -> None:
         """Pour the chunks the bead (now `path_mm` long) has left `pool_mm` behind, one by one; its
@@ -352,14 +342,7 @@ class HeightMap:
             self._tail.append(self._trail[-1])
         ii, jj, env, hang = np.concatenate(iis), np.concatenate(jjs), np.concatenate(envs), np.concatenate(hangs)
         if len(chunks) > 1:
-            key = (jj - self._j0) * self.top.shape[1] + (ii - self._i0)
-            uniq, inv = np.unique(key, return_inverse=True)
-            top, low = np.full(uniq.size, -np.inf), np.full(uniq.size, -np.inf)
-            np.maximum.at(top, inv, env)
-            np.maximum.at(low, inv, hang)
-            first = np.zeros(uniq.size, dtype=np.int64)
-            first[inv[::-1]] = np.arange(inv.size)[::-1]
-            ii, jj, env, hang = ii[first], jj[first], top, low
+            ii, jj, env, hang = merge_cells(ii, jj, env, hang)
         left = self._pour(ii, jj, env, hang, sum(c.need for c in chunks) + self._spill)
         self._spill = 0.0
         if self._pool:             # the pool goes on: what did not fit here runs on in it

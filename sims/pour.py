@@ -95,3 +95,27 @@ def metal_per_cell(cell: float, a: FloatArray, u: FloatArray, nrm: FloatArray, l
     if n == 0 or not np.any((t >= 2 * half) & (t <= 2 * half + length) & (np.abs(s) <= half)):
         return 0.0
     return ext / n
+
+
+def merge_cells(ii: NDArray[np.int64], jj: NDArray[np.int64], env: FloatArray,
+                hang: FloatArray) -> tuple[NDArray[np.int64], NDArray[np.int64], FloatArray, FloatArray]:
+    """Cells listed more than once (a pool's chunks overlap) once each, with the highest of their
+    parabolas and hangs."""
+    key = (jj - jj.min()) * (int(ii.max() - ii.min()) + 1) + (ii - ii.min())
+    uniq, inv = np.unique(key, return_inverse=True)
+    top, low = np.full(uniq.size, -np.inf), np.full(uniq.size, -np.inf)
+    np.maximum.at(top, inv, env)
+    np.maximum.at(low, inv, hang)
+    first = np.zeros(uniq.size, dtype=np.int64)
+    first[inv[::-1]] = np.arange(inv.size)[::-1]
+    return ii[first], jj[first], top, low
+
+
+def alone_rise(c: Chunk, old: FloatArray, base: float, off_part: float) -> float:
+    """The rise on a chunk's centre line were it poured alone on the surface `old` of its cells,
+    resting on `base` (its centre's surface before the bead)."""
+    env = base + c.peak * (1.0 - (2.0 * c.s / c.width) ** 2)
+    floor = np.where(old < off_part, base - c.peak, old)
+    level = pour_level(floor, env, c.need)
+    k = int(np.argmin(c.s))
+    return float(max(floor[k], min(level, env[k])) - base)
