@@ -11,8 +11,9 @@ for the build runner's.
 """
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING
+
+from core.lazy_names import lazy_names
 
 if TYPE_CHECKING:   # the names as mypy sees them; at run time `__getattr__` below loads them
     from controller.api.cell import COMMANDS, CellController, preload_build_modules
@@ -35,11 +36,4 @@ _WHERE = {"COMMANDS": "cell", "CellController": "cell", "preload_build_modules":
           "read_job": "jobs"}
 
 
-def __getattr__(name: str) -> object:
-    """A name of the facade, from the module that holds it (loaded now, on first use)."""
-    module = _WHERE.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value: object = getattr(importlib.import_module(f"{__name__}.{module}"), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_names(__name__, _WHERE)

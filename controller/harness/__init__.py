@@ -12,8 +12,9 @@ pay for the repair chain, nor the TUI's first paint for the simulators.
 """
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING
+
+from core.lazy_names import lazy_names
 
 if TYPE_CHECKING:   # the names as mypy sees them; at run time `__getattr__` below loads them
     from controller.harness.align_sim import run_with_sim
@@ -34,11 +35,4 @@ _WHERE = {"run_with_sim": "align_sim", "open_cell": "cell", "start_simulators": 
           "serve_until_interrupted": "sim_up"}
 
 
-def __getattr__(name: str) -> object:
-    """A name of the harness's public face, from the module that holds it (loaded now, on first use)."""
-    module = _WHERE.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value: object = getattr(importlib.import_module(f"{__name__}.{module}"), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_names(__name__, _WHERE)

