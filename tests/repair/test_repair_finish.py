@@ -37,7 +37,7 @@ async def test_a_slot_is_deposited_machined_to_cad_and_verified(tmp_path: Path):
     job = tmp_path / "job.json"
     assert main(["repair", "plan", str(cad), "--stock", str(stock), "--width", "4", "--allowance", "0.5",
                  "--out", str(job), "--allow-underfill"]) == 0
-    cell = with_urls(load_cell(), {}, time_scale=60)
+    cell = with_urls(load_cell(), {}, time_scale=120)
     shop = tmp_path / "shop.db"   # the shop's record store gets the machining too (docs/records.md)
     cell = cell.model_copy(update={"records": cell.records.model_copy(update={"url": f"sqlite:///{shop}"})})
     maps: list = []
