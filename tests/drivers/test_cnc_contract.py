@@ -25,7 +25,7 @@ from sims.clock import SimClock
 from sims.cnc import CncSim
 from sims.transport import SerialServer
 from planner.dropcutter import ToolShape
-from planner.finish import Cut, Surface, plan_finish
+from planner.finish import Cut, FinishPlan, Surface, plan_finish
 from tests.peers import firmware
 
 TARGETS = ("sim", "grbl", "grblhal")
@@ -292,6 +292,19 @@ async def test_safe_stop_five_times_figures(target: Target) -> None:
           f"{', '.join(f'{t:.2f}' for t in off)} s; all verified after {', '.join(f'{t:.2f}' for t in done)} s")
 
 
+def _box_finish(cut: Cut, stock_mm: float, half_mm: float) -> tuple[FinishPlan, list[str]]:
+    """The finish plan and the milling program of a 20 mm box's top with `stock_mm` of stock over
+    a square of half-side `half_mm` at its centre, cut with `cut` (the cell's cutter of that name)."""
+    box = trimesh.creation.box(extents=(20, 20, 10))
+    box.apply_translation((0, 0, -5))
+    n = int(round(2 * (half_mm + 1.0) / 0.5)) + 1
+    stock = Surface(np.full((n, n), stock_mm), (-half_mm - 1.0, -half_mm - 1.0), 0.5)
+    plan = plan_finish(np.asarray(box.triangles), stock, (-half_mm, -half_mm, half_mm, half_mm),
+                       cut, finish_stock_mm=0.2, clearance_mm=0.5)
+    cutter = load_cell().tools.cutters[cut.name].model_copy(update={"feed_mm_min": cut.feed_mm_min})
+    return plan, program_lines(plan, np.eye(4), cutter, spindle_up_s=0.1)
+
+
 async def test_a_milling_program_streams_in_spindle_mode_with_its_tool_change(target: Target) -> None:
     """Issue 36: `$32=0` set and read back, the tool change of the firmware (grblHAL `T1 M6`; grbl 1.1h
     the `T1 M0` pause and cycle start), then the finishing program: every line `ok`, no alarm."""
@@ -311,15 +324,9 @@ async def test_a_milling_program_streams_in_spindle_mode_with_its_tool_change(ta
     await sent
     await link.wait_idle(30)
     await link.command("G43.1 Z0.000")
-    box = trimesh.creation.box(extents=(20, 20, 10))
-    box.apply_translation((0, 0, -5))
-    cutter = load_cell().tools.cutters["flat8"]
     # the finishing pass alone (grbl-sim takes about 3 s a move, whatever its length)
-    stock = Surface(np.full((9, 9), 0.1), (-2.0, -2.0), 0.5)
-    plan = plan_finish(np.asarray(box.triangles), stock, (-1.0, -1.0, 1.0, 1.0),
-                       Cut("flat8", ToolShape("flat", 4.0), 1.0, 4.0, 3000.0), finish_stock_mm=0.2, clearance_mm=0.5)
+    plan, lines = _box_finish(Cut("flat8", ToolShape("flat", 4.0), 1.0, 4.0, 3000.0), stock_mm=0.1, half_mm=1.0)
     assert [p.kind for p in plan.passes] == ["finish"]
-    lines = program_lines(plan, np.eye(4), cutter.model_copy(update={"feed_mm_min": 3000.0}), spindle_up_s=0.1)
     assert any(line.startswith("M3 S") for line in lines) and lines[-1] == "M5"
     res = await link.stream(lines)
     assert res.lines == res.acked == len([x for x in lines if not x.startswith("(")])   # comments are not sent
@@ -335,14 +342,8 @@ async def test_a_safe_stop_mid_milling_program_leaves_the_spindle_off_and_nothin
     buffers empty, `$G` shows M5, and the machine stands where it stopped."""
     link = target.link
     await link.laser_mode(False)
-    box = trimesh.creation.box(extents=(20, 20, 10))
-    box.apply_translation((0, 0, -5))
-    cutter = load_cell().tools.cutters["ball6"]
-    stock = Surface(np.full((13, 13), 0.6), (-3.0, -3.0), 0.5)
-    plan = plan_finish(np.asarray(box.triangles), stock, (-2.0, -2.0, 2.0, 2.0),
-                       Cut("ball6", ToolShape("ball", 3.0), 1.0, 2.0, 150.0), finish_stock_mm=0.2, clearance_mm=0.5)
-    lines = ["G21 G90 G94"] + program_lines(plan, np.eye(4), cutter.model_copy(update={"feed_mm_min": 150.0}),
-                                            spindle_up_s=0.1)
+    _, program = _box_finish(Cut("ball6", ToolShape("ball", 3.0), 1.0, 2.0, 150.0), stock_mm=0.6, half_mm=2.0)
+    lines = ["G21 G90 G94", *program]
     stream: asyncio.Future[object] = asyncio.ensure_future(link.stream(lines))
     for _ in range(200):
         st = await link.status()
