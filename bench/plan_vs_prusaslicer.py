@@ -12,13 +12,17 @@ Also (issue 40): `--real DIR` adds the real parts bench.plan_quality knows (trim
 8 mm beads) and `--torus` a 2.2M-face torus (the 1.3M-face target's second part).
 
 Run: .venv/bin/python -m bench.plan_vs_prusaslicer [--quick] [--no-install] [--set-only] [--repeat N]
-     [--real DIR] [--torus] [--only-extra] [--only NAME,NAME] [--no-ff-too]
+     [--real DIR] [--torus] [--only-extra] [--only NAME,NAME] [--no-ff-too] [--prusa-only]
+
+`--prusa-only` times PrusaSlicer alone on the real parts (`--repeat` runs each, their least and median
+wall time): which parts it takes 1 s or more on, the parts the <= 1.0x target applies to.
 """
 from __future__ import annotations
 
 import argparse
 import compileall
 import math
+import os
 import shutil
 import statistics
 import subprocess
@@ -193,13 +197,11 @@ def extra(exe: str | None, work: Path, repeat: int, dirs: list[str], torus: bool
           only: str = "") -> bool:
     """The real parts at 4 and 8 mm beads and the 2.2M-face torus at 6 mm, against PrusaSlicer."""
     # lazy: only this benchmark's path needs them
-    from bench.plan_quality import real_parts
     from core.config import load_material
     from planner.process import inverse
 
     mat = load_material("inconel718-1.0mm")
-    runs: list[tuple[str, trimesh.Trimesh, float]] = [(n, m, w) for n, m in real_parts(dirs) for w in (4.0, 8.0)
-                                                      if any(o in n for o in only.split(","))]
+    runs = _runs(dirs, only)
     if torus:
         R, r, a, b = TORUS
         runs.append(("torus", trimesh.creation.torus(major_radius=R, minor_radius=r, major_sections=a, minor_sections=b),
@@ -223,6 +225,41 @@ def extra(exe: str | None, work: Path, repeat: int, dirs: list[str], torus: bool
     return ok
 
 
+def _runs(dirs: list[str], only: str) -> list[tuple[str, trimesh.Trimesh, float]]:
+    # lazy: only this benchmark's path needs it
+    from bench.plan_quality import real_parts
+
+    return [(n, m, w) for n, m in real_parts(dirs) for w in (4.0, 8.0) if any(o in n for o in only.split(","))]
+
+
+def prusa_survey(exe: str, work: Path, repeat: int, dirs: list[str], only: str) -> None:
+    """PrusaSlicer alone on each real part: least and median wall (and CPU) time of `repeat` runs."""
+    # lazy: only this benchmark's path needs them
+    from core.config import load_material
+    from planner.process import inverse
+
+    mat = load_material("inconel718-1.0mm")
+    for name, mesh, width in _runs(dirs, only):
+        layer = round(inverse(mat, width).height_mm, 4)
+        stl = work / ("p-" + "".join(c if c.isalnum() else "_" for c in name) + f"-{width:g}.stl")
+        stl.write_bytes(mesh.export(file_type="stl"))
+        walls, cpus, err = [], [], ""
+        for _ in range(repeat):
+            wall, _kb, code, out, cpu = _timed(_prusa_cmd(exe, stl, work, width, layer), work)
+            if code != 0:
+                err = out.strip().splitlines()[-1][-120:] if out.strip() else f"exit {code}"
+                break
+            walls.append(wall)
+            cpus.append(cpu)
+        if err:
+            print(f"{name:28s} {width:3g} mm: prusa-slicer failed: {err}", flush=True)
+            continue
+        med = statistics.median(walls)
+        print(f"{name:28s} {width:3g} mm {len(mesh.faces):>9,} faces: prusa-slicer wall min {min(walls):6.2f} s median "
+              f"{med:6.2f} s, cpu median {statistics.median(cpus):6.2f} s, load {os.getloadavg()[0]:.1f} | "
+              f"{'>= 1 s: target <= 1.0x' if min(walls) >= 1.0 else '< 1 s: no target'}", flush=True)
+
+
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="bench.plan_vs_prusaslicer")
     ap.add_argument("--quick", action="store_true", help="20k and 327k faces only, one run each")
@@ -236,8 +273,17 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--only", default="", help="real parts whose name holds one of these (comma separated)")
     ap.add_argument("--no-ff-too", action="store_true",
                     help="also time the real parts with --no-feed-forward (issue 35's feed-forward left out)")
+    ap.add_argument("--prusa-only", action="store_true", help="time PrusaSlicer alone on the real parts")
     args = ap.parse_args(argv)
     repeat = args.repeat or (1 if args.quick else 3)
+    if args.prusa_only:
+        exe = _prusa()
+        if exe is None:
+            print("PrusaSlicer is not installed")
+            return 1
+        with tempfile.TemporaryDirectory(prefix="bench-prusa-") as tmp:
+            prusa_survey(exe, Path(tmp), repeat, args.real, args.only)
+        return 0
     for pkg in ("core", "planner", "controller"):  # as installed: no module compiled during a timed run
         compileall.compile_dir(str(ROOT / pkg), quiet=1)
     subs = [5, 7] if args.quick else [5, 7, 8]
