@@ -53,7 +53,7 @@ def draw(rng: np.random.Generator) -> tuple[tuple[Any, ...], float]:
     return pose, float(rng.uniform(0.85, 1.15))
 
 
-async def one(tmp: Path, shape: str, pose: tuple[Any, ...], gain: float) -> dict[str, Any]:
+async def one(tmp: Path, shape: str, pose: tuple[Any, ...], gain: float, keep: bool = False) -> dict[str, Any]:
     cad, stock = worn_parts(tmp, shape)
     lax = ["--allow-underfill", "--allow-overhang"] if shape == "edge" else []
     assert cell_main(["repair", "plan", str(cad), "--stock", str(stock), "--width", "4", "--allowance", "0.5",
@@ -72,8 +72,18 @@ async def one(tmp: Path, shape: str, pose: tuple[Any, ...], gain: float) -> dict
     if len(outside):
         inner &= cKDTree(outside).query(xy)[0] >= 1.5     # the stock probe's inset from the boundary
     truth: dict[str, Any] = {}
+    lag: dict[str, float] = {}     # per phase: the longest the controller's loop came late to a 10 ms timer
+    now = ["connect"]
+
+    async def watch_loop() -> None:
+        while True:
+            t = time.monotonic()
+            await asyncio.sleep(0.01)
+            late = time.monotonic() - t - 0.01
+            lag[now[0]] = max(lag.get(now[0], 0.0), late)
 
     def before_machining(harness: Any, name: str) -> None:
+        now[0] = name
         if name == "stock":
             hm = harness.world.physics.maps["cnc"]
             top = hm.solid_tops(xy[:, 0], xy[:, 1])
@@ -84,18 +94,24 @@ async def one(tmp: Path, shape: str, pose: tuple[Any, ...], gain: float) -> dict
             truth["deposit_min_at"] = [round(float(v), 2) for v in xy[k]]
             mi = inner & np.isfinite(ctop)
             truth["deposit_min_inner_mm"] = round(float(np.min(top[mi] - ctop[mi])), 4) if mi.any() else None
+            if keep:   # the deposit's true top at each stock probe, to read after (--keep)
+                k = sum(1 for _ in tmp.glob("stock*.npz"))
+                np.savez(tmp / f"stock{k}.npz", xy=xy, top=top, ctop=ctop, repaired=repaired)
 
     out: dict[str, Any] = {"shape": shape, "pose": [round(v, 3) if isinstance(v, float) else [round(x, 3) for x in v]
                                                     for v in pose], "gain": round(gain, 3)}
     t0 = time.time()
     maps: list[Any] = []
+    watcher = asyncio.get_running_loop().create_task(watch_loop())
     try:
         rep = await repair_run_sim(job, cell, sim, job_path=tmp / "job.json", runs_dir=tmp / "runs", log_dir=tmp / "log",
                                    on_phase=before_machining, inspect=lambda h, r: maps.append(h.world.physics.maps["cnc"]))
     except CellError as exc:
         out.update(state="stopped", reason=str(exc)[:300], wall_s=round(time.time() - t0, 1), **truth,
-                   shortfall_found=True)
+                   shortfall_found=True, loop_late_ms={k: round(v * 1000) for k, v in lag.items()})
         return out
+    finally:
+        watcher.cancel()
     v, mc = rep["verify"], rep["machining"]
     hm = maps[0]
     top = hm.solid_tops(xy[:, 0], xy[:, 1])
@@ -116,7 +132,7 @@ async def one(tmp: Path, shape: str, pose: tuple[Any, ...], gain: float) -> dict
                deposit_min_over_cad_mm=dmin, deposit_min_at=truth.get("deposit_min_at"),
                deposit_min_inner_mm=truth.get("deposit_min_inner_mm"), shortfall=bool(dmin is not None and dmin < min_stock),
                shortfall_found=False, time_s=mc["time_s"], redeposits=len(rep["stock"].get("redeposits", [])),
-               stock_touches=rep["stock"]["points"])
+               stock_touches=rep["stock"]["points"], loop_late_ms={k: round(v * 1000) for k, v in lag.items()})
     return out
 
 
@@ -126,6 +142,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=36)
     ap.add_argument("--shapes", default=",".join(SHAPES))
     ap.add_argument("--only", default="", help="run only these run numbers (e.g. 0-9 or 3,7): the same draws")
+    ap.add_argument("--keep", default="", help="keep each run's files (job, runs, logs) in KEEP/run<k> to read after")
     a = ap.parse_args()
     rng = np.random.default_rng(a.seed)
     shapes = a.shapes.split(",")
@@ -135,8 +152,13 @@ def main() -> None:
         pose, gain = draw(rng)
         if only and k not in only:
             continue
-        with tempfile.TemporaryDirectory() as d:
-            print(json.dumps({"run": k, **asyncio.run(one(Path(d), shapes[k % len(shapes)], pose, gain))}), flush=True)
+        if a.keep:
+            d = Path(a.keep) / f"run{k}"
+            d.mkdir(parents=True, exist_ok=True)
+            print(json.dumps({"run": k, **asyncio.run(one(d, shapes[k % len(shapes)], pose, gain, keep=True))}), flush=True)
+            continue
+        with tempfile.TemporaryDirectory() as t:
+            print(json.dumps({"run": k, **asyncio.run(one(Path(t), shapes[k % len(shapes)], pose, gain))}), flush=True)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any, Awaitable, Callable
 import numpy as np
 
 from controller.align.intact import MIN_SIDE_MM, intact_spots
-from controller.align.surface_probe import probe_cad_points, refine_spots, repaired_spots, stock_spots
+from controller.align.surface_probe import probe_cad_points, refine_spots, repaired_spots, scan_settings, stock_spots
 from controller.motion.mill import change_tool, program_lines, run_program
 from controller.align.routine import AlignResult, ProbePlan, alignment_record, plan_for_mesh
 from controller.api import CellController
@@ -33,7 +33,7 @@ from controller.ports import CncLinkPort
 from core.config import CellConfig
 from core.errors import CellError, Fault, InputError
 from planner.dropcutter import ToolShape
-from planner.finish import Cut, plan_finish, stock_above_cad, stock_margin, stock_surface
+from planner.finish import Cut, FinishPlan, cad_top, plan_finish, stock_above_cad, stock_margin, stock_surface
 from planner.job import Layer
 
 if TYPE_CHECKING:   # untyped libraries, loaded lazily at run time (start-up time)
@@ -202,7 +202,7 @@ async def verify(link: CncLinkPort, cell: CellConfig, job: CellJob, transform: n
     if job.repair is None or job.repair.bounds_mm is None:
         raise InputError("job: not a repair job (no repair.bounds_mm); plan it with `cell repair plan`")
     rb = job.repair.bounds_mm
-    xy, ztop, kinds = verify_targets(job, *verify_split(grid * grid))
+    xy, ztop, kinds = await asyncio.to_thread(verify_targets, job, *verify_split(grid * grid))   # off the device loop
     top = max(L.z_mm for L in job.layers)
     pts = await probe_cad_points(link, cell, np.asarray(xy, dtype=float), top, np.asarray(transform, dtype=float), name="verify")
     nominal = float(rb[1, 2])  # the repair volume's top: CAD + allowance
@@ -254,18 +254,28 @@ async def _touch_refined(link: CncLinkPort, cell: CellConfig, cad_tri: np.ndarra
     over CAD at 1 mm, then around the short ones of those at 0.5 mm (`refine_spots`, at most
     `REFINE_MAX` each); all touches (CAD frame) and their heights over CAD."""
     m = cell.machining
-    pts = await probe_cad_points(link, cell, spots, top, transform, "stock")
-    margin = stock_margin(cad_tri, pts)
+    scan = scan_settings(cell.probe)
+    pts = await probe_cad_points(link, cell, spots, top, transform, "stock", scan)
+    margin = await asyncio.to_thread(stock_margin, cad_tri, pts)
     fresh = np.ones(len(pts), dtype=bool)
     for k, spacing in enumerate(REFINE_MM):
         low = fresh & ~(margin >= m.min_stock_mm + (REFINE_BAND_MM if k == 0 else 0.0))
-        more = refine_spots(cad_tri, stock_tri, rb, pts[:, :2], low, spacing)[:REFINE_MAX]
+        more = (await asyncio.to_thread(refine_spots, cad_tri, stock_tri, rb, pts[:, :2], low, spacing))[:REFINE_MAX]
         if not len(more):
             break
-        got = await probe_cad_points(link, cell, more, top, transform, "stock")
-        pts, margin = np.vstack([pts, got]), np.concatenate([margin, stock_margin(cad_tri, got)])
+        got = await probe_cad_points(link, cell, more, top, transform, "stock", scan)
+        pts, margin = np.vstack([pts, got]), np.concatenate([margin, await asyncio.to_thread(stock_margin, cad_tri, got)])
         fresh = np.r_[np.zeros(len(fresh), dtype=bool), np.ones(len(got), dtype=bool)]
     return pts, margin
+
+
+def _cad_high(cad_tri: np.ndarray, job: CellJob, step_mm: float = 0.5) -> float:
+    """The CAD's highest top over the repair region's xy bounds (a 0.5 mm grid and its corners)."""
+    assert job.repair is not None and job.repair.bounds_mm is not None
+    (x0, y0, _z0), (x1, y1, _z1) = np.asarray(job.repair.bounds_mm, dtype=float)
+    gx, gy = np.meshgrid(np.r_[np.arange(x0, x1, step_mm), x1], np.r_[np.arange(y0, y1, step_mm), y1])
+    z = cad_top(cad_tri, np.column_stack([gx.ravel(), gy.ravel()]))
+    return float(np.max(z[np.isfinite(z)])) if np.isfinite(z).any() else -np.inf
 
 
 async def probe_stock(link: CncLinkPort, cell: CellConfig, job: CellJob, cad_tri: np.ndarray, stock_tri: np.ndarray,
@@ -277,7 +287,8 @@ async def probe_stock(link: CncLinkPort, cell: CellConfig, job: CellJob, cad_tri
     ones too); returns the touches (CAD frame), their heights over CAD and the rounds deposited.
     Still short: CellError naming the spots."""
     m = cell.machining
-    top = float(max(L.z_mm for L in job.layers)) + 1.0
+    # the highest the surface may stand under the spots: the planned top, or the CAD within the region
+    top = max(float(max(L.z_mm for L in job.layers)), await asyncio.to_thread(_cad_high, cad_tri, job)) + 1.0
     rounds: list[dict[str, Any]] = []
     target = m.min_stock_mm + REFINE_BAND_MM   # not the allowance: a bead laid again overshoots it anyway
     assert job.repair is not None and job.repair.bounds_mm is not None
@@ -293,7 +304,7 @@ async def probe_stock(link: CncLinkPort, cell: CellConfig, job: CellJob, cad_tri
             raise CellError(f"repair: the deposit stands less than {m.min_stock_mm} mm above CAD{again} at "
                             f"{_short_spots(pts, margin, m.min_stock_mm)}; deposit again there (or plan a larger "
                             "allowance)")
-        extra = redeposit_job(job, pts[short], margin[short], target, round_no=len(rounds) + 1)
+        extra = await asyncio.to_thread(redeposit_job, job, pts[short], margin[short], target, round_no=len(rounds) + 1)
         say("build")
         passes = await deposit_again(extra)
         rounds.append({"short_spots": int(short.sum()), "min_mm": _rounded(np.nanmin(margin)),
@@ -312,8 +323,10 @@ async def finish_repair(link: CncLinkPort, cell: CellConfig, job: CellJob, cad: 
     cad_tri, stock_tri = np.asarray(cad.triangles, dtype=float), np.asarray(stock.triangles, dtype=float)
     assert job.repair is not None and job.repair.bounds_mm is not None
     rb = np.asarray(job.repair.bounds_mm, dtype=float)
-    spots, kinds = stock_spots(cad_tri, stock_tri, rb)     # dense where a deposit falls short
-    vspots = repaired_spots(cad_tri, stock_tri, rb, m.probe_points)
+    # every computation off the loop that cycles the devices (a pocket's plan is seconds of CPU on a
+    # loaded host: the CNC link's status poll would go silent meanwhile, docs/testing.md)
+    spots, kinds = await asyncio.to_thread(stock_spots, cad_tri, stock_tri, rb)     # dense where a deposit falls short
+    vspots = await asyncio.to_thread(repaired_spots, cad_tri, stock_tri, rb, m.probe_points)
     pts, margin, rounds = await probe_stock(link, cell, job, cad_tri, stock_tri, spots, transform, say, deposit_again)
     top = float(np.nanmax(pts[:, 2])) + 1.0
     stock_rec = {"min_mm": _rounded(np.nanmin(margin)), "max_mm": _rounded(np.nanmax(margin)), "points": len(pts),
@@ -323,19 +336,24 @@ async def finish_repair(link: CncLinkPort, cell: CellConfig, job: CellJob, cad: 
     lo, hi = np.asarray(cad.bounds, dtype=float)
     region = (float(max(rb[0, 0] - m.margin_mm, lo[0])), float(max(rb[0, 1] - m.margin_mm, lo[1])),
               float(min(rb[1, 0] + m.margin_mm, hi[0])), float(min(rb[1, 1] + m.margin_mm, hi[1])))
-    surf = stock_surface(cad_tri, pts, region, grow_mm=m.margin_mm, ripple_mm=m.ripple_mm)
     cut = Cut(name, ToolShape(cutter.type, cutter.radius_mm), cutter.max_depth_of_cut_mm, cutter.max_stepover_mm,
               cutter.feed_mm_min, cell.limits.travel_speed_mm_min)
-    plan = plan_finish(cad_tri, surf, region, cut, finish_stock_mm=m.finish_stock_mm, scallop_mm=m.scallop_mm)
-    removal = stock_above_cad(cad_tri, stock_surface(cad_tri, pts, region, grow_mm=m.margin_mm, ripple_mm=0.0))
+
+    def machining_plan() -> tuple[FinishPlan, float, list[str]]:
+        surf = stock_surface(cad_tri, pts, region, grow_mm=m.margin_mm, ripple_mm=m.ripple_mm)
+        plan = plan_finish(cad_tri, surf, region, cut, finish_stock_mm=m.finish_stock_mm, scallop_mm=m.scallop_mm)
+        removal = stock_above_cad(cad_tri, stock_surface(cad_tri, pts, region, grow_mm=m.margin_mm, ripple_mm=0.0))
+        return plan, removal, program_lines(plan, transform, cutter)
+
+    plan, removal, lines = await asyncio.to_thread(machining_plan)
     say("machine")
     clear_z = float((np.asarray(transform) @ np.array([0.0, 0.0, plan.safe_z_mm, 1.0]))[2]) + 10.0
     await change_tool(link, cell.tools, cutter.number, clear_z)
-    wall_s = await run_program(link, program_lines(plan, transform, cutter))
+    wall_s = await run_program(link, lines)
     await change_tool(link, cell.tools, cell.tools.deposition.number, clear_z)
     say("verify")
     vpts = await probe_cad_points(link, cell, vspots, top, transform, "verify")
-    verify = machined_verify(vpts, stock_margin(cad_tri, vpts), m.verify_tolerance_mm)
+    verify = machined_verify(vpts, await asyncio.to_thread(stock_margin, cad_tri, vpts), m.verify_tolerance_mm)
     machining = {"tool": name, "removal_mm3": _rounded(removal), "wall_s": round(wall_s, 2),
                  "est_time_s": round(plan.est_time_s, 1), "passes": len(plan.passes), "levels": plan.levels,
                  "scallop_mm": _rounded(plan.scallop_mm), "stepover_mm": _rounded(plan.stepover_mm),
@@ -354,7 +372,9 @@ def repair_cell(cell: CellConfig) -> CellConfig:
 def _deposit_again(ctl: CellController, res: AlignResult, apply_alignment: bool) -> Callable[[CellJob], Awaitable[float]]:
     """Build a job (CAD frame) on the controller, on the repair's alignment; returns its passes done."""
     async def build(extra: CellJob) -> float:
-        ctl.open_job(apply_to_job(extra, res.transform, alignment_record(res)) if apply_alignment else extra)
+        # moved, checked and journaled off the loop that cycles the devices, as the repair's own build
+        built = await asyncio.to_thread(apply_to_job, extra, res.transform, alignment_record(res)) if apply_alignment else extra
+        await asyncio.to_thread(ctl.open_job, built)
         got = await ctl.start()
         if got.state != "complete":
             raise Fault(f"repair: depositing again stopped in state {got.state}; see the journal in {ctl.run_dir}",
@@ -400,7 +420,8 @@ async def repair_run(ctl: CellController, job: CellJob, *, job_path: Path | None
             raise CellError("repair: the cell's devices closed before the verify probe")
         run_dir, last_report = Path(str(ctl.run_dir)), ctl.last_report   # the repair's record: its own build's
         if finish:
-            fin = await finish_repair(ctl.devices.cnc_link(), cell, job, cad, load_cad(job, job_path, "stock"),
+            stock = await asyncio.to_thread(load_cad, job, job_path, "stock")
+            fin = await finish_repair(ctl.devices.cnc_link(), cell, job, cad, stock,
                                       res.transform, say, _deposit_again(ctl, res, apply_alignment))
             scale = time_scale_of("machine") if time_scale_of is not None else float(cell.cell.time_scale)
             fin["machining"]["time_s"] = round(fin["machining"].pop("wall_s") * scale, 1)

@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 
 from controller.align.probe_cycle import ProbeTarget, probe_points
 from controller.ports import ProbePort
-from core.config import CellConfig
+from core.config import CellConfig, ProbeSettings
 from core.errors import InputError
 from planner.finish import cad_top
 
@@ -129,10 +129,25 @@ def refine_spots(cad_tri: F, stock_tri: F, bounds_xy: F, touched: F, low: np.nda
     return out
 
 
+SCAN_CLEARANCE_MM = 3.0   # the stock scan starts this far over the highest top it expects
+SCAN_BACKOFF_MM = 0.5     # and backs off this far for its one slow touch
+
+
+def scan_settings(s: ProbeSettings) -> ProbeSettings:
+    """The stock probe's touch (docs/machining.md "The stock probe"): hundreds of spots judged against
+    `min_stock_mm`, so one slow touch (the probe's noise is µm, the judgement's band 0.1 mm), a
+    short back-off, and a low hop between spots; the alignment and the verify keep the full cycle."""
+    return s.model_copy(update={"samples": 1, "retries": 0, "backoff_mm": min(float(s.backoff_mm), SCAN_BACKOFF_MM),
+                                "clearance_mm": min(float(s.clearance_mm), SCAN_CLEARANCE_MM)})
+
+
 async def probe_cad_points(link: ProbePort, cell: CellConfig, xy: F, top_z: float, transform: F,
-                           name: str = "stock") -> F:
-    """Touch each CAD-frame spot from above (starting `clearance` over `top_z`); (n, 3) CAD frame."""
-    clear = float(cell.probe.clearance_mm)
+                           name: str = "stock", settings: ProbeSettings | None = None) -> F:
+    """Touch each CAD-frame spot from above (starting `clearance` over `top_z`, the highest the
+    surface may stand under any spot, hops between spots `clearance` over the highest start);
+    (n, 3) CAD frame. `settings`: the touch cycle (default cell.yaml's `probe`)."""
+    s = settings if settings is not None else cell.probe
+    clear = float(s.clearance_mm)
     tf = np.asarray(transform, dtype=float)
     down = tf[:3, :3] @ np.array([0.0, 0.0, -1.0])
     starts = [tf[:3, :3] @ np.array([x, y, top_z + clear]) + tf[:3, 3] for x, y in xy]
@@ -140,7 +155,7 @@ async def probe_cad_points(link: ProbePort, cell: CellConfig, xy: F, top_z: floa
     dn = (float(down[0]), float(down[1]), float(down[2]))
     targets = [ProbeTarget(f"{name}[{i}]", (float(s[0]), float(s[1]), float(s[2])), dn, float(safe))
                for i, s in enumerate(starts)]
-    got = await probe_points(link, targets, cell.probe)
+    got = await probe_points(link, targets, s)
     await link.command(f"G90 G0 Z{safe:.3f}")
     inv = np.linalg.inv(tf)
     out: F = np.array([inv[:3, :3] @ p.position + inv[:3, 3] for p in got])
