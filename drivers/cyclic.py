@@ -241,7 +241,7 @@ class CyclicDevice(ABC, Generic[S]):
             own, os_s, dev_s = gap, 0.0, 0.0
         else:
             stalled = self.host_stalled_s(a.t, b.t) if self.host_stalled_s is not None else 0.0
-            share = blame(self._late_s, a, b, stalled)
+            share = blame(self._late_s, a, b, stalled, waited=gap - self.cycle_s - self._late_s)
             own, os_s, dev_s = min(gap, self.cycle_s + share.own), share.os, share.devices
         if own > st.max_own_period_s:
             st.max_own_period_s, st.os_delay_at_max_s, st.device_delay_at_max_s = own, os_s, dev_s

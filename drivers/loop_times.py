@@ -160,9 +160,14 @@ class LoopClock:
         self._fd, self._others = -1, {}
 
 
-def blame(late: float, a: LoopSample, b: LoopSample, stalled: float = 0.0) -> Blame:
+def blame(late: float, a: LoopSample, b: LoopSample, stalled: float = 0.0, waited: float = 0.0) -> Blame:
     """Share out `late` seconds of a period from sample `a` to `b`; `stalled` is how long a CPU
-    of the host was witnessed stopped meanwhile (controller/runtime/host_witness.py)."""
+    of the host was witnessed stopped meanwhile (controller/runtime/host_witness.py).
+
+    `waited`: the rest of the period past its cycle, in which the loop ran its timers on time
+    and waited for a device's reply. That is never the controller's; the in-process simulators'
+    CPU time not already counted above is the devices' share of it (they answered late because
+    they computed), so a late period's figures add up to its length."""
     late = max(0.0, late)
     os_s = min(late, max(0.0, b.loop_wait - a.loop_wait) + stalled)
     loop_cpu = max(0.0, b.loop_cpu - a.loop_cpu)
@@ -173,6 +178,8 @@ def blame(late: float, a: LoopSample, b: LoopSample, stalled: float = 0.0) -> Bl
     held = max(0.0, b.other_wait - a.other_wait)     # a thread that may hold the GIL waited for a CPU
     total = others + dev + held
     if rest <= 0.0 or total <= 0.0:
-        return Blame(own, os_s + rest, 0.0)          # nobody of ours ran: the holder was off a CPU
+        # nobody of ours ran: the holder was off a CPU
+        return Blame(own, os_s + rest, min(max(0.0, waited), dev))
     scale = min(1.0, rest / total)
-    return Blame(own + others * scale, os_s + rest - (others + dev) * scale, dev * scale)
+    return Blame(own + others * scale, os_s + rest - (others + dev) * scale,
+                 dev * scale + min(max(0.0, waited), dev * (1.0 - scale)))

@@ -7,7 +7,7 @@ from textual.app import ComposeResult
 from textual.containers import Vertical
 from textual.widgets import DataTable, Static
 
-from controller.tui.widgets import fmt
+from controller.tui.widgets import fmt, put
 from controller.tui.session import View
 
 
@@ -36,7 +36,7 @@ class AlignPane(Vertical):
                                                                 "outliers")
 
     def refresh_view(self, v: View) -> None:
-        self.query_one("#align-head", Static).update(_headline(v))
+        put(self.query_one("#align-head", Static), _headline(v))
         key = (id(v.alignment), v.probe_plan, len(v.probed))
         if key == self._key:
             return
@@ -45,7 +45,7 @@ class AlignPane(Vertical):
         planes = _planes(a)
         _fill_points(self.query_one("#align-points", DataTable), planes, v)
         _fill_planes(self.query_one("#align-planes", DataTable), planes)
-        self.query_one("#align-result", Static).update("\n".join(_result_lines(a)))
+        put(self.query_one("#align-result", Static), "\n".join(_result_lines(a)))
 
 
 def _headline(v: View) -> str:

@@ -31,6 +31,7 @@ from controller.tui.start_dialog import StartDialog
 from controller.tui.session import View, freeze_heap
 from controller.defaults import DEMO_WIDTH_MM
 from controller.tui.help import HelpScreen, help_text
+from controller.tui.widgets import put
 
 TABS = (("job", "Job"), ("align", "Align"), ("build", "Build"), ("log", "Log"), ("devices", "Devices"))
 # key -> (command, footer label). Commands of the controller and the UI's own steps.
@@ -242,7 +243,7 @@ class CellApp(App[int]):
         sim = " [reverse] SIM [/]" if v.sim else ""
         job = f"  job {s.job_name}" if s.job_name else ""
         busy = f"  [yellow]{v.busy}…[/]" if v.busy else ""
-        self.query_one("#status", Static).update(
+        put(self.query_one("#status", Static),
             f"[b]cell[/b]{sim}  [{state_style(s.state)}] {s.state.upper().replace('_', ' ')} [/]{job}"
             f"  {s.passes_done}/{s.passes_total} passes{busy}")
         active = self.query_one(TabbedContent).active
@@ -268,7 +269,8 @@ class CellApp(App[int]):
 
     def poll_log(self) -> None:
         try:
-            self.query_one(LogPane).poll(self.session, self.view.snap.run_dir)
+            self.query_one(LogPane).poll(self.session, self.view.snap.run_dir,
+                                         visible=self.query_one(TabbedContent).active == "log")
         except NoMatches:
             pass
 
@@ -279,7 +281,7 @@ class CellApp(App[int]):
 
     def say(self, text: str, error: bool = False) -> None:
         self.last_message = text
-        self.query_one("#message", Static).update(f"[red]{text}[/]" if error else text)
+        put(self.query_one("#message", Static), f"[red]{text}[/]" if error else text)
         if error:
             self.notify(text, severity="error", timeout=8)
 

@@ -8,7 +8,7 @@ from textual.containers import Horizontal, Vertical
 from textual.widgets import DataTable, Label, ProgressBar, Static
 
 from controller.api import Snapshot
-from controller.tui.widgets import LayerPreview, Trend
+from controller.tui.widgets import LayerPreview, Redraw, Trend, put
 from controller.tui.session import View
 
 STATE_STYLE = {"running": "bold black on green", "paused": "bold black on yellow", "fault": "bold white on red",
@@ -28,7 +28,7 @@ class BuildPane(Vertical):
     BuildPane #build-record { height: 1; color: $text-muted; }
     BuildPane .bar-row { height: 1; }
     BuildPane .bar-row > Label { width: 14; }
-    BuildPane .bar-row > .bar-text { width: 22; }
+    BuildPane .bar-row > .bar-text { width: 22; height: 1; }
     BuildPane #build-left { width: 1fr; height: 1fr; overflow-y: auto; }
     BuildPane #build-preview { width: 40%; height: 1fr; }
     BuildPane #build-interpass { height: 1; margin-top: 1; }
@@ -38,7 +38,7 @@ class BuildPane(Vertical):
 
     def __init__(self) -> None:
         super().__init__(id="build-pane")
-        self._links_key: object = None
+        self._links_redraw = Redraw()
 
     def compose(self) -> ComposeResult:
         yield Static("", id="build-state")
@@ -77,10 +77,10 @@ class BuildPane(Vertical):
             where = f"  layer {s.layer + 1}/{s.layers_total}"
             if s.pass_ is not None:
                 where += f", pass {s.pass_ + 1}/{s.passes_in_layer}"
-        self.query_one("#build-state", Static).update(
+        put(self.query_one("#build-state", Static),
             f"[{state_style(s.state)}] {s.state.upper().replace('_', ' ')} [/] {arc_lamp(s)}"
             f"  job {s.job_name or '—'}{trace_text(s)}  arc starts {s.arc_starts}{where}{msg}")
-        self.query_one("#build-record", Static).update(record_where(s))
+        put(self.query_one("#build-record", Static), record_where(s))
         self._bar("passes", s.passes_done, s.passes_total)
         self._bar("layers", s.layers_done, s.layers_total)
         in_layer = (s.pass_ or 0) if s.layer is not None else 0
@@ -93,17 +93,16 @@ class BuildPane(Vertical):
         self.query_one("#trend-voltage", Trend).show(arc[1], [h.voltage_v for h in hist])
         self.query_one("#trend-wfs", Trend).show(arc[2], [h.wfs_m_min for h in hist])
         self.query_one("#trend-temp", Trend).show(s.temperature_c, [h.temperature_c for h in hist])
-        self.query_one("#build-interpass", Static).update(interpass_text(v) + process_text(s))
+        put(self.query_one("#build-interpass", Static), interpass_text(v) + process_text(s))
         self._links(v)
-        self.query_one("#build-alarms", Static).update(alarms_text(v))
+        put(self.query_one("#build-alarms", Static), alarms_text(v))
         self._preview(v, in_layer)
 
     def _links(self, v: View) -> None:
-        """The link table, redrawn only when a figure changed."""
+        """The link table: a link up or down at once, its counters once a second."""
         links = tuple((d.device, d.connected, d.frames_tx, d.frames_rx, d.errors, d.queue_free) for d in v.devices)
-        if links == self._links_key:
+        if not self._links_redraw.due(links, tuple(x[:2] for x in links)):
             return
-        self._links_key = links
         t = self.query_one("#build-links", DataTable)
         t.clear()
         for dev, ok, tx, rx, err, q in links:
@@ -121,7 +120,7 @@ class BuildPane(Vertical):
                                           f"layer {layer + 1}/{v.job.layers}")
 
     def _bar(self, name: str, done: int, total: int) -> None:
-        self.query_one(f"#{name}-text", Label).update(f"{done} / {total}")
+        put(self.query_one(f"#{name}-text", Label), f"{done} / {total}")
         self.query_one(f"#{name}-bar", ProgressBar).update(total=max(total, 1), progress=min(done, max(total, 1)))
 
 

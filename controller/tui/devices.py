@@ -6,6 +6,7 @@ from textual.containers import Vertical
 from textual.widgets import DataTable, Static
 
 from controller.tui.session import View
+from controller.tui.widgets import Redraw, put
 
 
 class DevicesPane(Vertical):
@@ -18,7 +19,7 @@ class DevicesPane(Vertical):
 
     def __init__(self) -> None:
         super().__init__(id="devices-pane")
-        self._key: object = None
+        self._table = Redraw()
 
     def compose(self) -> ComposeResult:
         yield Static("", id="dev-head")
@@ -35,11 +36,10 @@ class DevicesPane(Vertical):
             head += "\n[yellow]connecting…[/]"
         elif v.connect_error:
             head += f"\n[red]not connected:[/] {v.connect_error}\nPress [b]c[/b] to connect again."
-        self.query_one("#dev-head", Static).update(head)
-        key = v.devices
-        if key == self._key:
+        put(self.query_one("#dev-head", Static), head)
+        # a link up or down and a new last error at once, the traffic counters once a second
+        if not self._table.due(v.devices, tuple((d.device, d.url, d.connected, d.last_error) for d in v.devices)):
             return
-        self._key = key
         t = self.query_one("#dev-table", DataTable)
         t.clear()
         for d in v.devices:

@@ -5,7 +5,7 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widgets import DataTable, ProgressBar, Static
 
-from controller.tui.widgets import LayerPreview, fmt
+from controller.tui.widgets import LayerPreview, fmt, put
 from controller.tui.session import View
 from controller.tui.view import JobInfo
 
@@ -49,14 +49,14 @@ class JobPane(Vertical):
             self.preview_layer = max(0, min(view.job.layers - 1, self.preview_layer + delta))
 
     def refresh_view(self, v: View) -> None:
-        self.query_one("#job-file", Static).update(_headline(v))
+        put(self.query_one("#job-file", Static), _headline(v))
         _show_progress(self.query_one("#plan-progress", ProgressBar), v)
         j = v.job
         if j is None:
-            self.query_one("#job-summary", Static).update("")
+            put(self.query_one("#job-summary", Static), "")
             self.query_one(LayerPreview).show((), None)
             return
-        self.query_one("#job-summary", Static).update("\n".join(_summary_lines(j)))
+        put(self.query_one("#job-summary", Static), "\n".join(_summary_lines(j)))
         if self._roles_key is not j.roles:
             self._roles_key = j.roles
             self._show_roles(j)

@@ -36,6 +36,7 @@ class LogPane(Vertical):
         self.rows: list[LogRow] = []
         self._last_id = 0
         self._ui_seen = 0
+        self._shown = 0   # rows of `rows` offered to the table (those that pass the filter are in it)
         self._run_dir: str | None = None
 
     def compose(self) -> ComposeResult:
@@ -45,8 +46,11 @@ class LogPane(Vertical):
     def on_mount(self) -> None:
         self.query_one("#log-table", DataTable).add_columns("time (UTC)", "kind", "state", "where", "message")
 
-    def poll(self, session: object, run_dir: str | None) -> None:
-        """Fetch new journal rows and session messages; append the ones that pass the filter."""
+    def poll(self, session: object, run_dir: str | None, visible: bool = True) -> None:
+        """Fetch new journal rows and session messages; append the ones that pass the filter.
+
+        While the screen is not `visible` the rows are kept and not drawn: a table that grows
+        redraws with the interpreter lock held (docs/tui.md); they are drawn when it shows."""
         if run_dir != self._run_dir:  # another job: another journal
             self._run_dir, self._last_id = run_dir, 0
             self.rows = [r for r in self.rows if r.kind == "ui" or r.id < 0]
@@ -58,12 +62,17 @@ class LogPane(Vertical):
         for r in ui[self._ui_seen:]:
             new.append(LogRow(r.id, r.t, "ui" if r.kind == "info" else r.kind, r.state, r.message))
         self._ui_seen = len(ui)
-        if not new:
-            return
         self.rows.extend(new)
+        if visible:
+            self._show_pending()
+
+    def _show_pending(self) -> None:
+        pending, self._shown = self.rows[self._shown:], len(self.rows)
+        if not pending:
+            return
         flt = self.query_one("#log-filter", Input).value
         t = self.query_one("#log-table", DataTable)
-        for r in new:
+        for r in pending:
             if matches(r, flt):
                 self._add(t, r)
 
@@ -78,6 +87,7 @@ class LogPane(Vertical):
         flt = self.query_one("#log-filter", Input).value
         t = self.query_one("#log-table", DataTable)
         t.clear()
+        self._shown = len(self.rows)
         for r in self.rows:
             if matches(r, flt):
                 self._add(t, r)

@@ -2,7 +2,8 @@
 from __future__ import annotations
 
 import math
-from typing import Sequence
+import time
+from typing import Hashable, Sequence
 
 from rich.text import Text
 from textual.app import ComposeResult
@@ -13,6 +14,44 @@ ROLE_STYLE = {"perimeter": "bright_cyan", "infill": "yellow", "gap": "magenta"}
 DONE_STYLE = "bright_green"
 
 Path2 = tuple[tuple[float, float], ...]
+
+
+def put(w: Static, text: str) -> None:
+    """Show `text` in `w`, doing nothing when it is already shown.
+
+    Textual redraws on every `update`, and an update that may change the widget's size lays
+    the whole screen out again (with the interpreter lock held: the controller's device loop
+    waits behind it; docs/tui.md, "The screen never holds up the devices"). So an unchanged
+    text is not sent at all, and a changed one is laid out again only when the widget's size
+    follows its text (an `auto` width or height).
+    """
+    old = w.content
+    if isinstance(old, str) and old == text:
+        return
+    w.update(text, layout=w.styles.is_auto_width or w.styles.is_auto_height)
+
+
+class Redraw:
+    """When a table of live counters is drawn again: at once when what it shows changed in kind
+    (`urgent`: a link up or down, a device added), otherwise at most once every `period_s`
+    while its counters move. A table is cleared and filled again on a redraw, with the
+    interpreter lock held (docs/tui.md, "The screen never holds up the devices")."""
+
+    def __init__(self, period_s: float = 1.0) -> None:
+        self.period_s = period_s
+        self._key: Hashable = None
+        self._urgent: Hashable = None
+        self._at = -math.inf
+
+    def due(self, key: Hashable, urgent: Hashable) -> bool:
+        """True when the table showing `key` is to be drawn now (and it counts as drawn)."""
+        if key == self._key:
+            return False
+        now = time.monotonic()
+        if urgent == self._urgent and now - self._at < self.period_s:
+            return False
+        self._key, self._urgent, self._at = key, urgent, now
+        return True
 
 
 def fmt(v: float | None, nd: int = 1, unit: str = "") -> str:
@@ -28,7 +67,7 @@ class Trend(Horizontal):
     DEFAULT_CSS = """
     Trend { height: 1; }
     Trend > .trend-name { width: 14; }
-    Trend > .trend-value { width: 12; text-align: right; padding-right: 1; }
+    Trend > .trend-value { width: 12; height: 1; text-align: right; padding-right: 1; }
     Trend > Sparkline { width: 1fr; }
     """
 
@@ -42,7 +81,7 @@ class Trend(Horizontal):
         yield Sparkline([], summary_function=max)
 
     def show(self, value: float | None, history: Sequence[float | None]) -> None:
-        self.query_one(".trend-value", Label).update(fmt(value, self._nd, " " + self._unit))
+        put(self.query_one(".trend-value", Label), fmt(value, self._nd, " " + self._unit))
         data = [v for v in history if v is not None]
         spark = self.query_one(Sparkline)
         if list(spark.data or []) != data:
@@ -122,7 +161,7 @@ class LayerPreview(Static):
             return
         self._key = key
         if not layers or layer is None or not (0 <= layer < len(layers)):
-            self.update(Text("no job open: press o to open a part or a job file", style="dim"))
+            self.update(Text("no job open: press o to open a part or a job file", style="dim"), layout=False)
             return
         paths = [(DONE_STYLE if k < done else ROLE_STYLE.get(role, "white"), pts)
                  for k, (role, pts) in enumerate(layers[layer])]
@@ -133,4 +172,5 @@ class LayerPreview(Static):
         if done:
             legend.append("■", style=DONE_STYLE).append("done")
         legend.truncate(cols, overflow="ellipsis")
-        self.update(Text.assemble(legend, "\n", pic))
+        # its size is the screen's share (1fr), never its text's: no layout of the whole screen
+        self.update(Text.assemble(legend, "\n", pic), layout=False)

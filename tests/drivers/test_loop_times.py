@@ -33,6 +33,17 @@ def test_the_gil_held_by_a_simulator_is_the_devices_and_by_the_screen_the_contro
     assert share.devices == pytest.approx(0.030) and share.own == pytest.approx(0.010) and share.os == 0.0
 
 
+def test_a_simulator_that_answers_late_because_it_computed_is_the_devices() -> None:
+    # a 40 ms period: its timers fired 5 ms late, and 25 ms it waited for the in-process cell
+    # I/O's reply; meanwhile the simulators computed 22 ms and the screen 5 ms
+    share = blame(0.005, at(), at(0.040, proc_cpu=0.027, dev_cpu=0.022), waited=0.025)
+    assert share.devices == pytest.approx(0.022)                   # all of the simulators' time
+    assert share.own == pytest.approx(0.005 * 5 / 27)               # the screen's part of the late timers
+    assert share.own + share.os + share.devices <= 0.030 + 1e-9
+    # a real device (no simulator thread of ours) that answers late is nobody's share here
+    assert blame(0.005, at(), at(0.040, proc_cpu=0.005), waited=0.025).devices == 0.0
+
+
 def test_a_preempted_holder_of_the_gil_is_the_os() -> None:
     # 40 ms asleep past the timer; our other thread ran 5 ms and waited 35 ms for a CPU
     share = blame(0.040, at(), at(0.050, proc_cpu=0.005, other_wait=0.035))
