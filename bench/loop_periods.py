@@ -102,6 +102,7 @@ def tui_build(job: Path, runs: Path, scale: float, max_step: float,
 
 def thread_cpu() -> dict[str, float]:
     """CPU seconds of this process's threads by name (the screen's, the controller's, ...)."""
+    # lazy: only the TUI child lists its threads
     import threading
 
     out: dict[str, float] = {}
