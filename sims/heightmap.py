@@ -302,7 +302,7 @@ class HeightMap:
     def _rise_behind(self, behind_mm: float) -> float | None:
         """The bead's rise on its centre line `behind_mm` back along the path: the chunk there
         poured alone as it stands (it waits in the pool), else the latest poured one's."""
-        ready = [c for c in self._pool if c.path_mm <= self._path - behind_mm]
+        ready = [c for c in self._pool if c.path_mm <= self._path - behind_mm and c.ii.size]   # (a turn can take all a chunk's cells)
         base = self._rest_on(ready[-1].centre) if ready else _OFF_PART
         if base <= _OFF_PART:
             return self._settled_rise(behind_mm)
@@ -341,10 +341,10 @@ class HeightMap:
             self._trail.append((c.path_mm, c.centre[0], c.centre[1]))
             self._tail.append(self._trail[-1])
         ii, jj, env, hang = np.concatenate(iis), np.concatenate(jjs), np.concatenate(envs), np.concatenate(hangs)
-        if len(chunks) > 1:
+        if len(chunks) > 1 and ii.size:
             ii, jj, env, hang = merge_cells(ii, jj, env, hang)
-        left = self._pour(ii, jj, env, hang, sum(c.need for c in chunks) + self._spill)
-        self._spill = 0.0
+        need = sum(c.need for c in chunks) + self._spill   # (chunks a turn left no cell of their own: it runs on)
+        left, self._spill = (self._pour(ii, jj, env, hang, need) if ii.size else need), 0.0
         if self._pool:             # the pool goes on: what did not fit here runs on in it
             self._spill = left
             return

@@ -24,12 +24,14 @@ import numpy as np
 from controller.journal.store import Journal
 from controller.runtime.events import EventBus
 from controller.runtime.path_plan import (
-    Field, PathLaw, arc_length, bin_samples, plan_factors, point_at, resample, spots_along,
+    Field, PathLaw, arc_length, bin_samples, plan_factors, point_at, process_for, resample, rise_ratio, spots_along,
+    spread_reports,
 )
 from controller.runtime.stickout import StickOutEstimator
 from core.config import ProcessControl
 from core.melting import stick_out_at
 from planner.job import Layer, Pass
+from planner.pour import BeadLaw
 
 __all__ = ["PathControl"]
 
@@ -55,10 +57,11 @@ class PathControl:
         self.cfg, self.journal, self.bus, self.platform, self.est = cfg, journal, bus, platform, est
         self.width = width_mm
         trim, wt = cfg.speed_trim_pct / 100.0, cfg.path_wfs_trim_pct / 100.0
-        self.speed_bounds = (max(1.0 - trim, 0.05), 1.0 + trim)
+        self.speed_bounds = cfg.path_speed_range or (max(1.0 - trim, 0.05), 1.0 + trim)
         self.wfs_bounds = (max(1.0 - wt, 0.05), 1.0 + wt)
         line = est.material.ribeiro
         self.wfs_envelope = (line.wfs_min_m_min, line.wfs_max_m_min)
+        self.bead = BeadLaw(line.k1, line.k2, line.k3, line.i_min_a, line.i_max_a, line.wfs_min_m_min, line.wfs_max_m_min)
         # the law's factor is the metal's (speed over wire feed): the speed's bound, then the wire feed's
         self.law = PathLaw(kp=cfg.path_kp, ki=cfg.path_ki, filter_mm=max(cfg.path_filter_mm or 1.5 * width_mm, width_mm,
                                                                                  cfg.probe_spacing_mm if platform == "cnc" else 0.0),
@@ -112,24 +115,47 @@ class PathControl:
         d_now, m_now = self.fields[-1]
         d_prev = self.fields[-2][0] if len(self.fields) > 1 else None
         xy, ln = np.concatenate(mids), np.concatenate(lens)
+        self.law = replace(self.law, bounds=self.bounds(passes))
         got, need = plan_factors(xy, ln, d_now, d_prev, m_now, self.rise_mm, self.law)
-        top_speed = max(float(p.speeds().max()) for p in passes)
-        got = np.minimum(got, max(self.max_speed / top_speed, 1e-3) / self.wfs_bounds[0])
+        if not self.cfg.path_wfs_trim_pct:
+            top_speed = max(float(p.speeds().max()) for p in passes)
+            got = np.minimum(got, max(self.max_speed / top_speed, 1e-3))
         out, k = {}, 0
         for pa, m in enumerate(mids):
             out[pa] = [round(float(v), 5) for v in got[k:k + len(m)]]
             k += len(m)
         return out, need, xy, d_now.at(xy, self.law.filter_mm / 4.0, self.law.filter_mm)
 
-    def split(self, m: np.ndarray, speeds: np.ndarray, wfs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """A metal factor m (speed / wire feed) as (speed factor, wire feed factor): the speed
-        within its bound and the cell's top speed first; the wire feed takes the rest where the
-        speed is at a bound, within its own trim and the material's synergic envelope."""
+    def _limits(self, speeds: np.ndarray, wfs: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+        """Per segment: the speed's (lo, hi) and the wire feed's (lo, hi), absolute."""
         lo, hi = self.speed_bounds
-        sp = np.clip(m, lo, np.minimum(hi, self.max_speed / np.maximum(speeds, 1e-9)))
-        f = np.clip(sp / np.maximum(m, 1e-9), *self.wfs_bounds)
-        f = np.clip(wfs * f, *self.wfs_envelope) / np.maximum(wfs, 1e-9)
-        return sp, np.where(np.abs(f - 1.0) < 1e-4, 1.0, f)
+        v = (speeds * lo, np.minimum(speeds * hi, np.maximum(self.max_speed, speeds)))
+        f = (np.clip(wfs * self.wfs_bounds[0], *self.wfs_envelope), np.clip(wfs * self.wfs_bounds[1], *self.wfs_envelope))
+        return v, (np.minimum(f[0], wfs), np.maximum(f[1], wfs))
+
+    def bounds(self, passes: Sequence[Pass]) -> tuple[float, float]:
+        """The law's bounds on m: the speed's alone, or with the wire feed the rise's reach (m = 1/rise)
+        at the layer's slowest-fed segment."""
+        if not self.cfg.path_wfs_trim_pct or not passes:
+            return self.speed_bounds
+        v0 = np.concatenate([p.speeds() for p in passes])
+        f0 = np.concatenate([p.wire_feeds() for p in passes])
+        (vlo, vhi), (flo, fhi) = self._limits(v0, f0)
+        most = rise_ratio(self.bead, vlo, flo, v0, f0)
+        least = rise_ratio(self.bead, vhi, fhi, v0, f0)
+        return float(1.0 / most.min()), float(1.0 / least.max())
+
+    def split(self, m: np.ndarray, speeds: np.ndarray, wfs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The path factor m per segment as (speed factor, wire feed factor). Without the wire feed:
+        the speed within its bound and the cell's top speed. With it, m is the rise's inverse: the
+        speed and wire feed that lay 1/m × the rise keeping the bead's width (path_plan.process_for)."""
+        vb, fb = self._limits(speeds, wfs)
+        if not self.cfg.path_wfs_trim_pct:
+            sp = np.clip(m, self.speed_bounds[0], vb[1] / np.maximum(speeds, 1e-9))
+            return sp, np.ones(len(m))
+        v, f = process_for(1.0 / np.maximum(m, 1e-6), speeds, wfs, self.bead, vb, fb)
+        f = f / np.maximum(wfs, 1e-9)
+        return v / np.maximum(speeds, 1e-9), np.where(np.abs(f - 1.0) < 1e-4, 1.0, f)
 
     def apply(self, la: int, layer: Layer) -> Layer:
         """Layer la as built: resampled, its segment speeds (and wire feeds where the speed is at
@@ -152,9 +178,7 @@ class PathControl:
             m = np.asarray(self.applied[la].get(pa, []), dtype=float)
             if len(m) != len(p.points) - 1:   # a pass the journal did not see (never: same geometry)
                 m = np.ones(len(p.points) - 1)
-            f = np.asarray(self.applied_wfs.get(la, {}).get(pa) or np.ones(len(m)), dtype=float)
-            # metal ∝ wire feed / speed: the speed factor is m·f, inside its bound and the top speed
-            sp = np.clip(m * f, self.speed_bounds[0], np.minimum(self.speed_bounds[1], self.max_speed / np.maximum(p.speeds(), 1e-9)))
+            sp, f = self.split(m, p.speeds(), p.wire_feeds())
             out.append(p.with_process(p.speeds() * sp, p.wire_feeds() * f if np.any(f != 1.0) else None))
         return replace(layer, passes=tuple(out))
 
@@ -176,7 +200,7 @@ class PathControl:
             cum = arc_length(p.points)
             fac = self.applied.get(la, {}).get(pa, [])
             # the first half width of a bead: the pool not yet risen under the torch (it reads the ground)
-            got = [(s, i) for s, i in self.samples.pop((la, pa), []) if s >= self.width / 2.0]
+            got = [(s, i) for s, i in spread_reports(self.samples.pop((la, pa), []), float(cum[-1])) if s >= self.width / 2.0]
             for s, cur, _n in bin_samples(got, float(cum[-1]), self.bin_mm):
                 k = min(max(int(np.searchsorted(cum, s, side="right")) - 1, 0), len(cum) - 2)
                 wfs = float(p.wire_feeds()[k])

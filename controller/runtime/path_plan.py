@@ -28,9 +28,12 @@ from typing import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from planner.pour import BeadLaw
+
 FloatArray = NDArray[np.float64]
 
-__all__ = ["Field", "resample", "arc_length", "point_at", "bin_samples", "plan_factors", "PathLaw", "spots_along"]
+__all__ = ["Field", "resample", "arc_length", "point_at", "bin_samples", "plan_factors", "PathLaw", "spots_along",
+           "rise_ratio", "process_for", "spread_reports"]
 
 
 @dataclass(frozen=True)
@@ -116,6 +119,26 @@ def bin_samples(samples: Sequence[tuple[float, float]], length: float, bin_mm: f
             for _, sv in sorted(acc.items()) if len(sv) >= min_n]
 
 
+def spread_reports(samples: Sequence[tuple[float, float]], end_mm: float) -> list[tuple[float, float]]:
+    """Samples tagged with the last point the device reported reaching, placed where the torch was:
+    the torch is past that point, on the move to the next one reported, and the source samples at a
+    steady rate, so the samples of one report spread evenly over the stretch to the next report's
+    point (the last one's to the pass's end). Undoes the lag of up to a move, which changes sign
+    with the pass's direction (a wall laid back and forth)."""
+    out: list[tuple[float, float]] = []
+    i, n = 0, len(samples)
+    while i < n:
+        j = i
+        while j < n and samples[j][0] == samples[i][0]:
+            j += 1
+        s0 = samples[i][0]
+        s1 = samples[j][0] if j < n else max(end_mm, s0)
+        s1 = max(s1, s0)
+        out += [(s0 + (s1 - s0) * (k + 0.5) / (j - i), samples[k + i][1]) for k in range(j - i)]
+        i = j
+    return out
+
+
 def spots_along(points: FloatArray, spacing: float, end_mm: float) -> list[FloatArray]:
     """Probe spots along a pass: every ~`spacing` mm from `end_mm` after its start to `end_mm`
     before its end (ends included), at least one (its middle)."""
@@ -172,3 +195,32 @@ def plan_factors(mid_xy: FloatArray, seg_len: FloatArray, d_now: Field, d_prev: 
     m = np.maximum(mn + np.clip(step, -law.max_step, law.max_step), 0.05)   # one layer's reading moves it this far at most
     lo, hi = law.bounds
     return bounded_metal(m, w, lo, hi), need
+
+
+def rise_ratio(law: BeadLaw, v: FloatArray, f: FloatArray, v0: FloatArray, f0: FloatArray) -> FloatArray:
+    """A bead's rise at (speed v, wire feed f) over its rise at (v0, f0): metal over width,
+    (f/v) / w(I(f), v), the synergic current I and Ribeiro's width w."""
+    out: FloatArray = (f / v) / law.width(f, v) / ((f0 / v0) / law.width(f0, v0))
+    return out
+
+
+def process_for(rise: FloatArray, v0: FloatArray, f0: FloatArray, law: BeadLaw,
+                speed: tuple[FloatArray, FloatArray], wfs: tuple[FloatArray, FloatArray]) -> tuple[FloatArray, FloatArray]:
+    """(speed, wire feed) per segment that lay `rise` × the rise of (v0, f0) keeping the bead's width
+    (docs/closed-loop.md "The wire feed"): more metal is a slower bead at a lower wire feed, less a
+    faster one at a higher, so the rise follows the metal and the bead never runs wider than the
+    layer under it (a wider bead pours its metal down a wall's sides). Where the wire feed reaches
+    its bound (`wfs` lo, hi per segment) the speed alone takes the rest (the width gives); then the
+    speed's bound (`speed` lo, hi)."""
+    rise = np.asarray(rise, dtype=float)
+    keep = law.width(f0, v0)
+    lo, hi = wfs[0].astype(float).copy(), wfs[1].astype(float).copy()
+    for _ in range(30):   # along f/v = rise·f0/v0 the width rises with f
+        mid = 0.5 * (lo + hi)
+        wide = law.width(mid, mid * v0 / (rise * f0)) > keep
+        hi, lo = np.where(wide, mid, hi), np.where(wide, lo, mid)
+    f = np.clip(0.5 * (lo + hi), wfs[0], wfs[1])
+    # the speed that lays the rise at this feed: rise ∝ f·I(f)^-k2·v^(-1-k3)
+    base = rise_ratio(law, v0, f, v0, f0)
+    v = v0 * (base / np.maximum(rise, 1e-6)) ** (1.0 / (1.0 + law.k3))
+    return np.clip(v, speed[0], speed[1]), f

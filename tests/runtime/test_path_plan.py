@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller.runtime.path_plan import Field, PathLaw, bin_samples, bounded_metal, plan_factors, resample, spots_along
+from controller.runtime.path_plan import (
+    Field, PathLaw, bin_samples, bounded_metal, plan_factors, process_for, resample, rise_ratio, spots_along, spread_reports,
+)
+from core.config import load_material
+from planner.pour import BeadLaw
+
+_R = load_material("inconel718-1.0mm").ribeiro
+LAW = BeadLaw(_R.k1, _R.k2, _R.k3, _R.i_min_a, _R.i_max_a, _R.wfs_min_m_min, _R.wfs_max_m_min)
 
 
 def test_resample_keeps_every_point_and_caps_the_segments():
@@ -88,3 +95,26 @@ def test_one_stretch_far_out_does_not_push_the_others_to_the_bound():
     assert m[0] == pytest.approx(0.6)
     assert np.all(m[1:] < 1.15)
     assert float(np.sum(w / m)) == pytest.approx(float(w.sum()))
+
+
+def test_samples_of_one_report_spread_over_the_move_to_the_next():
+    # the robot reported reaching 0, then 3.5 (three samples each), then 7 (two, the pass ends at 8)
+    got = spread_reports([(0.0, 1.0)] * 3 + [(3.5, 2.0)] * 3 + [(7.0, 3.0)] * 2, 8.0)
+    assert [round(s, 3) for s, _ in got] == [0.583, 1.75, 2.917, 4.083, 5.25, 6.417, 7.25, 7.75]
+    assert [v for _, v in got] == [1.0] * 3 + [2.0] * 3 + [3.0] * 2
+
+
+def test_the_rise_is_set_by_speed_and_wire_feed_keeping_the_beads_width():
+    v0, f0 = np.full(4, 940.0), np.full(4, 6.0)
+    rise = np.array([0.9, 1.0, 1.2, 1.4])
+    wide = (np.full(4, 100.0), np.full(4, 3000.0)), (np.full(4, 4.0), np.full(4, 7.4))
+    v, f = process_for(rise, v0, f0, LAW, *wide)
+    assert np.allclose(rise_ratio(LAW, v, f, v0, f0), rise, rtol=1e-4)       # the rise asked
+    assert np.allclose(LAW.width(f, v), LAW.width(f0, v0), rtol=1e-3)       # at the planned width
+    assert np.all(np.diff(v) < 0) and np.all(np.diff(f) < 0)                # more metal: slower, less wire
+    assert v[1] == pytest.approx(940.0) and f[1] == pytest.approx(6.0)
+    # the wire feed at its bound: the speed alone takes the rest (the bead narrows), then its own bound
+    v, f = process_for(np.array([0.6, 0.5]), v0[:2], f0[:2], LAW, (np.full(2, 100.0), np.array([3000.0, 1200.0])),
+                       (np.full(2, 4.0), np.full(2, 6.3)))
+    assert np.allclose(f, 6.3) and rise_ratio(LAW, v[:1], f[:1], v0[:1], f0[:1])[0] == pytest.approx(0.6, rel=1e-4)
+    assert v[1] == pytest.approx(1200.0) and LAW.width(f[:1], v[:1])[0] < LAW.width(f0[:1], v0[:1])[0]
