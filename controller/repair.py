@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any, Awaitable, Callable
 import numpy as np
 
 from controller.align.intact import MIN_SIDE_MM, intact_spots
-from controller.align.surface_probe import probe_cad_points, refine_spots, repaired_spots, scan_settings, stock_spots
+from controller.align.surface_probe import flood_spots, probe_cad_points, refine_spots, repaired_spots, scan_settings, stock_spots
 from controller.motion.mill import change_tool, program_lines, run_program
 from controller.align.routine import AlignResult, ProbePlan, alignment_record, plan_for_mesh
 from controller.api import CellController
@@ -246,6 +246,7 @@ def machined_verify(pts: np.ndarray, err: np.ndarray, tolerance_mm: float) -> di
 REFINE_MM = (1.0, 0.5)   # the stock probe's spacing around low touches, then around the short among those
 REFINE_BAND_MM = 0.1     # a touch this close to short is refined around at 1 mm as a short one is
 REFINE_MAX = 160         # touches a refinement adds at most (nearest the low touches first)
+FLOOD_ROUNDS = 12        # rings of cells the flood traces out from the low touches at most
 
 
 async def _touch_refined(link: CncLinkPort, cell: CellConfig, cad_tri: np.ndarray, stock_tri: np.ndarray, rb: np.ndarray,
@@ -266,6 +267,16 @@ async def _touch_refined(link: CncLinkPort, cell: CellConfig, cad_tri: np.ndarra
         got = await probe_cad_points(link, cell, more, top, transform, "stock", scan)
         pts, margin = np.vstack([pts, got]), np.concatenate([margin, await asyncio.to_thread(stock_margin, cad_tri, got)])
         fresh = np.r_[np.zeros(len(fresh), dtype=bool), np.ones(len(got), dtype=bool)]
+    # nothing short so far: trace every stretch standing under the need + the band cell by cell to its end
+    for _ in range(FLOOD_ROUNDS if bool(np.all(margin >= m.min_stock_mm)) else 0):
+        more = await asyncio.to_thread(flood_spots, cad_tri, stock_tri, rb, pts[:, :2],
+                                       ~(margin >= m.min_stock_mm + REFINE_BAND_MM))
+        if not len(more):
+            break
+        got = await probe_cad_points(link, cell, more, top, transform, "stock", scan)
+        pts, margin = np.vstack([pts, got]), np.concatenate([margin, await asyncio.to_thread(stock_margin, cad_tri, got)])
+        if not bool(np.all(margin >= m.min_stock_mm)):
+            break    # short: the spots are judged (deposit again), the next round probes again
     return pts, margin
 
 
@@ -293,6 +304,7 @@ async def probe_stock(link: CncLinkPort, cell: CellConfig, job: CellJob, cad_tri
     target = m.min_stock_mm + REFINE_BAND_MM   # not the allowance: a bead laid again overshoots it anyway
     assert job.repair is not None and job.repair.bounds_mm is not None
     rb = np.asarray(job.repair.bounds_mm, dtype=float)
+    n_base = len(spots)   # the ring and grid spots lead every round's touches (the refined ones follow)
     while True:
         say("stock")
         pts, margin = await _touch_refined(link, cell, cad_tri, stock_tri, rb, spots, top, transform)
@@ -304,11 +316,15 @@ async def probe_stock(link: CncLinkPort, cell: CellConfig, job: CellJob, cad_tri
             raise CellError(f"repair: the deposit stands less than {m.min_stock_mm} mm above CAD{again} at "
                             f"{_short_spots(pts, margin, m.min_stock_mm)}; deposit again there (or plan a larger "
                             "allowance)")
-        extra = await asyncio.to_thread(redeposit_job, job, pts[short], margin[short], target, round_no=len(rounds) + 1)
+        # the deposit's typical height: the median of the ring and grid touches (the refined ones sit where it is low)
+        base = slice(0, n_base)
+        typical = (float(np.median(margin[base])), float(np.median(pts[base, 2])))
+        extra = await asyncio.to_thread(redeposit_job, job, pts[short], margin[short], target, round_no=len(rounds) + 1,
+                                        typical=typical)
         say("build")
         passes = await deposit_again(extra)
         rounds.append({"short_spots": int(short.sum()), "min_mm": _rounded(np.nanmin(margin)),
-                       "layers": len(extra.layers), "passes": int(passes)})
+                       "typical_mm": _rounded(typical[0]), "layers": len(extra.layers), "passes": int(passes)})
         spots = pts[:, :2]   # every spot touched, the refined ones too: probed again after the deposit
         top = max(top, float(max(L.z_mm for L in extra.layers)) + 1.0)
 

@@ -160,3 +160,23 @@ async def probe_cad_points(link: ProbePort, cell: CellConfig, xy: F, top_z: floa
     inv = np.linalg.inv(tf)
     out: F = np.array([inv[:3, :3] @ p.position + inv[:3, 3] for p in got])
     return out
+
+
+def flood_spots(cad_tri: F, stock_tri: F, bounds_xy: F, touched: F, low: np.ndarray, reach_mm: float = 0.75,
+                step_mm: float = 0.5) -> F:
+    """Every cell of the repaired region within `reach_mm` of a `low` touch (its neighbours, the
+    diagonal ones too) that no touch has read yet (docs/machining.md "The stock probe"): touched,
+    and around the low ones of those again, it traces a low stretch of the deposit cell by cell
+    out to where it stands clear of the need."""
+    from scipy.spatial import cKDTree   # lazy: scipy loads only when this path runs (start-up time)
+
+    t = np.asarray(touched, dtype=float).reshape(-1, 2)
+    lows = t[np.asarray(low, dtype=bool)]
+    if not len(lows):
+        return np.empty((0, 2))
+    xy, mask, _shape = _repaired_mask(cad_tri, stock_tri, bounds_xy, step_mm)
+    cells = xy[mask.ravel()]
+    near = cKDTree(lows).query(cells)[0] <= reach_mm + 1e-9
+    fresh = cKDTree(t).query(cells)[0] > step_mm / 2
+    out: F = cells[near & fresh]
+    return out

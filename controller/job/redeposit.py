@@ -80,35 +80,78 @@ def _process(job: CellJob) -> tuple[dict[str, Any], float, float, list[F]]:
     return process, width, h, [q.points for q in top.passes if q.points.shape[0] >= 2]
 
 
-def redeposit_job(job: CellJob, pts: F, over: F, target_mm: float, *, round_no: int = 1,
-                  max_layers: int = 4) -> CellJob:
-    """A job depositing again at the short spots `pts` ((n, 3) CAD frame, probed tops) whose
-    heights over CAD are `over` (n,), until each stands `target_mm` over CAD."""
-    if not len(pts):
-        raise InputError("redeposit: no short spot to deposit at")
-    process, width, h, seg = _process(job)
-    p, o = _merge(np.asarray(pts, dtype=float), np.asarray(over, dtype=float), width / 2)
-    n_layers = int(min(max_layers, max(1, math.ceil((target_mm - float(o.min())) / h))))
+MERGE_WIDTHS = 0.5    # spots closer than this many bead widths are one: a bead laid at one covers the other
+
+
+def _shifted(layer: dict[str, Any], z: float, h: float) -> dict[str, Any]:
+    """A copy of a planned layer (JSON) moved up to z (its passes' points with it)."""
+    dz = z - float(layer["z_mm"])
+    passes = [{**q, "points": [[pt[0], pt[1], round(float(pt[2]) + dz, 4), *pt[3:]] for pt in q["points"]]}
+              for q in layer["passes"]]
+    return {**{k: v for k, v in layer.items() if k not in ("passes", "z_mm", "height_mm", "index")},
+            "z_mm": round(z, 4), "height_mm": round(h, 4), "passes": passes}
+
+
+def _full_layers(obj: dict[str, Any], n: int, z0: float, h: float) -> list[dict[str, Any]]:
+    """n whole layers over the region from z0 + h up: the plan's top two layers again, alternating
+    as the plan did (the second-highest first), each at its own height over the surface measured."""
+    planned = sorted(obj["layers"], key=lambda L: float(L["z_mm"]))
+    planned = [L for L in planned if any(len(q["points"]) >= 2 for q in L["passes"])]
+    tops = planned[-2:][::-1] if len(planned) >= 2 else planned[-1:]
+    return [_shifted(tops[(k + 1) % len(tops)] if len(tops) == 2 else tops[0], z0 + (k + 1) * h, h) for k in range(n)]
+
+
+def _spot_layers(job: CellJob, process: dict[str, Any], seg: list[F], p: F, o: F, width_h: tuple[float, float],
+                 base: float, n_layers: int, target_mm: float) -> list[dict[str, Any]]:
+    """Layers of short passes, one per spot still short (`o` its height over CAD), from base + h up."""
+    width, h = width_h
     rb = job.repair.bounds_mm if job.repair is not None else None
     mid = np.asarray(rb, dtype=float)[:, :2].mean(axis=0) if rb is not None else p[:, :2].mean(axis=0)
     dirs = [_along(seg, q[:2]) for q in p]
     dirs = [d if float(np.dot(d, mid - q[:2])) >= 0 else -d for d, q in zip(dirs, p)]   # from the spot inward
-    base = float(p[:, 2].max())
-    obj = json.loads(job.json)
-    interpass = next((L.get("interpass") for L in reversed(obj["layers"]) if L.get("interpass")), None)
-    out_layers: list[dict[str, Any]] = []
+    out: list[dict[str, Any]] = []
     for k in range(1, n_layers + 1):
         need = [i for i in range(len(p)) if o[i] + (k - 1) * h < target_mm]
         if not need:
             break
         z = base + k * h
-        layer: dict[str, Any] = {"index": len(out_layers), "z_mm": round(z, 4), "height_mm": round(h, 4),
-                                 "passes": [_pass(process, p[i], dirs[i], width, z) for i in need]}
-        if interpass is not None and out_layers:
+        out.append({"z_mm": round(z, 4), "height_mm": round(h, 4),
+                    "passes": [_pass(process, p[i], dirs[i], width, z) for i in need]})
+    return out
+
+
+def redeposit_job(job: CellJob, pts: F, over: F, target_mm: float, *, round_no: int = 1,
+                  max_layers: int = 4, typical: tuple[float, float] | None = None) -> CellJob:
+    """A job depositing again at the short spots `pts` ((n, 3) CAD frame, probed tops) whose
+    heights over CAD are `over` (n,), until each stands `target_mm` over CAD.
+
+    `typical`: the deposit's typical height over CAD and its typical z (the median of the stock
+    probe's ring and grid touches). Where that itself is under the target, the whole region is
+    short (a process laying less than planned): whole layers again (the plan's top layers, as
+    many as the typical height needs, at most `max_layers`), then short passes where still short."""
+    if not len(pts):
+        raise InputError("redeposit: no short spot to deposit at")
+    process, width, h, seg = _process(job)
+    p, o = _merge(np.asarray(pts, dtype=float), np.asarray(over, dtype=float), MERGE_WIDTHS * width)
+    obj = json.loads(job.json)
+    n_full = 0
+    if typical is not None and typical[0] < target_mm:
+        n_full = int(min(max_layers, math.ceil((target_mm - typical[0]) / h)))
+    out_layers = _full_layers(obj, n_full, typical[1], h) if typical is not None and n_full else []
+    o = o + n_full * h
+    n_layers = int(min(max_layers - n_full, max(0, math.ceil((target_mm - float(o.min())) / h))))
+    # over the highest short spot, and over the deposit around them (a spot in a hole: the torch at the
+    # surroundings' height, the bead's pool fills the hole)
+    base = max(float(p[:, 2].max()), float(typical[1]) + n_full * h if typical is not None else -math.inf)
+    out_layers += _spot_layers(job, process, seg, p, o, (width, h), base, n_layers, target_mm)
+    interpass = next((L.get("interpass") for L in reversed(obj["layers"]) if L.get("interpass")), None)
+    for i, layer in enumerate(out_layers):
+        layer["index"] = i
+        layer.pop("interpass", None)
+        if interpass is not None and i:
             layer["interpass"] = interpass
-        out_layers.append(layer)
     obj["layers"] = out_layers
     obj["name"] = f"{job.name}-redeposit{round_no}"
     obj["summary"] = {"redeposit": {"round": round_no, "spots": len(p), "layers": len(out_layers),
-                                    "target_mm": target_mm}}
+                                    "whole_layers": n_full, "target_mm": target_mm}}
     return job_from_dict(obj, f"the redeposit job of {job.name}")

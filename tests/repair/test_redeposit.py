@@ -40,3 +40,29 @@ def test_short_spots_become_short_passes_from_each_spot_inward_until_the_target(
         assert p.current_a == top.current_a and p.width_mm == top.width_mm
     assert extra.name.endswith("-redeposit1") and extra.hash != job.hash
     assert extra.repair is not None and extra.repair.cad == job.repair.cad
+
+
+def test_a_deposit_short_all_over_gets_whole_layers_again_then_short_passes_where_still_short(tmp_path: Path, capsys):
+    cad, stock = make_parts(tmp_path)      # a 20 × 20 × 4 pocket at x, y 30…50
+    job_path = tmp_path / "job.json"
+    assert main(["repair", "plan", str(cad), "--stock", str(stock), "--width", "4", "--allowance", "0.5",
+                 "--out", str(job_path)]) == 0
+    capsys.readouterr()
+    job = read_job(job_path)
+    h = job.layers[-1].height_mm
+    # the process laid less than planned: the deposit stands 0.1 mm over CAD in the middle (z 0.1), a corner 0.6 below
+    pts = np.array([[40.0, 40.0, 0.1], [30.25, 30.25, -0.6]])
+    extra = redeposit_job(job, pts, pts[:, 2], 0.3, typical=(0.1, 0.1))
+    check_job(extra, load_cell(), load_material(load_cell().cell.material))
+    whole, spots = extra.layers[0], extra.layers[1:]
+    # one whole layer: the plan's second-highest layer again (the plan alternates), 0.1 + h high, every pass of it
+    second = sorted(job.layers, key=lambda L: L.z_mm)[-2]
+    assert whole.z_mm == pytest.approx(0.1 + h) and len(whole.passes) == len(second.passes)
+    assert np.allclose(whole.passes[0].points[:, :2], second.passes[0].points[:, :2])
+    # then the corner alone (-0.6 + h is still short), over the whole layer, until 0.3: two more layers
+    assert [len(L.passes) for L in spots] == [1, 1]
+    assert [L.z_mm for L in spots] == pytest.approx([0.1 + 2 * h, 0.1 + 3 * h])
+    assert extra.job.summary["redeposit"]["whole_layers"] == 1
+    # a deposit standing clear in the middle gets no whole layer: short passes only
+    only = redeposit_job(job, pts[1:], pts[1:, 2], 0.3, typical=(0.5, 0.5))
+    assert only.job.summary["redeposit"]["whole_layers"] == 0 and all(len(L.passes) == 1 for L in only.layers)
