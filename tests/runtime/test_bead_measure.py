@@ -59,3 +59,14 @@ def test_random_late_arrivals_leave_the_speed_within_a_few_per_cent(v, n, seed):
     assert got is not None and abs(v / got - 1.0) <= delays.max() / (bead_s / n) + 1e-9
     if n >= 40:   # many moves: within the 3 % the tolerance asks of the demo
         assert abs(got / v - 1.0) < 0.03
+
+
+def test_the_plans_wall_times_at_once_are_the_same_as_one_by_one():
+    # the bead's figures take the plan's wall time of every report at once (one np.interp over
+    # arrays made once: it ran on the device loop, 10.7 ms for 128 reports one by one); inside
+    # the plan, past its end and without per-move speeds, each is what the one-by-one call gives
+    ss = [0.0, 0.5, 3.0, 7.25, 10.0, 12.5, 40.0]
+    for pace in (Pace(0.0, 0.0, planned_mm_min=600.0, plan_s=[0.0, 2.0, 10.0], plan_t=[0.0, 0.4, 1.0]),
+                 Pace(0.0, 0.0, planned_mm_min=600.0)):
+        for scale in (1.0, 60.0):
+            assert pace.planned_walls(ss, scale) == [pace.planned_wall(s, scale) for s in ss]
