@@ -123,12 +123,12 @@ class Pace:
         x = np.asarray(ss, dtype=float)
         if arr is None:
             v = (self.planned_mm_min or 0.0) / 60.0 * time_scale
-            return (x / v).tolist() if v > 0 else [0.0] * len(ss)
+            return [float(w) for w in x / v] if v > 0 else [0.0] * len(ss)
         ps, pt = arr
         s_end, t_end = ps[-1], pt[-1]
         v_last = (s_end - ps[-2]) / max(t_end - pt[-2], 1e-12)
         w = np.where(x <= s_end, np.interp(x, ps, pt), t_end + (x - s_end) / max(v_last, 1e-12))
-        return (w / time_scale).tolist()
+        return [float(t) for t in w / time_scale]
 
     def planned_wall(self, s: float, time_scale: float) -> float:
         """Wall seconds the plan takes from the pass's first point to `s` mm along it (each move at
