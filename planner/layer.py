@@ -177,7 +177,7 @@ def _thick(t: Polygon, index: int, angle: float, ctx: LayerCtx, groups: Groups, 
         loops: list[list[Path2D]] = []
         inset = 0.5 * w - step  # infill centres from half a bead inside
     else:
-        loops, inset, slivers = perimeter_loops(t, w, step, ctx.perimeters, min_spacing=min_sp)
+        loops, inset, slivers = perimeter_loops(t, w, step, ctx.perimeters, min_spacing=min_sp, min_length=ctx.min_length)
     stats["loops"] += sum(len(lv) for lv in loops)
     gaps: list[Path2D] = []
     for s in slivers:  # where loops meet (Fang): one centre line instead of a loop on itself
@@ -191,7 +191,7 @@ def _thick(t: Polygon, index: int, angle: float, ctx: LayerCtx, groups: Groups, 
         filled = list(chains)
         if len(chains) > 1:
             chains = join_chains(chains, 2.5 * step, t.buffer(-inset + 0.1 * step))
-        inner, chains = link_into_loops(loops[-1] if loops else [], chains, 2.0 * step)
+        inner, chains = _linked(loops[-1] if loops else [], chains, 2.0 * step)
         outer = [lp for lv in loops[:-1] for lp in lv]
         groups[0] += [seam_at(lp, index) if lp.closed else lp for lp in outer + inner]
         groups[1] += chains
@@ -201,6 +201,13 @@ def _thick(t: Polygon, index: int, angle: float, ctx: LayerCtx, groups: Groups, 
     gaps += _pockets(rest, filled + gaps, w, stats)
     stats["regions"] += len(gaps) and 1
     groups[2] += [seam_at(b, index) if b.closed else b for b in gaps]
+
+
+def _linked(loops: list[Path2D], chains: list[Path2D], reach: float) -> tuple[list[Path2D], list[Path2D]]:
+    """The innermost loops continued into the infill chains (planner.ordering.link_into_loops); a ring
+    trimmed at Ding's spacing (open beads, planner.ring_spacing) is no loop to link into."""
+    inner, chains = link_into_loops([lp for lp in loops if lp.closed], chains, reach)
+    return inner + [lp for lp in loops if not lp.closed], chains
 
 
 def _pockets(rest: shapely.Geometry, reach: list[Path2D], w: float, stats: dict[str, int]) -> list[Path2D]:

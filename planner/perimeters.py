@@ -8,6 +8,7 @@ from shapely.geometry.polygon import orient
 
 from planner.path2d import Path2D
 from planner.regions import polygons_of
+from planner.ring_spacing import spaced
 
 THIN_FACTOR = 1.5  # regions narrower than about 1.5 bead widths get one centre-line bead
 
@@ -29,13 +30,15 @@ def split_thin(poly: Polygon, width: float) -> tuple[list[Polygon], list[Polygon
 
 
 def perimeter_loops(poly: Polygon, width: float, step: float, count: int | None,
-                    quad_segs: int = 6, min_spacing: float | None = None
+                    quad_segs: int = 6, min_spacing: float | None = None, min_length: float | None = None
                     ) -> tuple[list[list[Path2D]], float, list[Polygon]]:
     """Loops per offset level (outermost first), the inset of the innermost bead centres, and
     the slivers where a loop would overlap itself (Fang 2019: removed, given a centre line).
 
     The first loop's centre is half a bead inside the contour (the bead's edge on the contour);
-    `count=None` offsets until the loops meet (Fang's composite path).
+    `count=None` offsets until the loops meet (Fang's composite path). Two rings of a level that
+    run closer than the stable spacing (a hole's ring beside the outside's where the region
+    narrows) keep one ring whole and the other trimmed there (planner.ring_spacing).
     """
     min_sp = 0.9 * step if min_spacing is None else min_spacing
     levels: list[list[Path2D]] = []
@@ -60,7 +63,7 @@ def perimeter_loops(poly: Polygon, width: float, step: float, count: int | None,
                 # The outermost bead has no neighbour outside: it fills half a width plus half a step.
                 share = 0.5 * (width + step) if k == 0 else step
                 loops.append(Path2D("perimeter", pts, width, closed=True, share_mm=share))
-        levels.append(loops)
+        levels.append(spaced(loops, min_sp, step, 2.0 * width if min_length is None else min_length))
         inset = off
         k += 1
     return levels, inset, slivers
