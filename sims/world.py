@@ -233,6 +233,8 @@ class World:
             "voltage_v": round(sum(o.voltages) / len(o.voltages), 2),
             "device": o.device,
         }
+        if o.wfs:   # the wire feed the source ran (its synergic current: what the segment was commanded)
+            seg["wfs_m_min"] = round(sum(o.wfs) / len(o.wfs), 3)
         if o.part is not None:
             seg["part"] = {"from": [round(float(v), 4) for v in o.part[0]], "to": [round(float(v), 4) for v in o.part[1]]}
             seg["axis"] = [round(float(v), 5) for v in o.part[2]]

@@ -72,9 +72,11 @@ GO_ON = AfterPass()
 class ArcSampleHook(Protocol):
     """Told every arc-stable power-source sample of a bead with where the torch was: `along_mm`,
     the length along the pass (its weld points) of the last point the motion device reported
-    reaching (the robot's EXE, the CNC's status)."""
+    reaching (the robot's EXE, the CNC's status); `wfs_m_min` the wire feed the source reported
+    with it (a current means a stick-out only at its own feed)."""
 
-    def arc_sample(self, layer: int, pass_: int, along_mm: float, current_a: float) -> None: ...
+    def arc_sample(self, layer: int, pass_: int, along_mm: float, current_a: float,
+                   wfs_m_min: float | None = None) -> None: ...
 
 
 class BuildHooks(ArcSampleHook, Protocol):
@@ -93,7 +95,8 @@ class BuildHooks(ArcSampleHook, Protocol):
 class NoHooks:
     """The open plan's hooks: nothing told, always go on."""
 
-    def arc_sample(self, layer: int, pass_: int, along_mm: float, current_a: float) -> None:
+    def arc_sample(self, layer: int, pass_: int, along_mm: float, current_a: float,
+                   wfs_m_min: float | None = None) -> None:
         return None
 
     def bead_closed(self, layer: int, pass_: int, currents: Sequence[float], wfs_m_min: float) -> None:

@@ -156,9 +156,11 @@ class LayerControl:
             self.applied[la] = (dz, k)
             self._event("layer_plan", {"layer": la, "z_offset_mm": dz, "speed_factor": k}, layer=la)
         dz, k = self.applied[la]
-        got = adjusted_layer(self.layers[la], dz, k)
-        if self.path is not None:
-            got = self.path.apply(la, got)
+        if self.path is not None and self.path.keeps_width:   # the trim's rise laid as the path loop lays its own
+            got = self.path.apply(la, adjusted_layer(self.layers[la], dz, 1.0), rise_factor(k, self.p))
+        else:
+            got = adjusted_layer(self.layers[la], dz, k)
+            got = self.path.apply(la, got) if self.path is not None else got
         self._built[la] = got
         if self.bus is not None:
             self.bus.update(z_correction_mm=dz)
@@ -170,10 +172,11 @@ class LayerControl:
     def pass_for(self, la: int, pa: int) -> Pass:
         return self.layer(la).passes[pa]
 
-    def arc_sample(self, layer: int, pass_: int, along_mm: float, current_a: float) -> None:
+    def arc_sample(self, layer: int, pass_: int, along_mm: float, current_a: float,
+                   wfs_m_min: float | None = None) -> None:
         """The runner's hook: the source's current at the robot's reported position along the pass."""
         if self.path is not None:
-            self.path.arc_sample(layer, pass_, along_mm, current_a)
+            self.path.arc_sample(layer, pass_, along_mm, current_a, wfs_m_min)
 
     def bead_closed(self, la: int, pa: int, currents: Sequence[float], wfs_m_min: float) -> None:
         """A bead's arc-stable current samples: its stick-out through the arc (journaled)."""

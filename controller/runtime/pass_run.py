@@ -272,16 +272,16 @@ class PassRunner:
         self.journal.retract(item.layer, item.pass_, idx, f"robot took back its EXEs after ticket {ticket}: "
                              f"progress withdrawn from point {back} to {idx}")
 
-    def _arc_sample(self, current_a: float) -> None:
+    def _arc_sample(self, current_a: float, wfs_m_min: float) -> None:
         """The process control's seam: an arc-stable sample at the last point the device reported."""
         item, idx = self.current, self.cur_idx
         if item is not None and idx is not None and 0 <= idx < len(self._cum):
-            self.hooks.arc_sample(item.layer, item.pass_, float(self._cum[idx]), current_a)
+            self.hooks.arc_sample(item.layer, item.pass_, float(self._cum[idx]), current_a, wfs_m_min)
 
     def _on_power(self, st: PowerStatus) -> None:
         if self._bead is not None and st.arc_stable and self._arc_lit:  # not the burn-back after weld start drops
             self._bead.add(st.current_a, st.voltage_v, st.wfs_m_min)
-            self._arc_sample(float(st.current_a))
+            self._arc_sample(float(st.current_a), float(st.wfs_m_min))
         if self._arc_lit and not st.arc_stable:
             self._unstable_since_exe = True
             self._pace.arc_lost(st.t) if self._pace is not None else None  # the falling edge ends the arc time

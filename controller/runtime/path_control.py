@@ -63,7 +63,7 @@ class PathControl:
         self.wfs_envelope = (line.wfs_min_m_min, line.wfs_max_m_min)
         self.bead = BeadLaw(line.k1, line.k2, line.k3, line.i_min_a, line.i_max_a, line.wfs_min_m_min, line.wfs_max_m_min)
         # the law's factor is the metal's (speed over wire feed): the speed's bound, then the wire feed's
-        self.law = PathLaw(kp=cfg.path_kp, ki=cfg.path_ki, filter_mm=max(cfg.path_filter_mm or 1.5 * width_mm, width_mm,
+        self.law = PathLaw(kp=cfg.path_kp, ki=cfg.path_ki, filter_mm=max(cfg.path_filter_mm or 1.5 * width_mm, cfg.path_bin_mm or width_mm,
                                                                                  cfg.probe_spacing_mm if platform == "cnc" else 0.0),
                            bounds=(self.speed_bounds[0] / self.wfs_bounds[1], self.speed_bounds[1] / self.wfs_bounds[0]))
         self.max_speed = max_speed_mm_min
@@ -71,10 +71,11 @@ class PathControl:
         self.bin_mm = cfg.path_bin_mm or width_mm
         self.applied: dict[int, dict[int, list[float]]] = {}       # the metal factor (speed / wire feed) per segment
         self.applied_wfs: dict[int, dict[int, list[float]]] = {}   # the wire feed's share of it
-        self.samples: dict[tuple[int, int], list[tuple[float, float]]] = {}
+        self.samples: dict[tuple[int, int], list[tuple[float, float, float]]] = {}   # (s, current, feed or NaN)
         self.fields: list[tuple[Field, Field]] = []     # (d, m) of the last measured layers, newest last
         self.records: list[dict[str, Any]] = []
         self.rise_mm = 0.0
+        self._rise = 1.0     # the layer loop's trim as a rise factor, of the layer last applied
         self._bad = np.zeros((0, 2))    # where the last layer needed a correction beyond the bound
         self.pass_stick_outs: list[float] = []   # per pass of the last `arc_tops`: its stick-out
 
@@ -115,7 +116,7 @@ class PathControl:
         d_now, m_now = self.fields[-1]
         d_prev = self.fields[-2][0] if len(self.fields) > 1 else None
         xy, ln = np.concatenate(mids), np.concatenate(lens)
-        self.law = replace(self.law, bounds=self.bounds(passes))
+        self.law = replace(self.law, bounds=self.bounds(passes, self._rise))
         got, need = plan_factors(xy, ln, d_now, d_prev, m_now, self.rise_mm, self.law)
         if not self.cfg.path_wfs_trim_pct:
             top_speed = max(float(p.speeds().max()) for p in passes)
@@ -133,9 +134,9 @@ class PathControl:
         f = (np.clip(wfs * self.wfs_bounds[0], *self.wfs_envelope), np.clip(wfs * self.wfs_bounds[1], *self.wfs_envelope))
         return v, (np.minimum(f[0], wfs), np.maximum(f[1], wfs))
 
-    def bounds(self, passes: Sequence[Pass]) -> tuple[float, float]:
+    def bounds(self, passes: Sequence[Pass], rise: float = 1.0) -> tuple[float, float]:
         """The law's bounds on m: the speed's alone, or with the wire feed the rise's reach (m = 1/rise)
-        at the layer's slowest-fed segment."""
+        over the layer's segments, the layer loop's trim (`rise`) laid on top."""
         if not self.cfg.path_wfs_trim_pct or not passes:
             return self.speed_bounds
         v0 = np.concatenate([p.speeds() for p in passes])
@@ -143,7 +144,7 @@ class PathControl:
         (vlo, vhi), (flo, fhi) = self._limits(v0, f0)
         most = rise_ratio(self.bead, vlo, flo, v0, f0)
         least = rise_ratio(self.bead, vhi, fhi, v0, f0)
-        return float(1.0 / most.min()), float(1.0 / least.max())
+        return float(rise / most.min()), float(rise / least.max())
 
     def split(self, m: np.ndarray, speeds: np.ndarray, wfs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The path factor m per segment as (speed factor, wire feed factor). Without the wire feed:
@@ -157,17 +158,25 @@ class PathControl:
         f = f / np.maximum(wfs, 1e-9)
         return v / np.maximum(speeds, 1e-9), np.where(np.abs(f - 1.0) < 1e-4, 1.0, f)
 
-    def apply(self, la: int, layer: Layer) -> Layer:
-        """Layer la as built: resampled, its segment speeds (and wire feeds where the speed is at
-        its bound) times the path factors (journaled before its first bead)."""
+    @property
+    def keeps_width(self) -> bool:
+        """Speed and wire feed set together (the wire feed in play): the layer loop's trim is laid
+        the same way (`apply`'s `rise`), so the rise follows the metal as the layer loop models it."""
+        return self.cfg.path_wfs_trim_pct > 0.0
+
+    def apply(self, la: int, layer: Layer, rise: float = 1.0) -> Layer:
+        """Layer la as built: resampled, its segment speeds (and wire feeds, `keeps_width`) set by
+        the path factors (journaled before its first bead); `rise`: the layer loop's trim as a rise
+        factor (with `keeps_width`; else the layer comes trimmed)."""
         passes = [self._resampled(p)[0] for p in layer.passes]
+        self._rise = rise
         if la not in self.applied:
             self.applied[la] = self._plan(la, passes)[0]
             self.applied_wfs[la] = {}
             for pa, p in enumerate(passes):
                 m = np.asarray(self.applied[la].get(pa, []), dtype=float)
                 if len(m) == len(p.points) - 1:
-                    _, f = self.split(m, p.speeds(), p.wire_feeds())
+                    _, f = self.split(m / rise, p.speeds(), p.wire_feeds())
                     if np.any(f != 1.0):
                         self.applied_wfs[la][pa] = [round(float(v), 5) for v in f]
             self._event("path_plan", {"layer": la, "spacing_mm": self.spacing,
@@ -178,7 +187,7 @@ class PathControl:
             m = np.asarray(self.applied[la].get(pa, []), dtype=float)
             if len(m) != len(p.points) - 1:   # a pass the journal did not see (never: same geometry)
                 m = np.ones(len(p.points) - 1)
-            sp, f = self.split(m, p.speeds(), p.wire_feeds())
+            sp, f = self.split(m / rise, p.speeds(), p.wire_feeds())
             out.append(p.with_process(p.speeds() * sp, p.wire_feeds() * f if np.any(f != 1.0) else None))
         return replace(layer, passes=tuple(out))
 
@@ -187,8 +196,19 @@ class PathControl:
         return bool(self.applied_wfs.get(la))
 
     # -- sensing ------------------------------------------------------------------------------------
-    def arc_sample(self, la: int, pa: int, s_mm: float, current_a: float) -> None:
-        self.samples.setdefault((la, pa), []).append((s_mm, current_a))
+    def arc_sample(self, la: int, pa: int, s_mm: float, current_a: float, wfs_m_min: float | None = None) -> None:
+        self.samples.setdefault((la, pa), []).append((s_mm, current_a, float("nan") if wfs_m_min is None else wfs_m_min))
+
+    def _stick_outs(self, la: int, pa: int, p: Pass, cum: np.ndarray) -> list[tuple[float, float]]:
+        """The pass's samples as (s, stick-out): each current read at the wire feed the source
+        reported with it (a feed the source had not reached yet read at the plan's would be off by
+        mm: 4 A/mm against ~19 A per m/min of feed), else at the plan's feed of the move there."""
+        out, line, wf = [], self.est.material.ribeiro, p.wire_feeds()
+        for s, cur, f in self.samples.pop((la, pa), []):
+            if not np.isfinite(f) or f <= 0.0:
+                f = float(wf[min(max(int(np.searchsorted(cum, s, side="right")) - 1, 0), len(cum) - 2)])
+            out.append((s, stick_out_at(self.est.rel, line, f, cur)))
+        return out
 
     def arc_tops(self, la: int, layer: Layer, z_cmd: float) -> list[tuple[float, float, float, float]]:
         """Robot: (x, y, top, factor) per bin of about one bead width along every pass of the layer
@@ -200,11 +220,9 @@ class PathControl:
             cum = arc_length(p.points)
             fac = self.applied.get(la, {}).get(pa, [])
             # the first half width of a bead: the pool not yet risen under the torch (it reads the ground)
-            got = [(s, i) for s, i in spread_reports(self.samples.pop((la, pa), []), float(cum[-1])) if s >= self.width / 2.0]
-            for s, cur, _n in bin_samples(got, float(cum[-1]), self.bin_mm):
+            got = [(s, L) for s, L in spread_reports(self._stick_outs(la, pa, p, cum), float(cum[-1])) if s >= self.width / 2.0]
+            for s, L, _n in bin_samples(got, float(cum[-1]), self.bin_mm):
                 k = min(max(int(np.searchsorted(cum, s, side="right")) - 1, 0), len(cum) - 2)
-                wfs = float(p.wire_feeds()[k])
-                L = stick_out_at(self.est.rel, self.est.material.ribeiro, wfs, cur)
                 x, y = point_at(p.points, cum, s)[:2]
                 rows.append((float(x), float(y), z_cmd + self.est.nominal_mm - L, fac[k] if k < len(fac) else 1.0))
             if len(rows) > n0:   # the bead's stick-out: its bins' median (a wall's end bin is one of them)

@@ -92,7 +92,7 @@ async def test_a_stretch_the_bound_cannot_level_pauses_before_the_next_layer(tmp
 async def test_with_the_wire_feed_a_low_stretch_is_laid_slower_at_less_wire_keeping_the_width_and_a_resume_lays_it_again(
         tmp_path: Path):
     job = _job(6)
-    cfg = ProcessControl(mode="path", path_speed_range=(0.6, 1.6), path_wfs_trim_pct=10, path_max_error_mm=50)
+    cfg = ProcessControl(mode="path", path_speed_range=(0.3, 2.0), path_wfs_trim_pct=40, path_max_error_mm=50)
     j = Journal(tmp_path / "journal.sqlite")
     j.start_job("h", "wall", "robot", "{}")
     lc = LayerControl(job=job, cfg=cfg, material=MAT, platform="robot", journal=j)
@@ -104,14 +104,14 @@ async def test_with_the_wire_feed_a_low_stretch_is_laid_slower_at_less_wire_keep
     assert p3.seg_wfs_m_min is not None
     low, rest = mid > 24, mid < 15
     assert float(sp[low].mean()) < 0.85 * float(sp[rest].mean())           # slower where it is low
-    assert np.all(wf[low] < 6.9 - 0.1) and wf.min() >= 6.9 * 0.9 - 1e-6      # at less wire, within the trim
+    assert float(wf[low].mean()) < float(wf[rest].mean()) - 0.1 and wf.min() >= 6.9 * 0.6 - 1e-6   # less wire, within the trim
     assert wf.max() <= MAT.ribeiro.wfs_max_m_min + 1e-9                      # and the synergic envelope
     law = lc.path.bead if lc.path is not None else None
     assert law is not None
-    k = lc.applied[3][1]                                                      # the layer loop's trim of layer 3
-    inside = (wf > 6.9 * 0.9 + 1e-3) & (wf < MAT.ribeiro.wfs_max_m_min - 1e-3)
+    inside = (wf > 6.9 * 0.6 + 1e-3) & (wf < MAT.ribeiro.wfs_max_m_min - 1e-3)
     assert inside.any()
-    assert np.allclose(law.width(wf[inside], sp[inside]), law.width(np.full(1, 6.9), np.full(1, 1500.0 * k)), rtol=2e-3)
+    # the planned width (the layer loop's trim laid the same way)
+    assert np.allclose(law.width(wf[inside], sp[inside]), law.width(np.full(1, 6.9), np.full(1, 1500.0)), rtol=2e-3)
     j.close()
     j2 = Journal(tmp_path / "journal.sqlite")
     lc2 = LayerControl(job=job, cfg=cfg, material=MAT, platform="robot", journal=j2)
