@@ -247,6 +247,7 @@ REFINE_MM = (1.0, 0.5)   # the stock probe's spacing around low touches, then ar
 REFINE_BAND_MM = 0.1     # a touch this close to short is refined around at 1 mm as a short one is
 REFINE_MAX = 160         # touches a refinement adds at most (nearest the low touches first)
 FLOOD_ROUNDS = 12        # rings of cells the flood traces out from the low touches at most
+FLOOD_BAND_MM = 0.3      # the flood goes on through cells standing under min_stock + this
 
 
 async def _touch_refined(link: CncLinkPort, cell: CellConfig, cad_tri: np.ndarray, stock_tri: np.ndarray, rb: np.ndarray,
@@ -270,7 +271,7 @@ async def _touch_refined(link: CncLinkPort, cell: CellConfig, cad_tri: np.ndarra
     # nothing short so far: trace every stretch standing under the need + the band cell by cell to its end
     for _ in range(FLOOD_ROUNDS if bool(np.all(margin >= m.min_stock_mm)) else 0):
         more = await asyncio.to_thread(flood_spots, cad_tri, stock_tri, rb, pts[:, :2],
-                                       ~(margin >= m.min_stock_mm + REFINE_BAND_MM))
+                                       ~(margin >= m.min_stock_mm + FLOOD_BAND_MM))
         if not len(more):
             break
         got = await probe_cad_points(link, cell, more, top, transform, "stock", scan)
