@@ -54,6 +54,7 @@ class PourOptions:
 
 
 CELL_MM = 0.5     # the predicted stack's cells
+POOL_WIDTHS = 2.0   # a pool levels out over this many bead widths behind the arc (the world: sims/heightmap.py)
 TURN_DEG = 20.0   # a sharper turn gets short segments of its own
 
 
@@ -230,7 +231,7 @@ def level_layer(passes: tuple[Pass, ...], wire_diameter_mm: float, env: Envelope
     lo = np.floor((allp.min(axis=0) - reach) / stack.cell).astype(int) - 1
     hi = np.floor((allp.max(axis=0) + reach) / stack.cell).astype(int) + 1
     stack.ensure(int(lo[0]), int(hi[0]), int(lo[1]), int(hi[1]))     # the grid the footprints index
-    fps = [footprint(stack, p.points[:, :2], w, p.width_mm) for p, w in zip(cut, widths)]
+    fps = [footprint(stack, p.points[:, :2], w, POOL_WIDTHS * p.width_mm) for p, w in zip(cut, widths)]
     plain = stack.copy()
     as_planned = _Layer(cut, fps, plain, wire, law, env, opts, None)
     before, level = as_planned.spread, as_planned.mean
@@ -259,7 +260,7 @@ def predicted_tops(passes: tuple[Pass, ...], wire_diameter_mm: float, law: BeadL
     env = Envelope(1e-6, 1e9, 1e-6, 1e9)
     out = []
     for p in passes:
-        fp = footprint(stack, p.points[:, :2], law.width(p.wire_feeds(), p.speeds()), p.width_mm)
+        fp = footprint(stack, p.points[:, :2], law.width(p.wire_feeds(), p.speeds()), POOL_WIDTHS * p.width_mm)
         _lay(p, fp, stack, _wire(wire_diameter_mm), law, env, PourOptions(), None)
         out.append(fp.tops(stack))
     return out

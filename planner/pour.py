@@ -113,13 +113,14 @@ class Footprint:
     geometry alone: the same for every stack of that grid, `Stack.copy` included).
 
     A cell under two pools of the bead (inside a turn, a ring closing over its start) is poured by
-    both, the later one (`late`) on what the earlier one left, as the world pours a bead in order."""
+    both, the later one on what the earlier one left, as the world pours a bead in order: the pools
+    are poured in waves (`wave`), a pool after every earlier pool it shares a cell with."""
 
     cells: np.ndarray      # (K,) flat cell index
     seg: np.ndarray        # (K,) segment of each cell
     chunk: np.ndarray      # (K,) chunk of each cell
     d: np.ndarray          # (K,) distance to the centre line
-    late: np.ndarray       # (K,) the cell's pool is poured after the others (it meets their cells)
+    wave: np.ndarray       # (K,) the wave the cell's pool is poured in (after the pools whose cells it meets)
     pool: np.ndarray       # (C,) pool of each chunk
     chunk_seg: np.ndarray  # (C,) segment of each chunk
     chunk_len: np.ndarray  # (C,) mm of path of each chunk
@@ -147,12 +148,11 @@ class Footprint:
         flat = stack.top.ravel()
         at = level[self.chunk]
         fill = np.clip(np.minimum(at, env) - flat[self.cells], 0.0, None)
-        if self.late.any():
+        if len(self.wave) and self.wave[-1] > 0:
             surf = flat.copy()
-            first = ~self.late
-            surf[self.cells[first]] += fill[first]
-            late = self.late
-            fill[late] = np.clip(np.minimum(at[late], env[late]) - surf[self.cells[late]], 0.0, None)
+            for part in self._waves():
+                fill[part] = np.clip(np.minimum(at[part], env[part]) - surf[self.cells[part]], 0.0, None)
+                surf[self.cells[part]] += fill[part]
         per_pool = np.bincount(self.pool[self.chunk], weights=fill, minlength=self.n_pool) * self.cell ** 2
         pool_metal = np.bincount(self.pool, weights=self.chunk_metal, minlength=self.n_pool)
         per_chunk = per_pool[self.pool] * self.chunk_metal / np.maximum(pool_metal[self.pool], 1e-12)
@@ -168,18 +168,39 @@ class Footprint:
         return out
 
     def pour(self, stack: Stack, area: np.ndarray, width: np.ndarray, guess: float | None = None) -> np.ndarray:
-        """The stack's top (flat) after the pass lays `area` mm² per mm on each segment."""
+        """The stack's top (flat) after the pass lays `area` mm² per mm on each segment. What does
+        not fit in a pool runs on into the bead's next pools, as in the world (sims/heightmap.py:
+        the inside of a turn, where the pools overlap, fills the outside of it)."""
         env = self._env(stack, area, width)
         metal = np.bincount(self.pool, weights=area[self.chunk_seg] * self.chunk_metal,
                             minlength=self.n_pool) / self.cell ** 2
+        surf, room = self._poured(stack, env, metal, guess)
+        for _ in range(SPILL_ROUNDS):   # the rooms change as the spill lands: a few rounds
+            carried = _spilled(metal, room)
+            if carried is None:
+                break
+            surf, room = self._poured(stack, env, carried, guess)
+        return surf
+
+    def _poured(self, stack: Stack, env: np.ndarray, metal: np.ndarray, guess: float | None
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """The stack's top after each pool poured its `metal`, wave after wave; each pool's room."""
         surf = stack.top.ravel().copy()
         p = self.pool[self.chunk]
-        for part in (~self.late, self.late):
-            if part.any():
-                cells = self.cells[part]
-                new = _fill(p[part], surf[cells], env[part], metal, self.n_pool, guess)
-                np.maximum.at(surf, cells, new)
-        return surf
+        room = np.zeros(self.n_pool)
+        for part in self._waves():
+            cells = self.cells[part]
+            old = surf[cells]
+            room += np.bincount(p[part], weights=np.clip(env[part] - old, 0.0, None), minlength=self.n_pool)
+            np.maximum.at(surf, cells, _fill(p[part], old, env[part], metal, self.n_pool, guess))
+        return surf, room
+
+    def _waves(self) -> list[slice]:
+        """The cells of each wave of pools, in pouring order (the cells are sorted by wave)."""
+        if not len(self.wave):
+            return []
+        cut = np.flatnonzero(np.diff(self.wave)) + 1
+        return [slice(int(a), int(b)) for a, b in zip(np.r_[0, cut], np.r_[cut, len(self.wave)])]
 
     def commit(self, stack: Stack, surf: np.ndarray) -> None:
         """Make a pour the stack's top."""
@@ -189,6 +210,20 @@ class Footprint:
         """The stack's top at every chunk's centre."""
         out: np.ndarray = stack.top.ravel()[self.centre]
         return out
+
+
+def _spilled(metal: np.ndarray, room: np.ndarray) -> np.ndarray | None:
+    """Each pool's metal with what the pools before it could not hold run on into it (in the
+    bead's order; what the last cannot hold is lost); None when every pool holds its own."""
+    over = metal > room + 1e-9
+    if not over[:-1].any():
+        return None
+    out = metal.copy()
+    carry = 0.0
+    for k, (m, r) in enumerate(zip(metal.tolist(), room.tolist())):
+        have = m + carry
+        out[k], carry = min(have, r), max(have - r, 0.0)
+    return out
 
 
 def _fill(p: np.ndarray, old: np.ndarray, env: np.ndarray, need: np.ndarray, n_pool: int,
@@ -225,6 +260,7 @@ NEWTON = 12   # iterations of a pour's level (Newton's, bisection where it leave
 
 
 MEMO = 64   # footprints a stack keeps
+SPILL_ROUNDS = 2   # pours of a pass with its spill run on (the pools' rooms taken from the pour before)
 
 
 def footprint(stack: Stack, pts: np.ndarray, width: np.ndarray, pool_mm: float) -> Footprint:
@@ -275,7 +311,8 @@ def _footprint(stack: Stack, pts: np.ndarray, width: np.ndarray, pool_mm: float,
     nxt = np.full(len(L), -1)
     nxt[nz[:-1]] = nz[1:]
     keep &= ~((t < 0.0) & prev[seg])
-    beyond = keep & (t > Ls) & (nxt[seg] >= 0)
+    # (a cell right on a joint, a grid row through it, is the next segment's: counted once)
+    beyond = keep & (t > Ls - 1e-9) & (nxt[seg] >= 0)
     if beyond.any():
         bi = np.flatnonzero(beyond)
         un = u[nxt[seg[bi]]]
@@ -307,16 +344,27 @@ def _footprint(stack: Stack, pts: np.ndarray, width: np.ndarray, pool_mm: float,
     first = np.r_[True, (ep[1:] != ep[:-1]) | (ec[1:] != ec[:-1])]
     sel = np.sort(order[first])
     seg, cells, tc, d, beside, chunk = seg[sel], cells[sel], tc[sel], d[sel], beside[sel], chunk[sel]
-    owner = np.full(stack.top.size, n_pool)
-    np.minimum.at(owner, cells, pool[chunk])
-    late_pool = np.zeros(n_pool, dtype=bool)
-    late_pool[pool[chunk][owner[cells] < pool[chunk]]] = True
-    late = late_pool[pool[chunk]]
+    wave = _waves(cells, pool[chunk], n_pool)[pool[chunk]]
     # each cell beside the path holds the same metal (a chunk covering one row of cells or two
     # lays in proportion): the pass's path over its strip's cells
     strip = np.bincount(chunk[beside], minlength=len(chunk_seg)).astype(float)
     chunk_metal = strip * float(L.sum()) / max(float(strip.sum()), 1.0)
-    return Footprint(cells, seg, chunk, d, late, pool, chunk_seg, chunk_len, chunk_metal, centre, n_pool, cell)
+    by = np.argsort(wave, kind="stable")     # the cells in pouring order: a wave a slice
+    return Footprint(cells[by], seg[by], chunk[by], d[by], wave[by], pool, chunk_seg, chunk_len, chunk_metal, centre,
+                     n_pool, cell)
+
+
+def _waves(cells: np.ndarray, cell_pool: np.ndarray, n_pool: int) -> np.ndarray:
+    """Each pool's wave: 0, or one more than the latest wave of the earlier pools it shares a cell
+    with (the pools of a wave share no cell: poured together, each on what the waves before left)."""
+    wave = np.zeros(n_pool, dtype=np.int64)
+    order = np.lexsort((cell_pool, cells))
+    c, p = cells[order], cell_pool[order]
+    same = c[1:] == c[:-1]
+    pairs = np.unique(np.column_stack([p[:-1][same], p[1:][same]]), axis=0)
+    for a, b in pairs[np.argsort(pairs[:, 1], kind="stable")].tolist():
+        wave[b] = max(wave[b], wave[a] + 1)
+    return wave
 
 
 def _pools(s_mid: np.ndarray, total: float, pool_mm: float) -> tuple[np.ndarray, int]:
