@@ -35,8 +35,17 @@ def plan5(mesh, width: float = 3.0, five: bool = True) -> dict:
     return job_to_dict(job)
 
 
-def kin_cfg(table: str):
+# A 5-axis CNC runs grblHAL (grbl 1.1h has three axes): its RX ring is 1024 bytes (`$I`
+# `[OPT:…,100,1024]`; real grblHAL reports `Bf:100,1023` idle), and cell.yaml says so. With
+# grbl 1.1h's 128 bytes only two or three 5-axis lines are in flight, and at time scale 10 (a line
+# every 1.1 ms of wall time) the link starves on the round trips alone (docs/controller.md).
+GRBLHAL_RX_BYTES = 1024
+
+
+def kin_cfg(table: str, rx_buffer_bytes: int = GRBLHAL_RX_BYTES):
     cfg = load_cell()
+    cnc = cfg.devices.cnc.model_copy(update={"rx_buffer_bytes": rx_buffer_bytes})
+    cfg = cfg.model_copy(update={"devices": cfg.devices.model_copy(update={"cnc": cnc})})
     if table == "AC":
         kin = cfg.kinematics.model_copy(update={"table": "AC", "axis_second": (0.0, 0.0, 1.0),
                                                 "pivot_mm": (0.0, 0.0, 30.0), "offset_mm": (0.0, 0.0, 10.0)})
@@ -53,13 +62,13 @@ def level_sim():
 
 
 async def build(job: dict, tmp: Path, table: str = "AB", scale: float = 60.0,
-                beside: bool = False) -> tuple[object, Path]:
+                beside: bool = False, rx_buffer_bytes: int = GRBLHAL_RX_BYTES) -> tuple[object, Path]:
     """Build `job` on the simulated CNC at `scale`, lowered to what the link can feed (issue 29)."""
     # lazy: only this benchmark's path needs it
     from controller.motion.cnc5 import limit_time_scale
 
     typed = job_from_dict(job)   # the job file's object, read as `cell run` reads it
-    cfg, _note = limit_time_scale(with_urls(kin_cfg(table), {}, time_scale=scale), typed)
+    cfg, _note = limit_time_scale(with_urls(kin_cfg(table, rx_buffer_bytes), {}, time_scale=scale), typed)
     log = tmp / "log"
     if beside:
         # `cell sim up` in a process of its own (the demo's topology): the simulators' deposit
@@ -296,6 +305,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="the wall time a streamed line is taken to cost (controller/motion/cnc5.py "
                          "HOST_LINE_WALL_S): lower it to build at a scale the feed limit would lower, and "
                          "read the stand-still in still_s (issue 38)")
+    ap.add_argument("--rx-bytes", type=int, default=GRBLHAL_RX_BYTES,
+                    help="the CNC's RX ring (cell.yaml devices.cnc.rx_buffer_bytes; the simulator has the same): "
+                         "grblHAL 1024, grbl 1.1h 128")
     ap.add_argument("--beside", action="store_true",
                     help="run the simulators in `cell sim up` beside this process (the demo's topology)")
     a = ap.parse_args(argv)
@@ -310,11 +322,12 @@ def main(argv: list[str] | None = None) -> int:
         for p in la["passes"]:
             p["speed_mm_min"] = np.divide(p["speed_mm_min"], a.slow).tolist()
     with tempfile.TemporaryDirectory() as tmp:
-        res, log = asyncio.run(build(job, Path(tmp), a.table, a.scale, a.beside))
+        res, log = asyncio.run(build(job, Path(tmp), a.table, a.scale, a.beside, a.rx_bytes))
         fig = figures(job, log)
         fig.update(executed_mid_dev(job, log, a.table))
         fig.update(bead_gaps(log))
     fig.update({"part": a.part, "table": a.table, "state": getattr(res, "state", None), "beside": a.beside,
+                "rx_bytes": a.rx_bytes,
                 "time_scale": feed_scale(job, a.table, a.scale),
                 "passes_done": getattr(res, "passes_done", None)})
     print(json.dumps(fig))

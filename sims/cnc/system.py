@@ -34,6 +34,7 @@ class SystemHost(Protocol):
     """What the `$` commands use of the simulator: its machine state and the homing cycle."""
 
     machine: CncState
+    rx_capacity: int          # the RX ring's usable bytes (its size less one)
 
     @property
     def state(self) -> str: ...
@@ -73,7 +74,9 @@ async def _parser_state(sim: SystemHost) -> list[str]:
 
 async def _build_info(sim: SystemHost) -> list[str]:
     # the rotary letters of the configured table (XYZAB or XYZAC), as grblHAL names its own axes
-    return [f"[VER:{VERSION}.20190825:5-axis {sim.machine.letters} (cell simulator)]", "[OPT:VNM,15,128]",
+    # the planner blocks and the RX ring it has (grbl 1.1h: 15,128; grblHAL 100,1024 or more)
+    return [f"[VER:{VERSION}.20190825:5-axis {sim.machine.letters} (cell simulator)]",
+            f"[OPT:VNM,{sim.machine.planner_blocks},{sim.rx_capacity + 1}]",
             f"[AXS:5:{sim.machine.letters}]"]
 
 

@@ -111,7 +111,8 @@ async def test_five_axis_build_on_the_cnc_simulator_lands_on_the_plan(part, tabl
     for la in job["layers"]:   # slower beads: the link can feed them at a time scale a test affords
         for p in la["passes"]:
             p["speed_mm_min"] = np.divide(p["speed_mm_min"], 4.0).tolist()   # one, or one per segment (cell-job/2)
-    # time scale 30 (lowered to what the link can feed); the simulators in `cell sim up` beside this
+    # time scale 30 (lowered to what the link can feed), on a grblHAL-sized RX ring (1024 bytes:
+    # bench/five_axis.kin_cfg); the simulators in `cell sim up` beside this
     # process, the demo's topology: in this interpreter their deposit computation and answers took
     # the interpreter lock from the streaming, and under load the CNC's planner ran empty (the tube
     # at time scale 10: 12.4 s standing still in 20 s in one process, 2.2 s beside it; bench/five_axis.py)
