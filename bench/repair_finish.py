@@ -10,7 +10,12 @@ hidden process gain (sim.yaml `process.height_gain`) drawn in 0.85–1.15. Each 
 - shortfall: the deposit's true top before machining below CAD + min_stock anywhere on the
   repaired region (every 0.5 mm cell, its boundary's too; `deposit_min_inner_mm`: cells 1.5 mm in),
   and whether the stock probe stopped the run;
-- removal_mean_mm: cut.jsonl's volume over the machined region's area (target ≤ 1 mm).
+- removal_mean_mm: cut.jsonl's volume over the machined region's area (target ≤ 1 mm);
+- loop_late_ms: per phase, the longest the controller's event loop (the one that cycles the CNC
+  link) came late to a 10 ms timer: work computed on the loop shows here ("verify" runs on to the
+  cell's close and the simulators' stop).
+`--keep DIR` keeps each run's files in DIR/run<k>, with the deposit's true top at each stock probe
+(stock<round>.npz: xy, top, ctop, repaired).
 """
 from __future__ import annotations
 

@@ -66,3 +66,6 @@ def test_a_deposit_short_all_over_gets_whole_layers_again_then_short_passes_wher
     # a deposit standing clear in the middle gets no whole layer: short passes only
     only = redeposit_job(job, pts[1:], pts[1:, 2], 0.3, typical=(0.5, 0.5))
     assert only.job.summary["redeposit"]["whole_layers"] == 0 and all(len(L.passes) == 1 for L in only.layers)
+    # the corner's passes run over the deposit around it (z 0.5), not at the hole's own top (-0.6):
+    # a torch there would stand 1.1 mm under the surroundings
+    assert [L.z_mm for L in only.layers] == pytest.approx([0.5 + h, 0.5 + 2 * h, 0.5 + 3 * h])   # -0.6 to 0.3: 3 layers
