@@ -16,8 +16,9 @@ from planner.bead import area_factor, step_over
 from planner.ding import close_share
 from planner.feedforward import Envelope, LayerLevel, level_layer, level_summary
 from planner import level_pour
-from planner.job import BeadInfo, Interpass, Job, Layer, Source
-from planner.ahead import Ahead, Later
+from planner.job import BeadInfo, Interpass, Job, Layer, Pass, Source
+from planner.ahead import Ahead, Done, Later, workers
+from planner.processes import MIN_LAYERS, Processes
 from planner.layer import LayerCtx, LayerPlan, placed, reseamed
 from planner.nearnet import layer_count
 from planner.overhang import overhang_limit_mm
@@ -66,17 +67,24 @@ def plan_part(mesh_or_path: Any, options: PlanOptions,
     slices = _with_top(slices, layer_count(top_z, height, run.ctx.allowance, n_net), height)
     layers: list[Layer] = []
     tops = [sl.index >= n_net for sl in slices]
-    with Ahead(slices, tops, run.ctx, _LayerMemo.key, _LayerMemo.misses) as ahead:
+    with _levelling(run, len(slices)) as procs, Ahead(slices, tops, run.ctx, _LayerMemo.key, _LayerMemo.misses) as ahead:
         # each layer started in turn (its beads ordered from where the torch is), welded and judged
-        # a few layers behind (its quality computed meanwhile on a thread); an error is raised at
-        # its own layer, in order, as if the layers were planned one by one
+        # a few layers behind (its quality computed meanwhile on a thread), levelled on a worker
+        # process and finished a few layers behind that; an error is raised at its own layer, in
+        # order, as if the layers were planned one by one
+        run.procs = procs
         started: deque[_Started | BaseException] = deque()
+        welded: deque[_Welded] = deque()
         for sl, top in zip(slices, tops):
             started.append(_started(run, sl, top, ahead))
             while started and (len(started) > ahead.depth or isinstance(started[-1], BaseException)):
-                layers.append(_finished(run, started.popleft(), progress, len(slices)))
+                welded.append(_welded(run, started.popleft()))
+                while len(welded) > 2 * procs.n:
+                    layers.append(_finished(run, welded.popleft(), progress, len(slices)))
         while started:
-            layers.append(_finished(run, started.popleft(), progress, len(slices)))
+            welded.append(_welded(run, started.popleft()))
+        while welded:
+            layers.append(_finished(run, welded.popleft(), progress, len(slices)))
     summary = summarise(run.qualities, run.n_passes, run.time_s)
     summary["arc_time_s"] = round(run.arc_time_s, 1)
     summary.update(run.verdict.finish(mesh.source.file, run.qualities))
@@ -129,6 +137,7 @@ class _Run:
         self.levels: list[LayerLevel] = []   # the feed-forward's predicted top spread per layer
         self.law = level_pour.BeadLaw(r.k1, r.k2, r.k3, r.i_min_a, r.i_max_a, r.wfs_min_m_min, r.wfs_max_m_min)
         self.stack: level_pour.Stack | None = None   # the poured feed-forward's predicted stack
+        self.procs = Processes(0)   # where the feed-forward levels a layer (plan_part sets it)
 
     def start(self, sl: LayerSlice, top: bool, ahead: Ahead) -> _Started:
         """The layer's beads ordered from where the torch is (the memo's when a layer below had the
@@ -152,8 +161,8 @@ class _Run:
         q = layer_quality(region, paths, w, self.height, shapely.union_all(net) if net else None)
         return q, close_share(paths, self.material.bead.min_step_over_ratio, w)
 
-    def layer(self, started: _Started) -> Layer:
-        """Weld and judge one layer, in turn."""
+    def layer(self, started: _Started) -> _Welded:
+        """Weld and judge one layer, in turn; its levelling under way."""
         sl, lp, paths, judged = started
         q, close = judged.result()
         v, h = self.verdict, self.height
@@ -173,14 +182,23 @@ class _Run:
             v.layer_balance(abs(laid - q.area_mm2 * h) / (q.area_mm2 * h))
         # each bead's metal kept, its spread along the path levelled; not on a 5-axis plan (its beads
         # lean: the tool axes come after, from the passes as the walls give them, planner/five_axis.py)
+        levelling: Later[tuple[tuple[Pass, ...], LayerLevel]] | None = None
         if self.options.feed_forward and self.options.five_axis is None:
-            if self.options.feed_forward_pour:
+            if self.options.feed_forward_pour:   # on the stack of the layers below: in turn
                 if self.stack is None:
                     self.stack = level_pour.Stack(level_pour.CELL_MM, z - h)
-                levelled, lvl = level_pour.level_layer(tuple(passes), self.material.wire_diameter_mm, self.envelope,
-                                                       self.law, self.stack)
-            else:
-                levelled, lvl = level_layer(tuple(passes), self.material.wire_diameter_mm, self.envelope)
+                levelling = Done(level_pour.level_layer(tuple(passes), self.material.wire_diameter_mm, self.envelope,
+                                                        self.law, self.stack))
+            else:   # this layer's passes alone: on a worker process (planner/processes.py)
+                levelling = self.procs.submit(level_layer, tuple(passes), self.material.wire_diameter_mm, self.envelope)
+        return sl, z, lp, q, passes, levelling
+
+    def finish(self, welded: _Welded) -> Layer:
+        """The layer's levelled passes and its time, in turn."""
+        sl, z, lp, q, passes, levelling = welded
+        h = self.height
+        if levelling is not None:
+            levelled, lvl = levelling.result()
             passes = list(levelled)
             self.levels.append(lvl)
         self.n_passes += len(passes)
@@ -195,6 +213,14 @@ class _Run:
 
 
 _Started = tuple[LayerSlice, LayerPlan, list[Path2D], "Later[tuple[LayerQuality, float]]"]
+_Welded = tuple[LayerSlice, float, LayerPlan, LayerQuality, list[Pass], "Later[tuple[tuple[Pass, ...], LayerLevel]] | None"]
+
+
+def _levelling(run: _Run, n_layers: int) -> Processes:
+    """Worker processes for the feed-forward's per-layer levelling, when the plan has enough layers to level."""
+    o = run.options
+    on = o.feed_forward and o.five_axis is None and not o.feed_forward_pour and n_layers >= MIN_LAYERS
+    return Processes(workers() if on else 0)
 
 
 def _started(run: _Run, sl: LayerSlice, top: bool, ahead: Ahead) -> _Started | BaseException:
@@ -204,10 +230,14 @@ def _started(run: _Run, sl: LayerSlice, top: bool, ahead: Ahead) -> _Started | B
         return exc
 
 
-def _finished(run: _Run, started: _Started | BaseException, progress: Progress | None, total: int) -> Layer:
+def _welded(run: _Run, started: _Started | BaseException) -> _Welded:
     if isinstance(started, BaseException):
         raise started
-    layer = run.layer(started)
+    return run.layer(started)
+
+
+def _finished(run: _Run, welded: _Welded, progress: Progress | None, total: int) -> Layer:
+    layer = run.finish(welded)
     if progress is not None:
         progress(layer.index + 1, total)
     return layer

@@ -106,3 +106,36 @@ def test_layers_planned_side_by_side_give_the_job_planned_one_by_one(monkeypatch
         monkeypatch.setattr(ahead, "workers", lambda n=n: n)
         jobs.append(job_to_json(plan_part(mesh, opts, mat)))
     assert len(jobs[0]) > 10_000 and jobs[0] == jobs[1]
+
+
+_LEVELLED_ON_PROCESSES = """
+import json, multiprocessing
+import trimesh
+from core.config import load_material
+from planner import plan as pp
+from planner.ahead import workers
+from planner.job import job_to_json
+from planner.plan import PlanOptions, plan_part
+
+seen = []
+mesh = trimesh.creation.cylinder(radius=9.0, height=28.0, sections=40)
+opts = PlanOptions(width_mm=6.0, allow_underfill=True, allow_overhang=True)
+mat = load_material("inconel718-1.0mm")
+pooled = job_to_json(plan_part(mesh, opts, mat, progress=lambda i, n: seen.append(len(multiprocessing.active_children()))))
+pp.MIN_LAYERS = 10 ** 9
+alone = job_to_json(plan_part(mesh, opts, mat))
+print(json.dumps({"same": pooled == alone, "size": len(alone), "children": max(seen), "cores": workers(),
+                  "left": len(multiprocessing.active_children())}))
+"""
+
+
+def test_layers_levelled_on_worker_processes_give_the_job_levelled_in_turn():
+    """A `cell plan` of 40 layers or more levels its layers on forked worker processes
+    (planner.processes, one a core): the job is the same byte for byte as levelled in turn, and no
+    worker is left once the plan returns. In a fresh interpreter: the pool forks only a process
+    that has no other thread."""
+    out = subprocess.run([sys.executable, "-c", _LEVELLED_ON_PROCESSES], capture_output=True, text=True, check=True)
+    report = json.loads(out.stdout.strip().splitlines()[-1])
+    assert report["size"] > 10_000 and report["same"]
+    assert report["children"] == (report["cores"] if report["cores"] > 1 else 0)
+    assert report["left"] == 0
