@@ -95,9 +95,21 @@ class CyclicDevice(ABC, Generic[S]):
         self._kicked = False                       # cycle_now() asked for an exchange at once
         self._late_s = 0.0   # this cycle's lateness of the loop: timers that fired late, work after the exchange
         self._wake: asyncio.Future[bool] | None = None
+        self._clock: LoopClock | None = None          # the cycle's thread clocks (while it runs)
+        self._period_from: LoopSample | None = None   # restart_periods(): the period in progress starts here
 
     def where(self) -> str:
         return f"{self.device} at {self.url}"
+
+    def restart_periods(self) -> None:
+        """Count the cycle periods from now on (`CycleStats.restart_periods`), the one in progress
+        too: from this moment, not from its cycle's start. Call it on the loop that cycles the
+        device. Before 2026-11-28 the period in progress kept its start, so whatever the loop did
+        before a build (a test's `open_job` on the loop: 31 ms) was the build's first period."""
+        self.stats.restart_periods()
+        if self._clock is not None:
+            self._period_from = self._clock.sample()
+            self._late_s = 0.0
 
     async def reply_within(self, aw: Awaitable[T]) -> T:
         """`aw`'s result within the link's reply budget; asyncio.TimeoutError when the device
@@ -188,11 +200,13 @@ class CyclicDevice(ABC, Generic[S]):
         period = self.cycle_s
         deadline = time.monotonic()
         last: LoopSample | None = None
-        clock = LoopClock()   # this thread's clocks: whose fault a late cycle is (drivers/loop_times.py)
+        clock = self._clock = LoopClock()   # this thread's clocks: whose fault a late cycle is (drivers/loop_times.py)
         try:
             while not self._closing:
                 sample = clock.sample()
                 now = sample.t
+                if self._period_from is not None:   # the periods were restarted within this one
+                    last, self._period_from = self._period_from, None
                 if last is not None:
                     self._note_period(last, sample)
                 last = sample
@@ -226,6 +240,7 @@ class CyclicDevice(ABC, Generic[S]):
         except Exception as exc:  # an unexpected transport error is still a lost link
             self._fail(LinkLost(f"{self.where()}: cycle stopped ({exc!r})"))
         finally:
+            self._clock = None
             clock.close()
 
     def _note_period(self, a: LoopSample, b: LoopSample) -> None:

@@ -373,7 +373,7 @@ class CellController:
         await asyncio.to_thread(self.journal.flush)
         for dev in (self.devices.power, self.devices.cellio):
             if isinstance(dev, CyclicDevice):
-                dev.stats.restart_periods()   # the record's cycle periods are the build's
+                dev.restart_periods()   # the record's cycle periods are the build's
         work = remaining_work(self.job, self.journal)
         # process_control (docs/closed-loop.md): the layers as built, restored from the journal; built
         # off this loop (the job's every pass walked: 14 ms of CPU on the demo part, docs/testing.md)
