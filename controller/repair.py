@@ -268,16 +268,17 @@ async def _touch_refined(link: CncLinkPort, cell: CellConfig, cad_tri: np.ndarra
         got = await probe_cad_points(link, cell, more, top, transform, "stock", scan)
         pts, margin = np.vstack([pts, got]), np.concatenate([margin, await asyncio.to_thread(stock_margin, cad_tri, got)])
         fresh = np.r_[np.zeros(len(fresh), dtype=bool), np.ones(len(got), dtype=bool)]
-    # nothing short so far: trace every stretch standing under the need + the band cell by cell to its end
-    for _ in range(FLOOD_ROUNDS if bool(np.all(margin >= m.min_stock_mm)) else 0):
+    # trace every stretch standing under the need + the band cell by cell to its end, so a round of
+    # depositing again gets every short spot at once; not while the deposit is short all over (its
+    # spots' median under the need + the band): whole layers follow (controller/job/redeposit.py)
+    short_all_over = float(np.median(margin[:len(spots)])) < m.min_stock_mm + REFINE_BAND_MM
+    for _ in range(0 if short_all_over else FLOOD_ROUNDS):
         more = await asyncio.to_thread(flood_spots, cad_tri, stock_tri, rb, pts[:, :2],
                                        ~(margin >= m.min_stock_mm + FLOOD_BAND_MM))
         if not len(more):
             break
         got = await probe_cad_points(link, cell, more, top, transform, "stock", scan)
         pts, margin = np.vstack([pts, got]), np.concatenate([margin, await asyncio.to_thread(stock_margin, cad_tri, got)])
-        if not bool(np.all(margin >= m.min_stock_mm)):
-            break    # short: the spots are judged (deposit again), the next round probes again
     return pts, margin
 
 
