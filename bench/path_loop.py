@@ -75,12 +75,15 @@ def quarter_box(job: CellJob) -> tuple[float, float, float, float]:
 
 
 def configs(job: CellJob, mode: str, scale: float, gain: float, pc: dict[str, Any] | None = None,
-            disturbed: bool = True) -> tuple[CellConfig, SimConfig]:
+            disturbed: bool = True, platform: str = "robot") -> tuple[CellConfig, SimConfig]:
     cfg = with_urls(load_cell(), {}, time_scale=scale)
     cfg = cfg.model_copy(update={
-        "cell": cfg.cell.model_copy(update={"platform": "robot", "material": MATERIAL}),
+        "cell": cfg.cell.model_copy(update={"platform": platform, "material": MATERIAL}),
         "process_control": cfg.process_control.model_copy(update={"mode": mode, **(pc or {})})})
     sim = load_sim()
+    if platform == "cnc":   # the workpiece square under the head (bench.closed_loop's)
+        wp = sim.cnc.workpiece.model_copy(update={"tilt_a_deg": 0.0, "tilt_b_deg": 0.0, "rotation_c_deg": 0.0})
+        sim = sim.model_copy(update={"cnc": sim.cnc.model_copy(update={"workpiece": wp})})
     regions = (SimRegion(box_mm=quarter_box(job), height_gain=REGION_GAIN),) if disturbed else ()
     sim = sim.model_copy(update={"process": sim.process.model_copy(update={
         "height_gain": gain, "regions": regions, "start_run_in_mm": RUN_IN_MM if disturbed else 0.0,
@@ -171,10 +174,10 @@ def final_top(hm: Any, layer: Any, planned_top: float) -> dict[str, Any]:
 
 
 def figures(out: dict[str, Any], job: CellJob, built: list[Any], hm: Any, deposit: Path,
-            layer_recs: list[dict[str, Any]]) -> list[tuple[float, float, float]]:
+            layer_recs: list[dict[str, Any]], device: str = "robot") -> list[tuple[float, float, float]]:
     """The build's figures from the world's truth into `out`; the per-layer (z, RMS, max |error|)."""
     segs = [json.loads(x) for x in deposit.read_text().splitlines()]
-    beads = beads_of([s for s in segs if s.get("device", "robot") == "robot"])
+    beads = beads_of([s for s in segs if s.get("device", "robot") == device])
     planned = {round(float(r["z_mm"]), 3): float(r["planned_top_mm"]) for r in layer_recs if r.get("z_mm") is not None}
     if not planned:   # open loop: the plan's z
         planned = {round(la.z_mm, 3): la.z_mm for la in built}
@@ -193,12 +196,12 @@ def figures(out: dict[str, Any], job: CellJob, built: list[Any], hm: Any, deposi
 
 async def build(job: CellJob, *, part: str, gain: float, mode: str, tmp: Path, scale: float,
                 timeout_s: float = 3600.0, pc: dict[str, Any] | None = None, keep: Path | None = None,
-                disturbed: bool = True) -> dict[str, Any]:
+                disturbed: bool = True, platform: str = "robot") -> dict[str, Any]:
     """One build on the simulators; the figures from the world's truth."""
     # lazy: only this benchmark's path needs it
     from controller.job.identity import run_dir_for
 
-    cfg, sim = configs(job, mode, scale, gain, pc, disturbed)
+    cfg, sim = configs(job, mode, scale, gain, pc, disturbed, platform)
     log = run_dir_for(job, tmp / "runs") / "sim"
     paused = None
     async with open_cell(cfg, sim=sim, log_dir=log, runs_dir=tmp / "runs", connect=False) as ctl:
@@ -217,15 +220,20 @@ async def build(job: CellJob, *, part: str, gain: float, mode: str, tmp: Path, s
         assert ctl.journal is not None and ctl.runner is not None
         layer_recs = [json.loads(m) for (m,) in ctl.journal.query(
             "SELECT message FROM events WHERE kind = 'layer' ORDER BY id")]
+        alarms = [m for (m,) in ctl.journal.query("SELECT message FROM events WHERE kind = 'alarm' ORDER BY id")]
         built = [ctl.runner.layers.layer(j) for j in range(ctl.runner.layers.layer_count())]
         assert harness is not None and harness.world.physics is not None
-        hm = harness.world.physics.maps["robot"]
+        hm = harness.world.physics.maps[platform]
         run_dir = Path(str(ctl.run_dir))
-    out = {"part": part, "gain": gain, "mode": mode, "scale": scale, "state": res.state, "paused": paused,
-           "layers": f"{res.layers_done}/{len(job.layers)}", "wall_s": round(time.monotonic() - t0, 1)}
-    rms = figures(out, job, built, hm, log / "deposit.jsonl", layer_recs)
+    out = {"part": part, "platform": platform, "gain": gain, "mode": mode, "scale": scale, "state": res.state,
+           "paused": paused, "layers": f"{res.layers_done}/{len(job.layers)}", "wall_s": round(time.monotonic() - t0, 1),
+           "alarm": alarms[0][:200] if alarms else None}
+    probe_s = sum(float(r.get("probe_s") or 0.0) for r in layer_recs)
+    if probe_s:   # the CNC's probing (issue 35: at most 15 % of the build time)
+        out.update(probe_s=round(probe_s, 1), probe_share=round(probe_s / max(out["wall_s"], 1e-9), 4))
+    rms = figures(out, job, built, hm, log / "deposit.jsonl", layer_recs, platform)
     if keep is not None:
-        dst = keep / f"{part}-{gain}-{mode}"
+        dst = keep / f"{part}-{gain}-{mode}{'-cnc' if platform == 'cnc' else ''}"
         shutil.rmtree(dst, ignore_errors=True)
         shutil.copytree(run_dir, dst, ignore=shutil.ignore_patterns("*.sqlite*"))
         (dst / "figures.json").write_text(json.dumps({**out, "layer_rms": rms}, indent=1))
@@ -244,6 +252,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--undisturbed", action="store_true", help="no region, run-in or sag (the nominal world)")
     ap.add_argument("--out", default="", help="keep each build's record (report.json, path.csv, path.png) here")
     ap.add_argument("--pc", default="", help="process_control overrides as JSON, e.g. '{\"path_kp\": 0.3}'")
+    ap.add_argument("--platform", default="robot", help="robot (stick-out through the arc) or cnc (probe points "
+                    "along every pass at probe_spacing_mm)")
     args = ap.parse_args(argv or [])
     cases = [("wall", 0.85), ("wall", 1.15), ("demo", 0.85), ("demo", 1.15)]
     if args.only:
@@ -256,7 +266,8 @@ def main(argv: list[str] | None = None) -> int:
         job = wall_job(args.layers, args.length) if part == "wall" else demo_job(args.demo_layers or None)
         with tempfile.TemporaryDirectory(prefix="path_loop_") as d:
             o = asyncio.run(build(job, part=part, gain=gain, mode=args.mode, tmp=Path(d), scale=args.scale, keep=keep,
-                                  disturbed=not args.undisturbed, pc={**PC, **json.loads(args.pc or "{}")}))
+                                  disturbed=not args.undisturbed, pc={**PC, **json.loads(args.pc or "{}")},
+                                  platform=args.platform))
         print(json.dumps(o), flush=True)
     return 0
 

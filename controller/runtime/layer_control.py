@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from dataclasses import replace
 from typing import Any, Awaitable, Callable, Sequence
 
@@ -45,6 +46,9 @@ from core.material import Material
 from planner.job import Layer, Pass
 
 Spot = tuple[float, float, float]
+PATH_PROBE_CLEARANCE_MM = 3.0   # path mode: a touch starts this far above the layer's planned top
+PATH_PROBE_BACKOFF_MM = 0.5
+PATH_PROBE_FEED_MM_MIN = 600.0   # its touch's feed (the probe latches the trip; grbl's report is the latched position)
 ProbeFn = Callable[[int, Sequence[Spot]], Awaitable[list[float]]]   # (layer, spots on it) -> probed tops
 
 
@@ -99,6 +103,7 @@ class LayerControl:
         self.records: list[dict[str, Any]] = []
         width = min((p.width_mm for la in self.job_layers for p in la.passes), default=7.0)
         self._probed: dict[int, tuple[list[Spot], list[float]]] = {}
+        self.probe_s: dict[int, float] = {}     # CNC: wall seconds each layer's probing took
         self._rows: dict[int, list[tuple[float, float, float, float]]] = {}   # path mode: a layer's bins, read once
         self.path = PathControl(cfg=cfg, journal=journal, bus=bus, platform=platform, est=self.est, width_mm=width,
                                 max_speed_mm_min=max_speed_mm_min) if cfg.mode == "path" else None
@@ -213,7 +218,9 @@ class LayerControl:
         last = la + 1 >= self.n_total
         if self.closed and self.probe is not None and ((la + 1) % self.cfg.probe_every_layers == 0 or last):
             spots = self._spots(la)
+            t0 = time.monotonic()
             tops = await self.probe(la, spots)
+            self.probe_s[la] = time.monotonic() - t0     # the probing's share of the build (the record)
             self._probed[la] = (spots, tops)
             if tops:
                 vals = [z_cmd + self.l0 - t for t in tops]
@@ -251,6 +258,8 @@ class LayerControl:
             "expected_rise_mm": _r(expected), "expected_cum_mm": _r(self.expected_cum), "mode": self.cfg.mode,
             "added": bool(self.layers[la].extra.get("added")),
         }
+        if la in self.probe_s:
+            rec["probe_s"] = _r(self.probe_s[la], 3)
         pause, rest = None, None
         if self.closed:
             rec["next"], rec["action"], pause, rest = self._next(la, top, so, vals)
@@ -356,9 +365,15 @@ def make_control(cfg: CellConfig, job: CellJob, material: Material, journal: Jou
     pc = cfg.process_control
     probe: ProbeFn | None = None
     link = executor.cnc_link
+    # the path loop's points along every pass: one touch each from just above the layer's top (the
+    # alignment's slow repeated touches would take most of the build; docs/closed-loop.md "Sensing")
+    feed = max(cfg.probe.fast_feed_mm_min, PATH_PROBE_FEED_MM_MIN)
+    ps, clear = (cfg.probe.model_copy(update={"samples": 1, "fast_feed_mm_min": feed, "slow_feed_mm_min": feed,
+                                              "backoff_mm": PATH_PROBE_BACKOFF_MM}), min(cfg.probe.clearance_mm, PATH_PROBE_CLEARANCE_MM)) \
+        if pc.mode == "path" else (cfg.probe, cfg.probe.clearance_mm)
     if link is not None:
         async def probe(la: int, spots: Sequence[Spot]) -> list[float]:
-            return await probe_layer_top(link, cfg.probe, list(spots), cfg.probe.clearance_mm, name=f"layer {la} top")
+            return await probe_layer_top(link, ps, list(spots), clear, name=f"layer {la} top")
     lc = LayerControl(job=job, cfg=pc, material=material, platform=cfg.cell.platform, journal=journal, bus=bus,
                       max_speed_mm_min=cfg.limits.max_speed_mm_min, probe=probe)
     lc.restore()
