@@ -5,6 +5,7 @@ import argparse
 import asyncio
 import csv
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ from controller.api import align_at, aligned_job
 from controller.api.geometry import (alignment_record, fit_and_level, probe_plan_on, read_rotations,
                                      rotate_points, write_align_report)
 from controller.api.jobs import read_job
+from controller.api.types import ProbedPoint
 from controller.cli import guard
 from controller.cli.parsing import NumbersParser, Subcommands
 from controller.harness import run_with_sim
@@ -200,6 +202,13 @@ def _run(args: argparse.Namespace) -> int:
     return run_cli(args)
 
 
+def _say_touch(pp: ProbedPoint) -> None:
+    """Each touch on stderr as it lands (the routine takes seconds to minutes; stdout keeps the result)."""
+    x, y, z = (float(v) for v in pp.position[:3])
+    print(f"probed {pp.name}: {x:.4f} {y:.4f} {z:.4f} mm (spread {pp.spread_mm * 1000:.1f} µm)",
+          file=sys.stderr, flush=True)
+
+
 def run_cli(args: argparse.Namespace) -> int:
     """`cell align run`: probe and align on the CNC (or its simulator), print or emit JSON."""
     # lazy: loaded only when this subcommand runs (keeps `cell` start-up fast for the others)
@@ -216,9 +225,11 @@ def run_cli(args: argparse.Namespace) -> int:
     plan = probe_plan_on(sim_cfg.cnc.workpiece, getattr(args, "cad", None), base)
     no_level = bool(getattr(args, "no_level", False))
     if args.sim:
-        res = asyncio.run(guard.run_attached(run_with_sim(cell, sim_cfg, plan, config_dir=base, no_level=no_level)))
+        res = asyncio.run(guard.run_attached(run_with_sim(cell, sim_cfg, plan, config_dir=base, no_level=no_level,
+                                                          on_point=_say_touch)))
     else:
-        res = asyncio.run(guard.run_attached(align_at(cell.devices.cnc.url, cell, plan, no_level=no_level)))
+        res = asyncio.run(guard.run_attached(align_at(cell.devices.cnc.url, cell, plan, no_level=no_level,
+                                                      on_point=_say_touch)))
     out = res.to_json()
     if args.report:
         paths = write_align_report(res, args.report)
