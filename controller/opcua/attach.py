@@ -14,11 +14,10 @@ from importlib import metadata
 from typing import Any
 
 from controller.opcua.child import run as child_run
-from controller.opcua.endpoint import PUBLISH_PERIOD_S, Identification, check_endpoint
+from controller.opcua.endpoint import PUBLISH_PERIOD_S, START_TIMEOUT_S, Identification, check_endpoint
 from core.config import OpcUaSettings
 from core.errors import CellError
 
-START_TIMEOUT_S = 30.0   # the child imports asyncua and binds the endpoint: seconds on a loaded host
 MIN_SEND_PERIOD_S = PUBLISH_PERIOD_S / 2
 
 

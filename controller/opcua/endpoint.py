@@ -14,6 +14,11 @@ from core.config import OpcUaSettings
 from core.errors import ConfigError
 
 PUBLISH_PERIOD_S = 0.05   # process values at 20 Hz at least; any snapshot change wakes it sooner
+# How long the server may take to come up (asyncua's address space built, the endpoint bound):
+# seconds on a loaded host. One bound for the server's own thread and for the controller waiting
+# on the child process that runs it (the child's was 15 s, under the controller's 30: under load
+# the child gave up first, "did not start within 15 s", while the controller would have waited).
+START_TIMEOUT_S = 30.0
 
 
 @dataclass(frozen=True)

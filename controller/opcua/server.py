@@ -24,7 +24,7 @@ from typing import Any, Callable, Protocol
 from asyncua import Server, ua
 
 from controller.runtime.events import Alarm, EventBus, Snapshot
-from controller.opcua.endpoint import PUBLISH_PERIOD_S, Identification, check_endpoint
+from controller.opcua.endpoint import PUBLISH_PERIOD_S, START_TIMEOUT_S, Identification, check_endpoint
 from controller.opcua.security import PasswordUsers
 from core.config import OpcUaSettings
 from core.errors import CellError
@@ -107,7 +107,7 @@ class FactoryServer:
         self._unsubscribe: Callable[[], None] | None = None
 
     # -- life cycle (any thread) -------------------------------------------------------------------
-    def start(self, timeout_s: float = 15.0) -> str:
+    def start(self, timeout_s: float = START_TIMEOUT_S) -> str:
         self._thread = threading.Thread(target=self._run, name="opcua", daemon=True)
         self._thread.start()
         if not self._ready.wait(timeout_s):
