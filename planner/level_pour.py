@@ -9,6 +9,10 @@ laid on. The planner carries the predicted top of the stack from layer to layer
 (planner/pour.py: the metal poured as the simulated world pours it, level-filling each pool's
 footprint, held by Ding's parabola) and lays every pass of a layer on it in the layer's order:
 
+- on a layer of two beads or more, the stack's departures from its level carried to the next layer
+  only in part (`carry`): the model's residual where beads meet (a wedge between rings it sees
+  deepen more than the world does) would otherwise pile up layer on layer and be levelled as if it
+  were there; a lone bead's (a wall's ends, which the model fits) are carried whole;
 - the layer's level: the mean top its passes would reach as planned, laid on the stack;
 - each pool's metal is what brings its cells to that level (the volume between the predicted
   surface and min(level, parabola), closed form), shared by its chunks; a segment's is its
@@ -51,6 +55,8 @@ class PourOptions:
     turn_mm: float = 1.0              # a turn's own segments (its outside's round end takes their metal)
     round_mm: float = 0.25            # a sharp turn rounded with this radius, in bead widths (0: not rounded)
     layer_rounds: int = 1             # the layer laid again with what the later passes add taken off
+    carry: float = 0.3                # the stack's departures from its level believed this much by a layer of >= 2 beads
+    carry_band_mm: float = 3.0        # (its cells within this of the level: a wall's flanks stay as they are)
 
 
 CELL_MM = 0.5     # the predicted stack's cells
@@ -231,6 +237,8 @@ def level_layer(passes: tuple[Pass, ...], wire_diameter_mm: float, env: Envelope
     lo = np.floor((allp.min(axis=0) - reach) / stack.cell).astype(int) - 1
     hi = np.floor((allp.max(axis=0) + reach) / stack.cell).astype(int) + 1
     stack.ensure(int(lo[0]), int(hi[0]), int(lo[1]), int(hi[1]))     # the grid the footprints index
+    if len(cut) > 1:   # the model's own residual where beads meet does not pile up (a lone bead's: whole)
+        stack.relax(opts.carry, opts.carry_band_mm)
     fps = [footprint(stack, p.points[:, :2], w, POOL_WIDTHS * p.width_mm) for p, w in zip(cut, widths)]
     plain = stack.copy()
     as_planned = _Layer(cut, fps, plain, wire, law, env, opts, None)

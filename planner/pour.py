@@ -91,6 +91,16 @@ class Stack:
         out.memo = self.memo
         return out
 
+    def relax(self, carry: float, band_mm: float) -> None:
+        """Keep `carry` of every laid cell's departure from the laid cells' median top (the cells
+        within `band_mm` of it: a wall's flanks, far below, stay as they are)."""
+        laid = self.top > self.base_z + 1e-9
+        if carry >= 1.0 or not laid.any():
+            return
+        level = float(np.median(self.top[laid]))
+        near = laid & (np.abs(self.top - level) < band_mm)
+        self.top = np.where(near, level + carry * (self.top - level), self.top)
+
     def take(self, other: Stack) -> None:
         """Become `other` (a copy laid another way)."""
         self.i0, self.j0, self.top = other.i0, other.j0, other.top

@@ -150,3 +150,17 @@ def test_what_a_turns_pools_cannot_hold_runs_on_in_the_bead() -> None:
     ring = level_pour.subdivide(level_pour._rounded(_bead(sq, 0.77), 1.75), 3.5)
     share, _ = _laid(ring.points[:, :2])
     assert share > 0.99
+
+
+def test_the_next_layer_believes_only_part_of_the_stacks_departures_from_its_level() -> None:
+    stack = Stack(0.5, 0.0)
+    stack.ensure(0, 9, 0, 9)
+    laid = stack.top.copy()
+    laid[40:45, 40:45] = 10.0
+    laid[41, 41], laid[42, 42], laid[43, 43] = 10.5, 9.0, 20.0   # a bump, a dip, a cell far off (a flank)
+    stack.top = laid.copy()
+    stack.relax(0.3, 3.0)
+    assert stack.top[41, 41] == pytest.approx(10.15)
+    assert stack.top[42, 42] == pytest.approx(9.7)
+    assert stack.top[43, 43] == 20.0 and stack.top[40, 40] == 10.0
+    assert stack.top[0, 0] == 0.0      # never laid: the base
