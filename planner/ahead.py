@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, Callable, Generic, Protocol, Sequence, Ty
 from shapely.geometry import Polygon
 
 from planner.layer import LayerCtx, LayerGroups, layer_groups
-from planner.nearnet import grow_layers, supported
+from planner.nearnet import grow_layers, snapped, supported
 from planner.regions import islands
 from planner.slicer import LayerSlice
 
@@ -69,6 +69,8 @@ class Ahead:
         # in turn: islands are cheap, and a tall prism's many layers would only pass the GIL around
         nets = [islands([c.points for c in sl.contours if c.closed], simplify_mm=0.005 * ctx.width) for sl in slices]
         grown = supported(grow_layers(nets, ctx.allowance, ctx.height), ctx.support_mm, ctx.allowance)
+        if ctx.allowance > 0:   # unions of offsets: snapped onto a 1e-6 mm grid, valid for every overlay after
+            grown = [snapped(g) for g in grown]
         self.prepared: list[Prepared] = [(n, g, key(g, sl.index, top)) for n, g, sl, top in zip(nets, grown, slices, tops)]
         miss = misses([p[2] for p in self.prepared])
         self._todo = deque(i for i, m in enumerate(miss) if m)
