@@ -8,10 +8,12 @@ still with the arc on is found from the device's progress reports.
 """
 from __future__ import annotations
 
+import asyncio
 import csv
 import json
 import math
 import sqlite3
+import threading
 import time
 from pathlib import Path
 
@@ -178,9 +180,17 @@ async def test_a_tui_build_leaves_its_record_complete_and_estopped(tmp_path: Pat
             await _until(pilot, lambda: app.view.snap.state == "ready", 15, "the second job")
             app.post_message(Key("s", None))
             await _until(pilot, lambda: isinstance(app.screen, StartDialog), 15, "the start dialog")
+            # the E-stop at the arc's first snapshot, from a thread of its own: the screen's poll
+            # (0.1 s plus Textual's idle wait, seconds under load) once missed every bead of this
+            # small job, and the inject's socket call must not block the controller's thread
+            arc = threading.Event()
+            unsub = session.ctl.subscribe(lambda s: arc.set() if s.state == "running_depositing" else None)
+            presser = threading.Thread(target=lambda: arc.wait(30) and sims.inject("cellio", "estop"), daemon=True)
+            presser.start()
             app.screen.query_one("#start-ok", Button).press()   # prefilled with this session's lot
-            await _until(pilot, lambda: app.view.snap.state == "running_depositing", 30, "an arc")
-            sims.inject("cellio", "estop")
+            await asyncio.to_thread(presser.join, 35)
+            unsub()
+            assert arc.is_set(), f"timed out waiting for an arc: {app.last_message!r}"
             await _until(pilot, lambda: app.view.snap.state == "estop", 10, "the E-stop")
             run2 = Path(app.view.snap.run_dir or "")
             await _until(pilot, lambda: app.last_message.startswith("estop: record in"), 150, "the E-stop's record")

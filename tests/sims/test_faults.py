@@ -99,7 +99,9 @@ async def test_throttle_carries_at_most_11520_bytes_per_second():
     # no window of 0.1 s carries more than 0.1 s of line time (plus one catch-up burst)
     for t, _ in arrivals:
         in_window = sum(n for u, n in arrivals if t <= u < t + 0.1)
-        assert in_window <= 1152 + 11520 * FaultPipe.MAX_BURST_S + 1
+        # (a catch-up chunk carries up to MAX_BURST_S + CHUNK_S of line time: the tick it was due in
+        # plus what it caught up on; make test at load 13 saw 1,404 bytes against 1,383 without CHUNK_S)
+        assert in_window <= 1152 + 11520 * (FaultPipe.MAX_BURST_S + FaultPipe.CHUNK_S) + 1
 
 
 async def test_latency_and_stall_delay_but_keep_bytes():
