@@ -31,6 +31,7 @@ class ProcessControl(_Frozen):
     path_ki: float = Field(default=0.2, ge=0.0, le=2.0)        # learning on the error
     path_max_error_mm: float = Field(default=1.0, gt=0.0, le=50.0)  # off the layer's mean by more, at the bound: pause
     path_wfs_trim_pct: float = Field(default=0.0, ge=0.0, le=40.0)  # wire feed within ± this, the bead's width kept (0: speed only)
+    path_edges: bool = False   # robot: split the passes at a hidden region's edge found in the raw stick-out (docs/closed-loop.md "Region edges")
     # the path loop's speed factor per segment within [lo, hi] × the planned speed (null: ± speed_trim_pct)
     path_speed_range: tuple[float, float] | None = None
 

@@ -24,9 +24,10 @@ import numpy as np
 from controller.journal.store import Journal
 from controller.runtime.events import EventBus
 from controller.runtime.path_plan import (
-    Field, PathLaw, arc_length, bin_samples, plan_factors, point_at, process_for, resample, rise_ratio, spots_along,
-    spread_reports,
+    NO_CUTS, Field, PathLaw, arc_length, bin_samples, cut_polyline, plan_factors, point_at, process_for, resample, rise_ratio,
+    spots_along, spread_reports,
 )
+from controller.runtime.path_edges import EdgeFinder
 from controller.runtime.stickout import StickOutEstimator
 from core.config import ProcessControl
 from core.melting import stick_out_at
@@ -78,6 +79,8 @@ class PathControl:
         self._rise = 1.0     # the layer loop's trim as a rise factor, of the layer last applied
         self._bad = np.zeros((0, 2))    # where the last layer needed a correction beyond the bound
         self.pass_stick_outs: list[float] = []   # per pass of the last `arc_tops`: its stick-out
+        self.edges = EdgeFinder(width_mm=width_mm)    # the hidden regions' edges, found along the passes
+        self.cuts_at: dict[int, np.ndarray] = {}       # the cuts (x y ux uy) each layer was laid with
 
     # -- journal --------------------------------------------------------------------------------
     def _event(self, kind: str, data: dict[str, Any], layer: int) -> None:
@@ -91,23 +94,25 @@ class PathControl:
             if kind == "path_plan":
                 self.applied[int(d["layer"])] = {int(k): [float(x) for x in v] for k, v in d["factors"].items()}
                 self.applied_wfs[int(d["layer"])] = {int(k): [float(x) for x in v] for k, v in (d.get("wfs") or {}).items()}
+                self.cuts_at[int(d["layer"])] = np.asarray(d.get("cuts") or [], dtype=float).reshape(-1, 4)
+                self.edges.cuts = self.cuts_at[int(d["layer"])]
             else:
                 self.records.append(d)
                 self.rise_mm = float(d.get("rise_mm") or self.rise_mm)
                 self.fields = (self.fields + [(Field.of(d["d"]), Field.of(d["m"]))])[-2:]
 
     # -- the layer as built -----------------------------------------------------------------------
-    def _resampled(self, p: Pass) -> tuple[Pass, np.ndarray]:
-        """The pass with segments of at most `spacing` (its per-segment values carried over); the
-        original segment of every new one."""
-        pts, idx = resample(p.points, self.spacing)
+    def _resampled(self, p: Pass, cuts: np.ndarray = NO_CUTS) -> tuple[Pass, np.ndarray]:
+        """The pass with segments of at most `spacing`, split where it crosses a region's edge (`cuts`)
+        (its per-segment values carried over); the original segment of every new one."""
+        pts, idx = cut_polyline(*resample(p.points, self.spacing), cuts)
         seg = np.maximum(np.ceil(idx[1:] - 1e-9).astype(int) - 1, 0)
         speeds, wfs = p.speeds()[seg], p.wire_feeds()[seg]
         q = replace(p, points=pts, normals=_unit_rows(p.normals, idx), axes=_unit_rows(p.axes, idx),
                     speed_mm_min=p.speed_mm_min, seg_speed_mm_min=None, seg_wfs_m_min=None)
         return q.with_process(speeds, wfs if p.seg_wfs_m_min is not None else None), seg
 
-    def _plan(self, la: int, passes: Sequence[Pass]) -> tuple[dict[int, list[float]], np.ndarray, np.ndarray, np.ndarray]:
+    def _plan(self, la: int, passes: Sequence[Pass], cuts: np.ndarray = NO_CUTS) -> tuple[dict[int, list[float]], np.ndarray, np.ndarray, np.ndarray]:
         """(factors per pass, all needed factors, all midpoints, all d there) of a layer from the fields."""
         mids = [0.5 * (p.points[1:, :2] + p.points[:-1, :2]) for p in passes]
         lens = [np.hypot(*np.diff(p.points[:, :2], axis=0).T) for p in passes]
@@ -117,7 +122,7 @@ class PathControl:
         d_prev = self.fields[-2][0] if len(self.fields) > 1 else None
         xy, ln = np.concatenate(mids), np.concatenate(lens)
         self.law = replace(self.law, bounds=self.bounds(passes, self._rise))
-        got, need = plan_factors(xy, ln, d_now, d_prev, m_now, self.rise_mm, self.law)
+        got, need = plan_factors(xy, ln, d_now, d_prev, m_now, self.rise_mm, self.law, cuts)
         if not self.cfg.path_wfs_trim_pct:
             top_speed = max(float(p.speeds().max()) for p in passes)
             got = np.minimum(got, max(self.max_speed / top_speed, 1e-3))
@@ -125,7 +130,7 @@ class PathControl:
         for pa, m in enumerate(mids):
             out[pa] = [round(float(v), 5) for v in got[k:k + len(m)]]
             k += len(m)
-        return out, need, xy, d_now.at(xy, self.law.filter_mm / 4.0, self.law.filter_mm)
+        return out, need, xy, d_now.at(xy, self.law.filter_mm / 4.0, self.law.filter_mm, cuts)
 
     def _limits(self, speeds: np.ndarray, wfs: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
         """Per segment: the speed's (lo, hi) and the wire feed's (lo, hi), absolute."""
@@ -168,10 +173,13 @@ class PathControl:
         """Layer la as built: resampled, its segment speeds (and wire feeds, `keeps_width`) set by
         the path factors (journaled before its first bead); `rise`: the layer loop's trim as a rise
         factor (with `keeps_width`; else the layer comes trimmed)."""
-        passes = [self._resampled(p)[0] for p in layer.passes]
+        if la not in self.applied:
+            self.cuts_at[la] = self.edges.cuts
+        cuts = self.cuts_at.get(la, NO_CUTS)
+        passes = [self._resampled(p, cuts)[0] for p in layer.passes]
         self._rise = rise
         if la not in self.applied:
-            self.applied[la] = self._plan(la, passes)[0]
+            self.applied[la] = self._plan(la, passes, cuts)[0]
             self.applied_wfs[la] = {}
             for pa, p in enumerate(passes):
                 m = np.asarray(self.applied[la].get(pa, []), dtype=float)
@@ -181,7 +189,8 @@ class PathControl:
                         self.applied_wfs[la][pa] = [round(float(v), 5) for v in f]
             self._event("path_plan", {"layer": la, "spacing_mm": self.spacing,
                                       "factors": {str(k): v for k, v in self.applied[la].items()},
-                                      "wfs": {str(k): v for k, v in self.applied_wfs[la].items()}}, la)
+                                      "wfs": {str(k): v for k, v in self.applied_wfs[la].items()},
+                                      "cuts": [[round(float(v), 4) for v in c] for c in cuts]}, la)
         out = []
         for pa, p in enumerate(passes):
             m = np.asarray(self.applied[la].get(pa, []), dtype=float)
@@ -221,7 +230,12 @@ class PathControl:
             fac = self.applied.get(la, {}).get(pa, [])
             # the first half width of a bead: the pool not yet risen under the torch (it reads the ground)
             got = [(s, L) for s, L in spread_reports(self._stick_outs(la, pa, p, cum), float(cum[-1])) if s >= self.width / 2.0]
-            for s, L, _n in bin_samples(got, float(cum[-1]), self.bin_mm):
+            v, f = p.speeds(), p.wire_feeds()   # the metal each segment was laid with, as the bead law has it
+            if self.cfg.path_edges:
+                self.edges.add(la, pa, p.points, cum, [(s, z_cmd + self.est.nominal_mm - L) for s, L in got],
+                               1.0 / rise_ratio(self.bead, v, f, np.full(len(v), v[0]), np.full(len(f), f[0])))
+            breaks = self.edges.breaks(p.points, cum, self.cuts_at.get(la, NO_CUTS))
+            for s, L, _n in bin_samples(got, float(cum[-1]), self.bin_mm, breaks=breaks):
                 k = min(max(int(np.searchsorted(cum, s, side="right")) - 1, 0), len(cum) - 2)
                 x, y = point_at(p.points, cum, s)[:2]
                 rows.append((float(x), float(y), z_cmd + self.est.nominal_mm - L, fac[k] if k < len(fac) else 1.0))
@@ -273,8 +287,10 @@ class PathControl:
         }
         pause = None
         if next_layer is not None:
-            passes = [self._resampled(p)[0] for p in next_layer.passes]
-            _, need, xy, dn = self._plan(la + 1, passes)
+            if self.cfg.path_edges:
+                self.edges.find(la)
+            passes = [self._resampled(p, self.edges.cuts)[0] for p in next_layer.passes]
+            _, need, xy, dn = self._plan(la + 1, passes, self.edges.cuts)
             lo, hi = self.law.bounds
             bad = ((need < lo - 1e-6) | (need > hi + 1e-6)) & (np.abs(np.nan_to_num(dn)) > self.cfg.path_max_error_mm)
             rec["needed_min"], rec["needed_max"] = (round(float(need.min()), 4), round(float(need.max()), 4)) if len(need) else (None, None)

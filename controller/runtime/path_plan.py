@@ -33,7 +33,51 @@ from planner.pour import BeadLaw
 FloatArray = NDArray[np.float64]
 
 __all__ = ["Field", "resample", "arc_length", "point_at", "bin_samples", "plan_factors", "PathLaw", "spots_along",
-           "rise_ratio", "process_for", "spread_reports"]
+           "rise_ratio", "process_for", "spread_reports", "sides", "cut_polyline", "NO_CUTS"]
+
+NO_CUTS: FloatArray = np.zeros((0, 4))
+
+
+def sides(xy: FloatArray, cuts: FloatArray, reach: float) -> FloatArray:
+    """(n, k): which side of every cut (a point and the path's unit direction there, x y ux uy) each
+    point lies on, +1 ahead, -1 behind, 0 farther than `reach` from it (the cut does not part it)."""
+    q = np.asarray(xy, dtype=float).reshape(-1, 2)
+    c = np.asarray(cuts, dtype=float).reshape(-1, 4)
+    rel = q[:, None, :] - c[None, :, :2]
+    along = (rel * c[None, :, 2:]).sum(axis=2)
+    near = np.hypot(rel[..., 0], rel[..., 1]) <= reach
+    out: FloatArray = np.where(near, np.where(along >= 0.0, 1.0, -1.0), 0.0)
+    return out
+
+
+def parted(q: FloatArray, xy: FloatArray, cuts: FloatArray, reach: float) -> NDArray[np.bool_]:
+    """(n, m): query n and sample m lie on opposite sides of a cut (a hidden region's edge)."""
+    if not len(cuts):
+        return np.zeros((len(q), len(xy)), dtype=bool)
+    a, b = sides(q, cuts, reach), sides(xy, cuts, reach)
+    out: NDArray[np.bool_] = np.any(a[:, None, :] * b[None, :, :] < 0.0, axis=2)
+    return out
+
+
+def cut_polyline(points: FloatArray, idx: FloatArray, cuts: FloatArray, min_mm: float = 0.05) -> tuple[FloatArray, FloatArray]:
+    """The polyline with a point inserted where it crosses every cut (within a bead width of the
+    cut's point), so a segment never straddles a region's edge; idx (fractional indices into the
+    original points) carried over."""
+    pts, ix = np.asarray(points, dtype=float), np.asarray(idx, dtype=float)
+    for x, y, ux, uy in np.asarray(cuts, dtype=float).reshape(-1, 4):
+        a = (pts[:, 0] - x) * ux + (pts[:, 1] - y) * uy
+        for k in range(len(pts) - 1):
+            if (a[k] < 0.0) != (a[k + 1] < 0.0) and abs(a[k] - a[k + 1]) > 1e-12:
+                f = a[k] / (a[k] - a[k + 1])
+                q = pts[k] + f * (pts[k + 1] - pts[k])
+                seg = float(np.hypot(*(pts[k + 1, :2] - pts[k, :2])))
+                if np.hypot(q[0] - x, q[1] - y) > 7.0 or min(f, 1.0 - f) * seg < min_mm:
+                    continue
+                pts = np.insert(pts, k + 1, q, axis=0)
+                ix = np.insert(ix, k + 1, ix[k] + f * (ix[k + 1] - ix[k]))
+                break
+    return pts, ix
+
 
 
 @dataclass(frozen=True)
@@ -51,14 +95,17 @@ class Field:
     def rows(self, nd: int = 4) -> list[list[float]]:
         return [[round(float(x), 3), round(float(y), 3), round(float(v), nd)] for (x, y), v in zip(self.xy, self.v)]
 
-    def at(self, q: FloatArray, sigma: float, reach: float | None = None) -> FloatArray:
+    def at(self, q: FloatArray, sigma: float, reach: float | None = None, cuts: FloatArray = NO_CUTS) -> FloatArray:
         """Kernel mean at each query point (n, 2) over the samples within 2σ; where there is none,
-        the nearest sample within `reach` (else NaN)."""
+        the nearest sample within `reach` (else NaN). A sample across one of the `cuts` (a
+        region's edge) from the query is not used."""
         q = np.asarray(q, dtype=float).reshape(-1, 2)
         out = np.full(len(q), np.nan)
         if not len(self.v) or not len(q):
             return out
         d2 = ((q[:, None, :] - self.xy[None, :, :]) ** 2).sum(axis=2)
+        if len(cuts):
+            d2 = np.where(parted(q, self.xy, cuts, max(2.0 * sigma, reach or 0.0)), np.inf, d2)
         w = np.exp(-0.5 * d2 / (sigma * sigma))
         w[d2 > (2.0 * sigma) ** 2] = 0.0
         s = w.sum(axis=1)
@@ -104,17 +151,18 @@ def resample(points: FloatArray, spacing: float) -> tuple[FloatArray, FloatArray
 
 
 def bin_samples(samples: Sequence[tuple[float, float]], length: float, bin_mm: float,
-                min_n: int = 1) -> list[tuple[float, float, int]]:
+                min_n: int = 1, breaks: Sequence[float] = ()) -> list[tuple[float, float, int]]:
     """Samples (s along the pass, value) binned by position: (the samples' mean s, mean value, n)
-    for every bin of about `bin_mm` (the pass split into equal bins) holding at least `min_n`."""
+    for every bin of about `bin_mm` (the pass split into equal bins, and at every s in `breaks`,
+    a region's edge) holding at least `min_n`."""
     if length <= 0 or not samples:
         return []
     nb = max(1, int(round(length / bin_mm)))
     size = length / nb
-    acc: dict[int, list[tuple[float, float]]] = {}
+    acc: dict[tuple[int, int], list[tuple[float, float]]] = {}
     for s, v in samples:
         if math.isfinite(v):
-            acc.setdefault(min(max(int(s / size), 0), nb - 1), []).append((s, v))
+            acc.setdefault((min(max(int(s / size), 0), nb - 1), sum(1 for b in breaks if s >= b)), []).append((s, v))
     return [(float(np.mean([a for a, _ in sv])), float(np.mean([b for _, b in sv])), len(sv))
             for _, sv in sorted(acc.items()) if len(sv) >= min_n]
 
@@ -179,13 +227,13 @@ def bounded_metal(m: FloatArray, w: FloatArray, lo: float, hi: float, rounds: in
 
 
 def plan_factors(mid_xy: FloatArray, seg_len: FloatArray, d_now: Field, d_prev: Field | None,
-                 m_now: Field | None, rise_mm: float, law: PathLaw) -> tuple[FloatArray, FloatArray]:
+                 m_now: Field | None, rise_mm: float, law: PathLaw, cuts: FloatArray = NO_CUTS) -> tuple[FloatArray, FloatArray]:
     """The next layer's speed factor per segment (midpoints `mid_xy`, lengths `seg_len`, all the
     layer's passes together): (bounded factors, needed factors before the bound)."""
     sigma, reach = law.filter_mm / 4.0, law.filter_mm
-    dn = d_now.at(mid_xy, sigma, reach)
-    dp = d_prev.at(mid_xy, sigma, reach) if d_prev is not None else np.full(len(dn), np.nan)
-    mn = m_now.at(mid_xy, sigma, reach) if m_now is not None else np.full(len(dn), np.nan)
+    dn = d_now.at(mid_xy, sigma, reach, cuts)
+    dp = d_prev.at(mid_xy, sigma, reach, cuts) if d_prev is not None else np.full(len(dn), np.nan)
+    mn = m_now.at(mid_xy, sigma, reach, cuts) if m_now is not None else np.full(len(dn), np.nan)
     mn = np.where(np.isfinite(mn), mn, 1.0)
     dp = np.where(np.isfinite(dp), dp, 0.0)       # first measured layer: the one under it level
     step = np.where(np.isfinite(dn), law.kp * (dn - dp) + law.ki * dn, 0.0) / (max(rise_mm, 1e-3) * law.elasticity)

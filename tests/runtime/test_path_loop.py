@@ -75,6 +75,28 @@ async def test_a_low_stretch_is_slowed_where_it_lies_and_a_resume_lays_the_same_
     j2.close()
 
 
+async def test_a_step_in_the_metal_splits_the_next_layers_there_and_a_resume_splits_them_the_same(tmp_path: Path):
+    job = _job(8)
+    cfg = ProcessControl(mode="path", path_edges=True)
+    j = Journal(tmp_path / "journal.sqlite")
+    j.start_job("h", "wall", "robot", "{}")
+    lc = LayerControl(job=job, cfg=cfg, material=MAT, platform="robot", journal=j)
+    for la in range(6):   # past x 15 each layer lays 0.6 of the rest (docs/closed-loop.md "Region edges")
+        await _lay(lc, la, lambda x, la=la: 0.77 * (la + 1) * (0.6 if x > 15.0 else 1.0))
+    p6 = lc.pass_for(6, 0)
+    assert np.min(np.abs(p6.points[:, 0] - 15.0)) < 1.0          # a segment ends at the edge
+    assert np.min(np.abs(lc.pass_for(2, 0).points[:, 0] - 15.0)) > 1.0   # not before it was seen
+    plans = [json.loads(m) for (m,) in j.query("SELECT message FROM events WHERE kind = 'path_plan' ORDER BY id")]
+    assert plans[-1]["cuts"] and abs(plans[-1]["cuts"][0][0] - 15.0) < 1.0
+    j.close()
+    j2 = Journal(tmp_path / "journal.sqlite")
+    lc2 = LayerControl(job=job, cfg=cfg, material=MAT, platform="robot", journal=j2)
+    lc2.restore()
+    assert np.allclose(lc2.pass_for(6, 0).points, p6.points)     # the same points after a restart
+    assert np.allclose(lc2.pass_for(6, 0).speeds(), p6.speeds(), rtol=1e-6)
+    j2.close()
+
+
 async def test_a_stretch_the_bound_cannot_level_pauses_before_the_next_layer(tmp_path: Path):
     j = Journal(tmp_path / "journal.sqlite")
     j.start_job("h", "wall", "robot", "{}")
