@@ -40,15 +40,15 @@ from controller.runtime.layer_plan import (
     adjusted_layer, build_layers, decide, layer_height, layer_z, rise_factor, fit_gain,
 )
 from controller.runtime.path_control import PathControl
+from controller.runtime.path_probe import TouchPlan, touch_tops
 from controller.runtime.stickout import StickOut, StickOutEstimator
 from core.config import CellConfig, ProcessControl
 from core.material import Material
 from planner.job import Layer, Pass
 
 Spot = tuple[float, float, float]
-PATH_PROBE_CLEARANCE_MM = 3.0   # path mode: a touch starts this far above the layer's planned top
-PATH_PROBE_BACKOFF_MM = 0.5
-PATH_PROBE_FEED_MM_MIN = 600.0   # its touch's feed (the probe latches the trip; grbl's report is the latched position)
+PATH_PROBE_CLEARANCE_MM = 1.5   # path mode: the head travels this far above the layer's planned top (or the last touch)
+PATH_PROBE_FEED_MM_MIN = 1200.0   # its touch's feed (the probe latches the trip; grbl's report is the latched position)
 ProbeFn = Callable[[int, Sequence[Spot]], Awaitable[list[float]]]   # (layer, spots on it) -> probed tops
 
 
@@ -365,15 +365,22 @@ def make_control(cfg: CellConfig, job: CellJob, material: Material, journal: Jou
     pc = cfg.process_control
     probe: ProbeFn | None = None
     link = executor.cnc_link
-    # the path loop's points along every pass: one touch each from just above the layer's top (the
-    # alignment's slow repeated touches would take most of the build; docs/closed-loop.md "Sensing")
-    feed = max(cfg.probe.fast_feed_mm_min, PATH_PROBE_FEED_MM_MIN)
-    ps, clear = (cfg.probe.model_copy(update={"samples": 1, "fast_feed_mm_min": feed, "slow_feed_mm_min": feed,
-                                              "backoff_mm": PATH_PROBE_BACKOFF_MM}), min(cfg.probe.clearance_mm, PATH_PROBE_CLEARANCE_MM)) \
-        if pc.mode == "path" else (cfg.probe, cfg.probe.clearance_mm)
-    if link is not None:
-        async def probe(la: int, spots: Sequence[Spot]) -> list[float]:
-            return await probe_layer_top(link, ps, list(spots), clear, name=f"layer {la} top")
+    if link is not None and pc.mode == "path":
+        # the path loop's points along every pass: one touch each, three lines a point sent together, from just
+        # above the layer's top (controller/runtime/path_probe.py; docs/closed-loop.md)
+        hop = min(cfg.probe.clearance_mm, PATH_PROBE_CLEARANCE_MM)
+        plan = TouchPlan(hop_mm=hop, depth_mm=max(cfg.probe.travel_mm - hop, hop),
+                         touch_feed=max(cfg.probe.fast_feed_mm_min, PATH_PROBE_FEED_MM_MIN))
+
+        async def touch(la: int, spots: Sequence[Spot]) -> list[float]:
+            assert link is not None
+            return await touch_tops(link, list(spots), plan, name=f"layer {la} top")
+        probe = touch
+    elif link is not None:
+        async def probe_top(la: int, spots: Sequence[Spot]) -> list[float]:
+            assert link is not None
+            return await probe_layer_top(link, cfg.probe, list(spots), cfg.probe.clearance_mm, name=f"layer {la} top")
+        probe = probe_top
     lc = LayerControl(job=job, cfg=pc, material=material, platform=cfg.cell.platform, journal=journal, bus=bus,
                       max_speed_mm_min=cfg.limits.max_speed_mm_min, probe=probe)
     lc.restore()
