@@ -107,6 +107,19 @@ def stock_spots(cad_tri: F, stock_tri: F, bounds_xy: F, *, ring_step_mm: float =
     return xy[pick + pick_inner], kinds
 
 
+def _touches_and_cells(cad_tri: F, stock_tri: F, bounds_xy: F, touched: F, low: np.ndarray,
+                       step_mm: float) -> tuple[F, F, F]:
+    """The touched spots (n, 2), the low ones among them, and the repaired region's cells (none
+    computed when no touch is low)."""
+    t = np.asarray(touched, dtype=float).reshape(-1, 2)
+    lows = t[np.asarray(low, dtype=bool)]
+    if not len(lows):
+        return t, lows, np.empty((0, 2))
+    xy, mask, _shape = _repaired_mask(cad_tri, stock_tri, bounds_xy, step_mm)
+    cells: F = xy[mask.ravel()]
+    return t, lows, cells
+
+
 def refine_spots(cad_tri: F, stock_tri: F, bounds_xy: F, touched: F, low: np.ndarray, spacing_mm: float,
                  step_mm: float = 0.5) -> F:
     """More spots around the `low` touches (docs/machining.md "The stock probe"): cells of the
@@ -116,12 +129,9 @@ def refine_spots(cad_tri: F, stock_tri: F, bounds_xy: F, touched: F, low: np.nda
     it lands: its neighbours are touched too, before the spots are judged."""
     from scipy.spatial import cKDTree   # lazy: scipy loads only when this path runs (start-up time)
 
-    t = np.asarray(touched, dtype=float).reshape(-1, 2)
-    lows = t[np.asarray(low, dtype=bool)]
+    t, lows, cells = _touches_and_cells(cad_tri, stock_tri, bounds_xy, touched, low, step_mm)
     if not len(lows):
         return np.empty((0, 2))
-    xy, mask, _shape = _repaired_mask(cad_tri, stock_tri, bounds_xy, step_mm)
-    cells = xy[mask.ravel()]
     d = cKDTree(lows).query(cells)[0]
     near = np.flatnonzero(d <= 2 * spacing_mm + 1e-9)
     order = near[np.argsort(d[near], kind="stable")]
@@ -170,12 +180,9 @@ def flood_spots(cad_tri: F, stock_tri: F, bounds_xy: F, touched: F, low: np.ndar
     out to where it stands clear of the need."""
     from scipy.spatial import cKDTree   # lazy: scipy loads only when this path runs (start-up time)
 
-    t = np.asarray(touched, dtype=float).reshape(-1, 2)
-    lows = t[np.asarray(low, dtype=bool)]
+    t, lows, cells = _touches_and_cells(cad_tri, stock_tri, bounds_xy, touched, low, step_mm)
     if not len(lows):
         return np.empty((0, 2))
-    xy, mask, _shape = _repaired_mask(cad_tri, stock_tri, bounds_xy, step_mm)
-    cells = xy[mask.ravel()]
     near = cKDTree(lows).query(cells)[0] <= reach_mm + 1e-9
     fresh = cKDTree(t).query(cells)[0] > step_mm / 2
     out: F = cells[near & fresh]

@@ -13,15 +13,22 @@ from controller.job.check import check_job
 from controller.job.read import read_job
 from controller.job.redeposit import redeposit_job
 from core.config import load_cell, load_material
+from planner.job import Job
 
 
-def test_short_spots_become_short_passes_from_each_spot_inward_until_the_target(tmp_path: Path, capsys):
-    cad, stock = make_parts(tmp_path)      # a 20 × 20 × 4 pocket at x, y 30…50
+def _pocket_job(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Job:
+    """The repair job of a 20 × 20 × 4 pocket at x, y 30…50, 4 mm beads, 0.5 mm allowance, as
+    `cell repair plan` writes it."""
+    cad, stock = make_parts(tmp_path)
     job_path = tmp_path / "job.json"
     assert main(["repair", "plan", str(cad), "--stock", str(stock), "--width", "4", "--allowance", "0.5",
                  "--out", str(job_path)]) == 0
     capsys.readouterr()
-    job = read_job(job_path)
+    return read_job(job_path)
+
+
+def test_short_spots_become_short_passes_from_each_spot_inward_until_the_target(tmp_path: Path, capsys):
+    job = _pocket_job(tmp_path, capsys)     # a 20 × 20 × 4 pocket at x, y 30…50
     # probed: a corner 0.6 below CAD, a spot beside it (one with it), one inside 0.3 below, one corner 0.1 below
     pts = np.array([[30.25, 30.25, -0.6], [31.0, 30.25, -0.5], [40.0, 42.0, -0.3], [49.75, 49.75, -0.1]])
     extra = redeposit_job(job, pts, pts[:, 2], 0.5)
@@ -43,12 +50,7 @@ def test_short_spots_become_short_passes_from_each_spot_inward_until_the_target(
 
 
 def test_a_deposit_short_all_over_gets_whole_layers_again_then_short_passes_where_still_short(tmp_path: Path, capsys):
-    cad, stock = make_parts(tmp_path)      # a 20 × 20 × 4 pocket at x, y 30…50
-    job_path = tmp_path / "job.json"
-    assert main(["repair", "plan", str(cad), "--stock", str(stock), "--width", "4", "--allowance", "0.5",
-                 "--out", str(job_path)]) == 0
-    capsys.readouterr()
-    job = read_job(job_path)
+    job = _pocket_job(tmp_path, capsys)     # a 20 × 20 × 4 pocket at x, y 30…50
     h = job.layers[-1].height_mm
     # the process laid less than planned: the deposit stands 0.1 mm over CAD in the middle (z 0.1), a corner 0.6 below
     pts = np.array([[40.0, 40.0, 0.1], [30.25, 30.25, -0.6]])
