@@ -96,6 +96,7 @@ class PathControl:
                 self.applied_wfs[int(d["layer"])] = {int(k): [float(x) for x in v] for k, v in (d.get("wfs") or {}).items()}
                 self.cuts_at[int(d["layer"])] = np.asarray(d.get("cuts") or [], dtype=float).reshape(-1, 4)
                 self.edges.cuts = self.cuts_at[int(d["layer"])]
+                self.edges.forget_misses()
             else:
                 self.records.append(d)
                 self.rise_mm = float(d.get("rise_mm") or self.rise_mm)

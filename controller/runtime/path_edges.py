@@ -91,7 +91,9 @@ class EdgeFinder:
     min_t: float = 4.5              # a new edge: a step this many standard errors, two layers running
     keep_t: float = 2.0             # a known edge: kept while its step stays this many
     min_step: float = 0.3           # the gain's relative step
-    near_mm: float = 1.0            # the same edge from one layer to the next
+    near_mm: float = 1.0            # a new edge: the same from one layer to the next
+    drop_after: int = 3             # a known edge not seen again (within a bead width) this many layers running: dropped
+    _miss: list[int] = field(default_factory=list)   # per cut: the layers running it was not seen
     _seen: FloatArray = field(default_factory=lambda: NO_CUTS)   # last layer's candidates not yet taken
     cuts: FloatArray = field(default_factory=lambda: NO_CUTS)
     _tops: dict[int, list[tuple[FloatArray, FloatArray]]] = field(default_factory=dict)   # layer: [(xy, top)]
@@ -142,13 +144,16 @@ class EdgeFinder:
             for a, b in straights(pts):   # each straight stretch of the pass on its own
                 for q, u, t in self._steps_along(a, b, all_xy, all_g):
                     row = [float(q[0]), float(q[1]), float(u[0]), float(u[1])]
-                    if self._close(q, self.cuts) or (t >= self.min_t and self._close(q, self._seen)):
+                    if self._close(q, self.cuts, self.width_mm) or (t >= self.min_t and self._close(q, self._seen, self.near_mm)):
                         cuts.append(row)
                     elif t >= self.min_t:
                         seen.append(row)
-        # a region does not move: an edge once found stays (where it was last seen)
-        kept = [list(c) for c in self.cuts if not self._close(c[:2], np.asarray(cuts, dtype=float).reshape(-1, 4))]
-        self.cuts = np.asarray(cuts + kept, dtype=float).reshape(-1, 4)
+        # a region does not move: an edge found stays (where it was last seen) a few layers unseen
+        new = np.asarray(cuts, dtype=float).reshape(-1, 4)
+        kept = [(list(c), m + 1) for c, m in zip(self.cuts, self._miss) if not self._close(c[:2], new, self.width_mm)]
+        kept = [(c, m) for c, m in kept if m < self.drop_after]
+        self.cuts = np.asarray(cuts + [c for c, _ in kept], dtype=float).reshape(-1, 4)
+        self._miss = [0] * len(cuts) + [m for _, m in kept]
         self._seen = np.asarray(seen, dtype=float).reshape(-1, 4)
         return self.cuts
 
@@ -173,8 +178,13 @@ class EdgeFinder:
         return [(a + u * c, u, t) for c, _st, t in best_steps(along[near], g[near], 1.5 * self.width_mm, ln - 1.5 * self.width_mm,
                                                              self.width_mm, self.keep_t, self.min_step)]
 
-    def _close(self, q: FloatArray, cuts: FloatArray) -> bool:
-        return bool(len(cuts)) and float(np.hypot(cuts[:, 0] - q[0], cuts[:, 1] - q[1]).min()) <= self.near_mm
+    def forget_misses(self) -> None:
+        """The cuts set from the journal (a resume): none missed yet."""
+        self._miss = [0] * len(self.cuts)
+
+    @staticmethod
+    def _close(q: FloatArray, cuts: FloatArray, within: float) -> bool:
+        return bool(len(cuts)) and float(np.hypot(cuts[:, 0] - q[0], cuts[:, 1] - q[1]).min()) <= within
 
     @staticmethod
     def breaks(points: FloatArray, cum: FloatArray, cuts: FloatArray) -> list[float]:
