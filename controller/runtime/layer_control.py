@@ -47,8 +47,8 @@ from core.material import Material
 from planner.job import Layer, Pass
 
 Spot = tuple[float, float, float]
-PATH_PROBE_CLEARANCE_MM = 1.5   # path mode: the head travels this far above the layer's planned top (or the last touch)
-PATH_PROBE_FEED_MM_MIN = 1200.0   # its touch's feed (the probe latches the trip; grbl's report is the latched position)
+PATH_PROBE_CLEARANCE_MM = 1.5   # path mode: the head travels this far above the planned top (or the neighbour just touched)
+PATH_PROBE_FEED_MM_MIN = 1800.0   # its touch's feed (the probe latches the trip; grbl's report is the latched position)
 ProbeFn = Callable[[int, Sequence[Spot]], Awaitable[list[float]]]   # (layer, spots on it) -> probed tops
 
 

@@ -42,7 +42,7 @@ class TouchPlan:
 
     hop_mm: float = 1.5            # travel height between points
     depth_mm: float = 18.0         # the touch reaches this far below
-    touch_feed: float = 1200.0     # G38.2
+    touch_feed: float = 1800.0     # G38.2
 
 
 async def _point(link: ProbePort, where: str, x: float, y: float, up: float, low: float, feed: float) -> float:

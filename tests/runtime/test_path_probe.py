@@ -39,7 +39,7 @@ async def test_one_touch_a_point_reads_the_tilted_top_in_the_spots_order(tmp_pat
         assert max(abs(t - u) for t, u in zip(tops, truth)) < 1e-3        # each top where it is, in order
         assert max(truth) - min(truth) > 0.5                              # (the tilt: ±0.6 mm over the pass)
         probes = [b for b in sim.executed if b.probe]
-        assert len(probes) == len(spots) and all(b.contact and b.feed == 1200.0 for b in probes)
+        assert len(probes) == len(spots) and all(b.contact and b.feed == 1800.0 for b in probes)
         assert probes[0].target is not None and probes[0].target[0] == pytest.approx(40.0)   # the near end first
         st = await link.wait_idle()
         assert st.mpos[2] == pytest.approx(max(truth[0], 0.0) + 1.5, abs=0.01)   # ends a hop above the top
