@@ -1,7 +1,8 @@
 """The path loop's touches along every pass on the CNC (docs/closed-loop.md "The CNC with probing").
 
-A point, three lines sent together: `G0 Z` to the hop height (`hop_mm` above the higher of the
-spot's planned top and the top just touched next to it), `G0 X Y` over the point, `G38.2 Z` down at
+A point, three lines sent together: `G0 Z` to the hop height (`hop_mm` above the highest of the
+spot's planned top, the top just touched next to it and the top the layer probed before left there
+raised by the commanded rise), `G0 X Y` over the point, `G38.2 Z` down at
 the touch feed to `depth_mm` below the lower of the two; grbl's latched trip (`[PRB:…]`) is the top.
 grbl answers a `G0` once it is planned and holds the `G38.2` until the motion before it is done, so
 the three lines need not wait for each other's replies. The points are visited from the end of the
@@ -31,7 +32,7 @@ from core.errors import CellError
 from drivers.grbl import ProbeError
 from wire.grbl_protocol import GrblStatus, fmt
 
-__all__ = ["TouchPlan", "touch_tops"]
+__all__ = ["TouchPlan", "expected_tops", "touch_tops"]
 
 Spot = tuple[float, float, float]
 
@@ -76,9 +77,23 @@ def _after_last_reply(link: CncLinkPort) -> GrblStatus | None:
     return st if st is not None and link.status_t > link.answer_t else None
 
 
-async def touch_tops(link: CncLinkPort, spots: Sequence[Spot], plan: TouchPlan, name: str = "layer") -> list[float]:
+def expected_tops(before: Sequence[Spot], tops: Sequence[float], spots: Sequence[Spot]) -> list[float]:
+    """Where each spot's top should stand: the top touched at the nearest spot of the layer probed
+    before, raised by the commanded rise since (the spots' z difference)."""
+    if not before:
+        return [z for _, _, z in spots]
+    out = []
+    for x, y, z in spots:
+        j = min(range(len(before)), key=lambda i: math.dist((x, y), before[i][:2]))
+        out.append(tops[j] + (z - before[j][2]))
+    return out
+
+
+async def touch_tops(link: CncLinkPort, spots: Sequence[Spot], plan: TouchPlan, name: str = "layer",
+                     expect: Sequence[float] | None = None) -> list[float]:
     """The machine z of the deposit's top under each spot (x, y, planned top), one touch each, in
-    the spots' order."""
+    the spots' order. `expect`: where each top should stand (expected_tops), when known: the
+    travel clears it too."""
     st = _after_last_reply(link) or await link.status()
     if st.spindle:
         raise CellError(f"{name}: the process is still on (spindle {st.spindle}); no probing with the process on")
@@ -94,10 +109,11 @@ async def touch_tops(link: CncLinkPort, spots: Sequence[Spot], plan: TouchPlan, 
     tops: dict[int, float] = {}
     for n, k in enumerate(order):
         x, y, z = spots[k]
-        expect = z_now if n else z      # the neighbour just touched, else the plan
-        up = max(z, expect) + plan.hop_mm if n else max(z + plan.hop_mm, z_now)
+        high = max(z, expect[k]) if expect is not None else z
+        near = z_now if n else z        # the neighbour just touched, else the plan
+        up = max(high, near) + plan.hop_mm if n else max(high + plan.hop_mm, z_now)
         z_now = await _point(link, f"{name}[{k}] at x {x:.2f}, y {y:.2f}", x, y, up,
-                             min(z, expect) - plan.depth_mm, plan.touch_feed)
+                             min(z, near) - plan.depth_mm, plan.touch_feed)
         tops[k] = z_now
     await link.command(f"G0 Z{fmt(max(z_now, spots[order[-1]][2]) + plan.hop_mm)}")
     return [tops[k] for k in range(len(spots))]

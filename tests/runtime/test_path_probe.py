@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from controller.runtime.path_probe import TouchPlan, touch_tops
+from controller.runtime.path_probe import TouchPlan, expected_tops, touch_tops
 from core.config import load_sim
 from drivers.grbl import CncLink
 from sims.clock import SimClock
@@ -47,3 +47,9 @@ async def test_one_touch_a_point_reads_the_tilted_top_in_the_spots_order(tmp_pat
         await link.close()
         await server.close()
         await sim.close()
+
+
+def test_the_next_layer_is_expected_where_the_last_touches_stood_raised_by_the_commanded_rise() -> None:
+    before = [(0.0, 0.0, 5.0), (10.0, 0.0, 5.0)]
+    got = expected_tops(before, [4.6, 5.9], [(1.0, 0.0, 6.2), (9.0, 0.0, 6.2), (30.0, 0.0, 6.2)])
+    assert got == pytest.approx([5.8, 7.1, 7.1])     # a high spot stays high: the travel must clear it
