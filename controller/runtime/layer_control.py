@@ -48,7 +48,7 @@ from planner.job import Layer, Pass
 
 Spot = tuple[float, float, float]
 PATH_PROBE_CLEARANCE_MM = 1.5   # path mode: the head travels this far above the planned top (or the neighbour just touched)
-PATH_PROBE_MAX_EXTRA_HOP_MM = 5.0   # ... plus the largest miss of the expected top seen on the layer before, up to this
+PATH_PROBE_MAX_EXTRA_HOP_MM = 5.0   # ... plus the most a top stood above its expected top on the layer before, up to this
 PATH_PROBE_FEED_MM_MIN = 1800.0   # its touch's feed (the probe latches the trip; grbl's report is the latched position)
 ProbeFn = Callable[[int, Sequence[Spot]], Awaitable[list[float]]]   # (layer, spots on it) -> probed tops
 
@@ -374,7 +374,7 @@ def make_control(cfg: CellConfig, job: CellJob, material: Material, journal: Jou
                          touch_feed=max(cfg.probe.fast_feed_mm_min, PATH_PROBE_FEED_MM_MIN))
 
         seen: list[tuple[list[Spot], list[float]]] = []   # the layer probed before: its spots and tops
-        miss = [0.0]    # the largest |top − expected| of the layer probed before: the travel clears it too
+        miss = [0.0]    # how far a top stood above its expectation on the layer probed before: the travel clears it too
 
         async def touch(la: int, spots: Sequence[Spot]) -> list[float]:
             assert link is not None
@@ -382,7 +382,7 @@ def make_control(cfg: CellConfig, job: CellJob, material: Material, journal: Jou
             hop = replace(plan, hop_mm=plan.hop_mm + min(miss[0], PATH_PROBE_MAX_EXTRA_HOP_MM))
             tops = await touch_tops(link, list(spots), hop, name=f"layer {la} top", expect=exp)
             seen[:] = [(list(spots), tops)]
-            miss[0] = max((abs(t - e) for t, e in zip(tops, exp)), default=0.0)
+            miss[0] = max((t - e for t, e in zip(tops, exp)), default=0.0)   # a top above it (one below is no threat)
             return tops
         probe = touch
     elif link is not None:
