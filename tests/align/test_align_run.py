@@ -145,19 +145,15 @@ async def test_a_loaded_host_does_not_leave_the_probe_tripped_at_the_next_touch(
     # inside and the next touch raised "already tripped" (ALARM:4) every time.
     from sims.clock import SimClock
     from sims.cnc import CncSim
-    from sims.faults import parse_fault_spec
-    from sims.transport import SerialServer
     from sims.workpiece import Workpiece
+    from tests.cnc_fixtures import cnc_link
 
     cell = _cell(spread_tol_mm=0.005, retries=1, samples=3)
     wp = _sim().cnc.workpiece
     piece = Workpiece.from_config(wp, 0.05, seed=3)
     # a tick of 50 ms at time scale 1000 is 50 s of machine time: longer than any probing move
     sim = CncSim(clock=SimClock(1000.0), workpiece=piece, log_path=tmp_path / "cnc.jsonl", tick_s=0.05)
-    sim.start()
-    server = SerialServer(sim, name="cnc", spec=parse_fault_spec(""), baud=115200)
-    link = CncLink(await server.start(None, ephemeral=True))
-    try:
+    async with cnc_link(sim) as link:
         await link.connect()
         await link.home()
         target = ProbeTarget("top[0]", (-40.0, -40.0, 10.0), (0.0, 0.0, -1.0), 60.0)
@@ -168,7 +164,3 @@ async def test_a_loaded_host_does_not_leave_the_probe_tripped_at_the_next_touch(
         assert len(probes) == 8 and all(b.contact for b in probes)
         assert all(abs(b.target[2] - probes[0].target[2]) < 0.5 for b in probes if b.target is not None)
         assert not piece.inside(tuple(sim.machine.pos[:3]), sim.machine.pos[3], sim.machine.pos[4])
-    finally:
-        await link.close()
-        await server.close()
-        await sim.close()

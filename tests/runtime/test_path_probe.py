@@ -8,12 +8,10 @@ import pytest
 
 from controller.runtime.path_probe import TouchPlan, expected_tops, touch_tops
 from core.config import load_sim
-from drivers.grbl import CncLink
 from sims.clock import SimClock
 from sims.cnc import CncSim
-from sims.faults import parse_fault_spec
-from sims.transport import SerialServer
 from sims.workpiece import Workpiece
+from tests.cnc_fixtures import cnc_link
 
 pytestmark = pytest.mark.realtime  # a simulator on the wall clock (tests/conftest.py)
 
@@ -22,10 +20,7 @@ async def test_one_touch_a_point_reads_the_tilted_top_in_the_spots_order(tmp_pat
     wp = load_sim().cnc.workpiece          # a 100 mm block, its top tilted 0.8° and -0.5°
     piece = Workpiece.from_config(wp, 0.0, seed=1)
     sim = CncSim(clock=SimClock(100.0), workpiece=piece, log_path=tmp_path / "cnc.jsonl")
-    sim.start()
-    server = SerialServer(sim, name="cnc", spec=parse_fault_spec(""), baud=115200)
-    link = CncLink(await server.start(None, ephemeral=True))
-    try:
+    async with cnc_link(sim) as link:
         await link.connect()
         await link.home()
         await link.command("G90 G0 X40 Y0 Z30")     # the head near the pass's far end
@@ -43,10 +38,6 @@ async def test_one_touch_a_point_reads_the_tilted_top_in_the_spots_order(tmp_pat
         assert probes[0].target is not None and probes[0].target[0] == pytest.approx(40.0)   # the near end first
         st = await link.wait_idle()
         assert st.mpos[2] == pytest.approx(max(truth[0], 0.0) + 1.5, abs=0.01)   # ends a hop above the top
-    finally:
-        await link.close()
-        await server.close()
-        await sim.close()
 
 
 def test_the_next_layer_is_expected_where_the_last_touches_stood_raised_by_the_commanded_rise() -> None:

@@ -6,13 +6,11 @@ import re
 from pathlib import Path
 
 from core.config import Workpiece as WorkpieceConfig
-from drivers.grbl import CncLink
 from sims.clock import SimClock
 from sims.cnc import CncSim
-from sims.faults import parse_fault_spec
-from sims.transport import SerialServer
 from sims.workpiece import Workpiece
 from sims.world import World
+from tests.cnc_fixtures import cnc_link
 
 
 async def _stream_to(tmp_path: Path, sim_rx: int, cell_rx: int) -> tuple[list[str], int, int]:
@@ -21,19 +19,12 @@ async def _stream_to(tmp_path: Path, sim_rx: int, cell_rx: int) -> tuple[list[st
     planner fills, then the ring)."""
     sim = CncSim(clock=SimClock(1.0), world=World(tmp_path), rx_buffer_bytes=sim_rx,
                  workpiece=Workpiece.from_config(WorkpieceConfig(), 0.0, seed=1), log_path=tmp_path / "cnc.jsonl")
-    sim.start()
-    server = SerialServer(sim, name="cnc", spec=parse_fault_spec(""), baud=115200)
-    link = CncLink(await server.start(None, ephemeral=True), rx_buffer_bytes=cell_rx)
-    try:
+    async with cnc_link(sim, rx_buffer_bytes=cell_rx) as link:
         await link.connect()
         await link.home()
         info = await link.command("$I")
         res = await link.stream(["G91 G1 F3000"] + [f"X{0.2 if k % 2 else -0.2} Y0.01" for k in range(60)] + ["G90"])
         return info, link.capacity, res.max_in_flight_bytes
-    finally:
-        await link.close()
-        await server.close()
-        await sim.close()
 
 
 async def test_a_grblhal_sized_buffer_is_reported_and_filled(tmp_path: Path) -> None:
