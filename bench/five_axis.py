@@ -12,6 +12,7 @@ import json
 import re
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -36,22 +37,24 @@ def plan5(mesh, width: float = 3.0, five: bool = True) -> dict:
 
 
 # A 5-axis CNC runs grblHAL (grbl 1.1h has three axes): its RX ring is 1024 bytes (`$I`
-# `[OPT:…,100,1024]`; real grblHAL reports `Bf:100,1023` idle), and cell.yaml says so. With
-# grbl 1.1h's 128 bytes only two or three 5-axis lines are in flight, and at time scale 10 (a line
-# every 1.1 ms of wall time) the link starves on the round trips alone (docs/controller.md).
+# `[OPT:…,100,1024]`; real grblHAL reports `Bf:100,1023` idle), and the shipped 5-axis cell
+# (config/cell-grblhal5.yaml) says so. With grbl 1.1h's 128 bytes only two or three 5-axis lines
+# are in flight, and at time scale 10 (a line every 1.1 ms of wall time) the link starves on the
+# round trips alone (docs/controller.md).
 GRBLHAL_RX_BYTES = 1024
+GRBLHAL5_CELL = Path(__file__).resolve().parent.parent / "config" / "cell-grblhal5.yaml"
 
 
 def kin_cfg(table: str, rx_buffer_bytes: int = GRBLHAL_RX_BYTES):
-    cfg = load_cell()
+    """The shipped 5-axis cell (its A/B table), or its A/C variant; `rx_buffer_bytes` to try another ring."""
+    cfg = load_cell(GRBLHAL5_CELL)
     cnc = cfg.devices.cnc.model_copy(update={"rx_buffer_bytes": rx_buffer_bytes})
     cfg = cfg.model_copy(update={"devices": cfg.devices.model_copy(update={"cnc": cnc})})
     if table == "AC":
         kin = cfg.kinematics.model_copy(update={"table": "AC", "axis_second": (0.0, 0.0, 1.0),
                                                 "pivot_mm": (0.0, 0.0, 30.0), "offset_mm": (0.0, 0.0, 10.0)})
-    else:
-        kin = cfg.kinematics.model_copy(update={"pivot_mm": (2.0, -1.0, 40.0), "offset_mm": (0.0, 0.0, 15.0)})
-    return cfg.model_copy(update={"kinematics": kin, "cell": cfg.cell.model_copy(update={"platform": "cnc"})})
+        cfg = cfg.model_copy(update={"kinematics": kin})
+    return cfg
 
 
 def level_sim():
@@ -68,7 +71,7 @@ async def build(job: dict, tmp: Path, table: str = "AB", scale: float = 60.0,
     from controller.motion.cnc5 import limit_time_scale
 
     typed = job_from_dict(job)   # the job file's object, read as `cell run` reads it
-    cfg, _note = limit_time_scale(with_urls(kin_cfg(table, rx_buffer_bytes), {}, time_scale=scale), typed)
+    cfg, _note = limit_time_scale(with_urls(kin_cfg(table, rx_buffer_bytes), {}, time_scale=scale), typed, beside=beside)
     log = tmp / "log"
     if beside:
         # `cell sim up` in a process of its own (the demo's topology): the simulators' deposit
@@ -81,13 +84,30 @@ async def build(job: dict, tmp: Path, table: str = "AB", scale: float = 60.0,
         async with open_cell(cfg, sim=True, process=True, sim_config=sim_yaml, log_dir=log,
                              runs_dir=tmp / "runs") as ctl:
             ctl.open_job(typed)
+            cpu0, wall0 = time.process_time(), time.perf_counter()
             res = await ctl.start()
+            _COST.update(cpu_s=time.process_time() - cpu0, wall_s=time.perf_counter() - wall0)
         return res, log
     async with open_cell(cfg, sim=level_sim(), log_dir=log, runs_dir=tmp / "runs",
                          reply_timeout_ms=SIM_REPLY_TIMEOUT_MS) as ctl:
         ctl.open_job(typed)
+        cpu0, wall0 = time.process_time(), time.perf_counter()
         res = await ctl.start()
+        _COST.update(cpu_s=time.process_time() - cpu0, wall_s=time.perf_counter() - wall0)
     return res, log
+
+
+# this process's CPU and wall seconds over the last `build` (the controller's share with --beside)
+_COST: dict[str, float] = {}
+
+
+def line_cost(log: Path) -> dict:
+    """The controller's CPU per line streamed to the CNC (cnc.jsonl's lines) over the build."""
+    n = sum(1 for s in (log / "cnc.jsonl").read_text().splitlines() if json.loads(s).get("line"))
+    if not _COST or n == 0:
+        return {}
+    return {"cnc_lines": n, "build_wall_s": round(_COST["wall_s"], 2), "build_cpu_s": round(_COST["cpu_s"], 2),
+            "cpu_ms_per_line": round(_COST["cpu_s"] / n * 1000.0, 3)}
 
 
 def _seg_dist(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -284,12 +304,13 @@ def bead_gaps(log: Path, device: str = "cnc") -> dict:
             "max_gap_s": round(float(g.max()), 4), "gaps_over_10ms": int((g > 0.01).sum())}
 
 
-def feed_scale(job: dict, table: str, scale: float) -> float:
+def feed_scale(job: dict, table: str, scale: float, beside: bool = False) -> float:
     """The time scale `build` runs `job` at (the asked one, or what the CNC link can feed)."""
     # lazy: only this benchmark's path needs it
     from controller.motion.cnc5 import limit_time_scale
 
-    return float(limit_time_scale(with_urls(kin_cfg(table), {}, time_scale=scale), job_from_dict(job))[0].cell.time_scale)
+    cfg = with_urls(kin_cfg(table), {}, time_scale=scale)
+    return float(limit_time_scale(cfg, job_from_dict(job), beside=beside)[0].cell.time_scale)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -303,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--slow", type=float, default=1.0, help="divide the planned travel speeds by this")
     ap.add_argument("--host-line-ms", type=float, default=None,
                     help="the wall time a streamed line is taken to cost (controller/motion/cnc5.py "
-                         "HOST_LINE_WALL_S): lower it to build at a scale the feed limit would lower, and "
+                         "HOST_LINE_WALL_S, HOST_LINE_BESIDE_S with --beside): lower it to build at a scale the feed limit would lower, and "
                          "read the stand-still in still_s (issue 38)")
     ap.add_argument("--rx-bytes", type=int, default=GRBLHAL_RX_BYTES,
                     help="the CNC's RX ring (cell.yaml devices.cnc.rx_buffer_bytes; the simulator has the same): "
@@ -315,7 +336,7 @@ def main(argv: list[str] | None = None) -> int:
         # lazy: only this benchmark's path needs it
         import controller.motion.cnc5 as cnc5
 
-        cnc5.HOST_LINE_WALL_S = a.host_line_ms / 1000.0
+        cnc5.HOST_LINE_WALL_S = cnc5.HOST_LINE_BESIDE_S = a.host_line_ms / 1000.0
     mesh = tilted_tube() if a.part == "tube" else cone_frustum()
     job = plan5(mesh)
     for la in job["layers"]:
@@ -326,9 +347,10 @@ def main(argv: list[str] | None = None) -> int:
         fig = figures(job, log)
         fig.update(executed_mid_dev(job, log, a.table))
         fig.update(bead_gaps(log))
+        fig.update(line_cost(log))
     fig.update({"part": a.part, "table": a.table, "state": getattr(res, "state", None), "beside": a.beside,
                 "rx_bytes": a.rx_bytes,
-                "time_scale": feed_scale(job, a.table, a.scale),
+                "time_scale": feed_scale(job, a.table, a.scale, a.beside),
                 "passes_done": getattr(res, "passes_done", None)})
     print(json.dumps(fig))
     return 0

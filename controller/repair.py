@@ -419,8 +419,10 @@ async def repair_run(ctl: CellController, job: CellJob, *, job_path: Path | None
     cad = load_cad(job, job_path)
     plan = probe_plan(cad, job)
     # every refusal that needs no device before the first motion (homing and probing included):
-    # a time scale the CNC link cannot feed (the in-process simulators were lowered to what it can)
-    refuse_unfed(job, Trunnion.from_config(cell.kinematics), float(cell.cell.time_scale), cell.devices.cnc.baud)
+    # a time scale the CNC link cannot feed in any topology (the command that started the simulators
+    # lowered the scale to what the host feeds where they run: controller/motion/cnc5.py)
+    refuse_unfed(job, Trunnion.from_config(cell.kinematics), float(cell.cell.time_scale), cell.devices.cnc.baud,
+                 beside=True)
     stops.attach(ctl)  # SIGINT / SIGTERM / SIGHUP: the fault path (when the CLI installed them)
     try:
         await ctl.connect()

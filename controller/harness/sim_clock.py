@@ -93,7 +93,7 @@ class FedScale:
         """Before any device: cfg at the scale the CNC link can feed `job`, the simulators' clock set
         to it (InputError when it must be lowered and no clock answers: real devices, or an older
         `cell sim up`)."""
-        limited, note = limit_time_scale(cfg, job, max_step_mm)
+        limited, note = limit_time_scale(cfg, job, max_step_mm, beside=True)   # `cell sim up`: a process of its own
         if note is None:
             return cls(cfg)
         clock = SimClockLink.find(cfg.devices.cnc.url)

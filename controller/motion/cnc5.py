@@ -212,17 +212,24 @@ class Five:
 
 # --- what the CNC link can feed (issue 29, docs/contract.md §6 "Simulated time") ---------------------------
 # The simulated serial line keeps its baud in simulated time on both sides (sims/transport.py and
-# CncLink(line_scale=time_scale)); what it cannot keep is the host: the in-process driver and grbl
-# simulator handle a streamed line in up to ~1–2 ms of wall time (measured on the 2-core build
-# host: 0 gaps at 1.5 ms per line, gaps of 0.1 s at 0.9 ms). A bead whose moves are shorter than
-# that at the time scale would stand still with the process on between moves, which the machine
-# would not: the time scale is limited to what the host can feed, and the build says so.
-# Measured again for issue 38 (bench/five_axis.py's tube on the A/B table, load average 11-14 on
-# the 2-core host): the driver and the simulator take 0.6-0.8 ms of CPU a line; streamed alone
-# (the CNC simulator only, bench/stream5.py) the tube is fed at time scale 10 (0.006 s of
-# stand-still); in a whole build, beside the power source and cell I/O cycles and the deposit, it stands
-# still 0.02 s of 20 s at time scale 5 (its lines 2.1 ms of wall time) and 3.2 s at 10 (1.1 ms).
+# CncLink(line_scale=time_scale)); what it cannot keep is the host. A bead whose moves are shorter
+# than a line's wall cost at the time scale would stand still with the process on between moves,
+# which the machine would not: the time scale is limited to what the host can feed, and the build
+# says so. The wall cost of a streamed line depends on where the CNC simulator runs
+# (docs/controller.md, "Simulated time the host can feed"):
+# - in the controller's own interpreter (`cell run --sim`, `cell repair run --sim`): the driver and
+#   the simulator share one lock, up to ~2 ms a line (issue 29: 0 gaps at 1.5 ms a line, gaps of
+#   0.1 s at 0.9 ms; issue 38, load 11-14: the tube stood still 0.02 s of 20 s at scale 5, its
+#   lines 2.1 ms, and 3.2 s at 10, 1.1 ms);
+# - in a process of its own (`cell sim up`, `cell tui --sim`, `cell demo`): the controller's share
+#   only. bench/five_axis.py --beside, the tube on the grblHAL cell (1024-byte RX ring), load 5.4-6.6
+#   on the 2-core host: 0.000 s standing still at scale 10 (1.07 ms of wall time a line), 0.53 s at
+#   15 (0.71 ms), 3.08 s at 20 (0.54 ms). 1.0 ms a line: the lowest wall cost measured with no
+#   stand-still, and a job whose lines are shorter than that is lowered and told so.
+# The check at the build's start (`check_feed`) uses the lower, beside cost: it refuses what no
+# topology can feed; the command that starts the simulators chose the scale with its own cost.
 HOST_LINE_WALL_S = 2.0e-3
+HOST_LINE_BESIDE_S = 1.0e-3
 _WINDOW = 8   # moves averaged: the grbl planner (15 blocks) rides over a short burst of shorter ones
 
 
@@ -233,11 +240,12 @@ class FeedLimit:
     layer: int
     pass_: int
     move_s: float              # the shortest planned move (process time) of that bead, averaged
+    host_line_s: float = HOST_LINE_WALL_S   # the wall time a streamed line was taken to cost
 
     def message(self, time_scale: float) -> str:
         return (f"cnc: at time scale {time_scale:g} the link cannot feed layer {self.layer} pass {self.pass_} "
                 f"(its moves take {self.move_s * 1000:.1f} ms of process time, {self.move_s / time_scale * 1000:.2f} ms "
-                f"of wall time; a streamed line takes up to {HOST_LINE_WALL_S * 1000:.1f} ms on this host): the torch "
+                f"of wall time; a streamed line takes up to {self.host_line_s * 1000:.1f} ms on this host): the torch "
                 f"would stand still with the process on between moves; time scale limited to {self.time_scale:g}")
 
 
@@ -305,8 +313,10 @@ def _head(post: Post5, pts: np.ndarray, axes: np.ndarray, m: np.ndarray, seconds
     return Lines(fit.part, fit.axes, fit.machine, np.interp(fit.at, np.arange(len(at)), at)), e + 1
 
 
-def feed_limit(job: CellJob, trunnion: Trunnion | None, baud: int = 115200, max_step_mm: float = 2.0) -> FeedLimit | None:
-    """The largest time scale at which the CNC link can feed every bead of `job` (None: no beads)."""
+def feed_limit(job: CellJob, trunnion: Trunnion | None, baud: int = 115200, max_step_mm: float = 2.0,
+               host_line_s: float = HOST_LINE_WALL_S) -> FeedLimit | None:
+    """The largest time scale at which the CNC link can feed every bead of `job` (None: no beads),
+    a streamed line taken to cost `host_line_s` of wall time."""
     five = Five(trunnion)
     post = Post5(trunnion) if trunnion is not None else None
     best: FeedLimit | None = None
@@ -324,13 +334,13 @@ def feed_limit(job: CellJob, trunnion: Trunnion | None, baud: int = 115200, max_
             k = np.ones(w) / w
             tw, bw = np.convolve(t, k, mode="valid"), np.convolve(nb, k, mode="valid")
             i = int(np.argmin(tw))
-            host = float(tw[i]) / HOST_LINE_WALL_S
+            host = float(tw[i]) / host_line_s
             link = float((tw / (bw / (baud / 10.0))).min())
             if best is None or host < best.time_scale:
-                best = FeedLimit(host, link, li, pi, float(tw[i]))
+                best = FeedLimit(host, link, li, pi, float(tw[i]), host_line_s)
     if best is None:
         return None
-    return FeedLimit(_round_down(best.time_scale), best.link_scale, best.layer, best.pass_, best.move_s)
+    return FeedLimit(_round_down(best.time_scale), best.link_scale, best.layer, best.pass_, best.move_s, host_line_s)
 
 
 def _round_down(k: float) -> float:
@@ -341,12 +351,15 @@ def _round_down(k: float) -> float:
     return 1.0
 
 
-def limit_time_scale(cfg: CellConfig, job: CellJob, max_step_mm: float = 2.0) -> tuple[CellConfig, str | None]:
+def limit_time_scale(cfg: CellConfig, job: CellJob, max_step_mm: float = 2.0,
+                     beside: bool = False) -> tuple[CellConfig, str | None]:
     """cfg with cell.time_scale lowered to what the CNC link can feed for `job` (CNC cells, simulated
-    time only), and the message saying so; (cfg, None) when nothing was lowered."""
+    time only), and the message saying so; (cfg, None) when nothing was lowered. `beside`: the
+    simulators run in a process of their own (`cell sim up`), not in this interpreter."""
     if cfg.cell.platform != "cnc" or cfg.cell.time_scale <= 1.0:
         return cfg, None
-    lim = feed_limit(job, Trunnion.from_config(cfg.kinematics), cfg.devices.cnc.baud, max_step_mm)
+    lim = feed_limit(job, Trunnion.from_config(cfg.kinematics), cfg.devices.cnc.baud, max_step_mm,
+                     HOST_LINE_BESIDE_S if beside else HOST_LINE_WALL_S)
     if lim is None or lim.time_scale >= cfg.cell.time_scale:
         return cfg, None
     msg = lim.message(cfg.cell.time_scale)
@@ -356,17 +369,20 @@ def limit_time_scale(cfg: CellConfig, job: CellJob, max_step_mm: float = 2.0) ->
 def check_feed(job: CellJob, trunnion: Trunnion | None, link: CncLinkPort, max_step_mm: float = 2.0) -> None:
     """Before any motion: a simulated link (line_scale > 1) faster than the host can feed the job's
     beads is refused, naming the time scale that can (`limit_time_scale` lowers it where the
-    simulators are started here: `cell run --sim`, `cell repair run --sim`)."""
-    refuse_unfed(job, trunnion, link.line_scale, link.baud, max_step_mm)
+    simulators are started here: `cell run --sim`, `cell repair run --sim`, and `cell sim up`'s
+    clock). At the lower, beside line cost: the command that started the simulators chose the scale
+    for where they run; this refuses what no topology can feed."""
+    refuse_unfed(job, trunnion, link.line_scale, link.baud, max_step_mm, beside=True)
 
 
-def refuse_unfed(job: CellJob, trunnion: Trunnion | None, scale: float, baud: int, max_step_mm: float = 2.0) -> None:
+def refuse_unfed(job: CellJob, trunnion: Trunnion | None, scale: float, baud: int, max_step_mm: float = 2.0,
+                 beside: bool = False) -> None:
     """InputError when simulated time at `scale` is faster than the host can feed the job's beads
-    over the CNC link; needs no device, so a command calls it before it connects (docs/controller.md,
-    "Simulated time")."""
+    over the CNC link (`beside`: the simulators in a process of their own); needs no device, so a
+    command calls it before it connects (docs/controller.md, "Simulated time")."""
     if scale <= 1.0:
         return
-    lim = feed_limit(job, trunnion, baud, max_step_mm)
+    lim = feed_limit(job, trunnion, baud, max_step_mm, HOST_LINE_BESIDE_S if beside else HOST_LINE_WALL_S)
     if lim is not None and scale > lim.time_scale + 1e-9:
         raise InputError(lim.message(scale).replace("; time scale limited to",
                                                     "; run the simulators at time scale")
