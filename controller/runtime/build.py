@@ -93,6 +93,7 @@ class BuildRunner:
         await self._arc_out()
         await self.ex.prepare()
         await ensure_ready(self.ex, self.power, self.journal, reset_errors=self.o.reset_errors, arc=self.arc)
+        await self.hooks.before_motion()   # e.g. the path loop's CNC homed before its first touch
 
     async def run(self, work: list[WorkItem]) -> BuildResult:
         self.passes.attach()

@@ -5,7 +5,9 @@ through these instead of overriding the runner's methods or handing it a doctore
 - `LayerSource`: the layers the runner lays, `layer(i)` being layer i *as built* (a control's
   z offset and trim applied); the runner asks for a layer when it reaches it, never earlier, so a
   control may decide it from the layers laid before.
-- `BuildHooks`: told every arc-stable power-source sample with where the torch was
+- `BuildHooks`: asked once before the first move, the devices ready (`before_motion`: a control
+  whose sensing moves a device gets it ready there, e.g. the CNC homed before its first touch);
+  told every arc-stable power-source sample with where the torch was
   (`arc_sample`), each bead's samples when it closes (`bead_closed`), and asked after each pass
   whether to go on, pause (a message) or lay other passes next (`after_pass`).
 
@@ -82,6 +84,10 @@ class ArcSampleHook(Protocol):
 class BuildHooks(ArcSampleHook, Protocol):
     """A process control's hooks into a build."""
 
+    async def before_motion(self) -> None:
+        """Once per run (first run or resume), the devices ready, before the first move."""
+        ...
+
     def bead_closed(self, layer: int, pass_: int, currents: Sequence[float], wfs_m_min: float) -> None:
         """A bead deposited to its end: the current of every arc-stable sample of it (a bead a
         trip cut is not told)."""
@@ -94,6 +100,9 @@ class BuildHooks(ArcSampleHook, Protocol):
 
 class NoHooks:
     """The open plan's hooks: nothing told, always go on."""
+
+    async def before_motion(self) -> None:
+        return None
 
     def arc_sample(self, layer: int, pass_: int, along_mm: float, current_a: float,
                    wfs_m_min: float | None = None) -> None:

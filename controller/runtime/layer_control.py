@@ -30,6 +30,7 @@ from typing import Any, Awaitable, Callable, Sequence
 import numpy as np
 
 from controller.align.layer_probe import probe_layer_top, probe_spots
+from controller.align.watched import home
 from controller.job.model import CellJob
 from controller.journal.store import Journal
 from controller.ports import MotionExecutor
@@ -78,8 +79,10 @@ class LayerControl:
     """One build's layer-height control; `open` records only."""
 
     def __init__(self, *, job: CellJob, cfg: ProcessControl, material: Material, platform: str, journal: Journal,
-                 bus: EventBus | None = None, max_speed_mm_min: float = 1e9, probe: ProbeFn | None = None) -> None:
+                 bus: EventBus | None = None, max_speed_mm_min: float = 1e9, probe: ProbeFn | None = None,
+                 prepare: Callable[[], Awaitable[None]] | None = None) -> None:
         self.cfg, self.platform, self.journal, self.bus, self.probe = cfg, platform, journal, bus, probe
+        self.prepare = prepare     # the probe's device readied before the first move (the CNC homed)
         self.closed = cfg.mode in ("layer", "path")
         self.job_layers: list[Layer] = layers_as_commanded(job)
         self.n_planned = len(self.job_layers)
@@ -177,6 +180,10 @@ class LayerControl:
 
     def pass_for(self, la: int, pa: int) -> Pass:
         return self.layer(la).passes[pa]
+
+    async def before_motion(self) -> None:
+        if self.prepare is not None:
+            await self.prepare()
 
     def arc_sample(self, layer: int, pass_: int, along_mm: float, current_a: float,
                    wfs_m_min: float | None = None) -> None:
@@ -366,6 +373,12 @@ def make_control(cfg: CellConfig, job: CellJob, material: Material, journal: Jou
     pc = cfg.process_control
     probe: ProbeFn | None = None
     link = executor.cnc_link
+
+    async def homed() -> None:   # before the first layer, not after it over a fresh bead (nor in the probing's time)
+        assert link is not None
+        if not link.homed:
+            await home(link)
+    prepare = homed if link is not None and pc.mode in ("layer", "path") else None
     if link is not None and pc.mode == "path":
         # the path loop's points along every pass: one touch each, three lines a point sent together, from just
         # above the layer's top (controller/runtime/path_probe.py; docs/closed-loop.md)
@@ -391,6 +404,6 @@ def make_control(cfg: CellConfig, job: CellJob, material: Material, journal: Jou
             return await probe_layer_top(link, cfg.probe, list(spots), cfg.probe.clearance_mm, name=f"layer {la} top")
         probe = probe_top
     lc = LayerControl(job=job, cfg=pc, material=material, platform=cfg.cell.platform, journal=journal, bus=bus,
-                      max_speed_mm_min=cfg.limits.max_speed_mm_min, probe=probe)
+                      max_speed_mm_min=cfg.limits.max_speed_mm_min, probe=probe, prepare=prepare)
     lc.restore()
     return lc

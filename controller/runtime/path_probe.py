@@ -94,7 +94,7 @@ async def touch_tops(link: CncLinkPort, spots: Sequence[Spot], plan: TouchPlan, 
     """The machine z of the deposit's top under each spot (x, y, planned top), one touch each, in
     the spots' order. `expect`: where each top should stand (expected_tops), when known: the
     travel clears it too."""
-    st = _after_last_reply(link) or await link.status()
+    st = _after_last_reply(link) or await link.status(at_once=True)
     if st.spindle:
         raise CellError(f"{name}: the process is still on (spindle {st.spindle}); no probing with the process on")
     if not link.homed:

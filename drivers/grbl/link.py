@@ -355,14 +355,16 @@ class CncLink(GrblReceiver):
                     self._on_lost(exc)
                     return
 
-    async def status(self, timeout: float | None = None) -> GrblStatus:
-        """A fresh status report (the next one the ≤ 5 Hz poll brings in)."""
+    async def status(self, timeout: float | None = None, *, at_once: bool = False) -> GrblStatus:
+        """A fresh status report: the next one the ≤ 5 Hz poll brings in, or with `at_once` the
+        answer to a `?` sent now (grbl answers `?` from its main loop within milliseconds; for a
+        single check between moves, not for polling in a loop)."""
         sh = self.shared
         sh.check_lost()
         fut = asyncio.get_running_loop().create_future()
         sh.status_waiters.append(fut)
         now = time.monotonic()
-        if now - sh.last_q >= self.status_period:
+        if at_once or now - sh.last_q >= self.status_period:
             sh.last_q = now
             await sh.write(RT_STATUS)
         try:

@@ -334,6 +334,10 @@ class CncSim:
         self.machine.homing = False
         self.machine.alarm = False
         self.machine.homed = True
+        if self._log is not None:   # the homing cycle in the execution log, when it ended (cnc.jsonl)
+            self._log.write(json.dumps({"seq": 0, "verb": "$H", "target": [round(v, 4) for v in self.machine.pos[:3]],
+                                        "t": round(self.clock.now(), 4), "line": "$H"}) + "\n")
+            self._log_dirty = True
         self.machine.notify()
 
     # -- execution (motion.py moves a block; gcode.py queues them) ---------------------------

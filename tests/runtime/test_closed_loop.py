@@ -283,6 +283,9 @@ def test_a_closed_loop_wall_on_the_cnc_probes_between_layers(tmp_path: Path):
     assert [r["source"] for r in o.records] == ["probe"] * len(o.records)
     assert o.height_error_mm is not None and abs(o.height_error_mm) < 0.5
     assert o.ctwd_min is not None and o.ctwd_max is not None and 13.5 <= o.ctwd_min and o.ctwd_max <= 16.5
+    # the CNC homed once, before the first bead (not after it, over a fresh bead): the simulator's own log
+    verbs = [json.loads(r)["verb"] for r in (Path(o.run_dir) / "sim" / "cnc.jsonl").read_text().splitlines()]
+    assert verbs.count("$H") == 1 and verbs.index("$H") < min(verbs.index(v) for v in ("M3", "M4") if v in verbs)
 
 
 @pytest.mark.timeout(600)

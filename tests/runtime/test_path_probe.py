@@ -24,6 +24,7 @@ async def test_one_touch_a_point_reads_the_tilted_top_in_the_spots_order(tmp_pat
         await link.connect()
         await link.home()
         await link.command("G90 G0 X40 Y0 Z30")     # the head near the pass's far end
+        await link.wait_idle()                       # (as a layer's stream ends: its G4 P0 answered)
         spots = [(float(x), 0.0, 0.0) for x in range(-40, 41, 10)]   # planned top z 0 along x
         tops = await touch_tops(link, spots, TouchPlan())
         truth = []
