@@ -15,7 +15,7 @@ from planner.infill import scan_fill
 from planner.ordering import join_chains, link_into_loops, order_passes, seam_at
 from planner.path2d import Path2D
 from planner.perimeters import perimeter_loops, split_thin
-from planner.reach import reach_fill, run_on
+from planner.reach import lone_ends, reach_fill, run_on
 from planner.regions import polygons_of
 from planner.stubs import drop_short, no_stubs
 from planner.thin import Widths, layout, thin_beads, wall_width
@@ -75,6 +75,7 @@ def layer_groups(polys: list[Polygon], index: int, ctx: LayerCtx) -> LayerGroups
     per_island = []
     for poly in polys:
         groups = _island(poly, index, angle, ctx, stats, issues)
+        groups[2] = lone_ends(groups[2], poly, ctx.min_coverage, ctx.allowance)
         groups[2] += reach_fill(poly, [b for g in groups for b in g], ctx.widths, ctx.min_coverage, ctx.min_length,
                                 ctx.allowance)
         groups[2] = run_on(groups[2], poly, ctx.min_length, ctx.allowance)

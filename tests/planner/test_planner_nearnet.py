@@ -173,3 +173,19 @@ def test_an_overhang_beyond_the_allowance_is_still_refused_near_net():
     part = trimesh.util.concatenate([extrude(box(0, 0, 30, 20), 6.0), extrude(box(0, 0, 38, 20), 3.0, z0=6.0)])
     with pytest.raises(MeshError, match="overhang rule"):
         plan_part(part, PlanOptions(width_mm=6.0, machining_allowance_mm=1.5), MAT)
+
+
+def test_a_wall_one_bead_wide_grown_is_one_bead_run_on_into_its_stock_not_patched():
+    """Issue 40: an 80 x 5.2 mm wall at 8 mm beads is 8.2 mm wide grown by 1.5 mm, one widest legal bead
+    (8.0 mm) wide. Its bead stopped where the wall's inscribed circle shrinks, leaving the grown ends'
+    corners (95.6 % covered), and extra narrow beads patched them standing 14 % out of the grown region.
+    Now the one bead runs on into the stock at its ends just until the layer is covered."""
+    job = plan_part(extrude(box(0, 0, 80, 5.2), 10.0), PlanOptions(width_mm=8.0, machining_allowance_mm=1.5), MAT)
+    grown = box(0, 0, 80, 5.2).buffer(1.5, quad_segs=8)
+    for layer in job.layers:
+        assert len(layer.passes) == 1
+        p = layer.passes[0]
+        fp = shapely.buffer(shapely.linestrings(p.points[:, :2]), p.width_mm / 2, quad_segs=8)
+        assert fp.intersection(grown).area / grown.area >= 0.97
+        assert fp.difference(grown).area / fp.area <= 0.015
+        assert fp.contains(box(0, 0, 80, 5.2))
