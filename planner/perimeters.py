@@ -8,7 +8,7 @@ from shapely.geometry.polygon import orient
 
 from planner.path2d import Path2D
 from planner.regions import polygons_of
-from planner.ring_spacing import spaced
+from planner.ring_spacing import END_REACH, spaced
 
 THIN_FACTOR = 1.5  # regions narrower than about 1.5 bead widths get one centre-line bead
 
@@ -63,7 +63,7 @@ def perimeter_loops(poly: Polygon, width: float, step: float, count: int | None,
                 # The outermost bead has no neighbour outside: it fills half a width plus half a step.
                 share = 0.5 * (width + step) if k == 0 else step
                 loops.append(Path2D("perimeter", pts, width, closed=True, share_mm=share))
-        levels.append(spaced(loops, min_sp, step, 2.0 * width if min_length is None else min_length))
+        levels.append(spaced(loops, min_sp, END_REACH * width, 2.0 * width if min_length is None else min_length))
         inset = off
         k += 1
     return levels, inset, slivers
