@@ -192,6 +192,7 @@ def _draw(maps: dict[int, Any], out: Path) -> list[str]:
     import matplotlib
 
     matplotlib.use("Agg")
+    # lazy: only --maps draws (after the backend is chosen)
     import matplotlib.pyplot as plt
 
     out.mkdir(parents=True, exist_ok=True)
