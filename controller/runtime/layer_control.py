@@ -387,7 +387,7 @@ def make_control(cfg: CellConfig, job: CellJob, material: Material, journal: Jou
                          touch_feed=max(cfg.probe.fast_feed_mm_min, PATH_PROBE_FEED_MM_MIN))
 
         seen: list[tuple[list[Spot], list[float]]] = []   # the layer probed before: its spots and tops
-        miss = [0.0]    # how far a top stood above its expectation on the layer probed before: the travel clears it too
+        miss = [0.0]    # how far a top stood above plan and expectation on the layer probed before: the travel clears it too
 
         async def touch(la: int, spots: Sequence[Spot]) -> list[float]:
             assert link is not None
@@ -395,7 +395,8 @@ def make_control(cfg: CellConfig, job: CellJob, material: Material, journal: Jou
             hop = replace(plan, hop_mm=plan.hop_mm + min(miss[0], PATH_PROBE_MAX_EXTRA_HOP_MM))
             tops = await touch_tops(link, list(spots), hop, name=f"layer {la} top", expect=exp)
             seen[:] = [(list(spots), tops)]
-            miss[0] = max((t - e for t, e in zip(tops, exp)), default=0.0)   # a top above it (one below is no threat)
+            # a top above what the travel cleared it by (the higher of its plan and its expectation; one below is no threat)
+            miss[0] = max((t - max(e, s[2]) for t, e, s in zip(tops, exp, spots)), default=0.0)
             return tops
         probe = touch
     elif link is not None:
