@@ -53,6 +53,9 @@ class LayerPlan:
     issues: list[str] = field(default_factory=list)  # underfill: for the plan's verdict
     stubs: list[str] = field(default_factory=list)  # short beads dropped (no neighbour to merge into)
     groups: list[Groups] = field(default_factory=list)  # per island: [perimeters, infill, gaps], before ordering
+    # near-net: features no legal bead fills inside the grown region, built standing out of it (the
+    # verdict refuses them when the plan then stands out of its grown region over the figure)
+    standout: list[str] = field(default_factory=list)
 
 
 def plan_layer(polys: list[Polygon], index: int, ctx: LayerCtx, pos: np.ndarray) -> LayerPlan:
@@ -60,8 +63,9 @@ def plan_layer(polys: list[Polygon], index: int, ctx: LayerCtx, pos: np.ndarray)
     return placed(layer_groups(polys, index, ctx), pos)
 
 
-# A layer's beads before they are ordered: region, per island [perimeters, infill, gaps], stats, issues, stubs
-LayerGroups = tuple[shapely.Geometry, list[Groups], dict[str, int], list[str], list[str]]
+# A layer's beads before they are ordered: region, per island [perimeters, infill, gaps], stats, issues, stubs,
+# features built standing out of the grown region
+LayerGroups = tuple[shapely.Geometry, list[Groups], dict[str, int], list[str], list[str], list[str]]
 
 
 def layer_groups(polys: list[Polygon], index: int, ctx: LayerCtx) -> LayerGroups:
@@ -72,9 +76,10 @@ def layer_groups(polys: list[Polygon], index: int, ctx: LayerCtx) -> LayerGroups
     stats = {"loops": 0, "regions": 0}
     issues: list[str] = []
     stubs: list[str] = []
+    standout: list[str] = []
     per_island = []
     for poly in polys:
-        groups = _island(poly, index, angle, ctx, stats, issues)
+        groups = _island(poly, index, angle, ctx, stats, (issues, standout))
         groups[2] = lone_ends(groups[2], poly, ctx.min_coverage, ctx.allowance)
         groups[2] += reach_fill(poly, [b for g in groups for b in g], ctx.widths, ctx.min_coverage, ctx.min_length,
                                 ctx.allowance)
@@ -85,6 +90,7 @@ def layer_groups(polys: list[Polygon], index: int, ctx: LayerCtx) -> LayerGroups
         if not any(groups):  # near-net: a small island gets one loop standing out into its stock
             loop = small_loop(poly, ctx.widths, ctx.allowance, ctx.min_length)
             groups[0] += [seam_at(loop, index)] if loop is not None else []
+            standout += [_looped(poly, index, ctx.min_length)] if loop is not None else []
         if not any(groups) and poly.area > 0.05 * ctx.width ** 2:
             c = poly.representative_point()
             b = poly.bounds
@@ -92,18 +98,19 @@ def layer_groups(polys: list[Polygon], index: int, ctx: LayerCtx) -> LayerGroups
                           f"gets no bead of at least {ctx.min_length:.1f} mm (min_bead_length_mm)")
         _balance_island(groups, poly, ctx.width, ctx.widths.lo, ctx.min_share, stubs, index)
         per_island.append(groups)
-    return region, per_island, stats, issues, stubs
+    return region, per_island, stats, issues, stubs, standout
 
 
 def placed(lg: LayerGroups, pos: np.ndarray) -> LayerPlan:
     """The layer's beads ordered from where the torch is, island by island."""
-    region, per_island, stats, issues, stubs = lg
+    region, per_island, stats, issues, stubs, standout = lg
     ordered, end, travel = order_islands(per_island, pos)
-    return LayerPlan(region, ordered, end, travel, stats, issues, stubs, per_island)
+    return LayerPlan(region, ordered, end, travel, stats, issues, stubs, per_island, standout)
 
 
 def _island(poly: Polygon, index: int, angle: float, ctx: LayerCtx, stats: dict[str, int],
-            issues: list[str]) -> Groups:
+            notes: tuple[list[str], list[str]]) -> Groups:
+    """An island's beads; `notes`: (features no legal bead fills, features built standing out of the grown region)."""
     w = ctx.width
     thick, thin = split_thin(poly, w)
     if ctx.allowance > 0.0 and thick and thin:
@@ -117,7 +124,7 @@ def _island(poly: Polygon, index: int, angle: float, ctx: LayerCtx, stats: dict[
         if not n:
             _thick(t, index, angle, ctx, groups, stats)
     for t in thin:
-        _thin(t, poly, index, ctx, groups, stats, issues)
+        _thin(t, poly, index, ctx, groups, stats, notes)
     return groups
 
 
@@ -133,14 +140,17 @@ def _rejoined(thick: list[Polygon], thin: list[Polygon], w: float) -> tuple[list
 
 
 def _thin(t: Polygon, island: Polygon, index: int, ctx: LayerCtx, groups: Groups, stats: dict[str, int],
-          issues: list[str]) -> None:
+          notes: tuple[list[str], list[str]]) -> None:
     """A thin piece: its width from the process (planner.thin), or an issue naming it."""
+    issues, standout = notes
     W = wall_width(t, 0.02 * ctx.width)
     if not fits(W, ctx.widths):  # near-net: widened into the stock where that builds it
         wider = stretched(t, W, ctx.widths, ctx.allowance)
         if wider is not None:
+            standout.append(_stood_out(t, index, W, wider[1], ctx))
             t, W = wider
         elif (bead := leaning_bead(t, island, ctx.widths, ctx.allowance)) is not None:
+            standout.append(_stood_out(t, index, W, bead.width_mm, ctx))
             stats["regions"] += 1
             groups[2].append(bead)
             return
@@ -162,9 +172,30 @@ def _thin(t: Polygon, island: Polygon, index: int, ctx: LayerCtx, groups: Groups
     groups[2] += [seam_at(b, index) if b.closed else b for b in beads if b.role != "perimeter"]
 
 
+def _stood_out(t: Polygon, index: int, W: float, built: float, ctx: LayerCtx) -> str:
+    """Near-net: a thin piece of the grown region no legal bead layout fills, built `built` mm wide
+    standing out of it; with the allowance that builds it inside the grown region."""
+    c = t.representative_point()
+    wd = ctx.widths
+    why = (f"narrower than the smallest legal bead ({wd.lo:.2f} mm)" if W < wd.lo else
+           f"no count of legal beads ({wd.lo:.2f}-{wd.hi:.2f} mm) fills it")
+    return (f"layer {index}: feature at ({c.x:.1f}, {c.y:.1f}) is {W:.2f} mm wide in the grown region, {why}: "
+            f"built {built:.2f} mm wide, standing out of it" + _hint(W, ctx))
+
+
+def _looped(island: Polygon, index: int, min_length: float) -> str:
+    """Near-net: an island no bead of the minimum length fits in, built as one loop standing out of it."""
+    c = island.representative_point()
+    b = island.bounds
+    return (f"layer {index}: feature at ({c.x:.1f}, {c.y:.1f}), {b[2] - b[0]:.2f} x {b[3] - b[1]:.2f} mm grown, "
+            f"gets no bead of at least {min_length:.1f} mm inside the grown region: built as one loop standing out of it")
+
+
 def _hint(W: float, ctx: LayerCtx) -> str:
-    """What machining allowance would make a refused feature buildable (near-net, docs/contract.md §3.9)."""
-    extra = allowance_for(W, ctx.widths, 2.0 * ctx.width, ctx.allowance)
+    """What machining allowance would make a refused feature buildable (near-net, docs/contract.md §3.9):
+    `W` wide at the plan's allowance, the allowance at which a legal bead layout fills it inside the
+    grown region (standing out of it, the plan may stand out over the figure: planner.verdict)."""
+    extra = allowance_for(W, ctx.widths, 2.0 * ctx.width)
     if extra is None:
         return ""
     return f" ({ALLOWANCE_HINT} {ctx.allowance + extra:.2f} mm)"
@@ -286,7 +317,8 @@ def reseamed(lp: LayerPlan, index: int, pos: np.ndarray) -> LayerPlan:
     tag = f"layer {index}:"
     return replace(lp, paths=ordered, end=end, travel_mm=travel, groups=groups,
                    issues=[re.sub(r"^layer \d+:", tag, m) for m in lp.issues],
-                   stubs=[re.sub(r"^layer \d+:", tag, m) for m in lp.stubs])
+                   stubs=[re.sub(r"^layer \d+:", tag, m) for m in lp.stubs],
+                   standout=[re.sub(r"^layer \d+:", tag, m) for m in lp.standout])
 
 
 def _nearest_end(ends: np.ndarray, pos: np.ndarray) -> float:

@@ -18,6 +18,9 @@ if TYPE_CHECKING:  # annotations only: `cell plan` passes a remembered material 
     from core.material import Material
 
 MAX_LISTED = 6
+# near-net: the share of the deposit's footprint outside the grown region a plan may have (issue 40); a plan
+# over it whose features were built standing out of the grown region refuses those features
+OUTSIDE_MAX = 0.015
 
 
 class Verdict:
@@ -28,6 +31,7 @@ class Verdict:
         self.underfill: list[str] = []
         self.coverage: list[str] = []
         self.stubs: list[str] = []
+        self.standout: list[str] = []  # near-net: features built standing out of the grown region
         self.unfilled: list[str] = []  # unfilled areas over one bead's footprint, named
         self.overhang: list[str] = []
         self.overhang_layers: list[int] = []
@@ -44,6 +48,7 @@ class Verdict:
         self.regions += not lp.region.is_empty
         self.underfill += lp.issues
         self.stubs += lp.stubs
+        self.standout += lp.standout
         gaps = [gap_message(index, g) for g in q.gaps]
         self.unfilled += gaps
         if q.area_mm2 > 0 and q.coverage < self.opt.min_coverage:
@@ -73,6 +78,7 @@ class Verdict:
             raise MeshError(f"{name}: no layer has a closed region (the mesh is not a solid: a triangle soup "
                             f"or open surfaces); close the mesh and plan again")
         fatal: list[str] = []
+        self.underfill += self._stood_out(qualities)
         fix = _allowance_fixes(self.underfill)
         if not self.opt.allow_underfill:
             fatal += _listed("feature(s) no legal bead fills", self.underfill, "--allow-underfill")
@@ -110,6 +116,18 @@ class Verdict:
             "warnings": (self.underfill + self.coverage + self.overhang + self.stubs + self.unfilled
                          + [m for m, _ in self.limits])[:50],
         }
+
+
+    def _stood_out(self, qualities: list[LayerQuality]) -> list[str]:
+        """Near-net: the features built standing out of the grown region, as features no legal bead
+        fills, when the plan's footprint stands out of its grown region over OUTSIDE_MAX (a plan within
+        it keeps them: the stock there is at most twice the allowance)."""
+        fp = sum(q.footprint_mm2 for q in qualities)
+        share = sum(q.overfill_mm2 for q in qualities) / fp if fp > 0 else 0.0
+        if not self.standout or share <= OUTSIDE_MAX:
+            return []
+        return [f"{m} (the deposit would stand {100 * share:.1f} % out of its grown region, over "
+                f"{100 * OUTSIDE_MAX:.1f} %)" for m in self.standout]
 
 
 def _listed(what: str, items: list[str], flag: str) -> list[str]:

@@ -81,11 +81,18 @@ def _covered(job, grown_of) -> list[float]:
 
 def test_a_fin_narrower_than_a_bead_even_grown_is_built_standing_out_into_its_stock():
     """Issue 40: a 0.3 mm fin 4 mm beside a block (the octagonal pocket's edge) is 3.3 mm wide grown
-    by 1.5 mm, narrower than the smallest legal bead at 8 mm (5.46 mm): the bead stands out of the
-    grown region by at most the allowance (stock up to 2a there), so it is built, not refused."""
+    by 1.5 mm, narrower than the smallest legal bead at 8 mm (5.46 mm): the bead may stand out of the
+    grown region by at most the allowance (stock up to 2a there). On this small block that puts 4.8 %
+    of the deposit out of the grown region (over 1.5 %): refused, naming the fin and the allowance that
+    builds it inside the grown region; --allow-underfill builds it standing out."""
     fin = box(0, 0, 0.3, 80)
     part = trimesh.util.concatenate([extrude(fin, 6.0), extrude(box(4.3, 0, 40, 80), 6.0)])
-    job = plan_part(part, PlanOptions(width_mm=8.0, machining_allowance_mm=1.5), MAT)
+    with pytest.raises(MeshError) as err:
+        plan_part(part, PlanOptions(width_mm=8.0, machining_allowance_mm=1.5), MAT)
+    assert ("3.33 mm wide in the grown region, narrower than the smallest legal bead (5.46 mm): built 5.48 mm wide, "
+            "standing out of it (buildable with --machining-allowance 2.60 mm)") in str(err.value)
+    assert "the deposit would stand 4.8 % out of its grown region, over 1.5 %" in str(err.value)
+    job = plan_part(part, PlanOptions(width_mm=8.0, machining_allowance_mm=1.5, allow_underfill=True), MAT)
     for layer in job.layers:
         fp = shapely.union_all([shapely.buffer(shapely.linestrings(p.points[:, :2]), p.width_mm / 2)
                                 for p in layer.passes])
@@ -97,10 +104,15 @@ def test_a_fin_narrower_than_a_bead_even_grown_is_built_standing_out_into_its_st
 
 def test_a_pad_too_small_for_a_bead_of_the_minimum_length_gets_one_loop_into_its_stock():
     """A 7 x 5 mm pad (the riser's feet) at 8 mm beads: no bead of 16 mm fits in it grown by 1.5 mm;
-    one closed loop standing out of it by at most the allowance covers it."""
+    one closed loop standing out of it by at most the allowance covers it. Beside this small block the
+    loop puts 5.1 % of the deposit out of the grown region (over 1.5 %): refused, named;
+    --allow-underfill builds it."""
     pad = box(0, 0, 7, 5)
     part = trimesh.util.concatenate([extrude(pad, 4.0), extrude(box(20, 0, 60, 20), 4.0)])
-    job = plan_part(part, PlanOptions(width_mm=8.0, machining_allowance_mm=1.5), MAT)
+    with pytest.raises(MeshError, match="10.00 x 8.00 mm grown, gets no bead of at least 16.0 mm inside the grown "
+                                        "region: built as one loop standing out of it"):
+        plan_part(part, PlanOptions(width_mm=8.0, machining_allowance_mm=1.5), MAT)
+    job = plan_part(part, PlanOptions(width_mm=8.0, machining_allowance_mm=1.5, allow_underfill=True), MAT)
     for layer in job.layers:
         on_pad = [p for p in layer.passes if p.points[:, 0].max() < 15.0]
         assert len(on_pad) == 1 and on_pad[0].length_mm >= 16.0
@@ -128,12 +140,16 @@ def test_the_region_is_grown_in_3d_so_a_small_step_out_is_no_overhang():
 def test_a_refusal_in_the_grown_region_names_the_allowance_that_builds_it():
     """A free-standing 0.3 mm fin at 8 mm beads with 0.5 mm of allowance: 1.3 mm grown, 2.3 mm with the
     bead standing out 0.5 mm a side, still narrower than 5.46 mm: refused, naming the allowance at
-    which it is built (0.3 + 2a + 2a >= 5.46: 1.30 mm); planned at that allowance."""
+    which it is built inside the grown region (0.3 + 2a >= 5.46: 2.60 mm); planned at that allowance.
+    At 1.30 mm (built standing out 1.3 mm a side, 48 % of the deposit outside the grown region) it is
+    refused naming the same."""
     fin = extrude(box(0, 0, 0.3, 80), 4.0)
     with pytest.raises(MeshError) as err:
         plan_part(fin, PlanOptions(width_mm=8.0, machining_allowance_mm=0.5), MAT)
-    assert "narrower than the smallest legal bead (5.46 mm) (buildable with --machining-allowance 1.30 mm)" in str(err.value)
-    job = plan_part(fin, PlanOptions(width_mm=8.0, machining_allowance_mm=1.3), MAT)
+    assert "narrower than the smallest legal bead (5.46 mm) (buildable with --machining-allowance 2.60 mm)" in str(err.value)
+    with pytest.raises(MeshError, match="standing out of it \\(buildable with --machining-allowance 2.60 mm\\)"):
+        plan_part(fin, PlanOptions(width_mm=8.0, machining_allowance_mm=1.3), MAT)
+    job = plan_part(fin, PlanOptions(width_mm=8.0, machining_allowance_mm=2.6), MAT)
     assert job.summary["underfill_features"] == 0
 
 
