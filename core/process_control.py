@@ -23,6 +23,8 @@ class ProcessControl(_Frozen):
     max_layer_change_pct: float = Field(default=50.0, ge=0.0, le=200.0)  # at most this share of layers added / dropped
     gain_window_layers: int = Field(default=6, ge=2, le=100)    # measured tops the gain is fitted over
     steady_share: float = Field(default=0.6, gt=0.0, le=1.0)    # middle share of a bead's samples estimated
+    # the trim aims at the plan's top this many layers on (null: path mode 2, layer mode the build's end)
+    catch_up_layers: int | None = Field(default=None, ge=1, le=1000)
     # the path loop (mode path, docs/closed-loop.md "Along the path")
     probe_spacing_mm: float = Field(default=10.0, gt=0.0, le=1000.0)  # CNC: probe points along every pass
     path_bin_mm: float | None = Field(default=None, gt=0.0, le=100.0)  # robot: samples binned this long (null: the bead width)

@@ -38,7 +38,7 @@ from controller.runtime.hooks import GO_ON, AfterPass
 from controller.runtime.work import WorkItem
 from controller.runtime.events import EventBus
 from controller.runtime.layer_plan import (
-    adjusted_layer, build_layers, decide, layer_height, layer_z, rise_factor, fit_gain,
+    adjusted_layer, build_layers, decide, layer_height, layer_z, rise_factor, fit_gain, speed_for,
 )
 from controller.runtime.path_control import PathControl
 from controller.runtime.path_probe import TouchPlan, expected_tops, touch_tops
@@ -323,7 +323,7 @@ class LayerControl:
             self._set_count(d.n_total)
             rest = [WorkItem(j, pi) for j in range(la + 1, self.n_total) for pi in range(len(self.layers[j].passes))]
             self._event("layer_count", {"after_layer": la, "layers": self.n_total}, layer=la)
-        self.next_k = d.speed_factor
+        self.next_k = self._catch_up(la, top, d.speed_factor)
         pause, corr = None, 0.0
         rise = self.gain * layer_height(self.layers[min(la + 1, self.n_total - 1)]) * rise_factor(self.next_k, self.p)
         # the layers the saturated trim needs to reach the planned top: beyond the allowed change,
@@ -357,6 +357,21 @@ class LayerControl:
         nxt_rec = {"z_offset_mm": _r(self.next_dz), "correction_mm": _r(corr), "speed_factor": _r(self.next_k, 5),
                    "layers": self.n_total, "projected_top_mm": _r(d.projected_top_mm)}
         return nxt_rec, d.action, pause, rest
+
+    def _catch_up(self, la: int, top: float, k: float) -> float:
+        """The next layer's trim: aimed at the current plan's top `catch_up_layers` on (path mode's
+        default 2: the path loop is judged layer by layer), else `k`, the trim that ends the build on
+        its planned top (spread over the remaining layers, the layer loop's default)."""
+        n = self.cfg.catch_up_layers or (2 if self.cfg.mode == "path" else 0)
+        if not n or la + 1 >= self.n_total:
+            return k
+        j = min(la + n, self.n_total - 1)
+        s = sum(layer_height(self.layers[i]) for i in range(la + 1, j + 1))
+        if s <= 0.0 or self.gain <= 0.0:
+            return k
+        f = (self.replanned_z(j) - top) / (self.gain * s)
+        lo, hi = self.k_range
+        return min(max(speed_for(f, self.p), lo), hi) if f > 0.0 else hi
 
     def _set_count(self, n: int) -> None:
         self.n_total = n

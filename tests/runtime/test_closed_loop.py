@@ -332,3 +332,27 @@ def test_a_build_aborted_mid_layer_resumes_at_the_journaled_z(tmp_path: Path):
                  if json.loads(x).get("device") == "robot"})
     # one z for layer 2 over both runs (the robot's positions carry 3 decimals)
     assert len([z for z in zs if abs(z - z1[2]) < 0.02]) == 1 and any(abs(z - z1[2]) < 1.5e-3 for z in zs)
+
+
+async def test_path_mode_aims_the_trim_at_the_plan_two_layers_on_the_layer_mode_at_the_build_end(tmp_path: Path):
+    """A wall laid at 0.9 of the model: the layer loop spreads the catch-up over the remaining
+    layers; the path mode (judged layer by layer) is back on the plan's top two layers on."""
+    from controller.runtime.layer_plan import rise_factor
+    rel = relation_for(MAT)
+    trims = {}
+    for mode in ("layer", "path"):
+        job = _job(20)
+        j = Journal(tmp_path / f"{mode}.sqlite")
+        j.start_job("h", "wall", "robot", "{}")
+        lc = LayerControl(job=job, cfg=ProcessControl(mode=mode, speed_trim_pct=40), material=MAT, platform="robot", journal=j)
+        work = [WorkItem(i, 0) for i in range(20)]
+        for la in range(3):
+            z = lc.pass_for(la, 0).points[0][2]
+            lc.bead_closed(la, 0, [current_at(rel, MAT.ribeiro, 6.9, 15.0 + z - 0.693 * (la + 1))] * 10, 6.9)
+            assert (await lc.after_pass(work[la], work[la + 1:])).pause is None
+        lc.pass_for(3, 0)
+        trims[mode] = k = lc.applied[3][1]
+        if mode == "path":    # two layers at this trim end on the plan's top of layer 4
+            assert lc.top + lc.gain * 2 * 0.77 * rise_factor(k, lc.p) == pytest.approx(0.77 * 5, abs=0.02)
+        j.close()
+    assert trims["path"] < trims["layer"] < 1.0     # both slow down; the path mode more, to catch up sooner
