@@ -14,7 +14,8 @@ from core.errors import MeshError
 from planner.balance import laid_area_mm2
 from planner.bead import area_factor, step_over
 from planner.ding import close_share
-from planner.feedforward import Envelope, LayerLevel, level_layer, level_summary
+from planner.feedforward import Envelope, LayerLevel, level_summary
+from planner.level_memo import LevelMemo
 from planner import level_pour
 from planner.job import BeadInfo, Interpass, Job, Layer, Pass, Source
 from planner.ahead import Ahead, Done, Later, workers
@@ -138,6 +139,7 @@ class _Run:
         self.law = level_pour.BeadLaw(r.k1, r.k2, r.k3, r.i_min_a, r.i_max_a, r.wfs_min_m_min, r.wfs_max_m_min)
         self.stack: level_pour.Stack | None = None   # the poured feed-forward's predicted stack
         self.procs = Processes(0)   # where the feed-forward levels a layer (plan_part sets it)
+        self.level_memo = LevelMemo()
 
     def start(self, sl: LayerSlice, top: bool, ahead: Ahead) -> _Started:
         """The layer's beads ordered from where the torch is (the memo's when a layer below had the
@@ -190,7 +192,9 @@ class _Run:
                 levelling = Done(level_pour.level_layer(tuple(passes), self.material.wire_diameter_mm, self.envelope,
                                                         self.law, self.stack))
             else:   # this layer's passes alone: on a worker process (planner/processes.py)
-                levelling = self.procs.submit(level_layer, tuple(passes), self.material.wire_diameter_mm, self.envelope)
+                # (or a layer levelled before with the same inputs: planner/level_memo.py)
+                levelling = self.level_memo.level(self.procs.submit, tuple(passes), self.material.wire_diameter_mm,
+                                                  self.envelope)
         return sl, z, lp, q, passes, levelling
 
     def finish(self, welded: _Welded) -> Layer:
