@@ -63,7 +63,8 @@ def perimeter_loops(poly: Polygon, width: float, step: float, count: int | None,
                 # The outermost bead has no neighbour outside: it fills half a width plus half a step.
                 share = 0.5 * (width + step) if k == 0 else step
                 loops.append(Path2D("perimeter", pts, width, closed=True, share_mm=share))
-        levels.append(spaced(loops, min_sp, END_REACH * width, 2.0 * width if min_length is None else min_length))
+        min_len = 2.0 * width if min_length is None else min_length
+        levels.append(spaced(loops, min_sp, END_REACH * width, min_len, None if k == 0 else step))
         inset = off
         k += 1
     return levels, inset, slivers

@@ -10,9 +10,12 @@ that (the metal is laid on the same line twice).
 Such a pair keeps one ring whole and trims the other where it runs closer than `cut_mm` to it: the
 trimmed ring becomes open beads (the parts of it that keep their distance), and a piece shorter than
 the shortest bead is dropped. The perimeters cut at `END_REACH` × the width, not at Ding's step-over:
-past the point where the trimmed ring is a step-over from the kept one, the region between the two
-rings and the level outside them narrows to a wedge that no bead covered (the demo's true top sank
-there about 0.07 mm a layer); a piece's end runs on into it and lays its end pool there. Which ring is trimmed: the choice that keeps the
+past the point where the trimmed ring is a step-over from the kept one, the region between the kept
+ring and the level outside narrows to a wedge that no bead covered (the demo's true top sank there
+about 0.07 mm a layer). A piece's end runs on into it along the wedge's middle: where the trimmed
+ring comes within `beyond_mm` (its distance to the level outside it) of the kept ring, its centre
+moves out to halfway between the two, and it ends where that middle is `cut_mm` from each.
+Which ring is trimmed: the choice that keeps the
 more bead length (the other ring whole plus the trimmed ring's pieces long enough to weld); on the
 demo the square's inner ring becomes four corner beads and the hole's ring stays closed.
 
@@ -26,15 +29,17 @@ import shapely
 from planner.path2d import Path2D
 
 SAMPLE_MM = 0.5   # a ring is judged (and trimmed) on points this far apart
-# where a trimmed ring's piece ends: its centre this share of the width from the kept ring's (its round
-# end reaches the kept ring's centre line). 0.5-0.55 brought the demo's first layer from 0.85 to 0.30 mm
-# of true spread; 0.6 left 0.40, 0.45 and 0.4 0.86-1.0 (docs/along-the-path.md "Corner beads' ends").
+# where a trimmed ring's piece ends: its centre this share of the width from the kept ring's and from
+# the ring outside it (docs/along-the-path.md "Corner beads' ends run on into the wedge")
 END_REACH = 0.55
 
 
-def spaced(loops: list[Path2D], min_spacing: float, cut_mm: float, min_length: float) -> list[Path2D]:
+def spaced(loops: list[Path2D], min_spacing: float, cut_mm: float, min_length: float,
+           beyond_mm: float | None = None) -> list[Path2D]:
     """The level's loops, a ring trimmed wherever it runs closer than `min_spacing` to another one
-    of the level (cut back to `cut_mm`); loops that keep their distance are returned as they are."""
+    of the level (cut back to `cut_mm`); loops that keep their distance are returned as they are.
+    `beyond_mm`: how far the level outside lies from each ring of this one (None: nothing outside,
+    the trimmed ring's ends stay on its line)."""
     if len(loops) < 2:
         return loops
     out = list(loops)
@@ -45,7 +50,7 @@ def spaced(loops: list[Path2D], min_spacing: float, cut_mm: float, min_length: f
             break
         i, j = pair
         # trim the ring whose giving way keeps the more bead length (the first of the pair on a tie)
-        trim, (_, pieces) = max(((t, _kept(out, t, k, cut_mm, min_length)) for t, k in ((i, j), (j, i))),
+        trim, (_, pieces) = max(((t, _kept(out, t, k, cut_mm, min_length, beyond_mm)) for t, k in ((i, j), (j, i))),
                                 key=lambda o: (o[1][0], -o[0]))
         keep = out[j if trim == i else i]
         settled |= {(id(q), id(keep)) for q in pieces}
@@ -78,12 +83,19 @@ def _samples(p: Path2D) -> np.ndarray:
     return pts[:-1] if p.closed and len(pts) > 1 else pts
 
 
-def _kept(loops: list[Path2D], trim: int, keep: int, cut_mm: float, min_length: float
-          ) -> tuple[float, list[Path2D]]:
+def _kept(loops: list[Path2D], trim: int, keep: int, cut_mm: float, min_length: float,
+          beyond_mm: float | None) -> tuple[float, list[Path2D]]:
     """(bead length kept, the trimmed ring's pieces) when ring `trim` gives way to ring `keep`."""
     p = loops[trim]
     pts = _samples(p)
-    far = shapely.distance(shapely.points(pts), shapely.linestrings(loops[keep].points)) >= cut_mm
+    points, kept_line = shapely.points(pts), shapely.linestrings(loops[keep].points)
+    d = shapely.distance(points, kept_line)
+    if beyond_mm is not None:   # within `beyond_mm` of the kept ring: halfway between it and the level outside
+        nearest = shapely.get_coordinates(shapely.shortest_line(points, kept_line))[1::2]
+        move = np.clip(beyond_mm - d, 0.0, None) / 2.0
+        pts = pts + (pts - nearest) / np.maximum(d, 1e-9)[:, None] * move[:, None]
+        d = d + move
+    far = d >= cut_mm
     pieces = [Path2D(p.role, _simplified(run), p.width_mm, False, p.share_mm, p.lone)
               for run in _runs(pts, far, p.closed)]
     pieces = [q for q in pieces if q.length >= min_length]
