@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -170,16 +171,20 @@ def schema_of(job: Job) -> str:
 
 
 def job_to_dict(job: Job) -> dict[str, Any]:
+    return _job_dict(job, _arr)
+
+
+def _job_dict(job: Job, arr: Callable[[np.ndarray, int], Any]) -> dict[str, Any]:
     layers = []
     for L in job.layers:
         passes = []
         for p in L.passes:
-            speed: Any = _num(p.speed_mm_min, 1) if p.seg_speed_mm_min is None else _arr(p.seg_speed_mm_min, 1)
-            wfs: Any = _num(p.wfs_m_min, 3) if p.seg_wfs_m_min is None else _arr(p.seg_wfs_m_min, 3)
+            speed: Any = _num(p.speed_mm_min, 1) if p.seg_speed_mm_min is None else arr(p.seg_speed_mm_min, 1)
+            wfs: Any = _num(p.wfs_m_min, 3) if p.seg_wfs_m_min is None else arr(p.seg_wfs_m_min, 3)
             d = {"role": p.role, "width_mm": _num(p.width_mm, 3), "current_a": _num(p.current_a, 2),
-                 "speed_mm_min": speed, "wfs_m_min": wfs, "points": _arr(p.points, 3)}
+                 "speed_mm_min": speed, "wfs_m_min": wfs, "points": arr(p.points, 3)}
             if p.normals is not None:
-                d["normals"] = _arr(p.normals, 4)
+                d["normals"] = arr(p.normals, 4)
             if p.axes is not None:
                 d["axes"] = _arr(p.axes, 5)
             if not p.inside_envelope:
@@ -201,7 +206,50 @@ def job_to_dict(job: Job) -> dict[str, Any]:
 
 def job_to_json(job: Job) -> bytes:
     """Canonical bytes: sorted keys, compact separators, fixed rounding: same job, same bytes."""
-    return (json.dumps(job_to_dict(job), sort_keys=True, separators=(",", ":"), allow_nan=False) + "\n").encode()
+    if sum(len(p.points) for L in job.layers for p in L.passes) >= BULK_POINTS:
+        out = _bulk_json(job)
+        if out is not None:
+            return out
+    return _dumps(job_to_dict(job))
+
+
+def _dumps(d: dict[str, Any]) -> bytes:
+    return (json.dumps(d, sort_keys=True, separators=(",", ":"), allow_nan=False) + "\n").encode()
+
+
+BULK_POINTS = 20_000   # points in a job from which its arrays are written by orjson (its import: 18 ms)
+_HELD = re.compile(r'"\\u0001(\d+)"')
+
+
+def _bulk_json(job: Job) -> bytes | None:
+    """The same bytes as `_dumps(job_to_dict(job))`, the numeric arrays written straight from numpy
+    by orjson (docs/plan-speed.md): each array's place in the document is held by a string json
+    writes as "\\u0001<k>" (a control character: no text of the job is written so), then the
+    array's text put there. orjson and Python write a float the same way (its shortest repr) but
+    for magnitudes under 1e-4 or from 1e16 on, which rounding to at most 4 decimals and sizes
+    under 1e15 rule out (an array that is not is written by json). None without orjson."""
+    try:
+        import orjson  # lazy: only large jobs use it
+    except ImportError:   # an environment installed before it was pinned: json writes the same bytes
+        return None
+    held: list[bytes] = []
+
+    def hold(a: np.ndarray, nd: int) -> Any:
+        r = np.round(np.asarray(a, dtype=np.float64), nd) + 0.0
+        if not bool(np.all(np.abs(r) < 1e15)):   # too large or not finite: as json writes (or refuses) it
+            return _arr(a, nd)
+        held.append(orjson.dumps(r, option=orjson.OPT_SERIALIZE_NUMPY))
+        return f"\x01{len(held) - 1}"
+
+    text = _dumps(_job_dict(job, hold)).decode()
+    parts = _HELD.split(text)   # text, k, text, k, ..., text
+    ks = [int(k) for k in parts[1::2]]
+    if sorted(ks) != list(range(len(held))):   # each held array in its one place (keys are sorted)
+        return None
+    out = [parts[0].encode()]
+    for i, k in enumerate(ks):
+        out += [held[k], parts[2 * i + 2].encode()]
+    return b"".join(out)
 
 
 # ---- reading -----------------------------------------------------------------------------------
