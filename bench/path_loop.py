@@ -50,7 +50,7 @@ L0 = 15.0
 # the wire feed within ±40 % (the material's envelope) keeping the bead's width; bins of half a bead
 # width, filtered over one; path_max_error_mm 50 so that every build runs to its end.
 # Filtered over two bead widths with kp 0.2, ki 0.1, the region's edge found and cut (docs/closed-loop.md
-# "Ninth session"): a bin of ~2 samples reads ±0.2 mm, and learning it at 7 mm with 0.4/0.2 roughened
+# "Figures, ninth session"): a bin of ~2 samples reads ±0.2 mm, and learning it at 7 mm with 0.4/0.2 roughened
 # the wall's middle; the wider filter alone smears the edge, so the cuts go with it.
 PC: dict[str, Any] = {"speed_trim_pct": 40.0, "path_speed_range": [0.3, 2.0], "path_wfs_trim_pct": 40.0,
                       "path_bin_mm": 3.5, "path_filter_mm": 14.0, "path_kp": 0.2, "path_ki": 0.1,
