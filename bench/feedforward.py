@@ -81,6 +81,8 @@ def pour(job: Job, material: Material, step_mm: float = STEP_MM,
         q = xy[ok]
         out.append({"layer": la.index, "spread_mm": float(top.max() - top.min()),
                     "increment_spread_mm": float(inc.max() - inc.min()),
+                    # the same without the 2 % lowest and highest points (a local spike or pit vs the whole layer)
+                    "spread_p2_p98_mm": float(np.percentile(top, 98) - np.percentile(top, 2)),
                     # where: the lowest and the highest point of the top and of the layer's own deposit
                     "where": {"top_low": _at(q, top, np.argmin(top)), "top_high": _at(q, top, np.argmax(top)),
                               "inc_low": _at(q, inc, np.argmin(inc)), "inc_high": _at(q, inc, np.argmax(inc))},
@@ -154,7 +156,9 @@ def figures(part: Path, width: float, layers: int | None, material: Material, wa
                     "per_layer_true_spread_mm": [round(t["spread_mm"], 3) for t in truth],
                     # each layer's own deposit: the top after it minus the top before it, at its centre lines
                     "true_increment_spread_mm_max": round(max(t["increment_spread_mm"] for t in truth), 3),
-                    "per_layer_increment_spread_mm": [round(t["increment_spread_mm"], 3) for t in truth]}
+                    "per_layer_increment_spread_mm": [round(t["increment_spread_mm"], 3) for t in truth],
+                    "true_spread_p2_p98_mm_max": round(max(t["spread_p2_p98_mm"] for t in truth), 3),
+                    "per_layer_spread_p2_p98_mm": [round(t["spread_p2_p98_mm"], 3) for t in truth]}
         if where:
             res[key]["where"] = [t["where"] for t in truth]
         if ff:
