@@ -122,6 +122,24 @@ def wall_mesh(length: float, width: float, layers: int, h: float = 0.77) -> Any:
     return m
 
 
+def _summary(truth: list[dict[str, Any]], plan_s: float, plan_cpu_s: float) -> dict[str, Any]:
+    """One case's figures: the worst and per-layer readings of its truth."""
+    return {"plan_s": round(plan_s, 2), "plan_cpu_s": round(plan_cpu_s, 2),
+            "true_spread_mm_max": round(max(t["spread_mm"] for t in truth), 3),
+            "true_spread_mm_last": round(truth[-1]["spread_mm"], 3),
+            "true_rms_mm_max": round(max(t["rms_mm"] for t in truth), 3),
+            "true_top_mean_mm_last": round(truth[-1]["mean_mm"], 3),
+            "ctwd_range_mm": [round(min(t["ctwd_min_mm"] for t in truth), 2),
+                              round(max(t["ctwd_max_mm"] for t in truth), 2)],
+            "current_out_share_max": round(max(t["current_out_share"] for t in truth), 4),
+            "per_layer_true_spread_mm": [round(t["spread_mm"], 3) for t in truth],
+            # each layer's own deposit: the top after it minus the top before it, at its centre lines
+            "true_increment_spread_mm_max": round(max(t["increment_spread_mm"] for t in truth), 3),
+            "per_layer_increment_spread_mm": [round(t["increment_spread_mm"], 3) for t in truth],
+            "true_spread_p2_p98_mm_max": round(max(t["spread_p2_p98_mm"] for t in truth), 3),
+            "per_layer_spread_p2_p98_mm": [round(t["spread_p2_p98_mm"], 3) for t in truth]}
+
+
 def figures(part: Path, width: float, layers: int | None, material: Material, wall: float = 0.0,
             pour_ff: bool = False, cases: tuple[bool, ...] = (False, True), where: bool = False,
             maps: dict[int, Any] | None = None) -> dict[str, Any]:
@@ -145,20 +163,7 @@ def figures(part: Path, width: float, layers: int | None, material: Material, wa
             job = Job(job.source, job.material, job.bead, job.layers[:layers], job.summary, job.schema, job.frame)
         truth = pour(job, material, maps=maps)
         key = "feed_forward" if ff else "plain"
-        res[key] = {"plan_s": round(plan_s, 2), "plan_cpu_s": round(plan_cpu_s, 2),
-                    "true_spread_mm_max": round(max(t["spread_mm"] for t in truth), 3),
-                    "true_spread_mm_last": round(truth[-1]["spread_mm"], 3),
-                    "true_rms_mm_max": round(max(t["rms_mm"] for t in truth), 3),
-                    "true_top_mean_mm_last": round(truth[-1]["mean_mm"], 3),
-                    "ctwd_range_mm": [round(min(t["ctwd_min_mm"] for t in truth), 2),
-                                      round(max(t["ctwd_max_mm"] for t in truth), 2)],
-                    "current_out_share_max": round(max(t["current_out_share"] for t in truth), 4),
-                    "per_layer_true_spread_mm": [round(t["spread_mm"], 3) for t in truth],
-                    # each layer's own deposit: the top after it minus the top before it, at its centre lines
-                    "true_increment_spread_mm_max": round(max(t["increment_spread_mm"] for t in truth), 3),
-                    "per_layer_increment_spread_mm": [round(t["increment_spread_mm"], 3) for t in truth],
-                    "true_spread_p2_p98_mm_max": round(max(t["spread_p2_p98_mm"] for t in truth), 3),
-                    "per_layer_spread_p2_p98_mm": [round(t["spread_p2_p98_mm"], 3) for t in truth]}
+        res[key] = _summary(truth, plan_s, plan_cpu_s)
         if where:
             res[key]["where"] = [t["where"] for t in truth]
         if ff:
