@@ -8,12 +8,18 @@ on a 2-core machine. `quiet_gc()` and `elevate()` remove them.
 """
 from __future__ import annotations
 
+import concurrent.futures
 import gc
 import os
 import struct
 
 RT_PRIORITY = 20       # SCHED_FIFO priority of the controller's device cycles; below the kernel's threads (50)
 SIM_RT_PRIORITY = 30   # the simulators stand for devices with CPUs of their own: they preempt the host
+# A thread that shares the interpreter lock with the device cycles (the TUI's screen, the
+# controller's worker threads): below the device cycles and the journal writer, above time-shared
+# processes, so that they never preempt it while it holds the lock the device cycles wait for
+# (`share_the_lock`).
+LOCK_SHARER_RT_PRIORITY = 10
 
 
 _DEFAULT_THRESHOLDS = gc.get_threshold()
@@ -36,25 +42,38 @@ def quiet_gc(collect: bool = False) -> None:
     gc.set_threshold(t0, t1, NO_FULL_COLLECTIONS)
 
 
-def elevate(what: str, priority: int = RT_PRIORITY) -> str:
-    """Ask for SCHED_FIFO for the calling thread only: with SCHED_RESET_ON_FORK neither the
-    threads it starts nor its child processes inherit it (an I/O thread elevates itself).
+def elevate(what: str, priority: int = RT_PRIORITY, round_robin: bool = False) -> str:
+    """Ask for SCHED_FIFO (`round_robin`: SCHED_RR) for the calling thread only: with
+    SCHED_RESET_ON_FORK neither the threads it starts nor its child processes inherit it (an I/O
+    thread elevates itself).
 
     Returns one line for the log: what was obtained, or why not and what to do about it.
-    Heavy work never runs at this priority: a FIFO thread is never time-sliced, so a busy one
-    would starve every other FIFO thread of its priority on that core.
+    Heavy work never runs under SCHED_FIFO: a FIFO thread is never time-sliced, so a busy one
+    would starve every other FIFO thread of its priority on that core. The threads that share the
+    interpreter lock with the device cycles (`share_the_lock`) run SCHED_RR below them.
     """
     if not hasattr(os, "sched_setscheduler"):
         return f"{what}: no real-time scheduling on this OS; cycle timing may suffer under load"
+    base = os.SCHED_RR if round_robin else os.SCHED_FIFO
     try:
-        prio = min(priority, os.sched_get_priority_max(os.SCHED_FIFO))
-        policy = os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0)
+        prio = min(priority, os.sched_get_priority_max(base))
+        policy = base | getattr(os, "SCHED_RESET_ON_FORK", 0)
         os.sched_setscheduler(0, policy, os.sched_param(prio))
     except (PermissionError, OSError) as exc:
         return (f"{what}: cannot get real-time priority ({exc.strerror or exc}); run as root or grant "
                 "CAP_SYS_NICE (e.g. `setcap cap_sys_nice+ep` on the interpreter) so that CPU load cannot "
                 "delay the 10 ms device cycles")
-    return f"{what}: SCHED_FIFO priority {prio}; {keep_cpus_awake()}"
+    return f"{what}: {'SCHED_RR' if round_robin else 'SCHED_FIFO'} priority {prio}; {keep_cpus_awake()}"
+
+
+def share_the_lock(what: str) -> str:
+    """The calling thread shares the interpreter lock with the device cycles (the TUI's screen, the
+    controller's worker threads): SCHED_RR at LOCK_SHARER_RT_PRIORITY, below the device cycles and
+    the journal writer, time-sliced among its peers. Time-shared, such a thread was preempted by
+    other processes while it held the lock, and the real-time device cycles slept on the lock for
+    as long (up to 720 ms measured at load 9; docs/controller.md, "Threads that share the
+    interpreter lock")."""
+    return elevate(what, LOCK_SHARER_RT_PRIORITY, round_robin=True)
 
 
 _LATENCY_REQUEST = None   # the open /dev/cpu_dma_latency while this process holds its request
@@ -83,11 +102,29 @@ def keep_cpus_awake() -> str:
 
 
 def is_realtime() -> bool:
-    """Whether the calling thread runs under SCHED_FIFO."""
+    """Whether the calling thread runs under SCHED_FIFO (or SCHED_RR)."""
     try:
-        return os.sched_getscheduler(0) & ~getattr(os, "SCHED_RESET_ON_FORK", 0) == os.SCHED_FIFO
+        return os.sched_getscheduler(0) & ~getattr(os, "SCHED_RESET_ON_FORK", 0) in (os.SCHED_FIFO, os.SCHED_RR)
     except (AttributeError, OSError):
         return False
+
+
+def lock_sharing_executor() -> concurrent.futures.ThreadPoolExecutor:
+    """A thread pool whose workers `share_the_lock`: the device loop's default executor, where the
+    controller hands its work off the loop (`asyncio.to_thread`: the job's checks, the feed check,
+    records). Time-shared, one of them held the lock while preempted and the device cycles waited
+    720 ms on it at load 9."""
+    return concurrent.futures.ThreadPoolExecutor(thread_name_prefix="controller-worker",
+                                                 initializer=share_the_lock, initargs=("controller worker",))
+
+
+def relax_thread() -> None:
+    """The calling thread back to time-shared scheduling (after `elevate`; nothing else changes)."""
+    try:
+        if is_realtime():
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (AttributeError, OSError):
+        pass
 
 
 def relax() -> None:

@@ -303,8 +303,11 @@ class PowerSourceSim:
         if gap > SELF_STALL_S:
             # the simulator itself did not run (its process was not scheduled): the host's
             # counter frames may be waiting in the socket. Its watchdog only times what it could
-            # have heard; a real source does not stall, and a stall here is never the host's fault.
-            self._counter_t = max(self._counter_t, now - gap + SELF_STALL_S / 2)
+            # have heard; a real source does not stall, and a stall here is never the host's fault:
+            # the last counter's age goes on from what it was at the last tick (plus one tick).
+            # Before 2026-11-28 the age restarted at 15 ms after the last tick, so a stall of the
+            # simulator's own longer than 115 ms dropped the start on its watchdog (error 50).
+            self._counter_t = min(now, self._counter_t + gap - TICK_S)
             self.self_stalls += 1
             self._log("self_stall", gap_ms=round(gap * 1000, 1))
         self._poll_events()

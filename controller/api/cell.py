@@ -25,7 +25,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
-from core.realtime import elevate, is_realtime, quiet_gc, relax
+from core.realtime import elevate, is_realtime, lock_sharing_executor, quiet_gc, relax
 from controller.report.worker import record_build_end, records_target
 from controller.runtime.arc_out import RunOn
 from controller.job.check import check_job, job_material
@@ -162,6 +162,8 @@ class CellController:
         # The device cycles run on this thread's loop: real-time priority while connected, so that
         # CPU-bound work beside the controller cannot delay them (docs/false-trips.md).
         self.realtime = elevate("controller device cycles")
+        if is_realtime():   # the work it hands off shares the lock: never preempted while holding it
+            asyncio.get_running_loop().set_default_executor(lock_sharing_executor())
         slow_ms = os.environ.get("CELL_SLOW_CALLBACK_MS")  # diagnosis: log loop stalls longer than this
         if slow_ms:
             loop = asyncio.get_running_loop()
