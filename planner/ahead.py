@@ -10,6 +10,7 @@ layer or two, nothing runs on a thread.
 """
 from __future__ import annotations
 
+import math
 import os
 from collections import deque
 from typing import TYPE_CHECKING, Any, Callable, Generic, Protocol, Sequence, TypeVar
@@ -42,6 +43,13 @@ def workers() -> int:
     return max(1, min(n, 4))
 
 
+def _bead_area(ctx: LayerCtx) -> float:
+    """The footprint of the shortest, narrowest legal bead: support stock apart from a layer's
+    region smaller than it is not built (planner.nearnet.supported)."""
+    lo = ctx.widths.lo
+    return lo * ctx.min_length + 0.25 * math.pi * lo * lo
+
+
 class Later(Protocol[T_co]):
     """A value being computed (a Future) or already there (Done)."""
 
@@ -68,7 +76,8 @@ class Ahead:
         self._pool: ThreadPoolExecutor | None = None
         # in turn: islands are cheap, and a tall prism's many layers would only pass the GIL around
         nets = [islands([c.points for c in sl.contours if c.closed], simplify_mm=0.005 * ctx.width) for sl in slices]
-        grown = supported(grow_layers(nets, ctx.allowance, ctx.height), ctx.support_mm, ctx.allowance)
+        grown = supported(grow_layers(nets, ctx.allowance, ctx.height), ctx.support_mm, ctx.allowance,
+                          _bead_area(ctx))
         if ctx.allowance > 0:   # unions of offsets: snapped onto a 1e-6 mm grid, valid for every overlay after
             grown = [snapped(g) for g in grown]
         self.prepared: list[Prepared] = [(n, g, key(g, sl.index, top)) for n, g, sl, top in zip(nets, grown, slices, tops)]

@@ -205,3 +205,16 @@ def test_a_wall_one_bead_wide_grown_is_one_bead_run_on_into_its_stock_not_patche
         assert fp.intersection(grown).area / grown.area >= 0.97
         assert fp.difference(grown).area / fp.area <= 0.015
         assert fp.contains(box(0, 0, 80, 5.2))
+
+
+def test_stock_filled_apart_from_a_layer_smaller_than_a_bead_is_not_added():
+    """The stock under an overhang is filled (planner.nearnet.supported), but a piece of it standing apart
+    from the layer's region and smaller than any bead (the angle block at 4 mm: 0.2-3 mm² islands, each
+    then refused as a feature no bead fills) is not: the layer above overhangs there, and that is named."""
+    from planner.nearnet import supported
+
+    big, small = box(0, 0, 20, 20), box(20.5, 0, 22, 2)
+    layers = [[big], [big, small]]
+    assert len(supported(layers, 0.3, 1.5)[0]) == 2  # a 1.3 mm² island of stock beside the block
+    kept = supported(layers, 0.3, 1.5, min_area_mm2=5.0)[0]
+    assert len(kept) == 1 and kept[0].equals(big)
