@@ -95,3 +95,18 @@ def test_a_bead_too_small_for_the_cell_is_dropped_where_its_neighbours_cover_it_
     assert job.summary["coverage_min"] >= free.summary["coverage_min"] - 0.01
     assert job.summary["mass_balance_layer_max"] <= 0.03
     assert any("dropped: its" in s and "share is less metal than the cell lays" in s for s in job.summary["stubs"])
+
+
+def test_a_pocket_bead_too_small_for_the_cell_is_dropped_its_section_shared_not_refused():
+    """Issue 40 item 2: a plate with two holes at 6 mm beads has a pocket bead in a corner whose share
+    (1.8 mm) is less metal a mm than a 2,500 mm/min cell lays at the least wire feed. It was refused
+    (needs 4,250 mm/min); now it is dropped, named, and its section goes to its neighbours: every pass
+    inside the cell's limits and the layer's metal still balanced."""
+    from shapely.geometry import Point
+
+    plate = extrude(box(0, 0, 60, 40).difference(Point(20, 20).buffer(6)).difference(Point(42, 20).buffer(4)), 1.5)
+    job = plan_part(plate, PlanOptions(width_mm=6.0, cell_limits=CellLimits(max_speed_mm_min=2500.0)), MAT)
+    assert any("gap bead at (7.7, 7.8)" in s and "its section goes to its neighbours" in s for s in job.summary["stubs"])
+    assert all(p.speeds().max() <= 2500.0 and p.inside_envelope for L in job.layers for p in L.passes)
+    assert job.summary["limits"]["outside_passes"] == 0
+    assert job.summary["mass_balance_layer_max"] <= 0.03 and job.summary["coverage_min"] >= 0.97
