@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 
 from controller.harness.cell import open_cell, start_simulators, with_urls
+from controller.harness.sim_process import SimProcess
 from controller.job.read import job_from_dict
 from controller.report.record import CSV_COLUMNS
 from controller.runtime.bead_measure import Pace
@@ -82,24 +83,35 @@ def line_job(length_mm: float, beads: int = 2, rows: int = 1) -> dict:
     return job
 
 
-def _session_build(tmp: Path, job: dict, scale: float) -> tuple[CellSession, Path]:
-    s = CellSession(sim=True, runs_dir=tmp / "runs", time_scale=scale, sim_log_dir=tmp / "log")
-    s.start().result(60)
-    s._submit(lambda: s._open_job(job_from_dict(job))).result(30)
-    s.command("start").result(15)
-    assert s._build is not None
-    s._build.result(180)                      # the build and its record
-    return s, Path(s.view().snap.run_dir or "")
+def _session_build(tmp: Path, job: dict, scale: float) -> tuple[CellSession, Path, SimProcess]:
+    # the simulators in `cell sim up` beside this process, as `cell tui --sim` runs them
+    # (docs/testing.md, "A loop that never blocks"); their logs in tmp/log
+    cfg, sims = asyncio.run(start_simulators(with_urls(load_cell(), {}, time_scale=scale), True, process=True,
+                                             log_dir=tmp / "log"))
+    assert isinstance(sims, SimProcess)
+    s = CellSession(cfg, sim_cfg=load_sim(), runs_dir=tmp / "runs", sims_beside=True)
+    try:
+        s.start().result(60)
+        s._submit(lambda: s._open_job(job_from_dict(job))).result(30)
+        s.command("start").result(15)
+        assert s._build is not None
+        s._build.result(180)                      # the build and its record
+    except BaseException:
+        s.close()
+        sims.stop()
+        raise
+    return s, Path(s.view().snap.run_dir or ""), sims
 
 
 @pytest.mark.parametrize("scale,length_mm", [(1.0, 12.0), (10.0, 40.0), (60.0, 80.0)])
 def test_arc_time_per_bead_is_the_deposit_logs(tmp_path: Path, scale: float, length_mm: float) -> None:
     job = line_job(length_mm)
-    s, run_dir = _session_build(tmp_path, job, scale)
+    s, run_dir, sims = _session_build(tmp_path, job, scale)
     try:
         snap = s.view().snap
     finally:
         s.close()
+        sims.stop()
     assert snap.state == "complete", snap.alarms
     rep = json.loads((run_dir / "report.json").read_text())
     dep = deposit_per_bead(job, tmp_path / "log" / "deposit.jsonl")

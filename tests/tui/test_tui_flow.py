@@ -185,7 +185,20 @@ async def test_quit_during_a_build_asks_and_stops_the_arc(tmp_path: Path) -> Non
 
     job_file = tmp_path / "block.json"
     job_file.write_text(json.dumps(recorded_job()))
-    session = CellSession(sim=True, runs_dir=tmp_path / "runs", time_scale=10.0)  # beads of seconds
+    # the simulators in `cell sim up` beside this process, as `cell tui --sim` runs them (a build in
+    # one interpreter with them is not the product's topology: docs/testing.md, "A loop that never blocks")
+    cfg, sims = await start_simulators(with_urls(load_cell(), {}, time_scale=10.0), True, process=True,  # beads of seconds
+                                       log_dir=tmp_path / "sim")
+    assert sims is not None
+    session = CellSession(cfg, sim_cfg=load_sim(), runs_dir=tmp_path / "runs", sims_beside=True)
+    try:
+        await _quit_mid_build(session, job_file)
+    finally:
+        session.close()
+        sims.stop()
+
+
+async def _quit_mid_build(session: CellSession, job_file: Path) -> None:
     app = CellApp(session)
     async with app.run_test(size=SIZE) as pilot:
         await until(pilot, lambda: state(app) == "idle", 30, "the simulators to connect")
@@ -223,7 +236,6 @@ async def test_quit_during_a_build_asks_and_stops_the_arc(tmp_path: Path) -> Non
     assert db.execute("SELECT count(*) FROM passes WHERE state = 'interrupted'").fetchone()[0] == 1
     assert db.execute("SELECT count(*) FROM progress").fetchone()[0] > 0
     db.close()
-    session.close()
 
 
 async def test_a_link_that_drops_and_comes_back(tmp_path: Path) -> None:
