@@ -41,18 +41,9 @@ def no_stubs(groups: list[list[Path2D]], min_len: float, island: Polygon, layer:
 
 def _merge(stub: Path2D, groups: list[list[Path2D]], island: Polygon, reach: float) -> bool:
     """Weld the stub onto the nearest open bead end, or onto a loop (the arc runs on); in place."""
-    best = None
-    for gi, g in enumerate(groups):
-        for qi, q in enumerate(g):
-            if q.closed:
-                continue
-            for q_end in (0, -1):
-                for s_end in (0, -1):
-                    d = float(np.hypot(*(q.points[q_end] - stub.points[s_end])))
-                    if d <= reach and (best is None or d < best[0]):
-                        best = (d, gi, qi, q_end, s_end)
+    best = _nearest_end(stub, groups, reach)
     if best is not None:
-        _, gi, qi, q_end, s_end = best
+        gi, qi, q_end, s_end = best
         q = groups[gi][qi]
         a = q.reversed() if q_end == 0 else q  # a ends where the stub is
         b = stub if s_end == 0 else stub.reversed()
@@ -68,6 +59,24 @@ def _merge(stub: Path2D, groups: list[list[Path2D]], island: Polygon, reach: flo
             groups[gi] = [q for q in g if not q.closed] + merged
             return True
     return False
+
+
+def _nearest_end(stub: Path2D, groups: list[list[Path2D]], reach: float) -> tuple[int, int, int, int] | None:
+    """(group, bead, its end 0 or -1, the stub's end 0 or -1) of the open bead end nearest to one of
+    the stub's ends within `reach`; the first in group, bead, end order among equals."""
+    open_ = [(gi, qi) for gi, g in enumerate(groups) for qi, q in enumerate(g) if not q.closed]
+    if not open_:
+        return None
+    ends = np.array([(groups[gi][qi].points[0], groups[gi][qi].points[-1]) for gi, qi in open_])  # (m, 2, 2)
+    tips = np.array([stub.points[0], stub.points[-1]])
+    diff = ends[:, :, None, :] - tips[None, None, :, :]   # (bead, its end, the stub's end, xy)
+    d = np.hypot(diff[..., 0], diff[..., 1]).ravel()
+    d = np.where(d <= reach, d, np.inf)
+    k = int(np.argmin(d))
+    if not np.isfinite(d[k]):
+        return None
+    b, q_end, s_end = k // 4, (k // 2) % 2, k % 2
+    return open_[b][0], open_[b][1], -q_end, -s_end
 
 
 def drop_short(paths: list[Path2D], min_len: float, layer: int, dropped: list[str]) -> list[Path2D]:
