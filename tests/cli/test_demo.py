@@ -56,7 +56,7 @@ def test_demo_plans_aligns_builds_and_reports(tmp_path: Path) -> None:
     # the travel speed timed from the robot's EXEs: the 2 % on every bead is the demo's
     # figure on a quiet machine (docs/build-record.md: worst 0.8-1.0 %); here, beside the other
     # test worker, a looser bound still catches a robot that does not keep pace (was 27 % off)
-    # The corner beads (23.9 mm, planner/ring_spacing.py) last about 25 ms of wall time at time scale 60:
+    # The corner beads (29.1 mm, planner/ring_spacing.py) last about 30 ms of wall time at time scale 60:
     # timed from the robot's reports to a few ms, they read up to ~14 % off; every longer bead within
     # the material's 10 %, and none near a robot that does not keep pace
     ts = rep["travel_speed"]
