@@ -157,12 +157,10 @@ def test_gcode_streams_on_the_cnc_simulator_every_line_ok(tmp_path):
     """The exported program runs on the grbl-speaking simulator: no error, every weld move run."""
     import asyncio
 
-    from drivers.grbl import CncLink
     from sims.clock import SimClock
     from sims.cnc import CncSim
-    from sims.faults import parse_fault_spec
-    from sims.transport import SerialServer
     from sims.workpiece import Workpiece
+    from tests.cnc_fixtures import cnc_link
     from sims.world import World
     from core.config import Workpiece as WorkpieceConfig
 
@@ -174,19 +172,12 @@ def test_gcode_streams_on_the_cnc_simulator_every_line_ok(tmp_path):
     async def go() -> list[dict]:
         sim = CncSim(clock=SimClock(400.0), world=World(tmp_path), log_path=tmp_path / "cnc.jsonl",
                      workpiece=Workpiece.from_config(WorkpieceConfig(), 0.0, seed=1))
-        sim.start()
-        server = SerialServer(sim, name="cnc", spec=parse_fault_spec(""), baud=115200)
-        link = CncLink(await server.start(None, ephemeral=True))
-        try:
+        async with cnc_link(sim) as link:
             await link.connect()
             await link.unlock()
             res = await link.stream(lines)   # raises GrblError on any error:N
             code = [ln for ln in lines if ln and not ln.startswith("(")]
             assert res.acked == res.lines >= len(code)
-        finally:
-            await link.close()
-            await server.close()
-            await sim.close()
         return [json.loads(s) for s in (tmp_path / "cnc.jsonl").read_text().splitlines()]
 
     executed = asyncio.run(go())

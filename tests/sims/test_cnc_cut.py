@@ -13,8 +13,8 @@ from controller.motion.mill import pause
 from drivers.grbl import CncLink, GrblAlarm, GrblError
 from sims.clock import SimClock
 from sims.cnc import CncSim
-from sims.transport import SerialServer
 from sims.workpiece import Workpiece
+from tests.cnc_fixtures import cnc_link
 
 
 @pytest.fixture
@@ -23,14 +23,9 @@ async def mill(tmp_path):
     piece = Workpiece.from_config(WorkpieceConfig(size_mm=(40.0, 40.0, 20.0)), 0.0, seed=3)
     sim = CncSim(clock=SimClock(200.0), workpiece=piece, log_path=tmp_path / "cnc.jsonl",
                  homing_enabled=False, tools=tools)
-    sim.start()
-    server = SerialServer(sim, name="cnc", baud=115200)
-    link = CncLink(await server.start(None, ephemeral=True))
-    await link.connect()
-    yield link, tmp_path / "cut.jsonl"
-    await link.close()
-    await server.close()
-    await sim.close()
+    async with cnc_link(sim) as link:
+        await link.connect()
+        yield link, tmp_path / "cut.jsonl"
 
 
 async def _load(link: CncLink, tool: int) -> None:
