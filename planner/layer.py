@@ -299,7 +299,9 @@ def _unweldable(beads: list[Path2D], shares: list[float], min_share: float, idle
     cover their footprint (95 %), or they are gap beads (a pocket's centre line, an extra bead of
     variable width), whose small share the island's next partition gives to their neighbours
     (issue 40 item 2: the box at 4 mm was refused for one needing 6,308 mm/min)."""
-    low = [i for i, (b, s) in enumerate(zip(beads, shares)) if s < min_share and not b.lone and id(b) not in idle]
+    # a lone bead under it is no single-bead wall (that fills its wall's whole section) but one leaning
+    # on the rest of its island (planner.nearnet.leaning_bead): a gap bead like the others
+    low = [i for i, (b, s) in enumerate(zip(beads, shares)) if s < min_share and id(b) not in idle]
     if not low or len(low) == len(beads):
         return {}
     fps = shapely.buffer(np.array([shapely.linestrings(b.points) for b in beads], dtype=object),
