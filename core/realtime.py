@@ -12,11 +12,12 @@ import concurrent.futures
 import gc
 import os
 import struct
+import threading
 
 RT_PRIORITY = 20       # SCHED_FIFO priority of the controller's device cycles; below the kernel's threads (50)
 SIM_RT_PRIORITY = 30   # the simulators stand for devices with CPUs of their own: they preempt the host
-# A thread that shares the interpreter lock with the device cycles (the TUI's screen, the
-# controller's worker threads): below the device cycles and the journal writer, above time-shared
+# A thread that shares the interpreter lock with the device cycles (the controller's worker
+# threads): below the device cycles and the journal writer, above time-shared
 # processes, so that they never preempt it while it holds the lock the device cycles wait for
 # (`share_the_lock`).
 LOCK_SHARER_RT_PRIORITY = 10
@@ -67,8 +68,8 @@ def elevate(what: str, priority: int = RT_PRIORITY, round_robin: bool = False) -
 
 
 def share_the_lock(what: str) -> str:
-    """The calling thread shares the interpreter lock with the device cycles (the TUI's screen, the
-    controller's worker threads): SCHED_RR at LOCK_SHARER_RT_PRIORITY, below the device cycles and
+    """The calling thread shares the interpreter lock with the device cycles (the controller's
+    worker threads): SCHED_RR at LOCK_SHARER_RT_PRIORITY, below the device cycles and
     the journal writer, time-sliced among its peers. Time-shared, such a thread was preempted by
     other processes while it held the lock, and the real-time device cycles slept on the lock for
     as long (up to 720 ms measured at load 9; docs/controller.md, "Threads that share the
@@ -109,6 +110,23 @@ def is_realtime() -> bool:
         return False
 
 
+UI_NICE = -10   # the TUI's thread: time-shared, at ten times a default process's CPU weight
+
+
+def favour(what: str, nice: int = UI_NICE) -> str:
+    """The calling thread stays time-shared but at `nice` (Linux: per thread): a thread that shares
+    the interpreter lock with the device cycles and is busy often (the TUI's screen, 0.2-0.27 CPU-s
+    a build second). Real-time, it ran whenever it could and took the lock from the device cycles
+    every switch interval (the TUI main flow's longest period 28-35 ms against 22-26 time-shared,
+    load 5-7); time-shared at the default weight, other processes preempted it while it held the
+    lock (77-105 ms, error 50 at load 9-15). At nice -10 they rarely do (docs/controller.md)."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), nice)
+    except (AttributeError, PermissionError, OSError) as exc:
+        return f"{what}: cannot raise its CPU weight ({getattr(exc, 'strerror', None) or exc})"
+    return f"{what}: nice {nice}"
+
+
 def lock_sharing_executor() -> concurrent.futures.ThreadPoolExecutor:
     """A thread pool whose workers `share_the_lock`: the device loop's default executor, where the
     controller hands its work off the loop (`asyncio.to_thread`: the job's checks, the feed check,
@@ -119,10 +137,12 @@ def lock_sharing_executor() -> concurrent.futures.ThreadPoolExecutor:
 
 
 def relax_thread() -> None:
-    """The calling thread back to time-shared scheduling (after `elevate`; nothing else changes)."""
+    """The calling thread back to time-shared scheduling at the default weight (after `elevate` or
+    `favour`; nothing else changes)."""
     try:
         if is_realtime():
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 0)
     except (AttributeError, OSError):
         pass
 

@@ -37,7 +37,7 @@ from typing import Any, Callable
 from controller.api import CellJob, Snapshot, aligned_job, events_after, read_job
 from controller.tui.trace_ask import TraceAsk
 from core.errors import CellError, InputError
-from core.realtime import relax_thread, share_the_lock
+from core.realtime import favour, relax_thread
 
 from controller.tui.planning import probe_plan
 from controller.tui.replay import ReplaySession  # noqa: F401  (re-exported)
@@ -123,10 +123,10 @@ class CellSession(TraceAsk):
         # every 2 ms rather than 5 so a device reply waits less behind a screen redraw.
         self._switch_interval = sys.getswitchinterval()
         sys.setswitchinterval(0.0005)
-        # This (the UI's) thread holds the interpreter lock between the device cycles: real-time
-        # below them, so that no other process preempts it while it holds the lock
-        # (core/realtime.py share_the_lock; docs/controller.md, "Threads that share the interpreter lock")
-        self.ui_realtime = share_the_lock("terminal UI")
+        # This (the UI's) thread holds the interpreter lock between the device cycles: at a CPU
+        # weight other processes rarely preempt it at while it holds the lock (core/realtime.py
+        # favour; docs/controller.md, "Threads that share the interpreter lock")
+        self.ui_realtime = favour("terminal UI")
         import planner.job  # noqa: F401  (open_job imports it: not on the controller's loop)
 
         if not self._thread.is_alive():
