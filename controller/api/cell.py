@@ -30,7 +30,8 @@ from controller.report.worker import record_build_end, records_target
 from controller.runtime.arc_out import RunOn
 from controller.job.check import check_job, job_material
 from controller.runtime.build import BuildOptions, BuildResult, BuildRunner
-from controller.runtime.layer_control import make_control
+from controller.runtime.layer_control import LayerControl, make_control
+from controller.runtime.work import WorkItem
 from controller.job.identity import run_dir_for
 from controller.runtime.devices import Devices
 from controller.runtime.host_witness import HostWitness
@@ -376,12 +377,12 @@ class CellController:
         for dev in (self.devices.power, self.devices.cellio):
             if isinstance(dev, CyclicDevice):
                 dev.restart_periods()   # the record's cycle periods are the build's
-        work = remaining_work(self.job, self.journal)
-        # process_control (docs/closed-loop.md): the layers as built, restored from the journal; built
-        # off this loop (the job's every pass walked: 14 ms of CPU on the demo part, docs/testing.md)
-        control = await asyncio.to_thread(make_control, self.cfg, self.job, self.material, self.journal, self.bus,
-                                          self.executor)
-        work = control.adjust_work(work, self.journal.done_passes())
+        def plan_work(job: CellJob, journal: Journal) -> tuple[LayerControl, list[WorkItem]]:
+            # the layers as built (docs/closed-loop.md) and the passes left: off this loop (docs/testing.md)
+            control = make_control(self.cfg, job, self.material, journal, self.bus, self.executor)
+            return control, control.adjust_work(remaining_work(job, journal), journal.done_passes())
+
+        control, work = await asyncio.to_thread(plan_work, self.job, self.journal)
         self.runner = BuildRunner(job=self.job, journal=self.journal, machine=self.machine, bus=self.bus,
                                   executor=self.executor, power=self.devices.power_source(),
                                   cellio=self.devices.cellio, options=self.options, arc=self.arc,
