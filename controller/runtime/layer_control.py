@@ -49,7 +49,7 @@ from planner.job import Layer, Pass
 
 Spot = tuple[float, float, float]
 PATH_PROBE_CLEARANCE_MM = 1.5   # path mode: the head travels this far above the planned top (or the neighbour just touched)
-PATH_PROBE_MAX_EXTRA_HOP_MM = 5.0   # ... plus the most a top stood above its expected top on the layer before, up to this
+PATH_PROBE_MAX_EXTRA_HOP_MM = 5.0   # ... plus the most a top stood above plan and expectation on the layer before, up to this
 PATH_PROBE_FEED_MM_MIN = 1800.0   # its touch's feed (the probe latches the trip; grbl's report is the latched position)
 ProbeFn = Callable[[int, Sequence[Spot]], Awaitable[list[float]]]   # (layer, spots on it) -> probed tops
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import re
+import time
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 
@@ -176,6 +177,24 @@ async def test_process_off_is_in_the_status_report(target: Target) -> None:
     await link.command("M5")
     st = await link.wait_idle(30)
     assert st.spindle == 0
+
+
+async def test_a_report_asked_at_once_shows_the_process_off_without_waiting_for_the_poll(target: Target) -> None:
+    # the path loop's check before a layer's touches (controller/runtime/path_probe.py): one `?` sent
+    # now, answered from the firmware's main loop, not the next 5 Hz poll (up to 200 ms a layer)
+    link = target.link
+    await link.command("M3 S300")
+    await link.command("G1 X1 F600")
+    await link.command("M5")
+    await link.command("G4 P0")
+    waits = []
+    for _ in range(3):
+        await link.status()                     # a poll has just gone out: the next is a period away
+        t0 = time.monotonic()
+        st = await link.status(at_once=True)
+        waits.append(time.monotonic() - t0)
+        assert st.spindle == 0 and st.state == "Idle"
+    assert min(waits) < 0.5 * link.status_period, waits
 
 
 async def test_failed_probe_names_the_point_and_recovers(target: Target) -> None:
